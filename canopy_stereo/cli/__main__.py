@@ -1,0 +1,5 @@
+import sys
+
+from canopy_stereo.cli import main
+
+sys.exit(main())

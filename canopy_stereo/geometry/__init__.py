@@ -1,0 +1,1 @@
+"""Projective geometry: camera model, calibration, rectification, triangulation."""

@@ -1,0 +1,1 @@
+"""End-to-end pipelines over the core: images -> rectified -> disparity -> points."""

@@ -1,0 +1,51 @@
+"""ament_python build of canopy_stereo (also a plain pip-installable package)."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "canopy_stereo"
+
+# ROS 2 executables (`ros2 run canopy_stereo <name>`): name -> module:function.
+ROS_EXECUTABLES = {}
+
+CONSOLE_SCRIPTS = ["canopy-stereo = canopy_stereo.cli:main"] + [
+    f"{name} = {target}" for name, target in sorted(ROS_EXECUTABLES.items())
+]
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    description="Metric stereo reconstruction and measurement of plant canopies (ROS 2 + CLI)",
+    long_description=open("README.md", encoding="utf-8").read(),
+    long_description_content_type="text/markdown",
+    license="Apache-2.0",
+    maintainer="canopy_stereo maintainers",
+    maintainer_email="maintainers@canopy-stereo.org",
+    python_requires=">=3.10",
+    packages=find_packages(exclude=["test", "test.*"]),
+    package_data={PACKAGE: ["data/*", "data/**/*"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
+        (f"share/{PACKAGE}/bags", glob("bags/*.mcap") + glob("bags/*.yaml")),
+    ],
+    install_requires=[
+        "setuptools",
+        "numpy>=1.24",
+        "scipy>=1.10",
+        "opencv-python-headless>=4.8",
+        "numba>=0.58",
+        "pyyaml>=6",
+        "mcap>=1.1",
+    ],
+    extras_require={
+        "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-common-interfaces"],
+        "test": ["pytest>=7", "rosbags>=0.9", "matplotlib>=3.6"],
+        "plot": ["matplotlib>=3.6"],
+    },
+    zip_safe=True,
+    tests_require=["pytest"],
+    entry_points={"console_scripts": CONSOLE_SCRIPTS},
+)
