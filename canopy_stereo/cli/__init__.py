@@ -27,9 +27,24 @@ def _commands():
 
     mods = []
     for info in pkgutil.iter_modules(pkg.__path__):
-        if info.name.startswith("cmd_"):
+        if not info.name.startswith("cmd_"):
+            continue
+        try:
             mods.append(importlib.import_module(f"canopy_stereo.cli.{info.name}"))
+        except Exception as exc:  # noqa: BLE001 - one broken subcommand must not break the rest
+            mods.append(_unavailable(info.name[4:].replace("_", "-"), exc))
     return sorted(mods, key=lambda m: m.COMMAND)
+
+
+def _unavailable(name: str, exc: Exception):
+    """A stand-in subcommand that explains why ``name`` cannot run here."""
+    import types
+
+    def run(args):
+        raise CanopyStereoError(f"the {name} command is unavailable: {type(exc).__name__}: {exc}")
+
+    return types.SimpleNamespace(COMMAND=name, HELP=f"(unavailable: {exc})",
+                                 add_arguments=lambda p: p.add_argument("rest", nargs="*"), run=run)
 
 
 def build_parser() -> argparse.ArgumentParser:

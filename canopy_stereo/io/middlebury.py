@@ -52,15 +52,23 @@ def read_middlebury_calib(path) -> dict:
 def rig_from_middlebury(calib: dict | str | Path) -> Rig:
     """A rig in millimetres whose world frame is the left (cam0) camera frame.
 
-    ``P_left = K0 [I | 0]`` and ``P_right = K1 [I | (-baseline, 0, 0)]``.
+    ``P_left = K0 [I | 0]`` and ``P_right = K1 [I | (-baseline, 0, 0)]``. When
+    ``calib`` has ``ndisp``, the rig carries the search range ``disp_min``/
+    ``disp_max`` for the Fusiello-rectified pair, where disparities are
+    ``f B / Z = d + doffs`` (the rectified cameras share ``cx``).
     """
     if not isinstance(calib, dict):
         calib = read_middlebury_calib(calib)
     K0, K1, B = calib["cam0"], calib["cam1"], float(calib["baseline"])
     P_left = K0 @ np.hstack([np.eye(3), np.zeros((3, 1))])
     P_right = K1 @ np.hstack([np.eye(3), np.array([[-B], [0.0], [0.0]])])
+    extra = {}
+    if "ndisp" in calib:
+        doffs = float(calib["doffs"])
+        extra = {"disp_min": max(0, int(np.floor(doffs)) - 1),
+                 "disp_max": int(np.ceil(doffs + float(calib["ndisp"]))) + 1}
     return Rig(P_left=P_left, P_right=P_right,
-               image_size=(int(calib["width"]), int(calib["height"])), world_unit="mm")
+               image_size=(int(calib["width"]), int(calib["height"])), world_unit="mm", extra=extra)
 
 
 def read_disparity(path, scale: float | None = None) -> np.ndarray:

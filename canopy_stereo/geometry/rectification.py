@@ -1,0 +1,314 @@
+"""Stereo rectification: calibrated (Fusiello 2000) and projective (Hartley 1999).
+
+Both produce two 3x3 homographies that map *ideal* (undistorted) pixels of the
+original images to pixels of the rectified images, in which corresponding
+points share a row: a left pixel ``(u, v)`` with disparity ``d`` matches the
+right pixel ``(u - d, v)``. Lens distortion, when the rig has it, is removed by
+the same resampling maps (:class:`StereoRectifier`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import cv2
+import numpy as np
+
+from canopy_stereo.errors import MatchingError, RigError
+from canopy_stereo.geometry.camera import compose_projection, decompose_projection, validate_projection
+from canopy_stereo.geometry.distortion import distort_pixels, undistort_pixels  # noqa: F401 (re-export)
+from canopy_stereo.geometry.triangulation import apply_homography
+
+
+@dataclass(frozen=True)
+class Rectification:
+    """Result of a rectification.
+
+    Attributes:
+        H_left, H_right: (3, 3) homographies, ideal original pixel -> rectified pixel.
+        size: ``(width, height)`` of the rectified images (pixels).
+        method: ``"fusiello"`` or ``"hartley"``.
+        K_rect_left, K_rect_right: (3, 3) intrinsics of the rectified cameras
+            (Fusiello only; they share ``f`` and ``cy`` and may differ in ``cx``).
+        R_rect: (3, 3) world-to-rectified-camera rotation shared by both cameras.
+        P_rect_left, P_rect_right: (3, 4) world -> rectified pixel (Fusiello only).
+        baseline: distance between the camera centres (world units; Fusiello only).
+        doffs: ``cx_left - cx_right`` of the rectified cameras (pixels): the
+            disparity of a point at infinity.
+        disparity_range: suggested ``(disp_min, disp_max)`` search range in pixels
+            (Hartley: from the matches; Fusiello: None, see :func:`default_disparity_range`).
+        F: fundamental matrix used (Hartley), ``x_right^T F x_left = 0``.
+        n_inliers: matches consistent with ``F`` (Hartley).
+    """
+
+    H_left: np.ndarray
+    H_right: np.ndarray
+    size: tuple[int, int]
+    method: str
+    K_rect_left: np.ndarray | None = None
+    K_rect_right: np.ndarray | None = None
+    R_rect: np.ndarray | None = None
+    P_rect_left: np.ndarray | None = None
+    P_rect_right: np.ndarray | None = None
+    baseline: float | None = None
+    doffs: float = 0.0
+    disparity_range: tuple[int, int] | None = None
+    F: np.ndarray | None = None
+    n_inliers: int | None = None
+    extra: dict = field(default_factory=dict)
+
+    @cached_property
+    def H_left_inv(self) -> np.ndarray:
+        """Rectified left pixel -> original ideal left pixel."""
+        return np.linalg.inv(self.H_left)
+
+    @cached_property
+    def H_right_inv(self) -> np.ndarray:
+        """Rectified right pixel -> original ideal right pixel."""
+        return np.linalg.inv(self.H_right)
+
+    @property
+    def focal_length(self) -> float | None:
+        """Rectified focal length ``fx`` in pixels (Fusiello only)."""
+        return None if self.K_rect_left is None else float(self.K_rect_left[0, 0])
+
+
+def fusiello_rectify(P_left, P_right, image_size) -> Rectification:
+    """Calibrated rectification of Fusiello, Trucco & Verri (2000).
+
+    The new cameras keep the old centres ``C1``, ``C2`` and share one
+    orientation: x along the baseline ``C2 - C1``, y orthogonal to x and the
+    old left optical axis, z = x * y. They share the focal length (mean of the
+    old ones, square pixels) and principal row; each principal column is chosen
+    so the image centre stays centred. If that would give far points a negative
+    disparity (converging cameras), both use the mean column (``doffs = 0``).
+
+    Args:
+        P_left, P_right: (3, 4) world-frame projection matrices.
+        image_size: ``(width, height)`` of the original images; the rectified
+            images have the same size.
+    """
+    P1 = validate_projection(P_left, "P_left")
+    P2 = validate_projection(P_right, "P_right")
+    w, h = (int(v) for v in image_size)
+    cam1, cam2 = decompose_projection(P1), decompose_projection(P2)
+    baseline_vec = cam2.C - cam1.C
+    B = float(np.linalg.norm(baseline_vec))
+    if B <= 0 or not np.isfinite(B):
+        raise RigError("the two cameras have the same centre: no baseline to rectify")
+    x_axis = baseline_vec / B
+    y_axis = np.cross(cam1.R[2], x_axis)
+    ny = np.linalg.norm(y_axis)
+    if ny < 1e-6:
+        raise RigError("the baseline is parallel to the left optical axis: cannot rectify")
+    y_axis /= ny
+    z_axis = np.cross(x_axis, y_axis)
+    R = np.vstack([x_axis, y_axis, z_axis])
+    f = float(np.mean([cam1.K[0, 0], cam1.K[1, 1], cam2.K[0, 0], cam2.K[1, 1]]))
+    centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0, 1.0])
+    cx, cy = [], []
+    for cam in (cam1, cam2):
+        ray = R @ cam.R.T @ np.linalg.solve(cam.K, centre)
+        if ray[2] <= 0:
+            raise RigError("a camera looks away from the rectified viewing direction")
+        cx.append(centre[0] - f * ray[0] / ray[2])
+        cy.append(centre[1] - f * ray[1] / ray[2])
+    cy_common = float(np.mean(cy))
+    if cx[0] - cx[1] < 0:
+        cx = [float(np.mean(cx))] * 2
+    K1n = np.array([[f, 0, cx[0]], [0, f, cy_common], [0, 0, 1.0]])
+    K2n = np.array([[f, 0, cx[1]], [0, f, cy_common], [0, 0, 1.0]])
+    H1 = K1n @ R @ cam1.R.T @ np.linalg.inv(cam1.K)
+    H2 = K2n @ R @ cam2.R.T @ np.linalg.inv(cam2.K)
+    return Rectification(
+        H_left=H1 / H1[2, 2], H_right=H2 / H2[2, 2], size=(w, h), method="fusiello",
+        K_rect_left=K1n, K_rect_right=K2n, R_rect=R,
+        P_rect_left=compose_projection(K1n, R, cam1.C), P_rect_right=compose_projection(K2n, R, cam2.C),
+        baseline=B, doffs=float(cx[0] - cx[1]))
+
+
+def default_disparity_range(rect: Rectification, near_depth: float | None = None,
+                            far_depth: float | None = None) -> tuple[int, int]:
+    """Disparity search range (pixels) for depths in ``[near_depth, far_depth]``.
+
+    Fusiello: ``d = f * B / Z + doffs``; depths in world units, default near
+    depth 8 baselines (about 240 mm for the paper's 29.6 mm baseline) and far
+    depth infinity. Hartley: the range suggested by the matches.
+    """
+    if rect.method != "fusiello":
+        if rect.disparity_range is None:
+            return 0, 128
+        return rect.disparity_range
+    f, B = rect.focal_length, rect.baseline
+    near = near_depth if near_depth else 8.0 * B
+    dmax = f * B / near + rect.doffs
+    dmin = rect.doffs + (f * B / far_depth if far_depth else 0.0)
+    return max(0, int(np.floor(dmin)) - 1), int(np.ceil(dmax)) + 1
+
+
+# --------------------------------------------------------------------------- Hartley
+
+
+def estimate_fundamental_ransac(x_left, x_right, threshold_px: float = 1.0,
+                                confidence: float = 0.999) -> tuple[np.ndarray, np.ndarray]:
+    """Fundamental matrix by RANSAC (OpenCV) with ``x_right^T F x_left = 0``.
+
+    Returns ``(F, inlier_mask)``; raises :class:`MatchingError` with fewer than 8 matches
+    or when no consistent ``F`` is found.
+    """
+    x1 = np.asarray(x_left, np.float64).reshape(-1, 2)
+    x2 = np.asarray(x_right, np.float64).reshape(-1, 2)
+    if len(x1) < 8:
+        raise MatchingError(f"need at least 8 matches to estimate F, got {len(x1)}")
+    method = getattr(cv2, "USAC_MAGSAC", cv2.FM_RANSAC)
+    F, mask = cv2.findFundamentalMat(x1, x2, method, threshold_px, confidence, 10000)
+    if F is None or F.shape != (3, 3):
+        F, mask = cv2.findFundamentalMat(x1, x2, cv2.FM_RANSAC, threshold_px, confidence)
+    if F is None or F.shape != (3, 3):
+        raise MatchingError("no fundamental matrix is consistent with the matches")
+    return F / np.linalg.norm(F), mask.ravel().astype(bool)
+
+
+def _cross_matrix(e: np.ndarray) -> np.ndarray:
+    return np.array([[0, -e[2], e[1]], [e[2], 0, -e[0]], [-e[1], e[0], 0]])
+
+
+def hartley_rectify(x_left, x_right, image_size, F=None, threshold_px: float = 1.0) -> Rectification:
+    """Projective rectification from point matches (Hartley 1999; H&Z sec. 11.12).
+
+    1. ``F`` by RANSAC from the matches (unless given); right epipole ``e'``.
+    2. ``H' = G R T`` sends ``e'`` to the point at infinity ``(1, 0, 0)``.
+    3. ``H = H_A H' M`` with ``M = [e']_x F + e' (1,1,1)^T`` and the affine
+       ``H_A`` minimising ``sum (H x_i - H' x'_i)_u^2`` over the inliers.
+    4. A common similarity keeps rows aligned, undoes mirroring and centres the
+       left image; the right image gets its own horizontal shift so matched
+       disparities start a margin above zero.
+
+    Args:
+        x_left, x_right: (N, 2) matched ideal (undistorted) pixels, N >= 8.
+        image_size: ``(width, height)`` of the original images.
+    """
+    w, h = (int(v) for v in image_size)
+    x1 = np.asarray(x_left, np.float64).reshape(-1, 2)
+    x2 = np.asarray(x_right, np.float64).reshape(-1, 2)
+    if F is None:
+        F, inl = estimate_fundamental_ransac(x1, x2, threshold_px)
+    else:
+        F = np.asarray(F, np.float64)
+        inl = np.ones(len(x1), bool)
+    x1, x2 = x1[inl], x2[inl]
+    if len(x1) < 8:
+        raise MatchingError(f"only {len(x1)} matches agree with F: too few to rectify")
+    U, _, _ = np.linalg.svd(F)
+    e2 = U[:, 2]
+    centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    T = np.array([[1, 0, -centre[0]], [0, 1, -centre[1]], [0, 0, 1.0]])
+    e2t = T @ e2
+    if abs(e2t[2]) < 1e-12 * np.linalg.norm(e2t[:2]):  # epipole already at infinity
+        ang = np.arctan2(e2t[1], e2t[0])
+        Rz = np.array([[np.cos(ang), np.sin(ang), 0], [-np.sin(ang), np.cos(ang), 0], [0, 0, 1.0]])
+        G = np.eye(3)
+    else:
+        ex, ey = e2t[0] / e2t[2], e2t[1] / e2t[2]
+        ang = np.arctan2(ey, ex)
+        Rz = np.array([[np.cos(ang), np.sin(ang), 0], [-np.sin(ang), np.cos(ang), 0], [0, 0, 1.0]])
+        fdist = np.hypot(ex, ey)
+        G = np.array([[1, 0, 0], [0, 1, 0], [-1.0 / fdist, 0, 1]])
+    H2 = G @ Rz @ T
+    M = _cross_matrix(e2) @ F + np.outer(e2, np.ones(3))
+    H0 = H2 @ M
+    p1 = apply_homography(H0, x1)
+    p2 = apply_homography(H2, x2)
+    A = np.column_stack([p1, np.ones(len(p1))])
+    abc, *_ = np.linalg.lstsq(A, p2[:, 0], rcond=None)
+    HA = np.array([[abc[0], abc[1], abc[2]], [0, 1, 0], [0, 0, 1.0]])
+    H1 = HA @ H0
+    H1, H2 = _normalise_rectifying_pair(H1, H2, x1, x2, w, h)
+    p1 = apply_homography(H1, x1)
+    p2 = apply_homography(H2, x2)
+    d = p1[:, 0] - p2[:, 0]
+    lo, hi = np.percentile(d, [1, 99])
+    margin = max(8.0, 0.2 * (hi - lo))
+    shift = margin - lo
+    S = np.array([[1, 0, -shift], [0, 1, 0], [0, 0, 1.0]])
+    H2 = S @ H2
+    drange = (0, int(np.ceil(hi + shift + margin)))
+    return Rectification(H_left=H1 / H1[2, 2], H_right=H2 / H2[2, 2], size=(w, h), method="hartley",
+                         disparity_range=drange, F=F, n_inliers=int(len(x1)))
+
+
+def _jacobian(H, p):
+    x, y = p
+    den = H[2, 0] * x + H[2, 1] * y + H[2, 2]
+    nu = H[0, 0] * x + H[0, 1] * y + H[0, 2]
+    nv = H[1, 0] * x + H[1, 1] * y + H[1, 2]
+    J = np.array([[H[0, 0] * den - nu * H[2, 0], H[0, 1] * den - nu * H[2, 1]],
+                  [H[1, 0] * den - nv * H[2, 0], H[1, 1] * den - nv * H[2, 1]]]) / den ** 2
+    return J
+
+
+def _normalise_rectifying_pair(H1, H2, x1, x2, w, h):
+    """Apply the same row-preserving similarity to both homographies.
+
+    Flips axes that came out reversed, scales so the left image keeps its area
+    at its centre, and centres the left image; rows stay aligned because the
+    vertical part of the transform is common.
+    """
+    c = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    J = _jacobian(H1, c)
+    sx = 1.0 if J[0, 0] > 0 else -1.0
+    sy = 1.0 if J[1, 1] > 0 else -1.0
+    flip = np.diag([sx, sy, 1.0])
+    H1, H2 = flip @ H1, flip @ H2
+    J = _jacobian(H1, c)
+    scale = 1.0 / np.sqrt(abs(np.linalg.det(J)))
+    Sc = np.diag([scale, scale, 1.0])
+    H1, H2 = Sc @ H1, Sc @ H2
+    pc = apply_homography(H1, c[None])[0]
+    T = np.array([[1, 0, c[0] - pc[0]], [0, 1, c[1] - pc[1]], [0, 0, 1.0]])
+    T2 = T.copy()
+    return T @ H1, T2 @ H2
+
+
+# --------------------------------------------------------------------------- resampling
+
+
+class StereoRectifier:
+    """Precomputed resampling maps that undistort and rectify image pairs.
+
+    Build once per rig and rectification, then call :meth:`rectify` per frame
+    (one ``cv2.remap`` per image).
+    """
+
+    def __init__(self, rig, rect: Rectification, interpolation: int = cv2.INTER_LINEAR):
+        self.rig = rig
+        self.rect = rect
+        self.interpolation = interpolation
+        self._maps = [
+            _rectify_map(rig.P_left, rig.D_left, rect.H_left_inv, rect.size),
+            _rectify_map(rig.P_right, rig.D_right, rect.H_right_inv, rect.size),
+        ]
+
+    def rectify(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rectified ``(left, right)`` images of size ``rect.size`` (same dtype/channels)."""
+        return self.rectify_one(left, "left"), self.rectify_one(right, "right")
+
+    def rectify_one(self, image: np.ndarray, side: str) -> np.ndarray:
+        """Rectify one image; ``side`` is ``"left"`` or ``"right"``."""
+        m1, m2 = self._maps[0 if side == "left" else 1]
+        return cv2.remap(image, m1, m2, self.interpolation, borderMode=cv2.BORDER_CONSTANT)
+
+
+def _rectify_map(P, D, H_inv, size):
+    w, h = size
+    vv, uu = np.mgrid[0:h, 0:w]
+    p = np.stack([uu.ravel(), vv.ravel()], axis=1).astype(np.float64)
+    q = distort_pixels(P, D, apply_homography(H_inv, p))
+    mx = q[:, 0].reshape(h, w).astype(np.float32)
+    my = q[:, 1].reshape(h, w).astype(np.float32)
+    return cv2.convertMaps(mx, my, cv2.CV_16SC2)
+
+
+def rectify_pair(left, right, rig, rect: Rectification):
+    """Undistort and rectify one pair (builds the maps; use :class:`StereoRectifier` for video)."""
+    return StereoRectifier(rig, rect).rectify(left, right)

@@ -1,0 +1,68 @@
+"""Shared fixtures: repository paths, the paper rig, ../shared/data, CLI runner."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO.parent / "shared" / "data"
+
+
+@pytest.fixture(scope="session")
+def repo_root() -> Path:
+    """The checkout's root folder."""
+    return REPO
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """``../shared/data`` beside the checkout (CI has it; a user's clone may not: skip)."""
+    if not SHARED_DATA.is_dir():
+        pytest.skip("../shared/data is not beside this checkout")
+    return SHARED_DATA
+
+
+@pytest.fixture(scope="session")
+def paper_rig():
+    """The paper's rig (config/paper_rig.yaml), 640x480, millimetres."""
+    from canopy_stereo.io.rig import load_rig
+
+    return load_rig(REPO / "config" / "paper_rig.yaml")
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(12345)
+
+
+def run_cli_subprocess(*args, cwd=None, timeout=300):
+    """Run ``python -m canopy_stereo.cli ARGS`` in a fresh process; returns CompletedProcess."""
+    env = dict(os.environ)
+    env.pop("CANOPY_STEREO_DEBUG", None)
+    return subprocess.run([sys.executable, "-m", "canopy_stereo.cli", *map(str, args)],
+                          capture_output=True, text=True, cwd=cwd or REPO, timeout=timeout, env=env)
+
+
+@pytest.fixture
+def cli():
+    """Run the CLI in-process: ``cli("reconstruct", ...) -> (exit_code, stdout, stderr)``."""
+    import contextlib
+    import io
+
+    from canopy_stereo.cli import main
+
+    def _run(*args):
+        out, err = io.StringIO(), io.StringIO()
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                code = main([str(a) for a in args])
+            except SystemExit as exc:  # argparse errors
+                code = exc.code
+        return code, out.getvalue(), err.getvalue()
+
+    return _run

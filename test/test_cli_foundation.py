@@ -1,0 +1,102 @@
+"""The calibrate / rectify / reconstruct commands, including bad input."""
+import numpy as np
+import pytest
+
+from canopy_stereo.geometry.camera import camera_centre, project
+from canopy_stereo.io.ply import read_ply
+from canopy_stereo.io.rig import load_rig
+
+from conftest import REPO, run_cli_subprocess
+
+
+def _write_points_csv(path, rig, rng, n_planes=3):
+    X = np.array([[x, y, z] for z in (450.0, 600.0, 750.0)[:n_planes]
+                  for x in np.arange(-150, 251, 50.0) for y in np.arange(-200, 101, 50.0)])
+    xl = project(rig.P_left, X) + rng.normal(0, 0.2, (len(X), 2))
+    xr = project(rig.P_right, X) + rng.normal(0, 0.2, (len(X), 2))
+    rows = ["X,Y,Z,u_left,v_left,u_right,v_right"]
+    rows += [",".join(f"{v:.6f}" for v in r) for r in np.hstack([X, xl, xr])]
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def test_calibrate_points(cli, tmp_path, paper_rig, rng):
+    csv = _write_points_csv(tmp_path / "pts.csv", paper_rig, rng)
+    code, out, err = cli("calibrate", "--points", csv, "-o", tmp_path / "rig.yaml", "--plot", tmp_path / "e.png")
+    assert code == 0, err
+    assert "reprojection RMS" in out and "mean |X_act - X_est|" in out
+    rig = load_rig(tmp_path / "rig.yaml")
+    assert np.linalg.norm(camera_centre(rig.P_left) - camera_centre(paper_rig.P_left)) < 1.0
+    assert (tmp_path / "e.png").stat().st_size > 1000
+
+
+def test_calibrate_chessboard(cli, tmp_path, shared_data):
+    d = shared_data / "opencv_stereo_calib_chessboard"
+    code, out, err = cli("calibrate", "--chessboard", d / "left*.jpg", d / "right*.jpg", "--pattern", "9x6",
+                         "--square", "25", "-o", tmp_path / "rig.yaml")
+    assert code == 0, err
+    rms = float(out.split("stereo RMS ")[1].split()[0])
+    assert rms <= 0.5
+    rig = load_rig(tmp_path / "rig.yaml")
+    assert rig.has_distortion and rig.image_size == (640, 480)
+
+
+def test_rectify_and_reconstruct_bundled_pair(cli, tmp_path):
+    left, right = REPO / "examples/plants/left.png", REPO / "examples/plants/right.png"
+    rig = REPO / "config/plants_rig.yaml"
+    code, out, err = cli("rectify", left, right, "--rig", rig, "-o", tmp_path / "rect")
+    assert code == 0, err
+    assert (tmp_path / "rect/left_rect.png").is_file() and (tmp_path / "rect/rig_fusiello.yaml").is_file()
+    code, out, err = cli("reconstruct", left, right, "--rig", rig, "-o", tmp_path / "c.ply",
+                         "--organized", tmp_path / "org.npy")
+    assert code == 0, err
+    assert "bounding box (mm)" in out and "time per stage" in out
+    cloud = read_ply(tmp_path / "c.ply")
+    assert cloud.unit == "mm" and len(cloud) > 100000
+    org = np.load(tmp_path / "org.npy")
+    assert org.shape == (496, 710, 3)
+    z = cloud.points[:, 2]
+    # the plant stands roughly 1.8-3 m from the Middlebury rig
+    assert 1500 < np.median(z) < 3500
+
+
+def _bad_rig(tmp_path, P_right):
+    p = tmp_path / "bad.yaml"
+    p.write_text("/**:\n  ros__parameters:\n    image_width: 640\n    image_height: 480\n"
+                 "    P_left: [600,0,320,0, 0,600,240,0, 0,0,1,0]\n"
+                 f"    P_right: {P_right}\n")
+    return p
+
+
+@pytest.mark.parametrize("case", ["sizes", "unreadable", "nonfinite", "rank", "few", "coplanar"])
+def test_bad_input_one_line_no_traceback(tmp_path, paper_rig, rng, case):
+    import cv2
+
+    a = tmp_path / "a.png"
+    b = tmp_path / "b.png"
+    cv2.imwrite(str(a), np.zeros((480, 640, 3), np.uint8))
+    cv2.imwrite(str(b), np.zeros((240, 320, 3), np.uint8))
+    rig = REPO / "config/paper_rig.yaml"
+    if case == "sizes":
+        args, word = ("reconstruct", a, b, "--rig", rig, "-o", tmp_path / "c.ply"), "sizes differ"
+    elif case == "unreadable":
+        (tmp_path / "junk.png").write_bytes(b"junk")
+        args, word = ("reconstruct", a, tmp_path / "junk.png", "--rig", rig, "-o", tmp_path / "c.ply"), "cannot read"
+    elif case == "nonfinite":
+        args, word = ("reconstruct", a, a, "--rig", _bad_rig(tmp_path, "[.nan,0,0,0, 0,1,0,0, 0,0,1,0]"),
+                      "-o", tmp_path / "c.ply"), "non-finite"
+    elif case == "rank":
+        args, word = ("reconstruct", a, a, "--rig", _bad_rig(tmp_path, "[1,0,0,0, 0,1,0,0, 0,0,0,1]"),
+                      "-o", tmp_path / "c.ply"), "rank"
+    elif case == "few":
+        csv = tmp_path / "p.csv"
+        csv.write_text("X,Y,Z,u_left,v_left,u_right,v_right\n" + "1,2,3,4,5,6,7\n" * 5)
+        args, word = ("calibrate", "--points", csv, "-o", tmp_path / "r.yaml"), "at least 6"
+    else:
+        csv = _write_points_csv(tmp_path / "p.csv", paper_rig, rng, n_planes=1)
+        args, word = ("calibrate", "--points", csv, "-o", tmp_path / "r.yaml"), "coplanar"
+    res = run_cli_subprocess(*args)
+    assert res.returncode == 2
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, res.stderr
+    assert word in lines[0] and "Traceback" not in res.stderr

@@ -1,0 +1,80 @@
+import numpy as np
+import pytest
+
+from canopy_stereo.geometry.camera import project
+from canopy_stereo.geometry.distortion import distort_pixels, undistort_pixels
+from canopy_stereo.geometry.rectification import (
+    StereoRectifier, fusiello_rectify, hartley_rectify)
+from canopy_stereo.geometry.triangulation import apply_homography
+
+
+def _scene(rng, n):
+    return np.column_stack([rng.uniform(-200, 250, n), rng.uniform(-200, 100, n), rng.uniform(400, 900, n)])
+
+
+def test_fusiello_rows_agree(paper_rig, rng):
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    X = _scene(rng, 3000)
+    pl = apply_homography(rect.H_left, project(paper_rig.P_left, X))
+    pr = apply_homography(rect.H_right, project(paper_rig.P_right, X))
+    assert np.abs(pl[:, 1] - pr[:, 1]).max() < 0.01
+    d = pl[:, 0] - pr[:, 0]
+    assert np.all(d > 0)
+    # disparity follows f B / Z in the rectified frame
+    c = -np.linalg.solve(rect.P_rect_left[:, :3], rect.P_rect_left[:, 3])
+    Z = (X - c) @ rect.R_rect[2]
+    assert np.allclose(d, rect.focal_length * rect.baseline / Z + rect.doffs, atol=1e-6)
+    # new cameras keep the old centres
+    assert np.allclose(project(rect.P_rect_left, X), pl, atol=1e-6)
+
+
+def test_hartley_from_matches_aligns_rows(paper_rig, rng):
+    X = _scene(rng, 400)
+    xl = project(paper_rig.P_left, X) + rng.normal(0, 0.1, (400, 2))
+    xr = project(paper_rig.P_right, X) + rng.normal(0, 0.1, (400, 2))
+    rect = hartley_rectify(xl, xr, paper_rig.image_size)
+    X2 = _scene(rng, 1000)
+    pl = apply_homography(rect.H_left, project(paper_rig.P_left, X2))
+    pr = apply_homography(rect.H_right, project(paper_rig.P_right, X2))
+    assert np.median(np.abs(pl[:, 1] - pr[:, 1])) < 0.3
+    d = pl[:, 0] - pr[:, 0]
+    lo, hi = rect.disparity_range
+    assert np.mean((d >= lo) & (d <= hi)) > 0.98
+    # not mirrored: left-right order and up-down order of points are kept
+    assert np.corrcoef(pl[:, 0], project(paper_rig.P_left, X2)[:, 0])[0, 1] > 0.9
+    assert np.corrcoef(pl[:, 1], project(paper_rig.P_left, X2)[:, 1])[0, 1] > 0.9
+
+
+def test_distortion_round_trip(paper_rig, rng):
+    D = np.array([-0.26, -0.05, 0.002, -0.0003, 0.25])
+    xy = np.column_stack([rng.uniform(0, 640, 500), rng.uniform(0, 480, 500)])
+    back = undistort_pixels(paper_rig.P_left, D, distort_pixels(paper_rig.P_left, D, xy))
+    assert np.abs(back - xy).max() < 1e-6
+
+
+def test_rectifier_moves_pixels_where_homography_says(paper_rig):
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    img = np.zeros((480, 640), np.uint8)
+    img[200:203, 300:303] = 255
+    lr, _ = StereoRectifier(paper_rig, rect).rectify(img, img)
+    v, u = np.nonzero(lr > 128)
+    expect = apply_homography(rect.H_left, np.array([[301.0, 201.0]]))[0]
+    assert abs(u.mean() - expect[0]) < 0.6 and abs(v.mean() - expect[1]) < 0.6
+
+
+def test_real_chessboard_rig(shared_data):
+    from canopy_stereo.geometry.chessboard import calibrate_stereo_chessboard, detect_stereo_chessboards
+
+    d = shared_data / "opencv_stereo_calib_chessboard"
+    cal = calibrate_stereo_chessboard(str(d / "left*.jpg"), str(d / "right*.jpg"), (9, 6), 25.0)
+    assert cal.rms_stereo <= 0.5
+    rect = fusiello_rectify(cal.P_left, cal.P_right, (640, 480))
+    views = detect_stereo_chessboards(str(d / "left*.jpg"), str(d / "right*.jpg"))
+    dv = []
+    for cl, cr in zip(views.left, views.right):
+        pl = apply_homography(rect.H_left, undistort_pixels(cal.P_left, cal.D_left, cl))
+        pr = apply_homography(rect.H_right, undistort_pixels(cal.P_right, cal.D_right, cr))
+        dv.append(pl[:, 1] - pr[:, 1])
+    assert np.median(np.abs(np.concatenate(dv))) <= 0.5
+    # corners triangulate back close to the board model (25 mm squares)
+    assert np.all(cal.check.mean_abs < [1.0, 1.0, 2.0])
