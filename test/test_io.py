@@ -5,7 +5,7 @@ from canopy_stereo.errors import CanopyStereoError, ImageError, RigError
 from canopy_stereo.io.images import check_pair, read_image
 from canopy_stereo.io.pfm import read_pfm, write_pfm
 from canopy_stereo.io.ply import read_ply, write_ply
-from canopy_stereo.io.rig import Rig, load_rig, save_rig
+from canopy_stereo.io.rig import load_rig, save_rig
 
 
 def test_rig_round_trip(tmp_path, paper_rig):

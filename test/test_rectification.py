@@ -1,5 +1,4 @@
 import numpy as np
-import pytest
 
 from canopy_stereo.geometry.camera import project
 from canopy_stereo.geometry.distortion import distort_pixels, undistort_pixels

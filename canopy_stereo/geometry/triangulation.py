@@ -49,62 +49,130 @@ def triangulate_dlt(P_left, P_right, x_left, x_right, drop_behind: bool = True) 
     n = len(x1)
     if len(x2) != n:
         raise ValueError(f"{n} left points but {len(x2)} right points")
-    X = _triangulate_kernel(P1, P2, np.ascontiguousarray(x1), np.ascontiguousarray(x2))
+    return _triangulate_kernel(P1, P2, np.ascontiguousarray(x1), np.ascontiguousarray(x2), drop_behind)
+
+
+@njit(cache=True)
+def _dlt_point(P1, P2, u1, v1, u2, v2, drop_behind, out):  # pragma: no cover - compiled
+    """Triangulate one match into ``out`` (3,): 4 unit-normalised DLT rows,
+    3x3 normal equations solved by Cramer's rule; NaN if degenerate/behind."""
+    n00 = n01 = n02 = n11 = n12 = n22 = 0.0
+    r0 = r1 = r2 = 0.0
+    for k in range(4):
+        P = P1 if k < 2 else P2
+        row = k % 2
+        if k == 0:
+            c = u1
+        elif k == 1:
+            c = v1
+        elif k == 2:
+            c = u2
+        else:
+            c = v2
+        a0 = c * P[2, 0] - P[row, 0]
+        a1 = c * P[2, 1] - P[row, 1]
+        a2 = c * P[2, 2] - P[row, 2]
+        a3 = c * P[2, 3] - P[row, 3]
+        s = 1.0 / np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        a0 *= s
+        a1 *= s
+        a2 *= s
+        a3 *= -s
+        n00 += a0 * a0
+        n01 += a0 * a1
+        n02 += a0 * a2
+        n11 += a1 * a1
+        n12 += a1 * a2
+        n22 += a2 * a2
+        r0 += a0 * a3
+        r1 += a1 * a3
+        r2 += a2 * a3
+    c00 = n11 * n22 - n12 * n12
+    c01 = n02 * n12 - n01 * n22
+    c02 = n01 * n12 - n02 * n11
+    c11 = n00 * n22 - n02 * n02
+    c12 = n01 * n02 - n00 * n12
+    c22 = n00 * n11 - n01 * n01
+    det = n00 * c00 + n01 * c01 + n02 * c02
+    tr = n00 + n11 + n22
+    if not (abs(det) > 1e-12 * tr * tr * tr):
+        out[0] = out[1] = out[2] = np.nan
+        return
+    x = (c00 * r0 + c01 * r1 + c02 * r2) / det
+    y = (c01 * r0 + c11 * r1 + c12 * r2) / det
+    z = (c02 * r0 + c12 * r1 + c22 * r2) / det
     if drop_behind:
-        Xh_w1 = X @ P1[2, :3] + P1[2, 3]
-        Xh_w2 = X @ P2[2, :3] + P2[2, 3]
-        X[~((Xh_w1 > 0) & (Xh_w2 > 0))] = np.nan
-    return X
+        w1 = P1[2, 0] * x + P1[2, 1] * y + P1[2, 2] * z + P1[2, 3]
+        w2 = P2[2, 0] * x + P2[2, 1] * y + P2[2, 2] * z + P2[2, 3]
+        if not (w1 > 0 and w2 > 0):
+            out[0] = out[1] = out[2] = np.nan
+            return
+    out[0] = x
+    out[1] = y
+    out[2] = z
 
 
 @njit(cache=True, parallel=True)
-def _triangulate_kernel(P1, P2, x1, x2):  # pragma: no cover - compiled
-    """Per match: 4 DLT rows (unit-normalised), 3x3 normal equations, Cramer's rule."""
+def _triangulate_kernel(P1, P2, x1, x2, drop_behind):  # pragma: no cover - compiled
     n = x1.shape[0]
     out = np.empty((n, 3))
     for i in prange(n):
-        N = np.zeros((3, 3))
-        r = np.zeros(3)
-        for k in range(4):
-            P = P1 if k < 2 else P2
-            x = x1[i] if k < 2 else x2[i]
-            c = x[k % 2]
-            a0 = c * P[2, 0] - P[k % 2, 0]
-            a1 = c * P[2, 1] - P[k % 2, 1]
-            a2 = c * P[2, 2] - P[k % 2, 2]
-            a3 = c * P[2, 3] - P[k % 2, 3]
-            s = 1.0 / np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-            a0 *= s
-            a1 *= s
-            a2 *= s
-            a3 *= -s
-            N[0, 0] += a0 * a0
-            N[0, 1] += a0 * a1
-            N[0, 2] += a0 * a2
-            N[1, 1] += a1 * a1
-            N[1, 2] += a1 * a2
-            N[2, 2] += a2 * a2
-            r[0] += a0 * a3
-            r[1] += a1 * a3
-            r[2] += a2 * a3
-        a, b, cc = N[0, 0], N[0, 1], N[0, 2]
-        d, e, f = N[1, 1], N[1, 2], N[2, 2]
-        c00 = d * f - e * e
-        c01 = cc * e - b * f
-        c02 = b * e - cc * d
-        c11 = a * f - cc * cc
-        c12 = b * cc - a * e
-        c22 = a * d - b * b
-        det = a * c00 + b * c01 + cc * c02
-        tr = a + d + f
-        if not (abs(det) > 1e-12 * tr * tr * tr):
-            out[i, 0] = np.nan
-            out[i, 1] = np.nan
-            out[i, 2] = np.nan
-            continue
-        out[i, 0] = (c00 * r[0] + c01 * r[1] + c02 * r[2]) / det
-        out[i, 1] = (c01 * r[0] + c11 * r[1] + c12 * r[2]) / det
-        out[i, 2] = (c02 * r[0] + c12 * r[1] + c22 * r[2]) / det
+        _dlt_point(P1, P2, x1[i, 0], x1[i, 1], x2[i, 0], x2[i, 1], drop_behind, out[i])
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _rectified_grid_kernel(disp, Hl_inv, Hr_inv, P1, P2):  # pragma: no cover - compiled
+    h, w = disp.shape
+    out = np.full((h, w, 3), np.nan)
+    for v in prange(h):
+        for u in range(w):
+            d = disp[v, u]
+            if not (d >= 0) or not np.isfinite(d):
+                continue
+            z1 = Hl_inv[2, 0] * u + Hl_inv[2, 1] * v + Hl_inv[2, 2]
+            u1 = (Hl_inv[0, 0] * u + Hl_inv[0, 1] * v + Hl_inv[0, 2]) / z1
+            v1 = (Hl_inv[1, 0] * u + Hl_inv[1, 1] * v + Hl_inv[1, 2]) / z1
+            ur = u - d
+            z2 = Hr_inv[2, 0] * ur + Hr_inv[2, 1] * v + Hr_inv[2, 2]
+            u2 = (Hr_inv[0, 0] * ur + Hr_inv[0, 1] * v + Hr_inv[0, 2]) / z2
+            v2 = (Hr_inv[1, 0] * ur + Hr_inv[1, 1] * v + Hr_inv[1, 2]) / z2
+            _dlt_point(P1, P2, u1, v1, u2, v2, True, out[v, u])
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _original_grid_kernel(disp, qx, qy, Hl, Hr_inv, P1, P2, max_jump):  # pragma: no cover - compiled
+    hr, wr = disp.shape
+    h, w = qx.shape
+    out = np.full((h, w, 3), np.nan)
+    for i in prange(h):
+        for j in range(w):
+            x, y = qx[i, j], qy[i, j]
+            z = Hl[2, 0] * x + Hl[2, 1] * y + Hl[2, 2]
+            px = (Hl[0, 0] * x + Hl[0, 1] * y + Hl[0, 2]) / z
+            py = (Hl[1, 0] * x + Hl[1, 1] * y + Hl[1, 2]) / z
+            if not (px >= 0 and py >= 0 and px <= wr - 1 and py <= hr - 1):
+                continue
+            x0 = min(int(px), wr - 2)
+            y0 = min(int(py), hr - 2)
+            fx, fy = px - x0, py - y0
+            d00, d01 = disp[y0, x0], disp[y0, x0 + 1]
+            d10, d11 = disp[y0 + 1, x0], disp[y0 + 1, x0 + 1]
+            lo = min(min(d00, d01), min(d10, d11))
+            hi = max(max(d00, d01), max(d10, d11))
+            if lo >= 0 and hi - lo <= max_jump:
+                d = (d00 * (1 - fx) * (1 - fy) + d01 * fx * (1 - fy)
+                     + d10 * (1 - fx) * fy + d11 * fx * fy)
+            else:
+                d = disp[int(py + 0.5), int(px + 0.5)]
+            if not (d >= 0) or not np.isfinite(d):
+                continue
+            ur = px - d
+            z2 = Hr_inv[2, 0] * ur + Hr_inv[2, 1] * py + Hr_inv[2, 2]
+            u2 = (Hr_inv[0, 0] * ur + Hr_inv[0, 1] * py + Hr_inv[0, 2]) / z2
+            v2 = (Hr_inv[1, 0] * ur + Hr_inv[1, 1] * py + Hr_inv[1, 2]) / z2
+            _dlt_point(P1, P2, x, y, u2, v2, True, out[i, j])
     return out
 
 
@@ -129,18 +197,15 @@ def backmap_matches(u, v, d, rect) -> tuple[np.ndarray, np.ndarray]:
 def triangulate_disparity(disp, rect, P_left, P_right) -> np.ndarray:
     """Organized cloud (Hr, Wr, 3) on the rectified left grid from a rectified disparity.
 
-    Pixels with a negative or non-finite disparity, and points behind a camera,
-    are NaN. Coordinates are world units of ``P_left``/``P_right``.
+    Each pixel ``(u, v)`` with disparity ``d >= 0`` is mapped back to the
+    original images (``H_left^-1 (u, v)``, ``H_right^-1 (u - d, v)``) and
+    triangulated with the world-frame matrices. Pixels with a negative or
+    non-finite disparity, and points behind a camera, are NaN. Coordinates are
+    world units of ``P_left``/``P_right``.
     """
-    disp = np.asarray(disp, np.float32)
-    h, w = disp.shape
-    out = np.full((h, w, 3), np.nan)
-    valid = np.isfinite(disp) & (disp >= 0)
-    vv, uu = np.nonzero(valid)
-    if len(uu):
-        xl, xr = backmap_matches(uu, vv, disp[vv, uu], rect)
-        out[vv, uu] = triangulate_dlt(P_left, P_right, xl, xr)
-    return out
+    disp = np.ascontiguousarray(disp, dtype=np.float32)
+    return _rectified_grid_kernel(disp, rect.H_left_inv, rect.H_right_inv,
+                                  normalize_projection(P_left), normalize_projection(P_right))
 
 
 def organized_from_disparity(disp, rect, P_left, P_right, image_size, max_jump: float = 1.0,
@@ -160,33 +225,14 @@ def organized_from_disparity(disp, rect, P_left, P_right, image_size, max_jump: 
     Returns (H, W, 3) float64 world points, NaN where there is no match.
     """
     w, h = image_size
-    disp = np.asarray(disp, np.float32)
-    hr, wr = disp.shape
-    vv, uu = np.mgrid[0:h, 0:w]
-    q = np.stack([uu.ravel(), vv.ravel()], axis=1).astype(np.float64)
+    disp = np.ascontiguousarray(disp, dtype=np.float32)
+    vv, uu = np.mgrid[0:h, 0:w].astype(np.float64)
     if D_left is not None and np.any(D_left):
         from canopy_stereo.geometry.distortion import undistort_pixels
 
-        q = undistort_pixels(P_left, D_left, q)
-    p = apply_homography(rect.H_left, q)
-    px, py = p[:, 0], p[:, 1]
-    inside = (px >= 0) & (py >= 0) & (px <= wr - 1) & (py <= hr - 1)
-    idx = np.nonzero(inside)[0]
-    px, py = px[idx], py[idx]
-    x0 = np.minimum(np.floor(px).astype(np.int64), wr - 2).clip(0)
-    y0 = np.minimum(np.floor(py).astype(np.int64), hr - 2).clip(0)
-    fx, fy = px - x0, py - y0
-    d00, d01 = disp[y0, x0], disp[y0, x0 + 1]
-    d10, d11 = disp[y0 + 1, x0], disp[y0 + 1, x0 + 1]
-    quad = np.stack([d00, d01, d10, d11], axis=1)
-    ok4 = np.all(quad >= 0, axis=1) & (quad.max(axis=1) - quad.min(axis=1) <= max_jump)
-    bil = (d00 * (1 - fx) * (1 - fy) + d01 * fx * (1 - fy) + d10 * (1 - fx) * fy + d11 * fx * fy)
-    near = disp[np.rint(py).astype(np.int64), np.rint(px).astype(np.int64)]
-    d = np.where(ok4, bil, near).astype(np.float64)
-    good = d >= 0
-    idx, px, py, d = idx[good], px[good], py[good], d[good]
-    out = np.full((h * w, 3), np.nan)
-    if len(idx):
-        x_right = apply_homography(rect.H_right_inv, np.stack([px - d, py], axis=1))
-        out[idx] = triangulate_dlt(P_left, P_right, q[idx], x_right)
-    return out.reshape(h, w, 3)
+        q = undistort_pixels(P_left, D_left, np.stack([uu.ravel(), vv.ravel()], axis=1))
+        uu, vv = q[:, 0].reshape(h, w), q[:, 1].reshape(h, w)
+    return _original_grid_kernel(disp, np.ascontiguousarray(uu), np.ascontiguousarray(vv),
+                                 np.asarray(rect.H_left, np.float64), rect.H_right_inv,
+                                 normalize_projection(P_left), normalize_projection(P_right),
+                                 float(max_jump))
