@@ -1,0 +1,231 @@
+"""Feature-matching benchmark (issue 6): qdmatch speed, spread, correctness and Hartley.
+
+Prints:
+
+1. qdmatch stage times on 640x480 pairs (synthetic croton, a raw chessboard pair)
+   and Plants (710x496), ONE thread (OpenCV and numba limited to one core),
+   median of 3 runs after a warm-up: process CPU time of the whole call (robust on
+   a shared machine) and wall-clock stage times. Target: < 1.5 s per pair.
+2. Distribution (share of 8x8-pixel cells with a match) on the plant scenes
+   (Aloe, Plants, croton), qdmatch vs SIFT. Target: qdmatch >= 28 %.
+3. Correct matches (disparity within 1 px of the ground truth, rows within 1 px) on
+   every Middlebury GT scene in ../shared/data, qdmatch vs SIFT, and on croton
+   against the simulator's exact correspondences. Target: qdmatch >= 95 %.
+4. Hartley rectification from qdmatch matches on the 13 raw chessboard pairs:
+   median |v_left - v_right| of the rectified board corners (target <= 0.5 px),
+   per pair and with the matches of all pairs pooled (one fixed rig), matches and
+   corners undistorted with a calibration of the same images.
+5. With ``--study``: the full study table (all methods) for Aloe, Plants, croton.
+
+Run: ``.venv/bin/python benchmarks/bench_features.py [--study] [--data ../shared/data]``
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+from pathlib import Path
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from canopy_stereo.features import match_pair  # noqa: E402
+from canopy_stereo.features.study import format_table, gt_correctness, run_study  # noqa: E402
+from canopy_stereo.io.images import read_image  # noqa: E402
+from canopy_stereo.io.middlebury import read_disparity  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+GT_SCENES = {
+    "Tsukuba": ("middlebury2001/Tsukuba", "imL.png", "imR.png", "truedisp.pgm", 16),
+    "Venus": ("middlebury2001/Venus", "imL.png", "imR.png", "disp2.pgm", 8),
+    "Cones": ("middlebury2003_quartersize/Cones", "imL.png", "imR.png", "disp2.png", 4),
+    "Teddy": ("middlebury2003_quartersize/Teddy", "imL.png", "imR.png", "disp2.png", 4),
+    "Aloe": ("middlebury2006_thirdsize/Aloe", "view1.png", "view5.png", "disp1.png", 3),
+    "Flowerpots": ("middlebury2006_thirdsize/Flowerpots", "view1.png", "view5.png", "disp1.png", 3),
+}
+for _s in ("Adirondack", "ArtL", "Motorcycle", "Piano", "Playtable", "Recycle", "Shelves", "Teddy",
+           "Vintage"):
+    GT_SCENES[f"Q{_s}"] = (f"middlebury_MiddEval3_trainingQ/{_s}", "im0.png", "im1.png",
+                           "disp0GT.pfm", None)
+
+
+def croton():
+    """(left, right, true right pixel per left pixel (H, W, 2) NaN where unknown/occluded)."""
+    from canopy_stereo.geometry.camera import project
+    from canopy_stereo.sim import render_scene
+
+    sim = render_scene("croton")
+    h, w = sim.left.shape[:2]
+    X = sim.xyz_left.reshape(-1, 3)
+    ok = np.all(np.isfinite(X), axis=1)
+    xr = np.full((len(X), 2), np.nan)
+    xr[ok] = project(sim.rig.P_right, X[ok])
+    # visible in the right image: the right pixel sees the same world point
+    u = np.rint(xr[:, 0])
+    v = np.rint(xr[:, 1])
+    inside = ok & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    seen = np.full(len(X), False)
+    idx = np.nonzero(inside)[0]
+    Xr = sim.xyz_right[v[idx].astype(int), u[idx].astype(int)]
+    seen[idx] = np.linalg.norm(Xr - X[idx], axis=1) < 2.0           # mm
+    xr[~seen] = np.nan
+    return sim.left, sim.right, xr.reshape(h, w, 2)
+
+
+def croton_correctness(res, truth):
+    h, w = truth.shape[:2]
+    u = np.clip(np.rint(res.x_left[:, 0]).astype(int), 0, w - 1)
+    v = np.clip(np.rint(res.x_left[:, 1]).astype(int), 0, h - 1)
+    t = truth[v, u]
+    known = np.all(np.isfinite(t), axis=1)
+    if not known.any():
+        return None, 0
+    err = np.abs(res.x_right[known] - t[known]).max(axis=1)
+    return float(np.mean(err <= 1.0)), int(known.sum())
+
+
+def load_gt_scene(data: Path, name: str):
+    folder, l, r, g, scale = GT_SCENES[name]
+    return (read_image(data / folder / l), read_image(data / folder / r),
+            read_disparity(data / folder / g, scale))
+
+
+def bench_speed(pairs):
+    print("1. qdmatch on one core (median of 3 after a warm-up)")
+    cv2.setNumThreads(1)
+    for name, (left, right) in pairs.items():
+        match_pair(left, right, "qdmatch")
+        runs = []
+        for _ in range(3):
+            t, c = time.perf_counter(), time.process_time()
+            res = match_pair(left, right, "qdmatch", min_matches=0)
+            runs.append((time.process_time() - c, time.perf_counter() - t, res))
+        cpu, total, res = sorted(runs, key=lambda x: x[0])[1]
+        h, w = left.shape[:2]
+        print(f"   {name:<12} {w}x{h}: CPU {cpu:.3f} s, wall {total:.3f} s (wall: sift left "
+              f"{res.t_left:.3f} + right "
+              f"{res.t_right:.3f}, seed matching {res.t_match:.3f}, propagation "
+              f"{res.t_propagation:.3f}, resample {res.t_resample:.3f}); "
+              f"{res.extras['num_seeds']} seeds -> {res.extras['num_propagated']} propagated -> "
+              f"{res.num} matches")
+    cv2.setNumThreads(-1)
+
+
+def bench_spread(plant_pairs):
+    print("2. distribution on plant scenes (target qdmatch >= 28 %)")
+    for name, (left, right) in plant_pairs.items():
+        s = match_pair(left, right, "sift")
+        q = match_pair(left, right, "qdmatch")
+        print(f"   {name:<12} sift {100 * s.distribution:5.1f} % ({s.num} matches)   "
+              f"qdmatch {100 * q.distribution:5.1f} % ({q.num} matches)")
+
+
+def bench_correctness(data: Path, croton_pair):
+    print("3. correct matches (|d - d_gt| <= 1 px and |dv| <= 1 px; target qdmatch >= 95 %)")
+    shares = []
+    for name in GT_SCENES:
+        left, right, gt = load_gt_scene(data, name)
+        s = match_pair(left, right, "sift")
+        q = match_pair(left, right, "qdmatch")
+        cs, _ = gt_correctness(s.x_left, s.x_right, gt)
+        cq, n = gt_correctness(q.x_left, q.x_right, gt)
+        shares.append(cq)
+        print(f"   {name:<12} sift {100 * cs:5.1f} % of {s.num:4d}   qdmatch {100 * cq:5.1f} % of "
+              f"{n:4d} with GT (distribution {100 * q.distribution:4.1f} %)")
+    print(f"   Middlebury mean {100 * np.mean(shares):.1f} %, median {100 * np.median(shares):.1f} %, "
+          f"min {100 * np.min(shares):.1f} %, scenes >= 95 %: {sum(c >= 0.95 for c in shares)}"
+          f"/{len(shares)}")
+    left, right, truth = croton_pair
+    for m in ("sift", "qdmatch"):
+        res = match_pair(left, right, m)
+        c, n = croton_correctness(res, truth)
+        print(f"   croton (simulated, unrectified) {m}: {100 * c:.1f} % of {n} within 1 px of the "
+              f"true right pixel")
+
+
+def bench_hartley(data: Path):
+    from canopy_stereo.geometry.rectification import hartley_rectify
+    from canopy_stereo.geometry.triangulation import apply_homography
+
+    print("4. Hartley rectification from qdmatch on raw chessboard pairs "
+          "(median |v_left - v_right| of corners, target <= 0.5 px)")
+    folder = data / "opencv_stereo_calib_chessboard"
+    ids = [1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12, 13, 14]
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.01)
+    pairs, cl_all, cr_all = [], [], []
+    for i in ids:
+        L = read_image(folder / f"left{i:02d}.jpg", color=False)
+        R = read_image(folder / f"right{i:02d}.jpg", color=False)
+        _, cl = cv2.findChessboardCorners(L, (9, 6))
+        _, cr = cv2.findChessboardCorners(R, (9, 6))
+        cl_all.append(cv2.cornerSubPix(L, cl, (11, 11), (-1, -1), crit))
+        cr_all.append(cv2.cornerSubPix(R, cr, (11, 11), (-1, -1), crit))
+        pairs.append((L, R))
+    obj = np.zeros((54, 3), np.float32)
+    obj[:, :2] = np.mgrid[0:9, 0:6].T.reshape(-1, 2)
+    objs = [obj] * len(ids)
+    _, K1, D1, _, _ = cv2.calibrateCamera(objs, cl_all, (640, 480), None, None)
+    _, K2, D2, _, _ = cv2.calibrateCamera(objs, cr_all, (640, 480), None, None)
+
+    def und(x, K, D):
+        return cv2.undistortPoints(np.asarray(x, np.float64).reshape(-1, 1, 2), K, D, P=K).reshape(-1, 2)
+
+    matches = [match_pair(L, R, "qdmatch") for L, R in pairs]
+    for undistort in (False, True):
+        def pts(x, K, D):
+            return und(x, K, D) if undistort else np.asarray(x, np.float64).reshape(-1, 2)
+
+        per_pair = []
+        for m, cl, cr in zip(matches, cl_all, cr_all):
+            rect = hartley_rectify(pts(m.x_left, K1, D1), pts(m.x_right, K2, D2), (640, 480))
+            dv = apply_homography(rect.H_left, pts(cl, K1, D1))[:, 1] - \
+                apply_homography(rect.H_right, pts(cr, K2, D2))[:, 1]
+            per_pair.append(float(np.median(np.abs(dv))))
+        xl = np.vstack([pts(m.x_left, K1, D1) for m in matches])
+        xr = np.vstack([pts(m.x_right, K2, D2) for m in matches])
+        rect = hartley_rectify(xl, xr, (640, 480))
+        dv = np.concatenate([apply_homography(rect.H_left, pts(cl, K1, D1))[:, 1]
+                             - apply_homography(rect.H_right, pts(cr, K2, D2))[:, 1]
+                             for cl, cr in zip(cl_all, cr_all)])
+        label = "undistorted" if undistort else "raw pixels "
+        print(f"   {label}: per pair median {statistics.median(per_pair):.2f} px "
+              f"(pairs <= 0.5 px: {sum(p <= 0.5 for p in per_pair)}/{len(per_pair)}, worst "
+              f"{max(per_pair):.1f} px); pooled matches of all pairs ({len(xl)}): median "
+              f"{np.median(np.abs(dv)):.3f} px, 90th percentile {np.percentile(np.abs(dv), 90):.3f} px")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
+    ap.add_argument("--study", action="store_true", help="also print the full study tables")
+    args = ap.parse_args(argv)
+    data = args.data
+    if not data.is_dir():
+        print(f"no data folder {data}: nothing to benchmark")
+        return 1
+    crot = croton()
+    chess = (read_image(data / "opencv_stereo_calib_chessboard/left01.jpg"),
+             read_image(data / "opencv_stereo_calib_chessboard/right01.jpg"))
+    plants = (read_image(data / "middlebury_MiddEval3_testQ/Plants/im0.png"),
+              read_image(data / "middlebury_MiddEval3_testQ/Plants/im1.png"))
+    aloe = load_gt_scene(data, "Aloe")[:2]
+    bench_speed({"croton": crot[:2], "chessboard01": chess, "Plants": plants})
+    bench_spread({"Aloe": aloe, "Plants": plants, "croton": crot[:2]})
+    bench_correctness(data, crot)
+    bench_hartley(data)
+    if args.study:
+        print("5. study tables")
+        aloe_gt = load_gt_scene(data, "Aloe")[2]
+        for name, (left, right), gt in (("Aloe", aloe, aloe_gt), ("Plants", plants, None),
+                                        ("croton", crot[:2], None)):
+            print(f"--- {name}")
+            print(format_table(run_study(left, right, gt_disparity=gt)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

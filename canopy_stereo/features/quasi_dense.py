@@ -1,0 +1,763 @@
+"""Quasi-dense matching (Lhuillier & Quan, PAMI 2005): seed propagation + resampling.
+
+1. **Seeds**: verified SIFT matches (ratio test, mutual check, robust F),
+   rounded to whole pixels.
+2. **Propagation** (best first): a priority queue holds accepted matches keyed by
+   their ZNCC. The best match ``(x, x')`` is popped; every left pixel ``u`` in its
+   ``(2r+1) x (2r+1)`` neighbourhood is tried against the right pixels
+   ``u' = u + (x' - x) + delta`` with ``|delta|_inf <= eps`` (the disparity-gradient
+   limit). A candidate needs ZNCC over a small window above ``zncc_min``, texture
+   above ``texture_min`` in both images (with the seeds' F: the window's mean
+   gradient along the epipolar line, which rejects aperture-ambiguous windows;
+   without F: the largest difference to a 4-neighbour, as in the paper) and, when
+   F is known, ``u'`` within ``epipolar_band_px`` of the epipolar line of ``u``.
+   Candidates are accepted best first when neither ``u`` nor ``u'`` is matched yet
+   (uniqueness in both images) and are pushed on the queue in turn.
+3. **Resampling**: the left image is cut into ``cell_px`` x ``cell_px`` regions; a
+   local affine map (or homography) is fitted by RANSAC to the propagated matches
+   of each region, and a region whose fit explains at least ``min_inlier_share``
+   of its matches, whose inliers surround the centre (all four quadrants) and
+   spread over an area (not a single edge: those are mostly occlusion boundaries)
+   emits one match: its centre and the centre's image under the map. A final robust
+   F over the resampled matches removes the inconsistent ones.
+
+The propagation and the resampling are numba kernels (single thread: the
+propagation is inherently sequential); the propagation caches each left pixel's
+candidate ZNCCs for the last displacement it was reached with. Pixels: ``u`` right, ``v`` down, top-left
+pixel centre at (0, 0).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numba import njit
+
+from canopy_stereo.errors import CanopyStereoError, MatchingError
+from canopy_stereo.features.descriptor_matching import match_descriptors
+from canopy_stereo.features.detectors import detect_and_describe, make_detector
+from canopy_stereo.features.fundamental import MIN_MATCHES_F, estimate_fundamental
+from canopy_stereo.features.result import DISTRIBUTION_CELL_PX, MatchResult
+from canopy_stereo.features.sparse import verify_matches
+
+
+# ----------------------------------------------------------------------------------------------
+# Window statistics for ZNCC
+
+
+def epipoles(F: np.ndarray):
+    """Left and right epipoles (homogeneous, unit norm) of F: ``F e_l = 0``, ``F^T e_r = 0``."""
+    _, _, vt = np.linalg.svd(F)
+    e_left = vt[-1]
+    _, _, vt = np.linalg.svd(F.T)
+    e_right = vt[-1]
+    return e_left / np.linalg.norm(e_left), e_right / np.linalg.norm(e_right)
+
+
+def texture_map(gray: np.ndarray, half_window: int, epipole=None) -> np.ndarray:
+    """Texture of each pixel's matching window, grey levels per pixel, float64 (H, W).
+
+    Without an epipole: the largest absolute difference to a 4-neighbour
+    (Lhuillier & Quan's measure). With the image's epipole (homogeneous 3-vector,
+    from F): the window mean of ``|grad I . e|``, the intensity gradient along the
+    epipolar line through the pixel. Windows whose only structure runs along the
+    epipolar line (the aperture problem: e.g. horizontal edges in a rectified pair)
+    then score low and are not propagated into.
+    """
+    img = np.asarray(gray, dtype=np.float64)
+    if epipole is None:
+        texture = np.zeros_like(img)
+        dx = np.abs(np.diff(img, axis=1))
+        dy = np.abs(np.diff(img, axis=0))
+        texture[:, :-1] = np.maximum(texture[:, :-1], dx)
+        texture[:, 1:] = np.maximum(texture[:, 1:], dx)
+        texture[:-1, :] = np.maximum(texture[:-1, :], dy)
+        texture[1:, :] = np.maximum(texture[1:, :], dy)
+        return texture
+    h, w = img.shape
+    gx = cv2.Sobel(img, cv2.CV_64F, 1, 0, ksize=3) / 8.0
+    gy = cv2.Sobel(img, cv2.CV_64F, 0, 1, ksize=3) / 8.0
+    ex, ey, ew = (float(c) for c in np.asarray(epipole, np.float64).ravel())
+    u = np.arange(w, dtype=np.float64)[None, :]
+    v = np.arange(h, dtype=np.float64)[:, None]
+    dx = ew * u - ex            # direction from the epipole to the pixel (either sign)
+    dy = ew * v - ey
+    norm = np.hypot(dx, dy)
+    norm[norm < 1e-12] = 1.0
+    along = np.abs(gx * dx + gy * dy) / norm
+    k = 2 * half_window + 1
+    return cv2.boxFilter(along, cv2.CV_64F, (k, k), normalize=True, borderType=cv2.BORDER_REFLECT)
+
+
+def window_statistics(gray: np.ndarray, half_window: int, epipole=None):
+    """Per-pixel window mean, inverse window norm and texture of a grey image.
+
+    Args:
+        gray: (H, W) uint8 or float image.
+        half_window: ZNCC window is ``(2 * half_window + 1)`` pixels square.
+        epipole: the image's epipole for the directional texture (see :func:`texture_map`).
+
+    Returns:
+        ``(image, mean, inv_norm, texture)``, float64 (H, W) each: the image as
+        float, the window mean, ``1 / sqrt(sum (I - mean)^2)`` over the window
+        (0 for flat windows and within ``half_window`` of the border), and the
+        texture from :func:`texture_map`.
+    """
+    img = np.asarray(gray, dtype=np.float64)
+    k = 2 * half_window + 1
+    n = float(k * k)
+    s1 = cv2.boxFilter(img, cv2.CV_64F, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    s2 = cv2.boxFilter(img * img, cv2.CV_64F, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    mean = s1 / n
+    var_sum = s2 - s1 * mean
+    inv_norm = np.zeros_like(img)
+    ok = var_sum > 1e-6 * n
+    inv_norm[ok] = 1.0 / np.sqrt(var_sum[ok])
+    inv_norm[:half_window, :] = 0.0
+    inv_norm[-half_window:, :] = 0.0
+    inv_norm[:, :half_window] = 0.0
+    inv_norm[:, -half_window:] = 0.0
+    return img, mean, inv_norm, texture_map(img, half_window, epipole)
+
+
+@njit(cache=True)
+def _zncc(L, R, x, y, xr, yr, hw, mean_l, inv_l, mean_r, inv_r):
+    """ZNCC of the (2hw+1)^2 windows centred on left (x, y) and right (xr, yr)."""
+    il = inv_l[y, x]
+    ir = inv_r[yr, xr]
+    if il == 0.0 or ir == 0.0:
+        return -1.0
+    s = 0.0
+    for j in range(-hw, hw + 1):
+        for i in range(-hw, hw + 1):
+            s += L[y + j, x + i] * R[yr + j, xr + i]
+    n = (2 * hw + 1) * (2 * hw + 1)
+    return (s - n * mean_l[y, x] * mean_r[yr, xr]) * il * ir
+
+
+@njit(cache=True)
+def zncc_at(L, R, xl, yl, xr, yr, hw, mean_l, inv_l, mean_r, inv_r):
+    """ZNCC of many integer pixel pairs (arrays of equal length); -1 outside the valid area."""
+    n = len(xl)
+    out = np.full(n, -1.0)
+    H, W = L.shape
+    for k in range(n):
+        x, y, a, b = xl[k], yl[k], xr[k], yr[k]
+        if hw <= x < W - hw and hw <= y < H - hw and hw <= a < W - hw and hw <= b < H - hw:
+            out[k] = _zncc(L, R, x, y, a, b, hw, mean_l, inv_l, mean_r, inv_r)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# Binary max-heap on parallel arrays (key: ZNCC, value: match index)
+
+
+@njit(cache=True)
+def _heap_push(keys, vals, size, key, val):
+    i = size
+    keys[i] = key
+    vals[i] = val
+    while i > 0:
+        p = (i - 1) >> 1
+        if keys[p] >= keys[i]:
+            break
+        keys[p], keys[i] = keys[i], keys[p]
+        vals[p], vals[i] = vals[i], vals[p]
+        i = p
+    return size + 1
+
+
+@njit(cache=True)
+def _heap_pop(keys, vals, size):
+    """Remove the top; returns (value, new size)."""
+    top = vals[0]
+    size -= 1
+    keys[0] = keys[size]
+    vals[0] = vals[size]
+    i = 0
+    while True:
+        l = 2 * i + 1
+        if l >= size:
+            break
+        c = l
+        if l + 1 < size and keys[l + 1] > keys[l]:
+            c = l + 1
+        if keys[i] >= keys[c]:
+            break
+        keys[c], keys[i] = keys[i], keys[c]
+        vals[c], vals[i] = vals[i], vals[c]
+        i = c
+    return top, size
+
+
+# ----------------------------------------------------------------------------------------------
+# Propagation
+
+
+@njit(cache=True)
+def _propagate_kernel(L, R, mean_l, inv_l, tex_l, mean_r, inv_r, tex_r, seeds, hw, radius, eps,
+                      zncc_min, texture_min, F, band):
+    """Best-first match propagation; see :func:`propagate`.
+
+    seeds: (S, 4) int64 rows (xl, yl, xr, yr) in decreasing ZNCC order; ``band`` <= 0
+    disables the epipolar check with ``F``. Returns the match list arrays
+    (xl, yl, xr, yr, zncc, parent), seeds first, truncated to the number of matches.
+    """
+    H, W = L.shape
+    cap = seeds.shape[0] + H * W
+    mxl = np.empty(cap, np.int32)
+    myl = np.empty(cap, np.int32)
+    mxr = np.empty(cap, np.int32)
+    myr = np.empty(cap, np.int32)
+    mz = np.empty(cap, np.float32)
+    mparent = np.empty(cap, np.int64)
+    used_l = np.zeros((H, W), np.bool_)
+    used_r = np.zeros((H, W), np.bool_)
+    hkeys = np.empty(cap, np.float64)
+    hvals = np.empty(cap, np.int64)
+    hsize = 0
+    count = 0
+    use_f = band > 0.0
+    # seeds: accepted in the given (best-first) order when both pixels are free
+    for s in range(seeds.shape[0]):
+        x, y, a, b = seeds[s, 0], seeds[s, 1], seeds[s, 2], seeds[s, 3]
+        if not (hw <= x < W - hw and hw <= y < H - hw and hw <= a < W - hw and hw <= b < H - hw):
+            continue
+        if used_l[y, x] or used_r[b, a]:
+            continue
+        z = _zncc(L, R, x, y, a, b, hw, mean_l, inv_l, mean_r, inv_r)
+        if z < zncc_min:
+            continue
+        used_l[y, x] = True
+        used_r[b, a] = True
+        mxl[count] = x
+        myl[count] = y
+        mxr[count] = a
+        myr[count] = b
+        mz[count] = z
+        mparent[count] = -1
+        hsize = _heap_push(hkeys, hvals, hsize, z, count)
+        count += 1
+    n_nb = (2 * radius + 1) * (2 * radius + 1) * (2 * eps + 1) * (2 * eps + 1)
+    n_eps = (2 * eps + 1) * (2 * eps + 1)
+    cache_dx = np.full((H, W), -(1 << 30), np.int32)
+    cache_dy = np.full((H, W), -(1 << 30), np.int32)
+    cache_z = np.empty((H, W, n_eps), np.float32)
+    cz = np.empty(n_nb, np.float64)
+    cu = np.empty(n_nb, np.int32)
+    cv = np.empty(n_nb, np.int32)
+    ca = np.empty(n_nb, np.int32)
+    cb = np.empty(n_nb, np.int32)
+    while hsize > 0:
+        m, hsize = _heap_pop(hkeys, hvals, hsize)
+        x, y, a, b = mxl[m], myl[m], mxr[m], myr[m]
+        dx = a - x
+        dy = b - y
+        nc = 0
+        for j in range(-radius, radius + 1):
+            v = y + j
+            if v < hw or v >= H - hw:
+                continue
+            for i in range(-radius, radius + 1):
+                u = x + i
+                if u < hw or u >= W - hw or used_l[v, u] or tex_l[v, u] <= texture_min:
+                    continue
+                if use_f:
+                    l0 = F[0, 0] * u + F[0, 1] * v + F[0, 2]
+                    l1 = F[1, 0] * u + F[1, 1] * v + F[1, 2]
+                    l2 = F[2, 0] * u + F[2, 1] * v + F[2, 2]
+                    lnorm = np.sqrt(l0 * l0 + l1 * l1)
+                # ZNCC of the (2 eps + 1)^2 candidates of u for this displacement, cached per
+                # left pixel: u is usually reached again from a neighbour with the same one
+                fresh = cache_dx[v, u] != dx or cache_dy[v, u] != dy
+                if fresh:
+                    cache_dx[v, u] = dx
+                    cache_dy[v, u] = dy
+                e = 0
+                for jj in range(-eps, eps + 1):
+                    vr = v + dy + jj
+                    for ii in range(-eps, eps + 1):
+                        ur = u + dx + ii
+                        if fresh:
+                            z = -2.0                      # fails a static test
+                            if (hw <= vr < H - hw and hw <= ur < W - hw
+                                    and tex_r[vr, ur] > texture_min
+                                    and (not use_f or abs(l0 * ur + l1 * vr + l2) <= band * lnorm)):
+                                z = _zncc(L, R, u, v, ur, vr, hw, mean_l, inv_l, mean_r, inv_r)
+                            cache_z[v, u, e] = z
+                        z = cache_z[v, u, e]
+                        e += 1
+                        if z < zncc_min or used_r[vr, ur]:
+                            continue
+                        # insertion into the local list, kept in decreasing ZNCC order
+                        k = nc
+                        while k > 0 and cz[k - 1] < z:
+                            cz[k] = cz[k - 1]
+                            cu[k] = cu[k - 1]
+                            cv[k] = cv[k - 1]
+                            ca[k] = ca[k - 1]
+                            cb[k] = cb[k - 1]
+                            k -= 1
+                        cz[k] = z
+                        cu[k] = u
+                        cv[k] = v
+                        ca[k] = ur
+                        cb[k] = vr
+                        nc += 1
+        for k in range(nc):
+            u, v, ur, vr = cu[k], cv[k], ca[k], cb[k]
+            if used_l[v, u] or used_r[vr, ur]:
+                continue
+            used_l[v, u] = True
+            used_r[vr, ur] = True
+            mxl[count] = u
+            myl[count] = v
+            mxr[count] = ur
+            myr[count] = vr
+            mz[count] = cz[k]
+            mparent[count] = m
+            hsize = _heap_push(hkeys, hvals, hsize, cz[k], count)
+            count += 1
+    return (mxl[:count].copy(), myl[:count].copy(), mxr[:count].copy(), myr[:count].copy(),
+            mz[:count].copy(), mparent[:count].copy())
+
+
+@dataclass
+class Propagation:
+    """Pixel matches grown from the seeds.
+
+    Attributes:
+        x_left, x_right: (M, 2) int32 integer pixels ``(u, v)`` of each match.
+        zncc: (M,) float32 window correlation of each match.
+        parent: (M,) int64 index of the match it was propagated from (-1 for seeds).
+        num_seeds: how many seeds were accepted (they come first in the arrays).
+        image_size: ``(width, height)``.
+        params: the propagation parameters used (``radius``, ``eps``, ...).
+    """
+
+    x_left: np.ndarray
+    x_right: np.ndarray
+    zncc: np.ndarray
+    parent: np.ndarray
+    num_seeds: int
+    image_size: tuple
+    params: dict
+
+    def __len__(self) -> int:
+        return len(self.x_left)
+
+    def match_map(self) -> np.ndarray:
+        """(H, W, 2) int32: the right pixel matched to each left pixel, -1 where none."""
+        w, h = self.image_size
+        out = np.full((h, w, 2), -1, np.int32)
+        out[self.x_left[:, 1], self.x_left[:, 0]] = self.x_right
+        return out
+
+
+def propagate(left_gray: np.ndarray, right_gray: np.ndarray, seeds_left, seeds_right, *,
+              half_window: int = 2, radius: int = 1, eps: int = 1, zncc_min: float = 0.8,
+              texture_min: float = 2.0, F: np.ndarray | None = None,
+              epipolar_band_px: float | None = 1.0, directional_texture: bool = True,
+              stats=None) -> Propagation:
+    """Grow pixel matches from seeds, best ZNCC first (Lhuillier & Quan's propagation).
+
+    Args:
+        left_gray, right_gray: uint8 (H, W) images.
+        seeds_left, seeds_right: (S, 2) seed matches in pixels (rounded to whole pixels).
+        half_window: ZNCC window is ``2 * half_window + 1`` pixels square.
+        radius: neighbourhood ``N(x)`` of a match is ``(2 radius + 1)^2`` left pixels.
+        eps: disparity-gradient limit: a new match's displacement ``u' - u`` differs
+            from its parent's by at most ``eps`` pixels in each coordinate.
+        zncc_min: correlation threshold for a candidate.
+        texture_min: minimum texture of the window in both images (grey levels per
+            pixel, see :func:`texture_map`).
+        F: optional (3, 3) fundamental matrix (``x_r^T F x_l = 0``); with
+            ``epipolar_band_px`` a candidate must lie that close to its epipolar line.
+        epipolar_band_px: band half-width in pixels; None or 0 disables the check.
+        directional_texture: with F, measure texture along the epipolar lines
+            (rejects aperture-ambiguous windows) instead of the 4-neighbour measure.
+        stats: precomputed ``(window_statistics(left), window_statistics(right))``.
+
+    Returns:
+        :class:`Propagation`; every left pixel and every right pixel is used at most once.
+    """
+    if half_window < 1 or radius < 1 or eps < 0:
+        raise CanopyStereoError("half_window and radius must be >= 1 and eps >= 0")
+    h, w = left_gray.shape[:2]
+    if stats is None:
+        e_l = e_r = None
+        if F is not None and directional_texture:
+            e_l, e_r = epipoles(np.asarray(F, np.float64))
+        stats = (window_statistics(left_gray, half_window, e_l),
+                 window_statistics(right_gray, half_window, e_r))
+    (L, mean_l, inv_l, tex_l), (R, mean_r, inv_r, tex_r) = stats
+    sl = np.rint(np.asarray(seeds_left, np.float64).reshape(-1, 2)).astype(np.int64)
+    sr = np.rint(np.asarray(seeds_right, np.float64).reshape(-1, 2)).astype(np.int64)
+    seeds = np.column_stack([sl, sr]).astype(np.int64) if len(sl) else np.zeros((0, 4), np.int64)
+    # seeds in decreasing ZNCC order (the kernel accepts them in this order)
+    if len(seeds):
+        z = zncc_at(L, R, seeds[:, 0], seeds[:, 1], seeds[:, 2], seeds[:, 3], half_window,
+                    mean_l, inv_l, mean_r, inv_r)
+        seeds = np.ascontiguousarray(seeds[np.argsort(-z, kind="stable")])
+    use_band = F is not None and epipolar_band_px is not None and epipolar_band_px > 0
+    Fk = np.asarray(F, np.float64) if use_band else np.eye(3)
+    band = float(epipolar_band_px) if use_band else 0.0
+    xl, yl, xr, yr, zz, parent = _propagate_kernel(
+        L, R, mean_l, inv_l, tex_l, mean_r, inv_r, tex_r, seeds, int(half_window), int(radius),
+        int(eps), float(zncc_min), float(texture_min), Fk, band)
+    num_seeds = int(np.sum(parent < 0))
+    params = dict(half_window=half_window, radius=radius, eps=eps, zncc_min=zncc_min,
+                  texture_min=texture_min, epipolar_band_px=band if use_band else None)
+    return Propagation(np.column_stack([xl, yl]), np.column_stack([xr, yr]), zz, parent,
+                       num_seeds, (w, h), params)
+
+
+# ----------------------------------------------------------------------------------------------
+# Resampling
+
+
+@njit(cache=True)
+def _lcg(state):
+    """One step of a 64-bit linear congruential generator: (new state, value in [0, 2^31))."""
+    state = state * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
+    return state, np.int64(state >> np.uint64(33))
+
+
+@njit(cache=True)
+def _fit_affine(px, py, qx, qy, idx, n):
+    """Least-squares affine map p -> q over points idx[:n]: (2, 3) array; ok flag."""
+    A = np.zeros((3, 3))
+    bx = np.zeros(3)
+    by = np.zeros(3)
+    for k in range(n):
+        i = idx[k]
+        r0, r1 = px[i], py[i]
+        A[0, 0] += r0 * r0
+        A[0, 1] += r0 * r1
+        A[0, 2] += r0
+        A[1, 1] += r1 * r1
+        A[1, 2] += r1
+        A[2, 2] += 1.0
+        bx[0] += r0 * qx[i]
+        bx[1] += r1 * qx[i]
+        bx[2] += qx[i]
+        by[0] += r0 * qy[i]
+        by[1] += r1 * qy[i]
+        by[2] += qy[i]
+    A[1, 0] = A[0, 1]
+    A[2, 0] = A[0, 2]
+    A[2, 1] = A[1, 2]
+    M = np.zeros((2, 3))
+    det = np.linalg.det(A)
+    if abs(det) < 1e-9 * max(1.0, A[2, 2]) ** 3:
+        return M, False
+    M[0] = np.linalg.solve(A, bx)
+    M[1] = np.linalg.solve(A, by)
+    return M, True
+
+
+@njit(cache=True)
+def _fit_homography(px, py, qx, qy, idx, n, cx, cy):
+    """Least-squares (DLT, centred on (cx, cy)) homography p -> q over idx[:n]: (3, 3); ok."""
+    A = np.zeros((2 * n, 9))
+    for k in range(n):
+        i = idx[k]
+        x, y = px[i] - cx, py[i] - cy
+        u, v = qx[i] - cx, qy[i] - cy
+        A[2 * k, 0] = x
+        A[2 * k, 1] = y
+        A[2 * k, 2] = 1.0
+        A[2 * k, 6] = -u * x
+        A[2 * k, 7] = -u * y
+        A[2 * k, 8] = -u
+        A[2 * k + 1, 3] = x
+        A[2 * k + 1, 4] = y
+        A[2 * k + 1, 5] = 1.0
+        A[2 * k + 1, 6] = -v * x
+        A[2 * k + 1, 7] = -v * y
+        A[2 * k + 1, 8] = -v
+    _, s, vt = np.linalg.svd(A)
+    Hc = np.ascontiguousarray(vt[8]).reshape(3, 3)
+    if abs(Hc[2, 2]) < 1e-12 or s[7] < 1e-9 * s[0]:
+        return np.eye(3), False
+    # undo the centring: H = T^-1 Hc T with T = translate(-c)
+    T = np.eye(3)
+    T[0, 2] = -cx
+    T[1, 2] = -cy
+    Ti = np.eye(3)
+    Ti[0, 2] = cx
+    Ti[1, 2] = cy
+    H = Ti @ Hc @ T
+    return H / H[2, 2], True
+
+
+@njit(cache=True)
+def _map_point(model, use_h, x, y):
+    if use_h:
+        w = model[2, 0] * x + model[2, 1] * y + model[2, 2]
+        if abs(w) < 1e-12:
+            return 1e30, 1e30
+        return ((model[0, 0] * x + model[0, 1] * y + model[0, 2]) / w,
+                (model[1, 0] * x + model[1, 1] * y + model[1, 2]) / w)
+    return (model[0, 0] * x + model[0, 1] * y + model[0, 2],
+            model[1, 0] * x + model[1, 1] * y + model[1, 2])
+
+
+@njit(cache=True)
+def _resample_kernel(match_map, cell, use_h, iters, tol, min_support, min_share, min_spread, seed):
+    """One match per cell of the left image from a local affine/homography RANSAC fit.
+
+    Returns (K, 4) float64 rows (u_left, v_left, u_right, v_right) and (K,) inlier counts.
+    """
+    H, W = match_map.shape[0], match_map.shape[1]
+    ny = (H + cell - 1) // cell
+    nx = (W + cell - 1) // cell
+    out = np.empty((nx * ny, 4))
+    support = np.empty(nx * ny, np.int64)
+    nout = 0
+    px = np.empty(cell * cell)
+    py = np.empty(cell * cell)
+    qx = np.empty(cell * cell)
+    qy = np.empty(cell * cell)
+    idx = np.empty(cell * cell, np.int64)
+    best_idx = np.empty(cell * cell, np.int64)
+    sample = np.empty(4, np.int64)
+    k_min = 4 if use_h else 3
+    state = np.uint64(seed)
+    for cyi in range(ny):
+        for cxi in range(nx):
+            x0, y0 = cxi * cell, cyi * cell
+            x1, y1 = min(x0 + cell, W), min(y0 + cell, H)
+            n = 0
+            for v in range(y0, y1):
+                for u in range(x0, x1):
+                    if match_map[v, u, 0] >= 0:
+                        px[n] = u
+                        py[n] = v
+                        qx[n] = match_map[v, u, 0]
+                        qy[n] = match_map[v, u, 1]
+                        n += 1
+            if n < min_support or n < k_min + 1:
+                continue
+            ccx = 0.5 * (x0 + x1 - 1)
+            ccy = 0.5 * (y0 + y1 - 1)
+            best = 0
+            for it in range(iters):
+                # draw k_min distinct points
+                for s in range(k_min):
+                    while True:
+                        state, r = _lcg(state)
+                        c = r % n
+                        dup = False
+                        for t in range(s):
+                            if sample[t] == c:
+                                dup = True
+                        if not dup:
+                            break
+                    sample[s] = c
+                if use_h:
+                    model, ok = _fit_homography(px, py, qx, qy, sample, k_min, ccx, ccy)
+                else:
+                    m2, ok = _fit_affine(px, py, qx, qy, sample, k_min)
+                    model = np.zeros((3, 3))
+                    model[:2] = m2
+                    model[2, 2] = 1.0
+                if not ok:
+                    continue
+                ni = 0
+                for k in range(n):
+                    mx, my = _map_point(model, use_h, px[k], py[k])
+                    if abs(mx - qx[k]) <= tol and abs(my - qy[k]) <= tol:
+                        idx[ni] = k
+                        ni += 1
+                if ni > best:
+                    best = ni
+                    best_idx[:ni] = idx[:ni]
+                    if ni == n:
+                        break
+            if best < min_support or best < min_share * n:
+                continue
+            # the inliers must surround the centre (interpolation, not extrapolation)
+            q0 = q1 = q2 = q3 = 0
+            for k in range(best):
+                i = best_idx[k]
+                if px[i] < ccx:
+                    if py[i] < ccy:
+                        q0 += 1
+                    else:
+                        q1 += 1
+                elif py[i] < ccy:
+                    q2 += 1
+                else:
+                    q3 += 1
+            if q0 == 0 or q1 == 0 or q2 == 0 or q3 == 0:
+                continue
+            # ... and cover an area, not a thin line (an edge: the aperture problem, and
+            # typically an occlusion boundary): minor standard deviation of the inliers
+            sx = sy = 0.0
+            for k in range(best):
+                sx += px[best_idx[k]]
+                sy += py[best_idx[k]]
+            sx /= best
+            sy /= best
+            cxx = cyy = cxy = 0.0
+            for k in range(best):
+                ddx = px[best_idx[k]] - sx
+                ddy = py[best_idx[k]] - sy
+                cxx += ddx * ddx
+                cyy += ddy * ddy
+                cxy += ddx * ddy
+            cxx /= best
+            cyy /= best
+            cxy /= best
+            minor = 0.5 * (cxx + cyy) - np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy * cxy)
+            if minor < min_spread * min_spread:
+                continue
+            # refit on the inliers and map the cell centre
+            if use_h:
+                model, ok = _fit_homography(px, py, qx, qy, best_idx, best, ccx, ccy)
+            else:
+                m2, ok = _fit_affine(px, py, qx, qy, best_idx, best)
+                model = np.zeros((3, 3))
+                model[:2] = m2
+                model[2, 2] = 1.0
+            if not ok:
+                continue
+            mx, my = _map_point(model, use_h, ccx, ccy)
+            if not (-0.5 <= mx < W - 0.5 and -0.5 <= my < H - 0.5):
+                continue
+            out[nout, 0] = ccx
+            out[nout, 1] = ccy
+            out[nout, 2] = mx
+            out[nout, 3] = my
+            support[nout] = best
+            nout += 1
+    return out[:nout].copy(), support[:nout].copy()
+
+
+def resample(prop: Propagation, *, cell_px: int = DISTRIBUTION_CELL_PX, model: str = "affine",
+             iters: int = 32, tol_px: float = 1.0, min_support: int = 12,
+             min_inlier_share: float = 0.85, min_spread_px: float = 1.8, seed: int = 12345):
+    """One match per ``cell_px`` x ``cell_px`` left region from a local RANSAC fit.
+
+    Args:
+        prop: propagated matches.
+        cell_px: region side in pixels (8 = the distribution cells).
+        model: ``"affine"`` (6 dof, 3-point samples) or ``"homography"`` (8 dof, 4 points).
+        iters: RANSAC iterations per region.
+        tol_px: inlier tolerance (each coordinate), pixels.
+        min_support: fewest propagated matches (and inliers) a region needs.
+        min_inlier_share: the fit must explain this share of the region's matches.
+        min_spread_px: the inliers' smaller standard deviation (pixels) must reach
+            this, so a region matched only along a line (an edge) emits nothing.
+        seed: RNG seed (results are deterministic).
+
+    Returns:
+        ``(x_left, x_right, support)``: (K, 2) float64 region centres and their
+        mapped right points, and (K,) inlier counts.
+    """
+    if model not in ("affine", "homography"):
+        raise CanopyStereoError(f"unknown resampling model {model!r}; choose affine or homography")
+    if cell_px < 2:
+        raise CanopyStereoError(f"cell_px must be >= 2, got {cell_px}")
+    mm = prop.match_map()
+    rows, support = _resample_kernel(mm, int(cell_px), model == "homography", int(iters),
+                                     float(tol_px), int(min_support), float(min_inlier_share),
+                                     float(min_spread_px), int(seed))
+    return rows[:, :2].copy(), rows[:, 2:].copy(), support
+
+
+# ----------------------------------------------------------------------------------------------
+# The whole matcher
+
+
+def sift_seeds(left_gray, right_gray, ratio=0.8, mutual=True, f_method="ransac",
+               threshold_px=1.0, sift_params=None):
+    """Verified SIFT matches for seeding, with timings.
+
+    Returns a dict: ``x_left``, ``x_right`` (S, 2), ``F`` (or None), ``num_left``,
+    ``num_right``, ``t_left``, ``t_right``, ``t_match``, ``note``.
+    """
+    det = make_detector("sift", **(sift_params or {}))
+    t0 = time.perf_counter()
+    fl = detect_and_describe(left_gray, "sift", detector=det)
+    t1 = time.perf_counter()
+    fr = detect_and_describe(right_gray, "sift", detector=det)
+    t2 = time.perf_counter()
+    il, ir = match_descriptors(fl.descriptors, fr.descriptors, ratio=ratio, mutual=mutual)
+    xl, xr = fl.points[il], fr.points[ir]
+    F, keep, note = verify_matches(xl, xr, f_method, threshold_px)
+    t3 = time.perf_counter()
+    return dict(x_left=xl[keep], x_right=xr[keep], F=F, num_left=len(fl), num_right=len(fr),
+                t_left=t1 - t0, t_right=t2 - t1, t_match=t3 - t2, note=note)
+
+
+def qdmatch(left_gray: np.ndarray, right_gray: np.ndarray, *, ratio: float = 0.8,
+            mutual: bool = True, f_method: str = "ransac", threshold_px: float = 1.0,
+            half_window: int = 2, radius: int = 1, eps: int = 1, zncc_min: float = 0.8,
+            texture_min: float = 2.0, epipolar_band_px: float | None = 1.0,
+            directional_texture: bool = True,
+            cell_px: int = DISTRIBUTION_CELL_PX, model: str = "affine", resample_iters: int = 32,
+            resample_tol_px: float = 1.0, min_support: int = 12, min_inlier_share: float = 0.85,
+            min_spread_px: float = 1.8,
+            sift_params: dict | None = None, keep_propagation: bool = False) -> MatchResult:
+    """Quasi-dense matches of a grey pair (SIFT seeds -> propagation -> resampling).
+
+    Args:
+        left_gray, right_gray: uint8 (H, W) images of the same size.
+        ratio, mutual, f_method, threshold_px: seed matching and verification; the
+            final F check of the resampled matches uses ``f_method``/``threshold_px``.
+        half_window, radius, eps, zncc_min, texture_min, epipolar_band_px,
+        directional_texture: propagation (see :func:`propagate`); the band and the
+            directional texture use the seeds' F.
+        cell_px, model, resample_iters, resample_tol_px, min_support,
+        min_inlier_share: resampling (see :func:`resample`).
+        sift_params: arguments of ``cv2.SIFT_create``.
+        keep_propagation: store the :class:`Propagation` in ``extras["propagation"]``.
+
+    Returns:
+        :class:`MatchResult` (method ``"qdmatch"``) whose matches are the resampled
+        region centres; ``t_propagation``/``t_resample`` are timed separately and
+        ``extras`` holds ``num_seeds`` and ``num_propagated``. Without seeds (no
+        texture) the result is empty and ``note`` says why.
+    """
+    size = (left_gray.shape[1], left_gray.shape[0])
+    seeds = sift_seeds(left_gray, right_gray, ratio, mutual, f_method, threshold_px, sift_params)
+    common = dict(method="qdmatch", image_size=size, num_left=seeds["num_left"],
+                  num_right=seeds["num_right"], t_left=seeds["t_left"],
+                  t_right=seeds["t_right"], t_match=seeds["t_match"])
+    if len(seeds["x_left"]) == 0:
+        why = seeds["note"] or "no verified SIFT matches"
+        if seeds["num_left"] == 0 or seeds["num_right"] == 0:
+            why = (f"SIFT found {seeds['num_left']} keypoints in the left and "
+                   f"{seeds['num_right']} in the right image")
+        return MatchResult(x_left=np.zeros((0, 2)), x_right=np.zeros((0, 2)),
+                           note=f"no seeds for propagation ({why}; image without texture?)",
+                           extras={"num_seeds": 0, "num_propagated": 0}, **common)
+    t0 = time.perf_counter()
+    prop = propagate(left_gray, right_gray, seeds["x_left"], seeds["x_right"],
+                     half_window=half_window, radius=radius, eps=eps, zncc_min=zncc_min,
+                     texture_min=texture_min, F=seeds["F"], epipolar_band_px=epipolar_band_px,
+                     directional_texture=directional_texture)
+    t1 = time.perf_counter()
+    xl, xr, support = resample(prop, cell_px=cell_px, model=model, iters=resample_iters,
+                               tol_px=resample_tol_px, min_support=min_support,
+                               min_inlier_share=min_inlier_share, min_spread_px=min_spread_px)
+    F, note = seeds["F"], ""
+    if len(xl) >= MIN_MATCHES_F:
+        try:
+            F, keep = estimate_fundamental(xl, xr, method=f_method, threshold_px=threshold_px)
+            xl, xr, support = xl[keep], xr[keep], support[keep]
+        except MatchingError as exc:
+            note = f"resampled matches failed the F check: {exc}"
+            xl, xr, support = xl[:0], xr[:0], support[:0]
+    else:
+        note = f"only {len(xl)} regions could be resampled"
+    t2 = time.perf_counter()
+    extras = {"num_seeds": prop.num_seeds, "num_propagated": len(prop), "support": support}
+    if keep_propagation:
+        extras["propagation"] = prop
+    return MatchResult(x_left=xl, x_right=xr, F=F, note=note, t_propagation=t1 - t0,
+                       t_resample=t2 - t1, extras=extras, **common)

@@ -1,0 +1,40 @@
+"""Feature matching on the shared Middlebury data (skipped without ../shared/data)."""
+from __future__ import annotations
+
+import pytest
+
+from canopy_stereo.features import match_pair
+from canopy_stereo.features.study import gt_correctness, run_study
+from canopy_stereo.io.images import read_image
+from canopy_stereo.io.middlebury import read_disparity
+
+GT_PAIRS = {
+    # name: (folder, left, right, gt, scale)
+    "Aloe": ("middlebury2006_thirdsize/Aloe", "view1.png", "view5.png", "disp1.png", 3),
+    "Cones": ("middlebury2003_quartersize/Cones", "imL.png", "imR.png", "disp2.png", 4),
+}
+
+
+@pytest.mark.parametrize("name", sorted(GT_PAIRS))
+def test_qdmatch_is_correct_and_spreads_wider_than_sift(shared_data, name):
+    folder, l, r, g, scale = GT_PAIRS[name]
+    left = read_image(shared_data / folder / l)
+    right = read_image(shared_data / folder / r)
+    gt = read_disparity(shared_data / folder / g, scale)
+    qd = match_pair(left, right, "qdmatch")
+    sift = match_pair(left, right, "sift")
+    share, n = gt_correctness(qd.x_left, qd.x_right, gt)
+    assert n > 0.9 * qd.num and qd.num > 500
+    assert share >= 0.95
+    assert qd.distribution > sift.distribution
+
+
+def test_study_without_gt_on_the_plants_scene(shared_data):
+    folder = shared_data / "middlebury_MiddEval3_testQ" / "Plants"
+    left, right = read_image(folder / "im0.png"), read_image(folder / "im1.png")
+    rows = run_study(left, right, ["sift", "qdmatch"])
+    assert [r.correct_basis for r in rows] == ["epipolar", "epipolar"]
+    sift, qd = rows
+    assert qd.result.num > sift.result.num
+    assert qd.correct >= 0.9 and sift.correct >= 0.9
+    assert qd.result.distribution > sift.result.distribution
