@@ -77,3 +77,25 @@ def test_real_chessboard_rig(shared_data):
     assert np.median(np.abs(np.concatenate(dv))) <= 0.5
     # corners triangulate back close to the board model (25 mm squares)
     assert np.all(cal.check.mean_abs < [1.0, 1.0, 2.0])
+
+
+def test_hartley_from_pooled_qdmatch_on_raw_chessboard_pairs(shared_data):
+    """Issue 6 target: Hartley from quasi-dense matches, corners' median |dv| <= 0.5 px."""
+    from canopy_stereo.geometry.chessboard import calibrate_stereo_chessboard, find_corners
+    from canopy_stereo.io.images import read_image
+    from canopy_stereo.io.rig import Rig
+    from canopy_stereo.pipeline.reconstruct import rectify_rig
+
+    d = shared_data / "opencv_stereo_calib_chessboard"
+    cal = calibrate_stereo_chessboard(str(d / "left*.jpg"), str(d / "right*.jpg"), (9, 6), 25.0)
+    rig = Rig(cal.P_left, cal.P_right, (640, 480), D_left=cal.D_left, D_right=cal.D_right)
+    names = ["01", "02", "03", "04", "05", "06", "07", "08", "09", "11", "12", "13", "14"]
+    pairs = [(read_image(d / f"left{n}.jpg"), read_image(d / f"right{n}.jpg")) for n in names]
+    rect = rectify_rig(rig, "hartley", match_pairs=pairs)
+    dv = []
+    for left, right in pairs:
+        cl, cr = find_corners(left[:, :, 0], (9, 6)), find_corners(right[:, :, 0], (9, 6))
+        pl = apply_homography(rect.H_left, undistort_pixels(rig.P_left, rig.D_left, cl))
+        pr = apply_homography(rect.H_right, undistort_pixels(rig.P_right, rig.D_right, cr))
+        dv.append(pl[:, 1] - pr[:, 1])
+    assert np.median(np.abs(np.concatenate(dv))) <= 0.5

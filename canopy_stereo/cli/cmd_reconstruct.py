@@ -25,6 +25,8 @@ def add_arguments(p):
     add_rig_argument(p)
     p.add_argument("-o", "--output", required=True, metavar="cloud.ply")
     p.add_argument("--method", choices=RECTIFICATION_METHODS, default="fusiello")
+    p.add_argument("--match-pairs", nargs=2, metavar=("LEFT_GLOB", "RIGHT_GLOB"),
+                   help="hartley: pool matches from more pairs taken by the same rig")
     p.add_argument("--matcher", choices=sorted(_MATCHERS), default="sgbm")
     p.add_argument("--mask", metavar="MASK.png", help="foreground mask on the left image (non-zero = keep)")
     p.add_argument("--disp-min", type=int, default=None, help="smallest disparity searched (px)")
@@ -39,8 +41,14 @@ def run(args) -> int:
     rig = load_rig(args.rig)
     left, right = read_image(args.left), read_image(args.right)
     mask = read_image(args.mask, color=False) if args.mask else None
+    rect = None
+    if args.method == "hartley" and args.match_pairs:
+        from canopy_stereo.cli.cmd_rectify import load_match_pairs
+        from canopy_stereo.pipeline.reconstruct import rectify_rig
+
+        rect = rectify_rig(rig, "hartley", left, right, match_pairs=load_match_pairs(args.match_pairs))
     rec = reconstruct_pair(left, right, rig, method=args.method, matcher=args.matcher, mask=mask,
-                           disp_min=args.disp_min, disp_max=args.disp_max)
+                           disp_min=args.disp_min, disp_max=args.disp_max, rectification=rect)
     t = time.perf_counter()
     write_ply(args.output, rec.points, rec.colors, unit=rig.world_unit,
               comments=[f"canopy-stereo reconstruct method={args.method} matcher={args.matcher}"])

@@ -12,6 +12,19 @@ from canopy_stereo.io.rig import load_rig, save_rig
 from canopy_stereo.pipeline.reconstruct import RECTIFICATION_METHODS, rectify_rig
 
 COMMAND = "rectify"
+
+
+def load_match_pairs(globs):
+    """Image pairs for pooled Hartley matching from two globs (None -> no pairs)."""
+    if not globs:
+        return []
+    from canopy_stereo.errors import CanopyStereoError
+    from canopy_stereo.geometry.chessboard import expand_image_list
+
+    lefts, rights = expand_image_list(globs[0]), expand_image_list(globs[1])
+    if not lefts or len(lefts) != len(rights):
+        raise CanopyStereoError(f"--match-pairs: {len(lefts)} left and {len(rights)} right images")
+    return [(read_image(a), read_image(b)) for a, b in zip(lefts, rights)]
 HELP = "rectify a stereo pair (Fusiello from the rig, or Hartley from matches)"
 DESCRIPTION = """Rectify LEFT and RIGHT and write to DIR: left_rect.png, right_rect.png,
 homographies.yaml (H_left, H_right: original ideal pixel -> rectified pixel) and
@@ -23,6 +36,8 @@ def add_arguments(p):
     p.add_argument("right", help="right image")
     add_rig_argument(p)
     p.add_argument("--method", choices=RECTIFICATION_METHODS, default="fusiello")
+    p.add_argument("--match-pairs", nargs=2, metavar=("LEFT_GLOB", "RIGHT_GLOB"),
+                   help="hartley: pool matches from more pairs taken by the same rig (quote the globs)")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
 
 
@@ -30,7 +45,7 @@ def run(args) -> int:
     rig = load_rig(args.rig)
     left, right = read_image(args.left), read_image(args.right)
     check_pair(left, right, rig.image_size)
-    rect = rectify_rig(rig, args.method, left, right)
+    rect = rectify_rig(rig, args.method, left, right, match_pairs=load_match_pairs(args.match_pairs))
     lr, rr = StereoRectifier(rig, rect).rectify(left, right)
     out = Path(args.output)
     write_image(out / "left_rect.png", lr)

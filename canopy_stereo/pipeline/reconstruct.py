@@ -62,23 +62,30 @@ class Reconstruction:
 
 
 def rectify_rig(rig, method: str = "fusiello", left=None, right=None,
-                match_method: str = "qdmatch") -> Rectification:
-    """Rectification for ``rig``: Fusiello from its P matrices, or Hartley from
-    matches found in the raw ``left``/``right`` images (undistorted first)."""
+                match_method: str = "qdmatch", match_pairs=()) -> Rectification:
+    """Rectification for ``rig``.
+
+    ``fusiello``: from the rig's P matrices. ``hartley``: from F estimated on
+    matches (``match_method``, quasi-dense by default) found in the raw
+    ``left``/``right`` images plus any further ``match_pairs`` taken by the same
+    fixed rig (pooling pairs spreads the matches over the whole field of view,
+    which a single planar or repetitive scene does not); matches are undistorted
+    with the rig's D before F is estimated.
+    """
     if method == "fusiello":
         return fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
     if method == "hartley":
-        if left is None or right is None:
-            raise CanopyStereoError("Hartley rectification needs the images to find matches")
+        pairs = ([(left, right)] if left is not None and right is not None else []) + list(match_pairs)
+        if not pairs:
+            raise CanopyStereoError("Hartley rectification needs images to find matches")
         from canopy_stereo.features import match_pair
 
-        try:
-            matches = match_pair(left, right, method=match_method)
-        except TypeError:
-            matches = match_pair(left, right)
-        xl = undistort_pixels(rig.P_left, rig.D_left, matches.x_left)
-        xr = undistort_pixels(rig.P_right, rig.D_right, matches.x_right)
-        return hartley_rectify(xl, xr, rig.image_size)
+        xl, xr = [], []
+        for a, b in pairs:
+            m = match_pair(a, b, method=match_method, min_matches=0)
+            xl.append(undistort_pixels(rig.P_left, rig.D_left, m.x_left))
+            xr.append(undistort_pixels(rig.P_right, rig.D_right, m.x_right))
+        return hartley_rectify(np.vstack(xl), np.vstack(xr), rig.image_size)
     raise CanopyStereoError(f"unknown rectification method {method!r}; choose fusiello or hartley")
 
 
