@@ -6,7 +6,17 @@ from setuptools import find_packages, setup
 PACKAGE = "canopy_stereo"
 
 # ROS 2 executables (`ros2 run canopy_stereo <name>`): name -> module:function.
-ROS_EXECUTABLES = {}
+ROS_EXECUTABLES = {
+    "camera_node": "canopy_stereo.ros.nodes.camera:main",
+    "rectify_node": "canopy_stereo.ros.nodes.rectify:main",
+    "disparity_node": "canopy_stereo.ros.nodes.disparity:main",
+    "segment_node": "canopy_stereo.ros.nodes.segment:main",
+    "point_cloud_node": "canopy_stereo.ros.nodes.point_cloud:main",
+    "bag_record": "canopy_stereo.ros.recorder:main",
+    "bag_play": "canopy_stereo.ros.player:main",
+    "canopy_graph": "canopy_stereo.ros.graph:main",
+    "fusion_node": "canopy_stereo.ros.fusion_node:main",
+}
 
 CONSOLE_SCRIPTS = ["canopy-stereo = canopy_stereo.cli:main"] + [
     f"{name} = {target}" for name, target in sorted(ROS_EXECUTABLES.items())

@@ -52,7 +52,7 @@ def triangulate_dlt(P_left, P_right, x_left, x_right, drop_behind: bool = True) 
     return _triangulate_kernel(P1, P2, np.ascontiguousarray(x1), np.ascontiguousarray(x2), drop_behind)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _dlt_point(P1, P2, u1, v1, u2, v2, drop_behind, out):  # pragma: no cover - compiled
     """Triangulate one match into ``out`` (3,): 4 unit-normalised DLT rows,
     3x3 normal equations solved by Cramer's rule; NaN if degenerate/behind."""
@@ -112,7 +112,7 @@ def _dlt_point(P1, P2, u1, v1, u2, v2, drop_behind, out):  # pragma: no cover - 
     out[2] = z
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _triangulate_kernel(P1, P2, x1, x2, drop_behind):  # pragma: no cover - compiled
     n = x1.shape[0]
     out = np.empty((n, 3))
@@ -121,7 +121,7 @@ def _triangulate_kernel(P1, P2, x1, x2, drop_behind):  # pragma: no cover - comp
     return out
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _rectified_grid_kernel(disp, Hl_inv, Hr_inv, P1, P2):  # pragma: no cover - compiled
     h, w = disp.shape
     out = np.full((h, w, 3), np.nan)
@@ -141,7 +141,7 @@ def _rectified_grid_kernel(disp, Hl_inv, Hr_inv, P1, P2):  # pragma: no cover - 
     return out
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _original_grid_kernel(disp, qx, qy, Hl, Hr_inv, P1, P2, max_jump):  # pragma: no cover - compiled
     hr, wr = disp.shape
     h, w = qx.shape

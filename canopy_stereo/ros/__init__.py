@@ -1,0 +1,38 @@
+"""ROS 2 layer: message converters, time pairing, MCAP bags and the node graph.
+
+Everything under this package may import ``rclpy`` and the message packages;
+the rest of :mod:`canopy_stereo` never does. Modules:
+
+* :mod:`~canopy_stereo.ros.convert`: ``sensor_msgs``/``stereo_msgs`` <-> numpy.
+* :mod:`~canopy_stereo.ros.sync`: exact and approximate time pairing (pure Python).
+* :mod:`~canopy_stereo.ros.msgdefs`: message type names and ``ros2msg`` schema text.
+* :mod:`~canopy_stereo.ros.bag`: rosbag2-compatible MCAP writer and reader.
+* :mod:`~canopy_stereo.ros.player`, :mod:`~canopy_stereo.ros.recorder`: ``bag_play``
+  and ``bag_record``.
+* :mod:`~canopy_stereo.ros.nodes`: the camera, rectify, disparity, segment and
+  point-cloud nodes.
+* :mod:`~canopy_stereo.ros.graph`: all nodes in one process (``canopy_graph``);
+  :mod:`~canopy_stereo.ros.runner` replays a bag through them (``canopy-stereo run`` / ``demo``).
+* :mod:`~canopy_stereo.ros.params`, :mod:`~canopy_stereo.ros.qos`,
+  :mod:`~canopy_stereo.ros.context`: rig parameters, QoS profiles, private contexts.
+* :mod:`~canopy_stereo.ros.bundled`: the bundled bags and rig files (and how they are made).
+
+Units: ROS messages carry metres and seconds; stamps are handled internally as
+integer nanoseconds.
+"""
+
+
+def require_ros(what: str = "this command") -> None:
+    """Raise :class:`~canopy_stereo.errors.CanopyStereoError` unless rclpy and the message
+    packages can be imported (the CLI's ROS commands call this first)."""
+    from canopy_stereo.errors import CanopyStereoError
+
+    try:
+        import rclpy  # noqa: F401
+        import sensor_msgs.msg  # noqa: F401
+        import stereo_msgs.msg  # noqa: F401
+    except ImportError as exc:
+        raise CanopyStereoError(
+            f"{what} needs ROS 2 Jazzy's rclpy and message packages ({exc.name} is missing): "
+            "pip install ros-jazzy-rclpy ros-jazzy-common-interfaces, or source a ROS 2 "
+            "installation") from None

@@ -1,0 +1,71 @@
+"""Isolated rclpy contexts and small helpers for running nodes in-process.
+
+``canopy-stereo run``, the demo, the benchmark and the tests build the whole
+graph inside one Python process. Each gets its own :class:`rclpy.context.Context`
+on a chosen DDS domain so that several runs (or a live robot on domain 0) do
+not see each other's topics.
+"""
+from __future__ import annotations
+
+import os
+import time
+from contextlib import contextmanager
+
+import rclpy
+from rclpy.context import Context
+
+#: Domains used for private runs: 100 + (pid mod 100), clear of the default 0
+#: and inside the range every DDS vendor accepts (0..232).
+PRIVATE_DOMAIN_BASE = 100
+
+
+def private_domain_id(pid: int | None = None) -> int:
+    """A DDS domain id derived from the process id (``100 .. 199``)."""
+    return PRIVATE_DOMAIN_BASE + (os.getpid() if pid is None else pid) % 100
+
+
+def env_domain_id() -> int:
+    """``ROS_DOMAIN_ID`` from the environment (0 when unset or invalid)."""
+    try:
+        return int(os.environ.get("ROS_DOMAIN_ID", "0"))
+    except ValueError:
+        return 0
+
+
+@contextmanager
+def ros_context(domain_id: int | None = None, localhost_only: bool = True, args=None):
+    """An initialised rclpy context, shut down on exit.
+
+    Args:
+        domain_id: DDS domain (default: :func:`private_domain_id`).
+        localhost_only: keep discovery on this machine
+            (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` unless already set).
+        args: command line whose ``--ros-args`` apply to every node of the
+            context (default: none, so the host program's ``sys.argv`` is ignored).
+    """
+    if localhost_only:
+        os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    context = Context()
+    rclpy.init(args=list(args or []), context=context, domain_id=private_domain_id() if domain_id is None else int(domain_id),
+               signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    try:
+        yield context
+    finally:
+        if context.ok():
+            context.try_shutdown()
+
+
+def wait_for(predicate, timeout_s: float, poll_s: float = 0.01) -> bool:
+    """Poll ``predicate()`` until it is true or ``timeout_s`` passes; returns its last value."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        if predicate():
+            return True
+        if time.monotonic() >= deadline:
+            return bool(predicate())
+        time.sleep(poll_s)
+
+
+def wait_for_subscribers(publishers, timeout_s: float = 10.0, count: int = 1) -> bool:
+    """Wait until every publisher has at least ``count`` matched subscriptions."""
+    return wait_for(lambda: all(p.get_subscription_count() >= count for p in publishers), timeout_s)

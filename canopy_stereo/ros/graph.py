@@ -1,0 +1,243 @@
+"""The whole node graph in one process, and the ``canopy_graph`` executable.
+
+:class:`CanopyGraph` creates ``rectify_node``, ``disparity_node``,
+``segment_node`` and ``point_cloud_node`` (plus two ``camera_node`` for live
+capture) with the rig's parameters, on one multi-threaded executor. Each node
+keeps its own mutually exclusive callback group, so different stages of
+consecutive frames run concurrently (OpenCV and the numba kernels release the
+GIL).
+
+``canopy_graph`` (``ros2 run canopy_stereo canopy_graph --rig RIG.yaml``) runs
+it from live cameras (``--left-device``/``--right-device``) or from a bag
+(``--bag``), optionally recording the outputs (``--record``).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import threading
+from dataclasses import dataclass, field
+
+from rclpy.executors import MultiThreadedExecutor
+
+from canopy_stereo.io.rig import Rig
+from canopy_stereo.ros.params import parameters_from_dict, rig_parameter_overrides
+
+#: Default thread count of the executor: enough for every stage to have a frame in flight.
+DEFAULT_THREADS = 6
+
+
+@dataclass
+class GraphOptions:
+    """What to build and how.
+
+    Attributes:
+        namespace: namespace of every node (topics ``<namespace>/left/image_raw``, ...).
+        matcher: disparity matcher (None: the node's default, ELAS when available).
+        segment: run ``segment_node``.
+        use_mask: ``point_cloud_node`` keeps only masked pixels (implies ``segment``).
+        organized: organized clouds (NaN for invalid) instead of dense ones.
+        reliability: publisher reliability of every node.
+        node_parameters: node name -> extra parameters (e.g. ``{"disparity_node":
+            {"elas.subsampling": True}}``).
+        parameter_services: start the parameter services (``ros2 param``) of each node.
+        threads: executor threads.
+    """
+
+    namespace: str = "/stereo"
+    matcher: str | None = None
+    segment: bool = True
+    use_mask: bool = False
+    organized: bool = False
+    reliability: str = "reliable"
+    node_parameters: dict = field(default_factory=dict)
+    parameter_services: bool = True
+    threads: int = DEFAULT_THREADS
+
+
+class CanopyGraph:
+    """The processing nodes (and optional cameras) of one rig on one executor.
+
+    Args:
+        rig: the rig (its extras, e.g. ``disp_min``, become node parameters too).
+        context: an initialised rclpy context (:func:`canopy_stereo.ros.context.ros_context`).
+        options: :class:`GraphOptions`.
+        cameras: ``(left_params, right_params)`` for two ``camera_node`` (``device``,
+            ``fps``, ...), or None when frames come from elsewhere (a bag).
+    """
+
+    def __init__(self, rig: Rig, context, options: GraphOptions | None = None, cameras=None):
+        from canopy_stereo.ros.nodes.camera import CameraNode
+        from canopy_stereo.ros.nodes.disparity import DisparityNode
+        from canopy_stereo.ros.nodes.point_cloud import PointCloudNode
+        from canopy_stereo.ros.nodes.rectify import RectifyNode
+        from canopy_stereo.ros.nodes.segment import SegmentNode
+
+        self.rig = rig
+        self.context = context
+        self.options = o = options or GraphOptions()
+        self.nodes: dict = {}
+        self.executor = MultiThreadedExecutor(num_threads=o.threads, context=context)
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        common = {"reliability": o.reliability}
+        per_node = {
+            "rectify_node": {},
+            "disparity_node": {} if o.matcher is None else {"matcher": o.matcher},
+            # nothing waits for every mask unless use_mask: let GrabCut skip frames under load
+            "segment_node": {} if o.use_mask else {"queue_size": 1},
+            "point_cloud_node": {"use_mask": bool(o.use_mask), "organized": bool(o.organized)},
+        }
+        classes = {"rectify_node": RectifyNode, "disparity_node": DisparityNode,
+                   "segment_node": SegmentNode, "point_cloud_node": PointCloudNode}
+        try:
+            if cameras is not None:
+                for side, params in zip(("left", "right"), cameras):
+                    values = {"camera_name": side, **common, **params}
+                    self._add(f"{side}_camera", CameraNode, values, rig_params=False)
+            for name, cls in classes.items():
+                if name == "segment_node" and not (o.segment or o.use_mask):
+                    continue
+                values = {**common, **per_node[name], **o.node_parameters.get(name, {})}
+                self._add(name, cls, values, rig_params=name != "segment_node")
+        except Exception:
+            self.shutdown()
+            raise
+
+    def _add(self, key, cls, values: dict, rig_params: bool) -> None:
+        overrides = (rig_parameter_overrides(self.rig) if rig_params else []) + parameters_from_dict(values)
+        kwargs = dict(context=self.context, namespace=self.options.namespace,
+                      parameter_overrides=overrides, use_global_arguments=True,
+                      start_parameter_services=self.options.parameter_services)
+        node = cls(node_name=key, **kwargs)
+        self.nodes[key] = node
+        self.executor.add_node(node)
+
+    def add_node(self, node) -> None:
+        """Run another node (a player, a recorder, a test sink) on the same executor."""
+        self.executor.add_node(node)
+
+    def spin_in_background(self) -> threading.Thread:
+        """Spin the executor in a daemon thread (stopped by :meth:`shutdown`)."""
+        def spin():
+            try:
+                while self.context.ok() and not self._stop.is_set():
+                    self.executor.spin_once(timeout_sec=0.05)
+            except Exception:  # noqa: BLE001 - context shut down under the executor
+                if self.context.ok() and not self._stop.is_set():
+                    raise
+
+        self._stop.clear()
+        self._thread = threading.Thread(target=spin, name="canopy_graph", daemon=True)
+        self._thread.start()
+        return self._thread
+
+    def stats(self) -> dict:
+        """Node name -> ``{"counts": ..., "drops": ...}``."""
+        return {name: node.stats() for name, node in self.nodes.items()}
+
+    def shutdown(self) -> None:
+        """Stop spinning and destroy the nodes (the context stays up)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=10)
+            self._thread = None
+        # rclpy's Executor.shutdown neither waits for work already handed to the thread
+        # pool (a message take, a callback) nor keeps its guard condition for it: drain
+        # the pool first, then shut the executor down, then destroy the nodes
+        pool = getattr(self.executor, "_executor", None)
+        if pool is not None and hasattr(pool, "shutdown"):
+            pool.shutdown(wait=True)
+        self.executor.shutdown(timeout_sec=30.0)
+        for node in list(self.nodes.values()):
+            node.destroy_node()
+        self.nodes.clear()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="canopy_graph",
+        description="All canopy_stereo nodes in one process, from live cameras or a bag.")
+    p.add_argument("--rig", required=True, metavar="RIG.yaml", help="rig file (ROS 2 parameter YAML)")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--bag", metavar="BAG.mcap", help="replay this bag's left/right image_raw")
+    src.add_argument("--cameras", nargs=2, metavar=("LEFT", "RIGHT"),
+                     help="camera devices (V4L2 index, /dev path, video file or image pattern)")
+    p.add_argument("--rate", type=float, default=1.0, help="bag playback speed (0 = as fast as possible)")
+    p.add_argument("--loop", action="store_true", help="replay the bag until Ctrl-C")
+    p.add_argument("--fps", type=float, default=15.0, help="camera frame rate")
+    p.add_argument("--width", type=int, default=0, help="camera width (default: the rig's)")
+    p.add_argument("--height", type=int, default=0, help="camera height (default: the rig's)")
+    p.add_argument("--fourcc", default="", help="camera pixel format, e.g. MJPG")
+    p.add_argument("--record", metavar="OUT.mcap", help="record the outputs")
+    p.add_argument("--matcher", choices=("elas", "sgbm"), default=None)
+    p.add_argument("--use-mask", action="store_true", help="keep only plant pixels in the clouds")
+    p.add_argument("--no-segment", action="store_true", help="do not run segment_node")
+    p.add_argument("--organized", action="store_true", help="organized clouds")
+    p.add_argument("--namespace", default="/stereo")
+    p.add_argument("--threads", type=int, default=DEFAULT_THREADS, help="executor threads")
+    return p
+
+
+def main(args=None) -> int:
+    """``canopy_graph`` executable (``--ros-args`` after the options are passed to every node)."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.utilities import remove_ros_args
+
+    from canopy_stereo.errors import CanopyStereoError
+    from canopy_stereo.io.rig import load_rig
+    from canopy_stereo.ros.nodes.base import install_stop_signals, spin_until_interrupted
+
+    argv = sys.argv if args is None else args
+    opts = build_parser().parse_args(remove_ros_args(argv)[1:])
+    options = GraphOptions(namespace=opts.namespace, matcher=opts.matcher,
+                           segment=not opts.no_segment or opts.use_mask, use_mask=opts.use_mask,
+                           organized=opts.organized, threads=opts.threads)
+    if opts.cameras:
+        # free-running cameras: any two frames are at most half a period apart from the nearest
+        options.node_parameters = {"rectify_node": {"sync_slop": 0.5 / max(opts.fps, 1e-3)}}
+    rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    install_stop_signals()
+    context = rclpy.get_default_context()
+    graph = recorder = None
+    try:
+        rig = load_rig(opts.rig)
+        if opts.bag:
+            from canopy_stereo.ros.runner import run_bag
+
+            while True:
+                result = run_bag(opts.bag, rig, rate=opts.rate, record=opts.record, options=options,
+                                 context=context)
+                print("\n".join(result.summary_lines()), flush=True)
+                if not opts.loop or not rclpy.ok():
+                    return 0
+        w = opts.width or rig.image_size[0]
+        h = opts.height or rig.image_size[1]
+        cam = {"width": w, "height": h, "fps": float(opts.fps), "fourcc": opts.fourcc}
+        graph = CanopyGraph(rig, context, options, cameras=(
+            {**cam, "device": str(opts.cameras[0])}, {**cam, "device": str(opts.cameras[1])}))
+        if opts.record:
+            from canopy_stereo.ros.bag import BagWriter
+            from canopy_stereo.ros.recorder import BagRecorder
+
+            ns = "/" + options.namespace.strip("/")
+            topics = [f"{ns}/{t}" for t in ("points2", "disparity", "left/mask", "left/camera_info",
+                                             "right/camera_info", "left/image_raw", "right/image_raw")]
+            recorder = BagRecorder(BagWriter(opts.record, compression="lz4"), topics, context=context)
+            graph.add_node(recorder)
+        spin_until_interrupted(graph.executor, context)
+        return 0
+    except CanopyStereoError as exc:
+        print(f"canopy_graph: error: {exc}", file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+    finally:
+        if recorder is not None:
+            recorder.close()
+            recorder.destroy_node()
+        if graph is not None:
+            graph.shutdown()
+        if rclpy.ok():
+            rclpy.shutdown()

@@ -1,0 +1,140 @@
+"""Node parameters shared by the nodes that need the rig.
+
+A rig file (:mod:`canopy_stereo.io.rig`) is a ROS 2 parameter file under the
+``/**`` wildcard, so ``--ros-args --params-file config/paper_rig.yaml`` gives
+every node ``P_left``, ``P_right``, ``D_left``, ``D_right``, ``image_width``,
+``image_height`` and ``world_unit`` (plus extras such as ``method``,
+``H_left``/``H_right``, ``disp_min``/``disp_max``). Alternatively the
+parameter ``rig_file`` names such a file. These parameters are read-only:
+the rectification maps are built once at start-up.
+"""
+from __future__ import annotations
+
+import numpy as np
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.parameter import Parameter
+
+from canopy_stereo.errors import RigError
+from canopy_stereo.geometry.rectification import Rectification, fusiello_rectify
+from canopy_stereo.io.rig import Rig, load_rig, rig_from_parameters
+
+#: rig parameter name -> description
+RIG_PARAMETERS = {
+    "P_left": "left 3x4 projection matrix, world -> original pixels (12 numbers, row-major)",
+    "P_right": "right 3x4 projection matrix (12 numbers, row-major)",
+    "D_left": "left distortion coefficients (OpenCV order), optional",
+    "D_right": "right distortion coefficients (OpenCV order), optional",
+    "image_width": "width of the raw images in pixels",
+    "image_height": "height of the raw images in pixels",
+    "world_unit": "unit of the world frame of P (m, cm, mm, ...)",
+}
+
+RECTIFICATION_METHODS = ("fusiello", "hartley")
+
+
+def _read_only(description: str, dynamic: bool = True) -> ParameterDescriptor:
+    return ParameterDescriptor(description=description, read_only=True, dynamic_typing=dynamic)
+
+
+def declare_rig_parameters(node) -> None:
+    """Declare ``rig_file``, the rig parameters, ``method`` and ``H_left``/``H_right``."""
+    node.declare_parameter("rig_file", "", _read_only("rig file (ROS 2 parameter YAML); "
+                                                      "used when P_left/P_right are not set"))
+    for name, desc in RIG_PARAMETERS.items():
+        node.declare_parameter(name, None, _read_only(desc))
+    node.declare_parameter("method", "fusiello", _read_only(
+        "rectification: fusiello (calibrated) or hartley (H_left/H_right from the CLI)"))
+    node.declare_parameter("H_left", None, _read_only("hartley: left rectifying homography (9 numbers)"))
+    node.declare_parameter("H_right", None, _read_only("hartley: right rectifying homography (9 numbers)"))
+
+
+def _value(node, name):
+    value = node.get_parameter(name).value
+    if value is None:
+        return None
+    if isinstance(value, (list, tuple)) or hasattr(value, "tolist"):
+        value = list(value)
+        return value if value else None
+    return value
+
+
+def rig_from_node(node) -> Rig:
+    """The :class:`Rig` described by the node's parameters (raises :class:`RigError`)."""
+    params = {name: _value(node, name) for name in RIG_PARAMETERS}
+    params = {k: v for k, v in params.items() if v is not None}
+    rig_file = node.get_parameter("rig_file").value
+    if "P_left" not in params and "P_right" not in params:
+        if not rig_file:
+            raise RigError("no rig: pass a rig file with --params-file (P_left, P_right, "
+                           "image_width, image_height) or set the parameter rig_file")
+        rig = load_rig(rig_file)
+        return rig
+    return rig_from_parameters(params, source=f"node {node.get_name()} parameters")
+
+
+def rectification_from_node(node, rig: Rig) -> Rectification:
+    """Rectification named by ``method`` (Fusiello from the rig, Hartley from ``H_left``/``H_right``)."""
+    method = node.get_parameter("method").value or rig.extra.get("method", "fusiello")
+    return rectification_for(rig, method, _value(node, "H_left") or rig.extra.get("H_left"),
+                             _value(node, "H_right") or rig.extra.get("H_right"))
+
+
+def rectification_for(rig: Rig, method: str = "fusiello", H_left=None, H_right=None) -> Rectification:
+    """Fusiello rectification of ``rig``, or the Hartley one given its two homographies."""
+    if method == "fusiello":
+        return fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
+    if method == "hartley":
+        if H_left is None or H_right is None:
+            raise RigError("method hartley needs H_left and H_right (computed offline with "
+                           "canopy-stereo rectify --method hartley)")
+        Hs = []
+        for name, H in (("H_left", H_left), ("H_right", H_right)):
+            H = np.asarray(H, np.float64).reshape(-1)
+            if H.size != 9 or not np.all(np.isfinite(H)):
+                raise RigError(f"{name} must be 9 finite numbers (a 3x3 homography)")
+            H = H.reshape(3, 3)
+            if abs(np.linalg.det(H)) < 1e-12 * np.abs(H).max() ** 3:
+                raise RigError(f"{name} is singular")
+            Hs.append(H / H[2, 2])
+        drange = None
+        if "disp_min" in rig.extra and "disp_max" in rig.extra:
+            drange = (int(rig.extra["disp_min"]), int(rig.extra["disp_max"]))
+        return Rectification(H_left=Hs[0], H_right=Hs[1], size=rig.image_size, method="hartley",
+                             disparity_range=drange)
+    raise RigError(f"unknown rectification method {method!r}; choose "
+                   f"{' or '.join(RECTIFICATION_METHODS)}")
+
+
+def rig_parameter_overrides(rig: Rig, include_extra: bool = True) -> list[Parameter]:
+    """The rig as ``rclpy`` parameters (for nodes created in-process)."""
+    params = rig.to_parameters() if include_extra else {
+        k: v for k, v in rig.to_parameters().items() if k in RIG_PARAMETERS}
+    return parameters_from_dict(params)
+
+
+def flatten_parameters(values: dict, prefix: str = "") -> dict:
+    """``{"elas": {"subpixel": True}}`` -> ``{"elas.subpixel": True}`` (ROS parameter names)."""
+    flat = {}
+    for name, value in values.items():
+        key = f"{prefix}{name}"
+        if isinstance(value, dict):
+            flat.update(flatten_parameters(value, key + "."))
+        else:
+            flat[key] = value
+    return flat
+
+
+def parameters_from_dict(values: dict) -> list[Parameter]:
+    """``rclpy`` parameters from plain Python values (nested mappings become dotted
+    names, lists of numbers double arrays; empty lists are skipped)."""
+    out = []
+    for name, value in flatten_parameters(values).items():
+        if isinstance(value, (list, tuple)) and value and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+            value = [float(v) for v in value]
+        if isinstance(value, (list, tuple)) and not value:
+            continue
+        if isinstance(value, np.generic):
+            value = value.item()
+        out.append(Parameter(name, value=value))
+    return out

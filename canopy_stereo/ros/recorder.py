@@ -1,0 +1,188 @@
+"""Recording topics to a bag (``bag_record``).
+
+:class:`BagRecorder` is a node that subscribes to topics with raw (serialized)
+callbacks and appends the CDR bytes to a :class:`~canopy_stereo.ros.bag.BagWriter`
+with the reception time as log time. With ``all_topics`` it discovers topics
+as they appear. Its subscription QoS follows the publishers (best effort if
+any publisher of the topic is), keep last ``depth``.
+
+The bag stays valid whatever ends the recording: ``bag_record`` closes it on
+Ctrl-C (SIGINT) and SIGTERM, and the chunks are flushed every second, so
+even a killed recorder leaves a file that :class:`~canopy_stereo.ros.bag.BagReader`
+reads up to the last second.
+
+``bag_record -o OUT.mcap TOPIC ... | --all [--namespace NS]``.
+"""
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+
+from rclpy.node import Node
+from rclpy.qos import ReliabilityPolicy
+
+from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.ros.bag import BagWriter, qos_profiles_yaml
+from canopy_stereo.ros.msgdefs import message_class, type_name
+from canopy_stereo.ros.qos import recording_qos
+
+#: Topics never recorded by ``--all`` (ROS internals).
+IGNORED_TOPICS = ("/rosout", "/parameter_events")
+
+
+def header_stamp_from_cdr(data: bytes) -> int | None:
+    """Header stamp (ns) of a serialized message that starts with ``std_msgs/Header``.
+
+    CDR layout: 4-byte encapsulation (``00 01`` little-endian), then ``int32 sec``,
+    ``uint32 nanosec``. Returns None for data too short or of unknown encoding.
+    """
+    if len(data) < 12 or data[0] != 0 or data[1] not in (0, 1):
+        return None
+    order = "little" if data[1] == 1 else "big"
+    sec = int.from_bytes(data[4:8], order, signed=True)
+    nsec = int.from_bytes(data[8:12], order, signed=False)
+    return sec * 1_000_000_000 + nsec
+
+
+class BagRecorder(Node):
+    """Record topics into ``writer`` (see module docstring).
+
+    Args:
+        writer: an open :class:`BagWriter` (closed by :meth:`close`).
+        topics: topic names (absolute, or relative to the node namespace).
+        all_topics: also record every topic that appears (checked each second).
+        depth: subscription queue depth.
+        flush_period_s: how often completed chunks are written out (0 = never).
+        on_message: optional ``f(topic, data, log_time_ns)`` called for each message.
+    """
+
+    def __init__(self, writer: BagWriter, topics=(), all_topics: bool = False, depth: int = 50,
+                 flush_period_s: float = 1.0, on_message=None, node_name: str = "bag_recorder",
+                 **kwargs):
+        super().__init__(node_name, **kwargs)
+        self.writer = writer
+        self.depth = int(depth)
+        self.all_topics = bool(all_topics)
+        self.on_message = on_message
+        self.subscriptions_by_topic = {}
+        self.received = {}
+        self._lock = threading.Lock()
+        self._pending = [self.resolve_topic_name(t) for t in topics]
+        self._try_subscribe()
+        self._timer = self.create_timer(0.2, self._try_subscribe)
+        if flush_period_s > 0:
+            self._flush_timer = self.create_timer(flush_period_s, self.writer.flush)
+
+    def _publisher_reliability(self, topic: str) -> str:
+        infos = self.get_publishers_info_by_topic(topic)
+        if any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos):
+            return "best_effort"
+        return "reliable"
+
+    def _try_subscribe(self) -> None:
+        """Subscribe to pending topics whose type is known (from the ROS graph)."""
+        known = dict(self.get_topic_names_and_types())
+        if self.all_topics:
+            for name in known:
+                if name not in IGNORED_TOPICS and name not in self.subscriptions_by_topic \
+                        and name not in self._pending:
+                    self._pending.append(name)
+        for topic in list(self._pending):
+            types = known.get(topic)
+            if not types:
+                continue
+            try:
+                cls = message_class(types[0])
+            except CanopyStereoError as exc:
+                self.get_logger().warning(f"not recording {topic}: {exc}")
+                self._pending.remove(topic)
+                continue
+            self.add_topic(topic, cls, self._publisher_reliability(topic))
+
+    def add_topic(self, topic: str, msg_class, reliability: str = "reliable") -> None:
+        """Start recording ``topic`` of type ``msg_class`` now (no graph lookup)."""
+        topic = self.resolve_topic_name(topic)
+        with self._lock:
+            if topic in self.subscriptions_by_topic:
+                return
+            if topic in self._pending:
+                self._pending.remove(topic)
+            tname = type_name(msg_class)
+            self.writer.add_topic(topic, tname, qos_profiles_yaml(reliability))
+            self.received[topic] = 0
+            self.subscriptions_by_topic[topic] = self.create_subscription(
+                msg_class, topic, lambda data, t=topic, n=tname: self._on_message(t, n, data),
+                recording_qos(self.depth, reliability), raw=True)
+        self.get_logger().info(f"recording {topic} ({tname}, {reliability})")
+
+    def _on_message(self, topic: str, tname: str, data: bytes) -> None:
+        now = time.time_ns()
+        self.writer.write(topic, data, now, header_stamp_from_cdr(data), tname)
+        with self._lock:
+            self.received[topic] += 1
+        if self.on_message is not None:
+            self.on_message(topic, data, now)
+
+    def close(self):
+        """Stop recording and close the bag (valid file)."""
+        for sub in list(self.subscriptions_by_topic.values()):
+            self.destroy_subscription(sub)
+        self.subscriptions_by_topic.clear()
+        return self.writer.close()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="bag_record", description="Record topics to a rosbag2 MCAP file.")
+    p.add_argument("topics", nargs="*", help="topics to record")
+    p.add_argument("-o", "--output", required=True, help="output bag (.mcap)")
+    p.add_argument("-a", "--all", action="store_true", help="record every topic that appears")
+    p.add_argument("--compression", default="zstd", choices=("zstd", "lz4", "none"))
+    p.add_argument("--max-duration", type=float, default=0.0, metavar="S",
+                   help="stop after S seconds (0 = until Ctrl-C/SIGTERM)")
+    return p
+
+
+def main(args=None) -> int:
+    """``bag_record`` executable; SIGINT/SIGTERM end the recording with a valid file."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.utilities import remove_ros_args
+
+    argv = sys.argv if args is None else args
+    opts = build_parser().parse_args(remove_ros_args(argv)[1:])
+    if not opts.topics and not opts.all:
+        print("bag_record: error: name topics to record or use --all", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    for sig in (signal.SIGINT, signal.SIGTERM):  # finish the file, then exit
+        signal.signal(sig, lambda *_: stop.set())
+    recorder = None
+    try:
+        writer = BagWriter(opts.output, compression=opts.compression)
+        recorder = BagRecorder(writer, opts.topics, all_topics=opts.all)
+        executor = SingleThreadedExecutor()
+        executor.add_node(recorder)
+        deadline = time.monotonic() + opts.max_duration if opts.max_duration > 0 else None
+        print(f"bag_record: recording to {opts.output}", file=sys.stderr, flush=True)
+        while not stop.is_set() and rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+            if deadline is not None and time.monotonic() >= deadline:
+                break
+        return 0
+    except CanopyStereoError as exc:
+        print(f"bag_record: error: {exc}", file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+    finally:
+        if recorder is not None:
+            path = recorder.close()
+            counts = ", ".join(f"{t}: {n}" for t, n in recorder.received.items())
+            print(f"bag_record: wrote {path} ({counts or 'no messages'})", file=sys.stderr)
+            recorder.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()

@@ -1,0 +1,321 @@
+"""Replay a bag through the real node graph and record its outputs.
+
+This is ``canopy-stereo run`` (and the engine of ``canopy-stereo demo`` and
+``benchmarks/bench_graph.py``): the bag's ``left/image_raw`` and
+``right/image_raw`` messages are published into a :class:`~canopy_stereo.ros.graph.CanopyGraph`
+built in-process on a private DDS domain; the outputs (``disparity``,
+``points2``, ``left/mask``, camera infos) are received by a recorder node and
+written to a bag.
+
+Frames and timing: a *frame* is one left image. It is complete when a
+``points2`` with its stamp arrives (``rectify_node`` stamps pairs with the left
+stamp); frames overtaken by a later cloud, or still missing when the graph has
+been idle for ``idle_s``, count as dropped. With ``rate = 0`` the player keeps
+at most ``max_in_flight`` frames in the graph (as fast as the graph goes,
+without overrunning its queues). Latency is measured from the publication of a
+frame's second image to the reception of its cloud.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.io.rig import Rig
+from canopy_stereo.ros.bag import BagReader, BagWriter, qos_profiles_yaml
+from canopy_stereo.ros.context import ros_context, wait_for, wait_for_subscribers
+from canopy_stereo.ros.graph import CanopyGraph, GraphOptions
+from canopy_stereo.ros.msgdefs import type_name
+from canopy_stereo.ros.nodes.base import CanopyNode
+from canopy_stereo.ros.player import BagPlayer
+from canopy_stereo.ros.qos import recording_qos
+from canopy_stereo.ros.recorder import header_stamp_from_cdr
+
+
+@dataclass
+class RunResult:
+    """Outcome of :func:`run_bag`.
+
+    Attributes:
+        frames_in: left frames published.
+        frames_out: clouds received for them.
+        frames_dropped: frames that produced no cloud.
+        wall_s: seconds from the first published frame to the last cloud.
+        latencies_s: per completed frame, second raw image published -> cloud received.
+        recorded: the output bag, or None.
+        outputs: topic -> list of ``(stamp_ns, CDR bytes)`` for the topics asked to keep.
+        graph_stats: node -> counters and drop reasons.
+        truncated, problem: the input bag was cut short (and why).
+    """
+
+    frames_in: int = 0
+    frames_out: int = 0
+    frames_dropped: int = 0
+    wall_s: float = 0.0
+    latencies_s: list = field(default_factory=list)
+    recorded: Path | None = None
+    outputs: dict = field(default_factory=dict)
+    graph_stats: dict = field(default_factory=dict)
+    truncated: bool = False
+    problem: str = ""
+
+    @property
+    def fps(self) -> float:
+        """Clouds per second over :attr:`wall_s`."""
+        return self.frames_out / self.wall_s if self.wall_s > 0 else 0.0
+
+    @property
+    def latency_median_s(self) -> float:
+        return float(np.median(self.latencies_s)) if self.latencies_s else float("nan")
+
+    def summary_lines(self) -> list[str]:
+        """Human-readable figures (frames in/out, fps, latency, drops)."""
+        lines = [f"frames in: {self.frames_in}, frames out: {self.frames_out}, "
+                 f"dropped: {self.frames_dropped}",
+                 f"throughput: {self.fps:.2f} frames/s over {self.wall_s:.2f} s"]
+        if self.latencies_s:
+            lat = np.asarray(self.latencies_s) * 1e3
+            lines.append(f"latency raw pair -> points2: median {np.median(lat):.0f} ms, "
+                         f"max {lat.max():.0f} ms")
+        if self.truncated:
+            lines.append(f"input bag truncated: {self.problem}")
+        for node, st in sorted(self.graph_stats.items()):
+            for reason, n in sorted(st.get("drops", {}).items()):
+                lines.append(f"{node} dropped {n}x {reason}")
+        if self.recorded is not None:
+            lines.append(f"recorded: {self.recorded}")
+        return lines
+
+
+class _FrameBook:
+    """Frames in flight, completion and latency (thread-safe)."""
+
+    def __init__(self):
+        self.cond = threading.Condition()
+        self.in_flight: dict[int, float] = {}  # left stamp -> pair publish time
+        self.right_times: dict[int, float] = {}
+        self.frames_in = self.frames_out = self.dropped = 0
+        self.first_pub = None
+        self.last_out = None
+        self.last_activity = time.monotonic()
+        self.latencies: list[float] = []
+
+    def published(self, is_left: bool, stamp: int, t: float) -> None:
+        with self.cond:
+            self.last_activity = t
+            if self.first_pub is None:
+                self.first_pub = t
+            if is_left:
+                self.in_flight[stamp] = t
+                self.frames_in += 1
+            else:
+                self.right_times[stamp] = t
+                if len(self.right_times) > 64:
+                    self.right_times.pop(min(self.right_times))
+            self.cond.notify_all()
+
+    def _pair_time(self, stamp: int) -> float:
+        t = self.in_flight[stamp]
+        if self.right_times:
+            nearest = min(self.right_times, key=lambda s: abs(s - stamp))
+            t = max(t, self.right_times[nearest])
+        return t
+
+    def completed(self, stamp: int, t: float) -> None:
+        with self.cond:
+            self.last_activity = t
+            for s in sorted(self.in_flight):
+                if s > stamp:
+                    break
+                if s == stamp:
+                    self.latencies.append(t - self._pair_time(s))
+                    self.frames_out += 1
+                    self.last_out = t
+                else:
+                    self.dropped += 1
+                del self.in_flight[s]
+            self.cond.notify_all()
+
+    def drop_oldest(self) -> None:
+        with self.cond:
+            if self.in_flight:
+                del self.in_flight[min(self.in_flight)]
+                self.dropped += 1
+            self.cond.notify_all()
+
+
+def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOptions | None = None,
+            domain_id: int | None = None, max_in_flight: int = 2, idle_s: float = 2.0,
+            timeout_s: float = 120.0, keep=(), remap: dict | None = None,
+            startup_timeout_s: float = 30.0, progress=None, compression: str = "lz4",
+            context=None) -> RunResult:
+    """Replay ``bag_path`` through the graph for ``rig``; see the module docstring.
+
+    Args:
+        bag_path: input bag with ``<ns>/left/image_raw`` and ``<ns>/right/image_raw``
+            (after ``remap``).
+        rig: the rig of the cameras that recorded it.
+        rate: playback speed (1 = recorded timing, 0 = as fast as the graph goes).
+        record: output bag path for the graph's outputs, or None.
+        options: graph options (namespace, matcher, segmentation, ...).
+        domain_id: DDS domain (default: a private one derived from the pid).
+        max_in_flight: frames inside the graph at once when ``rate == 0``.
+        idle_s: a frame missing after the graph has been idle this long is dropped.
+        timeout_s: give up waiting for any single frame after this long.
+        keep: output topics whose messages are returned in :attr:`RunResult.outputs`
+            (names relative to the namespace, e.g. ``"points2"``).
+        remap: bag topic -> topic to publish it on.
+        progress: optional ``f(frames_out)`` callback per cloud.
+        compression: chunk compression of the output bag (lz4 keeps up with the graph;
+            zstd is smaller but costs about 20 ms per megabyte of output on this machine).
+        context: an initialised rclpy context to build the graph in (default: a
+            private one on ``domain_id``, shut down at the end).
+    """
+    from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+    from stereo_msgs.msg import DisparityImage
+
+    options = options or GraphOptions()
+    if rate < 0:
+        raise CanopyStereoError(f"rate must be >= 0, got {rate}")
+    if max_in_flight < 1:
+        raise CanopyStereoError(f"max_in_flight must be >= 1, got {max_in_flight}")
+    bag = BagReader(bag_path)
+    remap = dict(remap or {})
+    ns = "/" + options.namespace.strip("/") if options.namespace.strip("/") else ""
+    in_left, in_right = f"{ns}/left/image_raw", f"{ns}/right/image_raw"
+    play_topics = [t for t in bag.topics if remap.get(t, t) in (in_left, in_right)]
+    sides = {remap.get(t, t) for t in play_topics}
+    if sides != {in_left, in_right}:
+        raise CanopyStereoError(
+            f"{bag.path} has no {in_left} and {in_right} to play (topics: "
+            f"{', '.join(sorted(bag.topics)) or 'none'}); use remapping")
+    left_topics = {t for t in play_topics if remap.get(t, t) == in_left}
+    outputs = {"points2": PointCloud2, "disparity": DisparityImage,
+               "left/camera_info": CameraInfo, "right/camera_info": CameraInfo}
+    if options.segment or options.use_mask:
+        outputs["left/mask"] = Image
+    result = RunResult(truncated=bag.truncated, problem=bag.problem,
+                       outputs={k: [] for k in keep})
+    book = _FrameBook()
+    writer = BagWriter(record, compression=compression) if record is not None else None
+    try:
+        _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, remap, startup_timeout_s,
+             progress, context, play_topics, left_topics, ns, outputs, result, book, writer)
+    finally:
+        if writer is not None:
+            result.recorded = writer.close()
+    result.frames_in, result.frames_out = book.frames_in, book.frames_out
+    result.frames_dropped = book.dropped + len(book.in_flight)
+    result.latencies_s = list(book.latencies)
+    if book.first_pub is not None and book.last_out is not None:
+        result.wall_s = book.last_out - book.first_pub
+    return result
+
+
+def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, remap, startup_timeout_s,
+         progress, context, play_topics, left_topics, ns, outputs, result, book, writer) -> None:
+    """Build the graph, play, drain and tear down (the body of :func:`run_bag`)."""
+    reliability = options.reliability
+    with (_given(context) if context is not None else ros_context(domain_id)) as ctx:
+        graph = CanopyGraph(rig, ctx, options)
+        io_node = CanopyNode("canopy_run", context=ctx, namespace=ns or "/",
+                             start_parameter_services=False)
+        try:
+            def on_output(rel: str, data: bytes) -> None:
+                now = time.monotonic()
+                stamp = header_stamp_from_cdr(bytes(data))
+                if writer is not None:
+                    writer.write(f"{ns}/{rel}", bytes(data), time.time_ns(), stamp,
+                                 type_name(outputs[rel]))
+                if rel in result.outputs:
+                    result.outputs[rel].append((stamp, bytes(data)))
+                if rel == "points2" and stamp is not None:
+                    book.completed(stamp, now)
+                    if progress is not None:
+                        progress(book.frames_out)
+
+            for rel, cls in outputs.items():
+                if writer is not None:
+                    writer.add_topic(f"{ns}/{rel}", type_name(cls), qos_profiles_yaml(reliability))
+                io_node.create_subscription(cls, f"{ns}/{rel}",
+                                            io_node.guarded(lambda d, r=rel: on_output(r, d)),
+                                            recording_qos(50, reliability), raw=True)
+            player = BagPlayer(io_node, bag, rate, remap=remap, topics=play_topics, depth=5)
+            graph.add_node(io_node)
+            graph.spin_in_background()
+            _wait_connected(graph, io_node, player, startup_timeout_s)
+
+            def graph_idle_for(seconds: float) -> bool:
+                """No node has run a callback, and no frame moved, for ``seconds``."""
+                return (all(n.idle_for() >= seconds for n in graph.nodes.values())
+                        and time.monotonic() - book.last_activity >= seconds)
+
+            def before_publish(m) -> bool:
+                if m.topic not in left_topics or rate > 0:
+                    return True
+                deadline = time.monotonic() + timeout_s
+                with book.cond:
+                    while len(book.in_flight) >= max_in_flight:
+                        book.cond.wait(0.05)
+                        if len(book.in_flight) < max_in_flight:
+                            break
+                        if time.monotonic() >= deadline or graph_idle_for(idle_s):
+                            book.drop_oldest()  # the condition's lock is re-entrant
+                            deadline = time.monotonic() + timeout_s
+                return True
+
+            def on_published(m, t) -> None:
+                stamp = header_stamp_from_cdr(m.data)
+                if stamp is not None:
+                    book.published(m.topic in left_topics, stamp, t)
+
+            player.play(before_publish=before_publish, on_published=on_published)
+            start_wait = time.monotonic()
+            while book.in_flight:
+                if time.monotonic() - start_wait > timeout_s or graph_idle_for(idle_s):
+                    book.drop_oldest()
+                    start_wait = time.monotonic()
+                    continue
+                with book.cond:
+                    book.cond.wait(0.05)
+        finally:
+            result.graph_stats = graph.stats()
+            graph.shutdown()
+            io_node.destroy_node()
+            if io_node.drops:
+                result.graph_stats["canopy_run"] = io_node.stats()
+
+
+@contextmanager
+def _given(context):
+    yield context
+
+
+def _wait_connected(graph: CanopyGraph, io_node, player: BagPlayer, timeout_s: float) -> None:
+    """Wait until every publisher in the process is matched with its in-process subscribers."""
+    nodes = list(graph.nodes.values()) + [io_node]
+    wanted: dict[str, int] = {}
+    for node in nodes:
+        for sub in node.subscriptions:
+            wanted[sub.topic_name] = wanted.get(sub.topic_name, 0) + 1
+    pubs = [(p, wanted[p.topic_name]) for node in nodes for p in node.publishers
+            if p.topic_name in wanted]
+    offered: dict[str, int] = {}
+    for p, _ in pubs:
+        offered[p.topic_name] = offered.get(p.topic_name, 0) + 1
+    subs = [(s, offered[s.topic_name]) for node in nodes for s in node.subscriptions
+            if s.topic_name in offered]
+
+    def ready() -> bool:  # matched on both sides, so that no first message is lost
+        return (all(p.get_subscription_count() >= n for p, n in pubs)
+                and all(s.get_publisher_count() >= n for s, n in subs))
+
+    if not wait_for(ready, timeout_s) or not wait_for_subscribers(player.publishers.values(), 1.0):
+        missing = sorted({p.topic_name for p, n in pubs if p.get_subscription_count() < n})
+        raise CanopyStereoError(f"the node graph did not connect within {timeout_s:g} s "
+                                f"(unmatched: {', '.join(missing) or 'bag topics'})")

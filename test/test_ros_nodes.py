@@ -1,0 +1,462 @@
+"""The nodes, one at a time, in-process on a private DDS domain (numbers against the core)."""
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+pytest.importorskip("stereo_msgs.msg")
+
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2  # noqa: E402
+from stereo_msgs.msg import DisparityImage  # noqa: E402
+
+from canopy_stereo.geometry.camera import point_depth  # noqa: E402
+from canopy_stereo.geometry.rectification import StereoRectifier, fusiello_rectify  # noqa: E402
+from canopy_stereo.ros import convert  # noqa: E402
+from canopy_stereo.ros.context import ros_context, wait_for, wait_for_subscribers  # noqa: E402
+from canopy_stereo.ros.params import rig_parameter_overrides  # noqa: E402
+from canopy_stereo.ros.qos import publisher_qos, recording_qos  # noqa: E402
+
+pytestmark = pytest.mark.ros
+
+T0 = 1_700_000_000_000_000_000
+TIMEOUT = 20.0  # generous: the machine may be loaded
+
+
+class Harness:
+    """A context, an executor spinning in a thread, and a helper node to publish/collect."""
+
+    def __init__(self, ctx):
+        import threading
+
+        self.ctx = ctx
+        self.executor = SingleThreadedExecutor(context=ctx)  # nothing left running after close()
+        self.helper = Node("test_helper", context=ctx, namespace="/stereo", start_parameter_services=False)
+        self.executor.add_node(self.helper)
+        self.nodes = [self.helper]
+        self.received = {}
+        self.subscriptions = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self):
+        while not self._stop.is_set() and self.ctx.ok():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def add(self, node):
+        self.nodes.append(node)
+        self.executor.add_node(node)
+        return node
+
+    def publisher(self, msg_type, topic):
+        return self.helper.create_publisher(msg_type, topic, publisher_qos())
+
+    def collect(self, msg_type, topic):
+        self.received[topic] = []
+        sub = self.helper.create_subscription(msg_type, topic, self.received[topic].append, recording_qos())
+        self.subscriptions[topic] = sub
+        return self.received[topic]
+
+    def wait_publishers(self, *topics):
+        subs = [self.subscriptions[t] for t in topics]
+        assert wait_for(lambda: all(s.get_publisher_count() >= 1 for s in subs), TIMEOUT), \
+            "publishers did not connect"
+
+    def connect(self, *pubs):
+        assert wait_for_subscribers(pubs, TIMEOUT), "subscribers did not connect"
+
+    def close(self):
+        self._stop.set()
+        self._thread.join(timeout=10)
+        for node in reversed(self.nodes):
+            node.destroy_node()
+        self.executor.shutdown(timeout_sec=1)
+
+
+@pytest.fixture
+def harness():
+    with ros_context() as ctx:
+        h = Harness(ctx)
+        try:
+            yield h
+        finally:
+            h.close()
+
+
+def node_kwargs(harness, rig=None, **params):
+    overrides = (rig_parameter_overrides(rig) if rig is not None else [])
+    overrides += [Parameter(k, value=v) for k, v in params.items()]
+    return dict(context=harness.ctx, namespace="/stereo", parameter_overrides=overrides,
+                start_parameter_services=False)
+
+
+def textured_pair(rig, shift_px=20, seed=0):
+    """Left/right images of a random texture, the right one shifted so that every
+    left pixel ``u`` matches the right pixel ``u - shift_px`` (disparity ``shift_px``)."""
+    rng = np.random.default_rng(seed)
+    w, h = rig.image_size
+    tex = cv2.resize(rng.integers(0, 256, (h // 2 + 1, (w + shift_px) // 2 + 1, 3), dtype=np.uint8),
+                     None, fx=2, fy=2, interpolation=cv2.INTER_LINEAR)
+    return tex[:h, :w].copy(), tex[:h, shift_px:shift_px + w].copy()
+
+
+# --------------------------------------------------------------------------- rectify_node
+
+
+def test_rectify_node_pairs_by_approximate_time_and_publishes_ros_camera_info(harness, paper_rig):
+    from canopy_stereo.ros.nodes.rectify import RectifyNode
+
+    node = harness.add(RectifyNode(**node_kwargs(harness, paper_rig, sync_slop=0.01)))
+    rect_l = harness.collect(Image, "left/image_rect")
+    rect_r = harness.collect(Image, "right/image_rect")
+    color = harness.collect(Image, "left/image_rect_color")
+    info_l = harness.collect(CameraInfo, "left/camera_info")
+    info_r = harness.collect(CameraInfo, "right/camera_info")
+    pl, pr = harness.publisher(Image, "left/image_raw"), harness.publisher(Image, "right/image_raw")
+    harness.connect(pl, pr)
+    left, right = textured_pair(paper_rig)
+    for k in range(3):
+        t = T0 + k * 66_000_000
+        pl.publish(convert.image_to_msg(left, "bgr8", t, "left_camera"))
+        pr.publish(convert.image_to_msg(right, "bgr8", t + 7_000_000, "right_camera"))  # 7 ms late
+    assert wait_for(lambda: len(info_r) == 3 and len(rect_r) == 3 and len(color) == 3, TIMEOUT)
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    want_l, want_r = StereoRectifier(paper_rig, rect).rectify(left, right)
+    np.testing.assert_array_equal(convert.msg_to_image(color[0]), want_l)
+    np.testing.assert_array_equal(convert.msg_to_image(rect_l[0]), cv2.cvtColor(want_l, cv2.COLOR_BGR2GRAY))
+    np.testing.assert_array_equal(convert.msg_to_image(rect_r[0]), cv2.cvtColor(want_r, cv2.COLOR_BGR2GRAY))
+    assert rect_l[0].encoding == "mono8" and color[0].encoding == "bgr8"
+    # one shared stamp per pair: the left frame's
+    stamps = [convert.stamp_to_ns(m.header.stamp) for m in rect_r]
+    assert stamps == [T0 + k * 66_000_000 for k in range(3)]
+    assert [convert.stamp_to_ns(m.header.stamp) for m in info_l] == stamps
+    PL, PR = np.reshape(info_l[0].p, (3, 4)), np.reshape(info_r[0].p, (3, 4))
+    f = rect.focal_length
+    assert PL[0, 0] == pytest.approx(f) and PL[0, 3] == 0
+    assert PR[0, 3] == pytest.approx(-f * paper_rig.baseline * 1e-3)  # -fx * baseline [m]
+    assert -PR[0, 3] / PR[0, 0] == pytest.approx(0.0296, abs=1e-4)
+    assert PL[0, 2] - PR[0, 2] == pytest.approx(rect.doffs)
+    assert (info_l[0].width, info_l[0].height) == (640, 480)
+    assert node.stats()["drops"] == {}
+
+
+def test_rectify_node_drops_bad_input_and_keeps_running(harness, paper_rig):
+    from canopy_stereo.ros.nodes.rectify import RectifyNode
+
+    node = harness.add(RectifyNode(**node_kwargs(harness, paper_rig, sync_slop=0.005)))
+    out = harness.collect(Image, "left/image_rect_color")
+    pl, pr = harness.publisher(Image, "left/image_raw"), harness.publisher(Image, "right/image_raw")
+    harness.connect(pl, pr)
+    left, right = textured_pair(paper_rig)
+    # 1: wrong encoding (a depth image) on the left
+    pl.publish(convert.image_to_msg(np.ones((480, 640), np.float32), "32FC1", T0))
+    pr.publish(convert.image_to_msg(right, "bgr8", T0))
+    # 2: wrong size pair
+    pl.publish(convert.image_to_msg(left[:240, :320].copy(), "bgr8", T0 + 100_000_000))
+    pr.publish(convert.image_to_msg(right[:240, :320].copy(), "bgr8", T0 + 100_000_000))
+    # 3: an unpaired left frame (its right partner lost), then a good pair
+    pl.publish(convert.image_to_msg(left, "bgr8", T0 + 200_000_000))
+    pl.publish(convert.image_to_msg(left, "bgr8", T0 + 300_000_000))
+    pr.publish(convert.image_to_msg(right, "bgr8", T0 + 301_000_000))
+    assert wait_for(lambda: len(out) == 1, TIMEOUT)
+    time.sleep(0.3)
+    assert len(out) == 1 and convert.stamp_to_ns(out[0].header.stamp) == T0 + 300_000_000
+    drops = node.stats()["drops"]
+    text = " | ".join(drops)
+    assert "'32FC1' not accepted" in text
+    assert "320x240 but 640x480 is expected" in text
+    assert "unpaired" in text or "no partner" in text
+    assert sum(drops.values()) == 5  # 32FC1 left, its right, two small frames, the orphan left
+
+
+# --------------------------------------------------------------------------- disparity_node
+
+
+def test_disparity_node_fields_match_the_rig(harness, paper_rig):
+    from canopy_stereo.ros.nodes.disparity import DisparityNode
+
+    node = harness.add(DisparityNode(**node_kwargs(harness, paper_rig, matcher="sgbm",
+                                                   disp_min=16, disp_max=48)))
+    out = harness.collect(DisparityImage, "disparity")
+    pl, pr = harness.publisher(Image, "left/image_rect"), harness.publisher(Image, "right/image_rect")
+    harness.connect(pl, pr)
+    shift = 30
+    left, right = textured_pair(paper_rig, shift)
+    gl, gr = cv2.cvtColor(left, cv2.COLOR_BGR2GRAY), cv2.cvtColor(right, cv2.COLOR_BGR2GRAY)
+    pl.publish(convert.image_to_msg(gl, "mono8", T0, "rect"))
+    pr.publish(convert.image_to_msg(gr, "mono8", T0, "rect"))
+    assert wait_for(lambda: len(out) == 1, TIMEOUT)
+    msg = out[0]
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    assert msg.f == pytest.approx(rect.focal_length, rel=1e-6)
+    assert msg.t == pytest.approx(paper_rig.baseline * 1e-3, rel=1e-6)  # metres
+    assert msg.min_disparity == pytest.approx(16 - rect.doffs, abs=1e-4)
+    assert msg.max_disparity == pytest.approx(48 - rect.doffs, abs=1e-4)
+    assert msg.delta_d == pytest.approx(1 / 16)
+    assert msg.image.encoding == "32FC1" and (msg.image.width, msg.image.height) == (640, 480)
+    raw = convert.msg_to_image(msg.image)
+    valid = raw >= msg.min_disparity
+    assert np.all(raw[~valid] < msg.min_disparity)
+    # the textured pair is a pure shift: every matched pixel has d = shift (message: shift - doffs)
+    assert valid.mean() > 0.6
+    assert np.median(raw[valid]) == pytest.approx(shift - rect.doffs, abs=0.1)
+    x, y, w, h = (msg.valid_window.x_offset, msg.valid_window.y_offset, msg.valid_window.width,
+                  msg.valid_window.height)
+    rows, cols = np.nonzero(valid)
+    assert (x, y, x + w - 1, y + h - 1) == (cols.min(), rows.min(), cols.max(), rows.max())
+    assert convert.stamp_to_ns(msg.header.stamp) == T0 and msg.header.frame_id == "rect"
+    assert node.stats()["counts"]["disparities_published"] == 1
+
+
+def test_disparity_node_parameters_change_at_run_time_and_are_validated(harness, paper_rig):
+    pytest.importorskip("canopy_stereo.elas.params")
+    from canopy_stereo.ros.nodes.disparity import DisparityNode
+
+    node = harness.add(DisparityNode(**node_kwargs(harness, paper_rig, matcher="sgbm")))
+    assert node.config["matcher"] == "sgbm"
+    ok = node.set_parameters([Parameter("disp_max", value=64), Parameter("sgbm.block_size", value=7)])
+    assert all(r.successful for r in ok)
+    assert node.config["disp_max"] == 64 and node.config["params"]["block_size"] == 7
+    bad = node.set_parameters_atomically([Parameter("matcher", value="elas"),
+                                          Parameter("elas.support_threshold", value=1.5)])
+    assert not bad.successful and "support_threshold" in bad.reason
+    assert node.config["matcher"] == "sgbm" and node.get_parameter("matcher").value == "sgbm"
+    wrong_type = node.set_parameters([Parameter("sgbm.block_size", value=2.5)])
+    assert not wrong_type[0].successful and "integer" in wrong_type[0].reason
+    good = node.set_parameters_atomically([Parameter("matcher", value="elas"),
+                                           Parameter("elas.subpixel", value=True),
+                                           Parameter("preset", value="middlebury")])
+    assert good.successful
+    assert node.config["matcher"] == "elas" and node.config["params"]["subpixel"] is True
+    assert node.config["params"]["preset"] == "middlebury" and node.config["delta_d"] == 1 / 16
+    ro = node.set_parameters([Parameter("P_left", value=[1.0] * 12)])
+    assert not ro[0].successful  # the rig is read-only
+
+
+# --------------------------------------------------------------------------- point_cloud_node
+
+
+def _plane_disparity(rig, rect, depth_mm):
+    """Rectified disparity of a plane perpendicular to the rectified viewing direction."""
+    w, h = rect.size
+    return np.full((h, w), rect.focal_length * rect.baseline / depth_mm + rect.doffs, np.float32)
+
+
+@pytest.mark.parametrize("organized", [False, True])
+def test_point_cloud_node_triangulates_in_world_metres(harness, paper_rig, organized):
+    from canopy_stereo.ros.nodes.point_cloud import PointCloudNode
+
+    harness.add(PointCloudNode(**node_kwargs(harness, paper_rig, organized=organized)))
+    out = harness.collect(PointCloud2, "points2")
+    pd, pc = harness.publisher(DisparityImage, "disparity"), harness.publisher(Image, "left/image_rect_color")
+    harness.connect(pd, pc)
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    depth_mm = 500.0
+    disp = _plane_disparity(paper_rig, rect, depth_mm)
+    disp[:10] = -1  # some invalid rows
+    colour = np.zeros((480, 640, 3), np.uint8)
+    colour[..., 0], colour[..., 1], colour[..., 2] = 10, 200, 30  # BGR
+    pd.publish(convert.disparity_to_msg(disp, rect.focal_length, rect.baseline * 1e-3, 0, 100,
+                                        stamp_ns=T0, frame_id="rect", doffs=rect.doffs))
+    pc.publish(convert.image_to_msg(colour, "bgr8", T0, "rect"))
+    assert wait_for(lambda: len(out) == 1, TIMEOUT)
+    msg = out[0]
+    assert msg.header.frame_id == "canopy_world" and convert.stamp_to_ns(msg.header.stamp) == T0
+    pts, cols = convert.cloud2_to_points(msg, organized=organized)
+    if organized:
+        assert pts.shape == (480, 640, 3) and not msg.is_dense
+        assert np.all(np.isnan(pts[:10])) and np.isfinite(pts[10:]).all()
+        pts, cols = pts[10:].reshape(-1, 3), cols[10:].reshape(-1, 3)
+    else:
+        assert msg.height == 1 and msg.is_dense and len(pts) == 470 * 640
+    # the plane lies at 500 mm along the rectified viewing direction from the left centre
+    from canopy_stereo.geometry.camera import camera_centre
+
+    X_mm = pts.astype(np.float64) * 1e3
+    dist = (X_mm - camera_centre(paper_rig.P_left)) @ rect.R_rect[2]
+    np.testing.assert_allclose(dist, depth_mm, rtol=2e-4)
+    assert np.all(point_depth(paper_rig.P_left, X_mm) > 0)
+    assert np.all(cols == [30, 200, 10])  # RGB
+
+
+def test_point_cloud_node_applies_the_mask(harness, paper_rig):
+    from canopy_stereo.ros.nodes.point_cloud import PointCloudNode
+
+    harness.add(PointCloudNode(**node_kwargs(harness, paper_rig, use_mask=True)))
+    out = harness.collect(PointCloud2, "points2")
+    pd = harness.publisher(DisparityImage, "disparity")
+    pc, pm = harness.publisher(Image, "left/image_rect_color"), harness.publisher(Image, "left/mask")
+    harness.connect(pd, pc, pm)
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    disp = _plane_disparity(paper_rig, rect, 400.0)
+    mask = np.zeros((480, 640), np.uint8)
+    mask[100:150, 200:300] = 255
+    # the mask arrives first, the disparity last: exact-time pairing in any order
+    pm.publish(convert.image_to_msg(mask, "mono8", T0))
+    pc.publish(convert.image_to_msg(np.zeros((480, 640, 3), np.uint8), "bgr8", T0))
+    time.sleep(0.1)
+    assert out == []
+    pd.publish(convert.disparity_to_msg(disp, rect.focal_length, 0.03, 0, 100, stamp_ns=T0, doffs=rect.doffs))
+    assert wait_for(lambda: len(out) == 1, TIMEOUT)
+    assert out[0].width * out[0].height == 50 * 100
+
+
+# --------------------------------------------------------------------------- segment_node
+
+
+def test_segment_node_grabcut_rect_and_auto(harness):
+    from canopy_stereo.ros.nodes.segment import SegmentNode
+
+    node = harness.add(SegmentNode(**node_kwargs(harness, scale=0.5)))
+    out = harness.collect(Image, "left/mask")
+    pub = harness.publisher(Image, "left/image_rect_color")
+    harness.connect(pub)
+    rng = np.random.default_rng(5)
+    img = np.clip(rng.normal(128, 12, (240, 320, 3)), 0, 255).astype(np.uint8)  # grey background
+    truth = np.zeros((240, 320), bool)
+    cv2.ellipse(truth.view(np.uint8), (160, 120), (60, 40), 0, 0, 360, 1, -1)
+    img[truth] = np.clip(rng.normal((40, 160, 50), 10, (truth.sum(), 3)), 0, 255).astype(np.uint8)
+    pub.publish(convert.image_to_msg(img, "bgr8", T0, "rect"))  # automatic (saturation)
+    assert wait_for(lambda: len(out) == 1, TIMEOUT)
+    res = node.set_parameters([Parameter("rect", value=[90, 70, 140, 100]), Parameter("iterations", value=2)])
+    assert all(r.successful for r in res)
+    assert not node.set_parameters([Parameter("scale", value=2.0)])[0].successful
+    pub.publish(convert.image_to_msg(img, "bgr8", T0 + 1, "rect"))
+    assert wait_for(lambda: len(out) == 2, TIMEOUT)
+    res = node.set_parameters([Parameter("rect", value=[0, 0, 0, 0]), Parameter("auto_init", value="exg")])
+    assert all(r.successful for r in res) and node.settings["rect"] is None
+    pub.publish(convert.image_to_msg(img, "bgr8", T0 + 2, "rect"))
+    assert wait_for(lambda: len(out) == 3, TIMEOUT)
+    for msg in out:
+        mask = convert.msg_to_image(msg, ("mono8",)) > 0
+        assert msg.encoding == "mono8" and set(np.unique(convert.msg_to_image(msg))) <= {0, 255}
+        iou = (mask & truth).sum() / (mask | truth).sum()
+        assert iou > 0.85, iou
+    assert [convert.stamp_to_ns(m.header.stamp) for m in out] == [T0, T0 + 1, T0 + 2]
+
+
+# --------------------------------------------------------------------------- camera_node
+
+
+def test_camera_node_image_sequence_and_device_loss(harness, tmp_path):
+    from canopy_stereo.ros.nodes.camera import CameraNode
+
+    frames = [np.full((48, 64, 3), 40 * k, np.uint8) for k in range(1, 4)]
+    pattern = str(tmp_path / "seq" / "left_%03d.png")
+    node = harness.add(CameraNode(**node_kwargs(harness, device=pattern, camera_name="left",
+                                                fps=50.0, loop=True)))
+    out = harness.collect(Image, "left/image_raw")
+    # the sequence does not exist yet: the node must stay alive and retry with back-off
+    assert wait_for(lambda: node.counts["open_failures"] >= 2, TIMEOUT)
+    assert out == []
+    (tmp_path / "seq").mkdir()
+    for k, f in enumerate(frames):
+        cv2.imwrite(pattern % k, f)
+    assert wait_for(lambda: len(out) >= 5, TIMEOUT)
+    got = [int(convert.msg_to_image(m)[0, 0, 0]) for m in out[:5]]
+    start = got.index(40)
+    assert got[start:start + 3] == [40, 80, 120]  # in order, looping
+    assert all(m.encoding == "bgr8" and m.header.frame_id == "left_camera" for m in out)
+    stamps = [convert.stamp_to_ns(m.header.stamp) for m in out]
+    assert stamps == sorted(stamps) and stamps[0] > T0  # stamped at capture (wall clock)
+    # the "device" disappears mid-stream, then comes back: the node resumes by itself
+    import shutil
+
+    shutil.move(str(tmp_path / "seq"), str(tmp_path / "gone"))
+    failures = node.counts["open_failures"]
+    assert wait_for(lambda: node.counts["open_failures"] > failures, TIMEOUT)
+    n = len(out)
+    shutil.move(str(tmp_path / "gone"), str(tmp_path / "seq"))
+    assert wait_for(lambda: len(out) >= n + 3, TIMEOUT)
+
+
+# --------------------------------------------------------------------------- hartley, executables
+
+
+def test_hartley_homographies_from_parameters_give_the_same_cloud(harness, paper_rig):
+    """rectify_node and point_cloud_node accept method hartley with H_left/H_right; with
+    Fusiello's homographies passed that way the cloud is the Fusiello one."""
+    from canopy_stereo.ros.nodes.point_cloud import PointCloudNode
+    from canopy_stereo.ros.nodes.rectify import RectifyNode
+
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    H = dict(method="hartley", H_left=[float(v) for v in rect.H_left.ravel()],
+             H_right=[float(v) for v in rect.H_right.ravel()])
+    rectify = harness.add(RectifyNode(**node_kwargs(harness, paper_rig, **H)))
+    harness.add(PointCloudNode(**node_kwargs(harness, paper_rig, organized=True, **H)))
+    assert rectify.rect.method == "hartley" and rectify.rect.K_rect_left is None
+    color = harness.collect(Image, "left/image_rect_color")
+    infos = harness.collect(CameraInfo, "left/camera_info")
+    clouds = harness.collect(PointCloud2, "points2")
+    pl, pr = harness.publisher(Image, "left/image_raw"), harness.publisher(Image, "right/image_raw")
+    pd = harness.publisher(DisparityImage, "disparity")
+    harness.connect(pl, pr, pd)
+    left, right = textured_pair(paper_rig)
+    pl.publish(convert.image_to_msg(left, "bgr8", T0))
+    pr.publish(convert.image_to_msg(right, "bgr8", T0))
+    assert wait_for(lambda: len(color) == 1, TIMEOUT)
+    want, _ = StereoRectifier(paper_rig, rect).rectify(left, right)
+    np.testing.assert_array_equal(convert.msg_to_image(color[0]), want)
+    disp = _plane_disparity(paper_rig, rect, 450.0)
+    # in hartley mode disparity_node publishes f = t = 0 and no principal-point shift
+    pd.publish(convert.disparity_to_msg(disp, 0.0, 0.0, 0, 100, stamp_ns=T0, doffs=0.0))
+    assert wait_for(lambda: len(clouds) == 1, TIMEOUT)
+    pts, _ = convert.cloud2_to_points(clouds[0], organized=True)
+    from canopy_stereo.geometry.triangulation import triangulate_disparity
+
+    np.testing.assert_allclose(pts, triangulate_disparity(disp, rect, paper_rig.P_left, paper_rig.P_right)
+                               * 1e-3, rtol=1e-5, atol=1e-6)
+    assert infos == []  # a projective rectification has no metric camera_info
+
+
+def test_node_executable_reads_the_rig_file(repo_root, tmp_path):
+    """``disparity_node --ros-args --params-file config/croton_rig.yaml`` in its own process:
+    the rig file's P matrices and extras (disp_min/disp_max, elas.subpixel) become parameters."""
+    import os
+    import subprocess
+    import sys
+
+    from canopy_stereo.ros.context import private_domain_id
+
+    domain = private_domain_id()
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    code = "import sys; from canopy_stereo.ros.nodes.disparity import main; sys.exit(main())"
+    rig_file = repo_root / "config" / "croton_rig.yaml"
+    # large best-effort samples can be lost between processes: make the inputs reliable
+    # with ROS 2's standard QoS override parameters
+    reliable = [f"qos_overrides./stereo/{side}/image_rect.subscription.reliability:=reliable"
+                for side in ("left", "right")]
+    proc = subprocess.Popen([sys.executable, "-c", code, "--ros-args", "--params-file", str(rig_file),
+                             "-p", "matcher:=sgbm", "-p", reliable[0], "-p", reliable[1]],
+                            env=env, stderr=subprocess.PIPE, text=True)
+    try:
+        with ros_context(domain) as ctx:
+            h = Harness(ctx)
+            try:
+                out = h.collect(DisparityImage, "disparity")
+                pl, pr = h.publisher(Image, "left/image_rect"), h.publisher(Image, "right/image_rect")
+                h.connect(pl, pr)
+                h.wait_publishers("disparity")
+                from canopy_stereo.io.rig import load_rig
+
+                rig = load_rig(rig_file)
+                left, right = textured_pair(rig, 40)
+                pl.publish(convert.image_to_msg(cv2.cvtColor(left, cv2.COLOR_BGR2GRAY), "mono8", T0))
+                pr.publish(convert.image_to_msg(cv2.cvtColor(right, cv2.COLOR_BGR2GRAY), "mono8", T0))
+                assert wait_for(lambda: len(out) == 1, 30.0)
+            finally:
+                h.close()
+        rect = fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
+        assert out[0].min_disparity == pytest.approx(rig.extra["disp_min"] - rect.doffs, abs=1e-4)
+        assert out[0].max_disparity == pytest.approx(rig.extra["disp_max"] - rect.doffs, abs=1e-4)
+        assert out[0].t == pytest.approx(rig.baseline * 1e-3, rel=1e-6)
+    finally:
+        proc.terminate()
+        _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    assert f"matcher sgbm, disparities [{rig.extra['disp_min']}, {rig.extra['disp_max']}]" in err

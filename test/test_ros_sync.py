@@ -1,0 +1,141 @@
+"""Approximate- and exact-time pairing edge cases (canopy_stereo.ros.sync, pure Python)."""
+import threading
+
+import pytest
+
+from canopy_stereo.ros.sync import ApproximateTimePairer, ExactTimeSynchronizer
+
+MS = 1_000_000  # ns
+
+
+def _run(pairer, events):
+    """Feed ``(stream, stamp_ms)`` events; return pairs as stamp tuples (ms) and drops."""
+    pairs, drops = [], []
+    for stream, t in events:
+        pair, dropped = pairer.push(stream, t * MS, (stream, t))
+        if pair is not None:
+            assert pair.items[0][0] == 0 and pair.items[1][0] == 1
+            pairs.append((pair.stamps_ns[0] // MS, pair.stamps_ns[1] // MS))
+        drops += [(d.stream, d.stamp_ns // MS) for d in dropped]
+    return pairs, drops
+
+
+def test_pairs_interleaved_webcams_with_jitter():
+    # 30 fps webcams, right lags left by 7 ms, with +-2 ms jitter
+    events = []
+    for k in range(10):
+        events += [(0, 33 * k + (k % 3) - 1), (1, 33 * k + 7 - (k % 2))]
+    pairs, drops = _run(ApproximateTimePairer(0.015, 3), events)
+    assert len(pairs) == 10 and not drops
+    assert all(abs(a - b) <= 15 for a, b in pairs)
+
+
+def test_pair_order_does_not_depend_on_which_camera_arrives_first():
+    a = _run(ApproximateTimePairer(0.01), [(0, 0), (1, 3), (0, 33), (1, 36)])
+    b = _run(ApproximateTimePairer(0.01), [(1, 3), (0, 0), (1, 36), (0, 33)])
+    assert a == b == ([(0, 3), (33, 36)], [])
+
+
+def test_outside_slop_is_not_paired_and_is_dropped_later():
+    pairs, drops = _run(ApproximateTimePairer(0.005, 5), [(0, 0), (1, 20), (0, 33), (1, 35)])
+    assert pairs == [(33, 35)]
+    assert sorted(drops) == [(0, 0), (1, 20)]  # older than the pair: can never be paired
+
+
+def test_missing_frame_drops_only_the_orphan():
+    # right frame at 33 lost: left 33 is dropped once (0,66)...(66,67) pairs
+    pairs, drops = _run(ApproximateTimePairer(0.01, 5),
+                        [(0, 0), (1, 1), (0, 33), (0, 66), (1, 67)])
+    assert pairs == [(0, 1), (66, 67)]
+    assert drops == [(0, 33)]
+
+
+def test_nearest_partner_wins_when_several_are_in_slop():
+    p = ApproximateTimePairer(0.05, 5)
+    _run(p, [(1, 0), (1, 30)])
+    pairs, drops = _run(p, [(0, 26)])
+    assert pairs == [(26, 30)] and drops == [(1, 0)]
+
+
+def test_queue_overflow_drops_oldest():
+    p = ApproximateTimePairer(0.001, queue_size=2)
+    pairs, drops = _run(p, [(0, 0), (0, 10), (0, 20), (0, 30)])
+    assert pairs == [] and drops == [(0, 0), (0, 10)]
+    assert p.pending() == (2, 0)
+
+
+def test_late_and_duplicate_frames_are_dropped_with_reason():
+    p = ApproximateTimePairer(0.01, 5)
+    _run(p, [(0, 100), (1, 101)])
+    pair, dropped = p.push(0, 50 * MS, "late")
+    assert pair is None and "older than the last pair" in dropped[0].reason
+    p.push(1, 200 * MS, "a")
+    pair, dropped = p.push(1, 200 * MS, "b")
+    assert pair is None and dropped[0].reason == "duplicate stamp"
+
+
+def test_exact_stamps_with_zero_slop():
+    pairs, drops = _run(ApproximateTimePairer(0.0), [(0, 5), (1, 6), (1, 10), (0, 10)])
+    assert pairs == [(10, 10)] and sorted(drops) == [(0, 5), (1, 6)]
+
+
+def test_pair_properties():
+    p = ApproximateTimePairer(0.01)
+    p.push(0, 100, "l")
+    pair, _ = p.push(1, 140, "r")
+    assert pair.stamp_ns == 140 and pair.skew_ns == 40 and pair.items == ("l", "r")
+
+
+def test_invalid_arguments():
+    with pytest.raises(ValueError):
+        ApproximateTimePairer(-0.1)
+    with pytest.raises(ValueError):
+        ApproximateTimePairer(0.1, 0)
+    with pytest.raises(ValueError):
+        ApproximateTimePairer(0.1).push(2, 0, None)
+
+
+def test_concurrent_pushes_pair_everything_once():
+    p = ApproximateTimePairer(0.001, queue_size=1000)
+    out, lock = [], threading.Lock()
+
+    def feed(stream):
+        for k in range(500):
+            pair, _ = p.push(stream, k * 33 * MS, k)
+            if pair is not None:
+                with lock:
+                    out.append(pair.items)
+
+    threads = [threading.Thread(target=feed, args=(s,)) for s in (0, 1)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert sorted(out) == [(k, k) for k in range(500)]
+
+
+def test_exact_synchronizer_three_streams_any_order():
+    s = ExactTimeSynchronizer(3, queue_size=4)
+    assert s.push(2, 10, "m10")[0] is None
+    assert s.push(0, 10, "d10")[0] is None
+    items, dropped = s.push(1, 10, "c10")
+    assert items == ["d10", "c10", "m10"] and dropped == []
+
+
+def test_exact_synchronizer_drops_incomplete_older_sets():
+    s = ExactTimeSynchronizer(2, queue_size=4)
+    s.push(0, 10, "a")              # partner never arrives
+    s.push(1, 20, "b")
+    items, dropped = s.push(0, 20, "c")
+    assert items == ["c", "b"]
+    assert [(d.stream, d.stamp_ns) for d in dropped] == [(0, 10)]
+    items, dropped = s.push(1, 15, "late")
+    assert items is None and "older" in dropped[0].reason
+
+
+def test_exact_synchronizer_queue_limit():
+    s = ExactTimeSynchronizer(2, queue_size=2)
+    drops = []
+    for t in (1, 2, 3, 4):
+        drops += s.push(0, t, t)[1]
+    assert [d.stamp_ns for d in drops] == [1, 2] and s.pending() == 2
