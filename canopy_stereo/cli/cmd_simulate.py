@@ -44,6 +44,17 @@ def add_arguments(parser) -> None:
                              "pixel (default), n = n x n")
     parser.add_argument("--clean", action="store_true",
                         help="ideal sensors: no noise, vignetting or gain difference")
+    parser.add_argument("--views", type=int, default=1, metavar="N",
+                        help="multi-view sequence: N views round the plant with true poses, written as "
+                             "DIR/view_XX/{left,right,mask}.png + rig.yaml and DIR/poses_true.yaml "
+                             "(input of canopy-stereo fuse)")
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument("--turntable", dest="mode", action="store_const", const="turntable",
+                      help="with --views: the plant turns on a turntable in front of the rig (default)")
+    mode.add_argument("--orbit", dest="mode", action="store_const", const="orbit",
+                      help="with --views: the rig circles the plant, looking down on it")
+    parser.add_argument("--elevation", type=float, default=None, metavar="DEG",
+                        help="with --orbit: how far the rig looks down (default 20 degrees)")
 
 
 def _json_default(obj):
@@ -82,6 +93,8 @@ def run(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(rig_path, out / "rig.yaml")
     effects = CLEAN if args.clean else None
+    if args.views > 1 or args.mode is not None:
+        return _run_views(args, rig, out, effects)
     for frame in range(args.frames):
         scene = scene_for_rig(args.scene, rig, seed=args.seed, frame=frame)
         sim = render_pair(scene, rig, supersample=args.supersample, effects=effects)
@@ -92,4 +105,27 @@ def run(args) -> int:
         render_s = sim.timings.get("left", 0.0) + sim.timings.get("right", 0.0)
         print(f"{folder}: {args.scene} seed {args.seed} frame {frame}: {len(leaves)} leaves "
               f"({seen} visible in the left view), rendered in {render_s:.2f} s")
+    return 0
+
+
+def _run_views(args, rig, out: Path, effects) -> int:
+    """``--views N [--turntable | --orbit]``: a multi-view sequence with true poses."""
+    from canopy_stereo.sim.multiview import render_views, write_views
+
+    if args.views < 2:
+        raise CanopyStereoError(f"--views must be at least 2 for a sequence, got {args.views}")
+    if args.frames != 1:
+        raise CanopyStereoError("--views and --frames cannot be combined")
+    mode = args.mode or "turntable"
+    if args.elevation is not None and mode != "orbit":
+        raise CanopyStereoError("--elevation needs --orbit (a turntable's rig does not move)")
+    seq = render_views(args.scene, rig, n_views=args.views, mode=mode, seed=args.seed,
+                       elevation_deg=args.elevation, supersample=args.supersample, effects=effects)
+    write_views(seq, out)
+    for v in seq.views:
+        seen = int((v.sim.leaf_ids_left > 0).sum())
+        print(f"{out / v.name}: {args.scene} seed {args.seed} {mode} view {v.index} of {args.views}: "
+              f"{seen} leaf pixels in the left view")
+    print(f"true poses: {out / 'poses_true.yaml'} (fuse with: canopy-stereo fuse {out}/view_* -o fused.ply "
+          f"[--poses {out / 'poses_true.yaml'}])")
     return 0

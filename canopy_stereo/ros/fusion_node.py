@@ -1,0 +1,238 @@
+"""``fusion_node``: fuse the stream of ``points2`` clouds into one canopy model.
+
+Subscribes ``points2`` (``sensor_msgs/PointCloud2``, metres, the rig's world
+frame as published by ``point_cloud_node``) and ``pose``
+(``geometry_msgs/PoseStamped``: the rig's pose in the fusion world frame, e.g.
+from the robot or a turntable driver). Each cloud is placed by the pose whose
+stamp is nearest its own (within ``pose_slop`` seconds); a cloud that finds no
+pose (none is published, or none close enough) is registered onto the
+previous cloud by robust point-to-plane ICP when ``register_without_pose`` is
+true, and dropped otherwise, or when it does not overlap (the drop is logged
+with the overlap figures). The clouds are fused on a voxel grid
+(:class:`canopy_stereo.fusion.incremental.IncrementalFusion`: averaging across
+views, colour, view counts, free-space outlier removal when the rig is known)
+and the model is published on ``canopy_points`` (``PointCloud2``, frame
+``frame_id``) every ``publish_period`` seconds when it changed, a lower rate
+than the clouds arrive.
+
+Reset: the service ``~/reset`` (``std_srvs/Trigger``) forgets every cloud;
+the next one re-anchors the world frame when it comes without a pose.
+
+Parameters: ``voxel_size`` (m, 0.002), ``publish_period`` (s, 2.0), ``pose_slop``
+(s, 0.05), ``pose_wait`` (s, 1.0: how long a cloud waits for its pose),
+``register_without_pose`` (true), ``min_overlap`` (0.5), ``max_views`` (0 = all),
+``min_views`` (1), ``free_space`` (true; needs the rig: ``rig_file`` or the rig
+parameters, for the left camera), ``frame_id`` (``canopy_world``).
+"""
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped
+from rcl_interfaces.msg import ParameterDescriptor
+from sensor_msgs.msg import PointCloud2
+from std_srvs.srv import Trigger
+
+from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.fusion.errors import RegistrationError
+from canopy_stereo.fusion.incremental import IncrementalFusion
+from canopy_stereo.fusion.registration import RegistrationSettings
+from canopy_stereo.fusion.transforms import check_transform, make_transform
+from canopy_stereo.ros.convert import cloud2_to_points, points_to_cloud2, stamp_to_ns
+from canopy_stereo.ros.nodes.base import CanopyNode, run_node
+from canopy_stereo.ros.params import declare_rig_parameters, rig_from_node
+
+#: Poses kept for matching clouds to stamps.
+POSE_HISTORY = 200
+
+
+def pose_to_matrix(pose) -> np.ndarray:
+    """``geometry_msgs/Pose`` -> (4, 4) transform (metres); raises on a non-unit quaternion."""
+    q = np.array([pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w], np.float64)
+    n = np.linalg.norm(q)
+    if not np.isfinite(n) or abs(n - 1.0) > 1e-3:
+        raise CanopyStereoError(f"pose orientation is not a unit quaternion (norm {n:.4g})")
+    x, y, z, w = q / n
+    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                  [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    t = [pose.position.x, pose.position.y, pose.position.z]
+    return check_transform(make_transform(R, t), "pose")
+
+
+def matrix_to_pose(T, pose) -> None:
+    """Fill a ``geometry_msgs/Pose`` from a (4, 4) rigid transform (metres)."""
+    from scipy.spatial.transform import Rotation
+
+    T = np.asarray(T, np.float64)
+    x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
+    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = (
+        float(x), float(y), float(z), float(w))
+    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in T[:3, 3])
+
+
+class FusionNode(CanopyNode):
+    """Clouds + optional poses -> fused ``canopy_points``."""
+
+    def __init__(self, node_name: str = "fusion_node", **kwargs):
+        super().__init__(node_name, **kwargs)
+        d = ParameterDescriptor
+        self.declare_parameter("voxel_size", 0.002, d(description="fusion voxel (m)", read_only=True))
+        self.declare_parameter("publish_period", 2.0, d(description="seconds between publications of "
+                                                                     "canopy_points", read_only=True))
+        self.declare_parameter("pose_slop", 0.05, d(description="largest |stamp(pose) - stamp(cloud)| (s)"))
+        self.declare_parameter("pose_wait", 1.0, d(description="seconds a cloud waits for a matching pose"))
+        self.declare_parameter("register_without_pose", True, d(
+            description="register clouds without a pose onto the previous one (ICP)"))
+        self.declare_parameter("min_overlap", 0.5, d(description="least overlap of a registered cloud",
+                                                     read_only=True))
+        self.declare_parameter("max_views", 0, d(description="clouds kept (oldest dropped); 0 = all",
+                                                 read_only=True))
+        self.declare_parameter("min_views", 1, d(description="publish voxels seen by at least this many "
+                                                             "clouds", read_only=True))
+        self.declare_parameter("free_space", True, d(description="drop single-view points other views "
+                                                                 "see through (needs the rig)", read_only=True))
+        self.declare_parameter("frame_id", "canopy_world", d(description="frame of canopy_points"))
+        declare_rig_parameters(self)
+        voxel = float(self.get_parameter("voxel_size").value)
+        if not voxel > 0:
+            raise CanopyStereoError(f"voxel_size must be positive, got {voxel}")
+        self.P_left_m, self.image_size = self._camera()
+        settings = RegistrationSettings(voxel=1.5 * voxel,
+                                        min_overlap=float(self.get_parameter("min_overlap").value))
+        self.fusion = IncrementalFusion(voxel, unit="m", settings=settings,
+                                        max_views=int(self.get_parameter("max_views").value),
+                                        free_space=bool(self.get_parameter("free_space").value),
+                                        min_views=int(self.get_parameter("min_views").value))
+        self._lock = threading.Lock()
+        self._poses: deque = deque(maxlen=POSE_HISTORY)       # (stamp_ns, T)
+        self._pending: deque = deque(maxlen=20)               # (stamp_ns, arrival s, points, colours)
+        self._changed = False
+        self._last_stamp = 0
+        self.last_result = None
+        self.pub = self.make_publisher(PointCloud2, "canopy_points")
+        self.sub_cloud = self.make_subscription(PointCloud2, "points2", self._on_cloud)
+        self.sub_pose = self.make_subscription(PoseStamped, "pose", self._on_pose, depth=50)
+        self.reset_service = self.create_service(Trigger, "~/reset", self._on_reset)
+        self.timer = self.create_timer(float(self.get_parameter("publish_period").value),
+                                       self.guarded(self._publish))
+        self.pending_timer = self.create_timer(0.1, self.guarded(self._flush_pending))
+        self.get_logger().info(f"fusing points2 at {voxel * 1000:g} mm voxels, publishing canopy_points "
+                               f"every {self.get_parameter('publish_period').value:g} s"
+                               + ("" if self.P_left_m is not None else " (no rig: no free-space test)"))
+
+    # ------------------------------------------------------------------ set-up
+    def _camera(self):
+        """Left camera in metres (world -> pixels) and image size, or (None, None) without a rig."""
+        try:
+            rig = rig_from_node(self)
+        except CanopyStereoError:
+            return None, None
+        s = 1.0 / rig.metres_per_unit
+        return rig.P_left @ np.diag([s, s, s, 1.0]), rig.image_size
+
+    # ------------------------------------------------------------------ inputs
+    def _on_pose(self, msg: PoseStamped) -> None:
+        T = pose_to_matrix(msg.pose)
+        with self._lock:
+            self._poses.append((stamp_to_ns(msg.header.stamp), T))
+        self.count("poses_received")
+        self._flush_pending()
+
+    def _on_cloud(self, msg: PointCloud2) -> None:
+        self.count("clouds_received")
+        points, colors = cloud2_to_points(msg)
+        stamp = stamp_to_ns(msg.header.stamp)
+        with self._lock:
+            if not self._poses:
+                pose = None
+                waiting = False
+            else:
+                pose = self._match(stamp)
+                waiting = pose is None
+            if waiting:
+                self._pending.append((stamp, time.monotonic(), points, colors))
+                return
+        self._add(stamp, points, colors, pose)
+
+    def _match(self, stamp: int):
+        slop = int(float(self.get_parameter("pose_slop").value) * 1e9)
+        best = min(self._poses, key=lambda p: abs(p[0] - stamp), default=None)
+        if best is not None and abs(best[0] - stamp) <= slop:
+            return best[1]
+        return None
+
+    def _flush_pending(self) -> None:
+        """Place waiting clouds whose pose arrived; give up on those that waited too long."""
+        wait = float(self.get_parameter("pose_wait").value)
+        ready = []
+        with self._lock:
+            keep = deque(maxlen=self._pending.maxlen)
+            while self._pending:
+                stamp, arrived, points, colors = self._pending.popleft()
+                pose = self._match(stamp)
+                if pose is not None:
+                    ready.append((stamp, points, colors, pose))
+                elif time.monotonic() - arrived > wait:
+                    ready.append((stamp, points, colors, None))
+                else:
+                    keep.append((stamp, arrived, points, colors))
+            self._pending = keep
+        for stamp, points, colors, pose in ready:
+            self.guarded(self._add)(stamp, points, colors, pose)
+
+    def _add(self, stamp: int, points, colors, pose) -> None:
+        if pose is None and not bool(self.get_parameter("register_without_pose").value):
+            self.drop("no pose within pose_slop and register_without_pose is false", "cloud")
+            return
+        try:
+            with self._lock:
+                res = self.fusion.add(points, colors, pose=pose, P_left=self.P_left_m,
+                                      image_size=self.image_size)
+                self._changed = True
+                self._last_stamp = max(self._last_stamp, stamp)
+        except RegistrationError as exc:
+            self.drop(f"registration failed: {exc}", "cloud")
+            return
+        self.last_result = res
+        self.count("clouds_registered" if res.registered else "clouds_placed")
+        if res.registered:
+            self.get_logger().info(f"cloud {res.index} registered: ICP rmse {res.rmse * 1000:.2f} mm, "
+                                   f"overlap {res.overlap:.0%}")
+
+    # ------------------------------------------------------------------ outputs
+    def _publish(self) -> None:
+        with self._lock:
+            if not self._changed or self.fusion.view_count == 0:
+                return
+            fused = self.fusion.fused()
+            self._changed = False
+            stamp = self._last_stamp
+        self.pub.publish(points_to_cloud2(fused.points, fused.colors, stamp,
+                                          self.get_parameter("frame_id").value, organized=False))
+        self.count("models_published")
+
+    def _on_reset(self, request, response):
+        with self._lock:
+            n = self.fusion.view_count
+            self.fusion.reset()
+            self._pending.clear()
+            self._poses.clear()
+            self._changed = False
+        self.count("resets")
+        response.success = True
+        response.message = f"forgot {n} cloud(s)"
+        self.get_logger().info(f"reset: {response.message}")
+        return response
+
+
+def main(args=None) -> int:
+    """``ros2 run canopy_stereo fusion_node [--ros-args --params-file RIG.yaml -p voxel_size:=0.002]``."""
+    return run_node(FusionNode, args)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())
