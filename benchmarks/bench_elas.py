@@ -1,0 +1,298 @@
+"""ELAS benchmark: accuracy and speed on every ground-truth pair in ../shared/data.
+
+Methods: this package's ELAS (robotics and middlebury presets, each with and without
+``subpixel``; robotics also with the linear adaptive-mean weights, accuracy only),
+OpenCV StereoSGBM (block 5, P1 600, P2 2400, as in elas.md) and, when
+a Python with ``pyelas`` is available, the original libelas (run in that Python in a
+subprocess, never imported here). Prints one table: size, median ms of 5 calls after
+a warm-up, density, bad>0.5, bad>1, bad>2, EPE; then the libelas targets, the
+sub-pixel answer and the first-call time of a fresh process.
+
+Usage:
+    python benchmarks/bench_elas.py [--data ../shared/data] [--pairs tsukuba,teddy]
+                                    [--reps 5] [--pyelas /path/to/python] [--no-fresh]
+
+libelas: ``--pyelas`` or ``$PYELAS_PYTHON`` names a Python interpreter that can
+``import elas`` (see elas.md); by default ``/work/pyelas-venv/bin/python`` and
+``~/pyelas-venv/bin/python`` are tried. ELAS and libelas search disparities 0..255
+(their default); SGBM searches 0..ceil(max GT / 16) * 16.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from canopy_stereo.disparity.metrics import evaluate_disparity  # noqa: E402
+from canopy_stereo.io.images import read_image, to_gray  # noqa: E402
+from canopy_stereo.io.middlebury import read_disparity  # noqa: E402
+
+ELAS_CONFIGS = [("robotics", False), ("robotics", True), ("middlebury", False),
+                ("middlebury", True)]
+
+
+def find_pairs(data: Path) -> list[dict]:
+    """Every pair with ground truth: name, left/right/gt paths, PNG scale."""
+    pairs = []
+
+    def add(name, folder, left, right, gt, scale):
+        folder = data / folder
+        if (folder / left).is_file() and (folder / gt).is_file():
+            pairs.append({"name": name, "left": folder / left, "right": folder / right,
+                          "gt": folder / gt, "scale": scale})
+
+    add("Tsukuba", "middlebury2001/Tsukuba", "imL.png", "imR.png", "truedisp.pgm", 16)
+    add("Venus", "middlebury2001/Venus", "imL.png", "imR.png", "disp2.pgm", 8)
+    add("Teddy03", "middlebury2003_quartersize/Teddy", "imL.png", "imR.png", "disp2.png", 4)
+    add("Cones03", "middlebury2003_quartersize/Cones", "imL.png", "imR.png", "disp2.png", 4)
+    for scene in ("Aloe", "Flowerpots"):
+        add(f"{scene}06", f"middlebury2006_thirdsize/{scene}", "view1.png", "view5.png",
+            "disp1.png", 3)
+    q = data / "middlebury_MiddEval3_trainingQ"
+    if q.is_dir():
+        for scene in sorted(p.name for p in q.iterdir() if p.is_dir()):
+            add(f"{scene}Q", f"middlebury_MiddEval3_trainingQ/{scene}", "im0.png", "im1.png",
+                "disp0GT.pfm", None)
+    add("AloeFull", "opencv_aloe_fullsize", "aloeL.jpg", "aloeR.jpg", "aloeGT.png", 1)
+    return pairs
+
+
+def load_pair(pair: dict):
+    left = to_gray(read_image(pair["left"]))
+    right = to_gray(read_image(pair["right"]))
+    gt = read_disparity(pair["gt"], pair["scale"])
+    return left, right, gt
+
+
+def timed(fn, reps: int):
+    """(result of the warm-up call, median seconds of ``reps`` further calls)."""
+    out = fn()
+    times = []
+    for _ in range(reps):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return out, float(np.median(times))
+
+
+def sgbm(left, right, disp_max):
+    num = int(np.ceil((disp_max + 1) / 16.0)) * 16
+    m = cv2.StereoSGBM_create(minDisparity=0, numDisparities=num, blockSize=5, P1=600, P2=2400,
+                              disp12MaxDiff=1, uniquenessRatio=10, speckleWindowSize=100,
+                              speckleRange=2)
+    raw = m.compute(left, right)
+    d = raw.astype(np.float32) / 16.0
+    d[raw < 0] = -1.0
+    return d
+
+
+# --------------------------------------------------------------------- libelas
+LIBELAS_RUNNER = r'''
+import json, sys, time
+import numpy as np
+import elas
+job = json.load(open(sys.argv[1]))
+out = {}
+for item in job["pairs"]:
+    data = np.load(item["npz"])
+    left, right = data["left"], data["right"]
+    for preset in ("robotics", "middlebury"):
+        e = elas.Elas()
+        e.set_preset(getattr(elas, "PRESET_" + preset.upper()))
+        dl, _ = e.process(left, right)
+        times = []
+        for _ in range(job["reps"]):
+            t = time.perf_counter(); e.process(left, right); times.append(time.perf_counter() - t)
+        path = item["npz"].replace(".npz", "_" + preset + ".npy")
+        np.save(path, np.asarray(dl, np.float32))
+        out[item["name"] + "/" + preset] = {"disp": path, "ms": 1000 * float(np.median(times))}
+json.dump(out, open(sys.argv[2], "w"))
+'''
+
+
+def find_pyelas(explicit: str | None) -> str | None:
+    candidates = [explicit, os.environ.get("PYELAS_PYTHON"), "/work/pyelas-venv/bin/python",
+                  str(Path.home() / "pyelas-venv" / "bin" / "python")]
+    for c in candidates:
+        if not c or not Path(c).is_file():
+            continue
+        ok = subprocess.run([c, "-c", "import elas"], capture_output=True).returncode == 0
+        if ok:
+            return c
+    return None
+
+
+def run_libelas(python: str, loaded: dict, reps: int, workdir: Path) -> dict:
+    items = []
+    for name, (left, right, _) in loaded.items():
+        npz = workdir / f"{name}.npz"
+        np.savez(npz, left=left, right=right)
+        items.append({"name": name, "npz": str(npz)})
+    job, result = workdir / "job.json", workdir / "result.json"
+    job.write_text(json.dumps({"pairs": items, "reps": reps}))
+    runner = workdir / "runner.py"
+    runner.write_text(LIBELAS_RUNNER)
+    subprocess.run([python, str(runner), str(job), str(result)], check=True)
+    out = {}
+    for key, val in json.loads(result.read_text()).items():
+        d = np.load(val["disp"])
+        d[d < 0] = -1.0
+        out[key] = (d, val["ms"])
+    return out
+
+
+# ------------------------------------------------------------------ fresh start
+FRESH = r'''
+import time
+t0 = time.perf_counter()
+import numpy as np
+from canopy_stereo.elas import elas_disparity
+t1 = time.perf_counter()
+data = np.load(__import__("sys").argv[1])
+t2 = time.perf_counter()
+elas_disparity(data["left"], data["right"], "robotics")
+t3 = time.perf_counter()
+elas_disparity(data["left"], data["right"], "middlebury", subpixel=True)
+t4 = time.perf_counter()
+print(f"{t1 - t0:.3f} {t3 - t2:.3f} {t4 - t3:.3f}")
+'''
+
+
+def fresh_process_times(left, right, workdir: Path) -> tuple[float, float, float]:
+    npz = workdir / "fresh.npz"
+    np.savez(npz, left=left, right=right)
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = subprocess.run([sys.executable, "-c", FRESH, str(npz)], capture_output=True, text=True,
+                         check=True, env=env).stdout.split()
+    return tuple(float(x) for x in out)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", default=str(REPO.parent / "shared" / "data"))
+    ap.add_argument("--pairs", default="", help="comma-separated names (default: all)")
+    ap.add_argument("--reps", type=int, default=5, help="timed calls after the warm-up")
+    ap.add_argument("--pyelas", default=None, help="a Python interpreter with pyelas")
+    ap.add_argument("--no-fresh", action="store_true", help="skip the fresh-process timing")
+    args = ap.parse_args(argv)
+
+    import numba
+
+    from canopy_stereo.elas import elas_disparity
+
+    data = Path(args.data)
+    pairs = find_pairs(data)
+    if args.pairs:
+        wanted = {p.lower() for p in args.pairs.split(",")}
+        pairs = [p for p in pairs if p["name"].lower() in wanted]
+    if not pairs:
+        print(f"no ground-truth pairs found under {data}")
+        return 1
+    loaded = {p["name"]: load_pair(p) for p in pairs}
+    print(f"ELAS benchmark: {len(pairs)} pairs, median of {args.reps} calls after a warm-up, "
+          f"{numba.get_num_threads()} thread(s), {os.cpu_count()} CPU(s)")
+
+    rows = []            # (pair, size, method, ms, scores)
+    libelas = {}
+    pyelas = find_pyelas(args.pyelas)
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        if pyelas:
+            print(f"libelas: pyelas in {pyelas}")
+            libelas = run_libelas(pyelas, loaded, args.reps, tmp)
+        else:
+            print("libelas: pyelas is absent (give --pyelas or $PYELAS_PYTHON); skipping it")
+        for name, (left, right, gt) in loaded.items():
+            size = f"{left.shape[1]}x{left.shape[0]}"
+            for preset, sub in ELAS_CONFIGS:
+                disp, sec = timed(lambda: elas_disparity(left, right, preset, subpixel=sub,
+                                                         right_map=False)[0], args.reps)
+                label = f"elas {preset}" + (" +subpix" if sub else "")
+                rows.append((name, size, label, 1000 * sec, evaluate_disparity(disp, gt)))
+            for preset in ("robotics", "middlebury"):
+                if f"{name}/{preset}" in libelas:
+                    disp, ms = libelas[f"{name}/{preset}"]
+                    rows.append((name, size, f"libelas {preset}", ms,
+                                 evaluate_disparity(disp, gt)))
+            linear = elas_disparity(left, right, "robotics", adaptive_mean_weights="linear",
+                                    right_map=False)[0]
+            rows.append((name, size, "elas robotics linear-w", float("nan"),
+                         evaluate_disparity(linear, gt)))
+            dmax = int(np.ceil(np.nanmax(gt) / 16.0)) * 16
+            disp, sec = timed(lambda: sgbm(left, right, dmax), args.reps)
+            rows.append((name, size, "opencv sgbm", 1000 * sec, evaluate_disparity(disp, gt)))
+        fresh = None
+        if not args.no_fresh:
+            first = next(iter(loaded.values()))
+            fresh = fresh_process_times(first[0], first[1], tmp)
+
+    header = (f"{'pair':<13}{'size':>10}  {'method':<24}{'ms':>8}{'density%':>10}"
+              f"{'bad>0.5%':>10}{'bad>1%':>8}{'bad>2%':>8}{'EPE':>7}")
+    print()
+    print(header)
+    print("-" * len(header))
+    last = None
+    for name, size, method, ms, s in rows:
+        if last is not None and name != last:
+            print()
+        last = name
+        print(f"{name:<13}{size:>10}  {method:<24}{ms:8.1f}{s.density:10.1f}{s.bad[0.5]:10.2f}"
+              f"{s.bad[1.0]:8.2f}{s.bad[2.0]:8.2f}{s.epe:7.3f}")
+
+    by = {(r[0], r[2]): r for r in rows}
+    if libelas:
+        print("\nTargets against libelas (bad>2 <= +0.5, density >= -1, time <= libelas):")
+        n_ok = n_all = 0
+        for name in loaded:
+            for preset in ("robotics", "middlebury"):
+                ours, ref = by[(name, f"elas {preset}")], by.get((name, f"libelas {preset}"))
+                if ref is None:
+                    continue
+                d_bad = ours[4].bad[2.0] - ref[4].bad[2.0]
+                d_den = ours[4].density - ref[4].density
+                ok = (d_bad <= 0.5, d_den >= -1.0, ours[3] <= ref[3])
+                n_ok += all(ok)
+                n_all += 1
+                flags = " ".join(f"{k}:{'ok' if v else 'MISS'}" for k, v in
+                                 zip(("bad>2", "density", "time"), ok))
+                print(f"  {name:<13}{preset:<11} bad>2 {d_bad:+5.2f}  density {d_den:+5.2f}  "
+                      f"time {ours[3]:7.1f} vs {ref[3]:7.1f} ms   {flags}")
+        print(f"  {n_ok}/{n_all} pair-presets meet all three")
+
+    print("\nSub-pixel refinement (mean over pairs; EPE px, bad>0.5 %):")
+    for preset in ("robotics", "middlebury"):
+        plain = [by[(n, f"elas {preset}")][4] for n in loaded]
+        refined = [by[(n, f"elas {preset} +subpix")][4] for n in loaded]
+        print(f"  {preset:<11} EPE {np.mean([s.epe for s in plain]):.3f} -> "
+              f"{np.mean([s.epe for s in refined]):.3f}   bad>0.5 "
+              f"{np.mean([s.bad[0.5] for s in plain]):.2f} -> "
+              f"{np.mean([s.bad[0.5] for s in refined]):.2f}   bad>2 "
+              f"{np.mean([s.bad[2.0] for s in plain]):.2f} -> "
+              f"{np.mean([s.bad[2.0] for s in refined]):.2f}")
+    step = [by[(n, "elas robotics")][4] for n in loaded]
+    lin = [by[(n, "elas robotics linear-w")][4] for n in loaded]
+    print("\nAdaptive mean weights, robotics (mean over pairs): as compiled (4/2/0) vs "
+          "intended max(0, 4-|dd|):")
+    print(f"  EPE {np.mean([s.epe for s in step]):.3f} vs {np.mean([s.epe for s in lin]):.3f}   "
+          f"bad>1 {np.mean([s.bad[1.0] for s in step]):.2f} vs "
+          f"{np.mean([s.bad[1.0] for s in lin]):.2f}   bad>2 "
+          f"{np.mean([s.bad[2.0] for s in step]):.2f} vs {np.mean([s.bad[2.0] for s in lin]):.2f}")
+    if fresh:
+        print(f"\nFresh process (cache warm): import {fresh[0]:.2f} s, first call "
+              f"{fresh[1]:.2f} s (robotics), first middlebury+subpixel call {fresh[2]:.2f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

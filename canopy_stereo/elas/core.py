@@ -1,0 +1,209 @@
+"""ELAS (Geiger, Roser, Urtasun, ACCV 2010): the whole pipeline on a rectified pair.
+
+Stages (each in its own module): descriptors, support points, Delaunay
+triangulation and plane prior, disparity grid, dense MAP matching, left-right
+check, small-segment removal, gap interpolation, adaptive mean / median filters.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from canopy_stereo.elas.delaunay import rasterize_triangles, triangle_planes
+from canopy_stereo.elas.descriptor import compute_descriptors
+from canopy_stereo.elas.grid import disparity_grid
+from canopy_stereo.elas.matching import match_job, plane_radius, prior_table
+from canopy_stereo.elas.parallel import run_row_bands, run_tasks
+from canopy_stereo.elas.params import ElasParams, make_params
+from canopy_stereo.elas.postprocess import (adaptive_mean, interpolate_gaps, left_right_check,
+                                            median_filter, remove_small_segments)
+from canopy_stereo.elas.support import SUPPORT_MARGIN, support_points
+from canopy_stereo.errors import ImageError
+from canopy_stereo.io.images import to_gray
+
+
+#: Smallest image side: one support candidate with its four descriptor samples.
+MIN_IMAGE_SIZE = 2 * SUPPORT_MARGIN + 1
+
+
+class ElasWarning(UserWarning):
+    """The pair could not be matched (e.g. no texture): the result is all invalid."""
+
+
+@dataclass
+class ElasResult:
+    """Everything one ELAS run produced.
+
+    Attributes:
+        disp_left: float32 (H, W) left disparity in pixels (``u_right = u_left - d``),
+            -1 where invalid; (ceil(H/2), ceil(W/2)) with subsampling.
+        disp_right: the same for the right image (``u_left = u_right + d``), or None.
+        support: int32 (N, 3) support points ``(u, v, d)``, left-image pixels.
+        triangles_left, triangles_right: int32 (T, 3) indices into ``support``.
+        timings: stage name -> seconds.
+    """
+
+    disp_left: np.ndarray
+    disp_right: np.ndarray | None
+    support: np.ndarray
+    triangles_left: np.ndarray
+    triangles_right: np.ndarray
+    params: ElasParams
+    timings: dict = field(default_factory=dict)
+
+
+def _prepare(image, name: str) -> np.ndarray:
+    image = np.asarray(image)
+    if image.dtype != np.uint8:
+        raise ImageError(f"ELAS needs uint8 images; {name} is {image.dtype} "
+                         "(convert float images with e.g. "
+                         "np.clip(img * 255, 0, 255).astype(np.uint8))")
+    if image.ndim not in (2, 3):
+        raise ImageError(f"{name} must be grey (H, W) or colour (H, W, 3), "
+                         f"got shape {image.shape}")
+    if image.size == 0:
+        raise ImageError(f"{name} image is empty: shape {image.shape}")
+    gray = to_gray(image, name)
+    if min(gray.shape) < MIN_IMAGE_SIZE:
+        raise ImageError(f"{name} image is {gray.shape[1]}x{gray.shape[0]} pixels; ELAS needs "
+                         f"at least {MIN_IMAGE_SIZE}x{MIN_IMAGE_SIZE}")
+    return np.ascontiguousarray(gray)
+
+
+def _check_inputs(left, right) -> tuple[np.ndarray, np.ndarray]:
+    gl, gr = _prepare(left, "left"), _prepare(right, "right")
+    if gl.shape != gr.shape:
+        raise ImageError(f"image sizes differ: left {gl.shape[1]}x{gl.shape[0]}, "
+                         f"right {gr.shape[1]}x{gr.shape[0]}")
+    return gl, gr
+
+
+def _postprocess(disp: np.ndarray, offsets: np.ndarray, p: ElasParams, step: int,
+                 timings: dict, tag: str) -> np.ndarray:
+    t = time.perf_counter()
+    speckle = int(p.speckle_size) if step == 1 else int(p.speckle_size) // (step * step)
+    disp = remove_small_segments(disp, p.speckle_sim_threshold, speckle)
+    if p.subpixel:
+        disp = np.where(disp >= 0, disp + offsets, disp).astype(np.float32)
+    timings[f"segments_{tag}"] = time.perf_counter() - t
+    t = time.perf_counter()
+    gap = int(p.ipol_gap_width) if step == 1 else max(int(p.ipol_gap_width) // step, 1)
+    disp = interpolate_gaps(disp, gap, extrapolate=bool(p.add_corners))
+    timings[f"interpolation_{tag}"] = time.perf_counter() - t
+    if p.filter_adaptive_mean:
+        t = time.perf_counter()
+        disp = adaptive_mean(disp, linear=p.adaptive_mean_weights == "linear")
+        timings[f"adaptive_mean_{tag}"] = time.perf_counter() - t
+    if p.filter_median:
+        t = time.perf_counter()
+        disp = median_filter(disp)
+        timings[f"median_{tag}"] = time.perf_counter() - t
+    return disp
+
+
+def elas_run(left: np.ndarray, right: np.ndarray, params: ElasParams,
+             want_right: bool = True) -> ElasResult:
+    """Run ELAS with fully specified ``params`` (see :func:`elas_disparity`)."""
+    params = params.validate()
+    gl, gr = _check_inputs(left, right)
+    h, w = gl.shape
+    # disparities of w or more cannot occur: a smaller search range keeps the per-cell
+    # candidate tables (cells x disparities) small; results are unchanged
+    p = dataclasses.replace(params, disp_max=max(min(params.disp_max, w - 1), params.disp_min))
+    step = 2 if p.subsampling else 1
+    out_shape = ((h + step - 1) // step, (w + step - 1) // step)
+    timings: dict[str, float] = {}
+
+    t = time.perf_counter()
+    (desc_l, tex_l), (desc_r, tex_r) = run_tasks(lambda: compute_descriptors(gl),
+                                                  lambda: compute_descriptors(gr))
+    timings["descriptor"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    support = support_points(desc_l, desc_r, tex_l, tex_r, p)
+    timings["support"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    vert_l, tri_l, planes_l, valid_l = triangle_planes(support, right_image=False)
+    vert_r, tri_r, planes_r, valid_r = triangle_planes(support, right_image=True)
+    timings["delaunay"] = time.perf_counter() - t
+
+    if len(tri_l) == 0 or len(tri_r) == 0:
+        warnings.warn(f"ELAS found {len(support)} support point(s), too few to triangulate "
+                      "(untextured images or a wrong disparity range?): "
+                      "the disparity map is all invalid", ElasWarning, stacklevel=3)
+        empty = np.full(out_shape, -1.0, np.float32)
+        return ElasResult(empty, empty.copy() if want_right else None, support,
+                          tri_l, tri_r, params, timings)
+
+    t = time.perf_counter()
+    grid_l = disparity_grid(support, (w, h), p.grid_size, p.disp_min, p.disp_max, False)
+    grid_r = disparity_grid(support, (w, h), p.grid_size, p.disp_min, p.disp_max, True)
+    timings["grid"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    map_l = rasterize_triangles(vert_l, tri_l, h, w)
+    map_r = rasterize_triangles(vert_r, tri_r, h, w)
+    timings["raster"] = time.perf_counter() - t
+
+    radius = plane_radius(p.sigma, p.sradius)
+    prior = prior_table(p.beta, p.gamma, p.sigma, radius + 1)
+    common = (p.grid_size, prior, radius)
+    tail = (int(p.disp_min), int(p.disp_max), int(p.match_texture), step, bool(p.subpixel))
+    t = time.perf_counter()
+    job_l, disp_l, off_l = match_job(desc_l, desc_r, tex_l, map_l, planes_l, valid_l, *grid_l,
+                                     *common, 1, *tail)
+    job_r, disp_r, off_r = match_job(desc_r, desc_l, tex_r, map_r, planes_r, valid_r, *grid_r,
+                                     *common, -1, *tail)
+    run_row_bands(job_l, job_r)
+    timings["matching"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    disp_l, disp_r = left_right_check(disp_l, disp_r, p.lr_threshold, step)
+    timings["lr_check"] = time.perf_counter() - t
+
+    if want_right and not p.postprocess_only_left:
+        timings_r: dict[str, float] = {}
+        disp_l, disp_r = run_tasks(
+            lambda: _postprocess(disp_l, off_l, p, step, timings, "left"),
+            lambda: _postprocess(disp_r, off_r, p, step, timings_r, "right"))
+        timings.update(timings_r)
+    else:
+        disp_l = _postprocess(disp_l, off_l, p, step, timings, "left")
+    if not want_right:
+        disp_r = None
+    elif p.postprocess_only_left and p.subpixel:
+        disp_r = np.where(disp_r >= 0, disp_r + off_r, disp_r).astype(np.float32)
+    return ElasResult(disp_l, disp_r, support, tri_l, tri_r, params, timings)
+
+
+def elas_disparity(left: np.ndarray, right: np.ndarray, preset: str = "robotics", *,
+                   right_map: bool = True, **params):
+    """ELAS disparity maps of a rectified pair.
+
+    Args:
+        left, right: rectified images of equal size, uint8 grey (H, W) or BGR
+            (H, W, 3) (converted to grey). Other dtypes raise
+            :class:`~canopy_stereo.errors.ImageError`.
+        preset: ``"robotics"`` or ``"middlebury"`` (the original's presets).
+        right_map: also return the right disparity map; ``False`` returns ``None``
+            in its place and skips its post-processing (it is still matched, the
+            left-right check needs it).
+        **params: any field of :class:`~canopy_stereo.elas.params.ElasParams`
+            (``disp_min``, ``disp_max``, ``support_threshold``, ..., ``subsampling``,
+            and the extras ``subpixel``, ``adaptive_mean_weights``).
+
+    Returns:
+        ``(disp_left, disp_right)``: float32 (H, W) disparities in pixels,
+        ``u_right = u_left - d_left`` and ``u_left = u_right + d_right``, -1 where
+        invalid. With ``subsampling`` they are (ceil(H/2), ceil(W/2)), sampled at
+        even rows and columns, disparities in full-resolution pixels.
+
+    A pair without texture yields all-invalid maps and an :class:`ElasWarning`.
+    """
+    result = elas_run(left, right, make_params(preset, **params), want_right=right_map)
+    return result.disp_left, result.disp_right

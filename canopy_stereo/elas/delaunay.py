@@ -1,0 +1,142 @@
+"""ELAS stages 3-4: Delaunay triangulation of the support points and the plane prior.
+
+The left image is triangulated on ``(u, v)``, the right one on ``(u - d, v)``
+(support points lie on a regular grid, so many quadruples are co-circular: any
+valid Delaunay diagonal is accepted).
+Each triangle carries the disparity plane ``d = a*u + b*v + c`` through its
+vertices in its *own* image coordinates and in the *other* image's; the plane is
+valid (it contributes the prior) when ``|a| < 0.7`` in both.
+
+Triangles are rasterised into an int32 map of triangle indices (-1 outside the
+hull): a pixel centre on a shared edge belongs to the later triangle.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from canopy_stereo.elas.sweephull import delaunay_triangles
+
+#: A plane is used as a prior only if its u-slope is below this in both images.
+MAX_PLANE_SLOPE = 0.7
+
+
+def triangulate(uv: np.ndarray) -> np.ndarray:
+    """Delaunay triangles of points ``uv`` (N, 2) as int32 (T, 3) vertex indices
+    (:func:`~canopy_stereo.elas.sweephull.delaunay_triangles`).
+
+    Fewer than 3 distinct points, or all of them on a line, give no triangles (0, 3);
+    a repeated point is used once.
+    """
+    return delaunay_triangles(uv)
+
+
+@njit(cache=True, nogil=True)
+def _fit_planes(u, v, d, triangles):
+    out = np.zeros((triangles.shape[0], 3), dtype=np.float32)
+    for t in range(triangles.shape[0]):
+        i, j, k = triangles[t, 0], triangles[t, 1], triangles[t, 2]
+        # Cramer's rule on [[u, v, 1]] (a, b, c)^T = d, in float64
+        u0, v0, d0 = float(u[i]), float(v[i]), float(d[i])
+        u1, v1, d1 = float(u[j]), float(v[j]), float(d[j])
+        u2, v2, d2 = float(u[k]), float(v[k]), float(d[k])
+        det = u0 * (v1 - v2) - v0 * (u1 - u2) + (u1 * v2 - u2 * v1)
+        if abs(det) < 1e-9:
+            continue
+        a = (d0 * (v1 - v2) - v0 * (d1 - d2) + (d1 * v2 - d2 * v1)) / det
+        b = (u0 * (d1 - d2) - d0 * (u1 - u2) + (u1 * d2 - u2 * d1)) / det
+        c = (u0 * (v1 * d2 - v2 * d1) - v0 * (u1 * d2 - u2 * d1) + d0 * (u1 * v2 - u2 * v1)) / det
+        out[t, 0] = a
+        out[t, 1] = b
+        out[t, 2] = c
+    return out
+
+
+def fit_planes(u: np.ndarray, v: np.ndarray, d: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Planes ``d = a*u + b*v + c`` through each triangle's vertices.
+
+    Args:
+        u, v, d: vertex coordinates (N,) in pixels.
+        triangles: int (T, 3) vertex indices.
+
+    Returns:
+        float32 (T, 3) rows ``(a, b, c)``, solved in float64; a singular system
+        (collinear vertices) gives the zero plane.
+    """
+    return _fit_planes(np.ascontiguousarray(u, np.float64), np.ascontiguousarray(v, np.float64),
+                       np.ascontiguousarray(d, np.float64),
+                       np.ascontiguousarray(np.asarray(triangles, np.int64).reshape(-1, 3)))
+
+
+def triangle_planes(points: np.ndarray, right_image: bool):
+    """Triangulate the support points for one image and fit its planes.
+
+    Args:
+        points: int (N, 3) support points ``(u, v, d)`` in left-image pixels.
+        right_image: triangulate on ``(u - d, v)`` instead of ``(u, v)``.
+
+    Returns:
+        ``(vertices, triangles, planes, valid)``: vertices float64 (N, 2) in the
+        image's own pixels, triangles int32 (T, 3), planes float32 (T, 3) in own
+        coordinates, valid bool (T,).
+    """
+    points = np.asarray(points, dtype=np.int64).reshape(-1, 3)
+    u_left, v, d = points[:, 0], points[:, 1], points[:, 2]
+    u_right = u_left - d
+    u_own, u_other = (u_right, u_left) if right_image else (u_left, u_right)
+    vertices = np.column_stack([u_own, v]).astype(np.float64)
+    triangles = triangulate(vertices)
+    planes = fit_planes(u_own, v, d, triangles)
+    other = fit_planes(u_other, v, d, triangles)
+    valid = (np.abs(planes[:, 0]) < MAX_PLANE_SLOPE) & (np.abs(other[:, 0]) < MAX_PLANE_SLOPE)
+    return vertices, triangles, planes, valid
+
+
+@njit(cache=True, nogil=True)
+def rasterize_triangles(vertices, triangles, height, width):
+    """int32 (height, width) map: index of the triangle containing each pixel centre, or -1.
+
+    For every pixel row the triangle's column span is found from its edges, so the
+    work is proportional to the covered area.
+    """
+    tri_map = np.full((height, width), -1, dtype=np.int32)
+    eps = 1e-9
+    for t in range(triangles.shape[0]):
+        ax = vertices[triangles[t, 0], 0]
+        ay = vertices[triangles[t, 0], 1]
+        bx = vertices[triangles[t, 1], 0]
+        by = vertices[triangles[t, 1], 1]
+        cx = vertices[triangles[t, 2], 0]
+        cy = vertices[triangles[t, 2], 1]
+        vmin = int(np.ceil(min(ay, by, cy) - eps))
+        vmax = int(np.floor(max(ay, by, cy) + eps))
+        vmin = max(vmin, 0)
+        vmax = min(vmax, height - 1)
+        for v in range(vmin, vmax + 1):
+            y = float(v)
+            lo = np.inf
+            hi = -np.inf
+            for e in range(3):
+                if e == 0:
+                    x0, y0, x1, y1 = ax, ay, bx, by
+                elif e == 1:
+                    x0, y0, x1, y1 = bx, by, cx, cy
+                else:
+                    x0, y0, x1, y1 = cx, cy, ax, ay
+                if y0 == y1:
+                    if abs(y - y0) <= eps:
+                        lo = min(lo, x0, x1)
+                        hi = max(hi, x0, x1)
+                    continue
+                if y < min(y0, y1) - eps or y > max(y0, y1) + eps:
+                    continue
+                x = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+                lo = min(lo, x)
+                hi = max(hi, x)
+            if lo > hi:
+                continue
+            u0 = max(int(np.ceil(lo - eps)), 0)
+            u1 = min(int(np.floor(hi + eps)), width - 1)
+            for u in range(u0, u1 + 1):
+                tri_map[v, u] = t
+    return tri_map

@@ -1,0 +1,169 @@
+"""ELAS stage 1: the 16-byte gradient descriptor of every pixel.
+
+Gradients are 3x3 Sobel responses on the uint8 image, stored as bytes centred on
+128: ``du = sat((left - right) >> 2) + 128`` (horizontal: the column to the left
+minus the column to the right, rows weighted 1-2-1) and ``dv = sat((top - bottom)
+>> 2) + 128`` (vertical, columns weighted 1-2-1). ``>>`` is an arithmetic shift
+(floor division by 4) and ``sat`` clips to 0..255.
+
+The descriptor of pixel (u, v) concatenates 12 ``du`` and 4 ``dv`` samples at
+(row, column) offsets :data:`DU_OFFSETS` and :data:`DV_OFFSETS`. It is defined for
+``3 <= v <= H-4`` and ``3 <= u <= W-4`` and is all zeros elsewhere (deterministic,
+unlike the original's uninitialised border).
+
+Layout: ``desc[v, u, k]`` (H, W, 16) uint8, one 16-byte vector per pixel, so that
+a matching cost is one :func:`~canopy_stereo.elas.simd.sad16`.
+"""
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+from numba import njit
+
+from canopy_stereo.elas.simd import DESC_BYTES, sad16
+
+#: (row, column) offsets of the 12 horizontal-gradient samples (the centre twice).
+DU_OFFSETS = ((-2, 0), (-1, -2), (-1, 0), (-1, 2), (0, -1), (0, 0), (0, 0), (0, 1),
+              (1, -2), (1, 0), (1, 2), (2, 0))
+#: (row, column) offsets of the 4 vertical-gradient samples.
+DV_OFFSETS = ((-1, 0), (0, -1), (0, 1), (1, 0))
+
+_DU_DR = np.array([o[0] for o in DU_OFFSETS], dtype=np.int64)
+_DU_DC = np.array([o[1] for o in DU_OFFSETS], dtype=np.int64)
+_DV_DR = np.array([o[0] for o in DV_OFFSETS], dtype=np.int64)
+_DV_DC = np.array([o[1] for o in DV_OFFSETS], dtype=np.int64)
+
+#: Margin (pixels) on every side where the descriptor is zero.
+BORDER = 3
+
+
+@njit(cache=True, inline="always")
+def _sat_byte(x):
+    y = (x >> 2) + 128
+    if y < 0:
+        return 0
+    if y > 255:
+        return 255
+    return y
+
+
+@njit(cache=True, nogil=True)
+def _sobel_bytes(img):
+    """``(du, dv)`` uint8 (H, W) gradient bytes; 128 (zero gradient) on the 1-px border."""
+    h, w = img.shape
+    du = np.full((h, w), 128, dtype=np.uint8)
+    dv = np.full((h, w), 128, dtype=np.uint8)
+    n = w - 2
+    for v in range(1, h - 1):
+        # rows above/at/below, each at columns u-1 (l), u (c), u+1 (r) for u = 1..w-2
+        al, ac, ar = img[v - 1, 0:n], img[v - 1, 1:n + 1], img[v - 1, 2:n + 2]
+        bl, br = img[v, 0:n], img[v, 2:n + 2]
+        cl, cc, cr = img[v + 1, 0:n], img[v + 1, 1:n + 1], img[v + 1, 2:n + 2]
+        out_u = du[v, 1:n + 1]
+        out_v = dv[v, 1:n + 1]
+        for i in range(n):
+            left = np.int32(al[i]) + 2 * np.int32(bl[i]) + np.int32(cl[i])
+            right = np.int32(ar[i]) + 2 * np.int32(br[i]) + np.int32(cr[i])
+            top = np.int32(al[i]) + 2 * np.int32(ac[i]) + np.int32(ar[i])
+            bottom = np.int32(cl[i]) + 2 * np.int32(cc[i]) + np.int32(cr[i])
+            out_u[i] = _sat_byte(left - right)
+            out_v[i] = _sat_byte(top - bottom)
+    return du, dv
+
+
+@njit(cache=True, nogil=True)
+def _texture(desc):
+    h, w, _ = desc.shape
+    flat = desc.reshape(-1)
+    centre = np.full(DESC_BYTES, 128, dtype=np.uint8)
+    texture = np.zeros((h, w), dtype=np.int32)
+    for v in range(BORDER, h - BORDER):
+        base = v * w * DESC_BYTES
+        for u in range(BORDER, w - BORDER):
+            texture[v, u] = sad16(flat, base + u * DESC_BYTES, centre, 0)
+    return texture
+
+
+@njit(cache=True, nogil=True)
+def _assemble_bytes(du, dv, du_dr, du_dc, dv_dr, dv_dc):
+    """Descriptor (H, W, 16) byte by byte from the offset tables (any byte order)."""
+    h, w = du.shape
+    desc = np.zeros((h, w, DESC_BYTES), dtype=np.uint8)
+    for v in range(BORDER, h - BORDER):
+        row = desc[v]
+        for k in range(12):
+            src = du[v + du_dr[k]]
+            c = du_dc[k]
+            for u in range(BORDER, w - BORDER):
+                row[u, k] = src[u + c]
+        for k in range(4):
+            src = dv[v + dv_dr[k]]
+            c = dv_dc[k]
+            for u in range(BORDER, w - BORDER):
+                row[u, 12 + k] = src[u + c]
+    return desc
+
+
+@njit(cache=True, inline="always")
+def _pack8(b0, b1, b2, b3, b4, b5, b6, b7):
+    """Little-endian uint64 from 8 bytes (b0 lowest)."""
+    return (np.uint64(b0) | (np.uint64(b1) << np.uint64(8)) | (np.uint64(b2) << np.uint64(16))
+            | (np.uint64(b3) << np.uint64(24)) | (np.uint64(b4) << np.uint64(32))
+            | (np.uint64(b5) << np.uint64(40)) | (np.uint64(b6) << np.uint64(48))
+            | (np.uint64(b7) << np.uint64(56)))
+
+
+@njit(cache=True, nogil=True)
+def _assemble_words(du, dv):
+    """Descriptor (H, W, 16) written as two little-endian uint64 words per pixel.
+
+    The same bytes as :func:`_assemble_bytes` with the offsets of :data:`DU_OFFSETS` and
+    :data:`DV_OFFSETS` spelled out, about 3x faster (vectorises over ``u``).
+    """
+    h, w = du.shape
+    desc = np.zeros((h, w, DESC_BYTES), dtype=np.uint8)
+    words = desc.reshape(h, w * DESC_BYTES).view(np.uint64).reshape(h, w, 2)
+    b = BORDER
+    n = w - 2 * b
+    for v in range(b, h - b):
+        # du samples: (-2,0) (-1,-2) (-1,0) (-1,2) (0,-1) (0,0) (0,0) (0,1)
+        #             (1,-2) (1,0) (1,2) (2,0)
+        m2c = du[v - 2, b:b + n]
+        m1l, m1c, m1r = du[v - 1, b - 2:b - 2 + n], du[v - 1, b:b + n], du[v - 1, b + 2:b + 2 + n]
+        z_l, z_c, z_r = du[v, b - 1:b - 1 + n], du[v, b:b + n], du[v, b + 1:b + 1 + n]
+        p1l, p1c, p1r = du[v + 1, b - 2:b - 2 + n], du[v + 1, b:b + n], du[v + 1, b + 2:b + 2 + n]
+        p2c = du[v + 2, b:b + n]
+        # dv samples: (-1,0) (0,-1) (0,1) (1,0)
+        vm1, vl, vr, vp1 = dv[v - 1, b:b + n], dv[v, b - 1:b - 1 + n], dv[v, b + 1:b + 1 + n], \
+            dv[v + 1, b:b + n]
+        out = words[v, b:b + n]
+        for i in range(n):
+            out[i, 0] = _pack8(m2c[i], m1l[i], m1c[i], m1r[i], z_l[i], z_c[i], z_c[i], z_r[i])
+            out[i, 1] = _pack8(p1l[i], p1c[i], p1r[i], p2c[i], vm1[i], vl[i], vr[i], vp1[i])
+    return desc
+
+
+def gradient_bytes(gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sobel gradient bytes ``(du, dv)``, each uint8 (H, W), 128 = no gradient."""
+    return _sobel_bytes(np.ascontiguousarray(gray, dtype=np.uint8))
+
+
+def compute_descriptors(gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Descriptors and texture of a uint8 grey image (H, W).
+
+    Returns:
+        desc: uint8 (H, W, 16), ``desc[v, u]`` is the descriptor of pixel (u, v)
+            (zeros within :data:`BORDER` pixels of the image edge).
+        texture: int32 (H, W), ``sum_k |desc[v, u, k] - 128|`` (0 on the border).
+    """
+    gray = np.ascontiguousarray(gray, dtype=np.uint8)
+    if gray.shape[0] <= 2 * BORDER or gray.shape[1] <= 2 * BORDER:
+        h, w = gray.shape
+        return np.zeros((h, w, DESC_BYTES), np.uint8), np.zeros((h, w), np.int32)
+    du, dv = _sobel_bytes(gray)
+    if sys.byteorder == "little":
+        desc = _assemble_words(du, dv)
+    else:
+        desc = _assemble_bytes(du, dv, _DU_DR, _DU_DC, _DV_DR, _DV_DC)
+    return desc, _texture(desc)

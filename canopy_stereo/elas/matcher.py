@@ -1,0 +1,23 @@
+"""``elas`` in the matcher registry (:mod:`canopy_stereo.disparity.registry`)."""
+from __future__ import annotations
+
+import numpy as np
+
+from canopy_stereo.elas.core import elas_run
+from canopy_stereo.elas.params import make_params
+
+
+def elas_matcher(left: np.ndarray, right: np.ndarray, *, disp_min: int = 0, disp_max: int = 255,
+                 preset: str = "robotics", **params) -> np.ndarray:
+    """Left ELAS disparity, float32 (H, W) in pixels, invalid = -1.
+
+    ``preset`` and ``**params`` are those of :func:`canopy_stereo.elas.elas_disparity`.
+    Subsampled maps (``subsampling=True``) are returned at full size, each computed
+    value repeated over its 2x2 block, so that the map stays on the input's pixel grid.
+    """
+    p = make_params(preset, disp_min=int(disp_min), disp_max=int(disp_max), **params)
+    disp = elas_run(left, right, p, want_right=False).disp_left
+    if p.subsampling:
+        h, w = np.asarray(left).shape[:2]
+        disp = np.repeat(np.repeat(disp, 2, axis=0), 2, axis=1)[:h, :w]
+    return np.ascontiguousarray(disp, dtype=np.float32)

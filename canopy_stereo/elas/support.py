@@ -1,0 +1,264 @@
+"""ELAS stage 2: support points, sparse robust matches on a regular candidate grid.
+
+A candidate sits every ``step`` pixels (cell ``(i, j)`` is pixel ``(u, v) = (j*step,
+i*step)``) with ``5 <= u <= W-6`` and ``5 <= v <= H-6``. Its cost at disparity ``d``
+is the descriptor SAD summed over the four pixels ``(u +- 2, v +- 2)``. A candidate
+survives when
+
+* its own descriptor's texture is at least ``support_texture``,
+* at least :data:`~canopy_stereo.elas.params.MIN_SUPPORT_DISPARITIES` disparities
+  keep all four samples inside the descriptor area,
+* its best cost is below ``support_threshold`` times the second best (over all
+  other disparities, neighbours of the best included),
+* matching back from the right image lands within ``lr_threshold``.
+
+Then, on the grid of candidate cells, two filters run in the original's order
+(columns outer, rows inner, updating in place): inconsistent points (too few
+similar neighbours) and redundant points (a similar neighbour on both sides, first
+along columns, then along rows).
+
+Support points are returned as int32 rows ``(u, v, d)`` in left-image pixels.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from canopy_stereo.elas.descriptor import BORDER
+from canopy_stereo.elas.parallel import run_row_bands
+from canopy_stereo.elas.params import MIN_SUPPORT_DISPARITIES
+from canopy_stereo.elas.simd import DESC_BYTES, sad64
+
+#: Offset (pixels) of the four descriptor samples from the candidate, both axes.
+SUPPORT_SAMPLE_OFFSET = 2
+#: First and last valid candidate coordinate: ``MARGIN <= u <= W-1-MARGIN``.
+SUPPORT_MARGIN = BORDER + SUPPORT_SAMPLE_OFFSET
+#: Redundancy filter: look this many cells along each direction ...
+REDUNDANT_MAX_DIST = 5
+#: ... for a point whose disparity differs by at most this much.
+REDUNDANT_THRESHOLD = 1
+
+
+#: Bytes of a candidate's cost vector: its four descriptors side by side.
+SUPPORT_BYTES = 4 * DESC_BYTES
+
+
+@njit(cache=True, nogil=True)
+def _sample_rows(words, step, out, row_start, row_stop):
+    """Candidate-row cost vectors: ``out[i, x]`` (8 uint64 = 64 bytes) holds the
+    descriptors at ``(x - 2, v - 2)``, ``(x + 2, v - 2)``, ``(x - 2, v + 2)``,
+    ``(x + 2, v + 2)`` with ``v = i * step``, for the rows and columns that have them.
+
+    ``words`` is the (H, W, 2) uint64 view of the descriptors.
+    """
+    h, w, _ = words.shape
+    off = SUPPORT_SAMPLE_OFFSET
+    for i in range(row_start, row_stop):
+        v = i * step
+        if v < SUPPORT_MARGIN or v > h - 1 - SUPPORT_MARGIN:
+            continue
+        top = words[v - off]
+        bottom = words[v + off]
+        dst = out[i]
+        for x in range(off, w - off):
+            dst[x, 0] = top[x - off, 0]
+            dst[x, 1] = top[x - off, 1]
+            dst[x, 2] = top[x + off, 0]
+            dst[x, 3] = top[x + off, 1]
+            dst[x, 4] = bottom[x - off, 0]
+            dst[x, 5] = bottom[x - off, 1]
+            dst[x, 6] = bottom[x + off, 0]
+            dst[x, 7] = bottom[x + off, 1]
+
+
+@njit(cache=True, inline="always")
+def _candidate_disparity(flat_own, flat_other, texture_own, row_base, width, u, v, sign,
+                         disp_min, disp_max, support_texture, support_threshold):
+    """Best disparity of candidate (u, v) of the *own* image, or -1.
+
+    ``flat_own``/``flat_other`` are the candidate-row cost vectors (see
+    :func:`_sample_rows`) flattened; ``row_base`` is the byte offset of this
+    candidate row. ``sign`` is +1 for the left image (match at ``u - d`` in the
+    right image) and -1 for the right image (match at ``u + d``).
+    """
+    off = SUPPORT_SAMPLE_OFFSET
+    if texture_own[v, u] < support_texture:
+        return -1
+    # all four samples (x +- off) must stay in the descriptor area [BORDER, width-1-BORDER]
+    if sign > 0:
+        dmax = min(disp_max, u - off - BORDER)
+    else:
+        dmax = min(disp_max, width - 1 - BORDER - off - u)
+    dmin = max(disp_min, 0)
+    if dmax - dmin + 1 < MIN_SUPPORT_DISPARITIES:
+        return -1
+    a = row_base + u * SUPPORT_BYTES
+    best_e = np.int32(2147483647)
+    second_e = np.int32(2147483647)
+    best_d = -1
+    second_d = -1
+    for d in range(dmin, dmax + 1):
+        e = sad64(flat_own, a, flat_other, a - sign * d * SUPPORT_BYTES)
+        if e < best_e:
+            second_e = best_e
+            second_d = best_d
+            best_e = e
+            best_d = d
+        elif e < second_e:
+            second_e = e
+            second_d = d
+    unique = np.float32(best_e) < support_threshold * np.float32(second_e)
+    if best_d >= 0 and second_d >= 0 and unique:
+        return best_d
+    return -1
+
+
+@njit(cache=True, nogil=True)
+def _candidate_rows(samples_left, samples_right, tex_left, tex_right, step, disp_min, disp_max,
+                    support_texture, support_threshold, lr_threshold, grid, row_start, row_stop):
+    rows, w, _ = samples_left.shape
+    h = tex_left.shape[0]
+    flat_l = samples_left.reshape(-1).view(np.uint8)
+    flat_r = samples_right.reshape(-1).view(np.uint8)
+    cols = grid.shape[1]
+    for i in range(row_start, row_stop):
+        v = i * step
+        if v < SUPPORT_MARGIN or v > h - 1 - SUPPORT_MARGIN:
+            continue
+        base = i * w * SUPPORT_BYTES
+        for j in range(cols):
+            u = j * step
+            if u < SUPPORT_MARGIN or u > w - 1 - SUPPORT_MARGIN:
+                continue
+            d = _candidate_disparity(flat_l, flat_r, tex_left, base, w, u, v, 1, disp_min,
+                                     disp_max, support_texture, support_threshold)
+            if d < 0:
+                continue
+            d_back = _candidate_disparity(flat_r, flat_l, tex_right, base, w, u - d, v, -1,
+                                          disp_min, disp_max, support_texture, support_threshold)
+            if d_back >= 0 and abs(d - d_back) <= lr_threshold:
+                grid[i, j] = d
+
+
+def candidate_grid(desc_left, desc_right, tex_left, tex_right, step, disp_min, disp_max,
+                   support_texture, support_threshold, lr_threshold) -> np.ndarray:
+    """Left-right checked candidate disparities, int32 (rows, cols) cells, -1 = none.
+
+    ``desc_*`` are uint8 (H, W, 16) descriptors, ``tex_*`` int32 (H, W) textures;
+    cell ``(i, j)`` is pixel ``(j*step, i*step)``. Each candidate row's four-sample
+    cost vectors are gathered first, so that one candidate cost is one 64-byte SAD;
+    rows of cells run in parallel.
+    """
+    h, w = desc_left.shape[:2]
+    rows, cols = (h - 1) // step + 1, (w - 1) // step + 1
+    grid = np.full((rows, cols), -1, dtype=np.int32)
+    samples = [np.empty((rows, w, SUPPORT_BYTES // 8), np.uint64) for _ in range(2)]
+    words = [np.ascontiguousarray(d).reshape(h, w * DESC_BYTES).view(np.uint64).reshape(h, w, 2)
+             for d in (desc_left, desc_right)]
+    run_row_bands((_sample_rows, rows, (words[0], int(step), samples[0])),
+                  (_sample_rows, rows, (words[1], int(step), samples[1])))
+    args = (samples[0], samples[1], tex_left, tex_right, int(step), int(disp_min), int(disp_max),
+            int(support_texture), np.float32(support_threshold), int(lr_threshold), grid)
+    run_row_bands((_candidate_rows, rows, args))
+    return grid
+
+
+@njit(cache=True, nogil=True)
+def remove_inconsistent(grid, window, threshold, min_support):
+    """In place: drop points with fewer than ``min_support`` points (itself included)
+    within ``window`` cells whose disparity differs by at most ``threshold``."""
+    rows, cols = grid.shape
+    for j in range(cols):
+        for i in range(rows):
+            d = grid[i, j]
+            if d < 0:
+                continue
+            support = 0
+            for j2 in range(max(j - window, 0), min(j + window + 1, cols)):
+                for i2 in range(max(i - window, 0), min(i + window + 1, rows)):
+                    d2 = grid[i2, j2]
+                    if d2 >= 0 and abs(d - d2) <= threshold:
+                        support += 1
+            if support < min_support:
+                grid[i, j] = -1
+    return grid
+
+
+@njit(cache=True, nogil=True)
+def remove_redundant(grid, max_dist, threshold, vertical):
+    """In place: drop points that have a point with ``|dd| <= threshold`` within
+    ``max_dist`` cells on *both* sides (along columns if ``vertical`` else along rows)."""
+    rows, cols = grid.shape
+    di = 1 if vertical else 0
+    dj = 0 if vertical else 1
+    for j in range(cols):
+        for i in range(rows):
+            d = grid[i, j]
+            if d < 0:
+                continue
+            redundant = True
+            for side in (-1, 1):
+                found = False
+                i2 = i
+                j2 = j
+                for _ in range(max_dist):
+                    i2 += side * di
+                    j2 += side * dj
+                    if i2 < 0 or i2 >= rows or j2 < 0 or j2 >= cols:
+                        break
+                    d2 = grid[i2, j2]
+                    if d2 >= 0 and abs(d - d2) <= threshold:
+                        found = True
+                        break
+                if not found:
+                    redundant = False
+                    break
+            if redundant:
+                grid[i, j] = -1
+    return grid
+
+
+def grid_to_points(grid: np.ndarray, step: int) -> np.ndarray:
+    """int32 (N, 3) rows ``(u, v, d)`` of the valid cells, columns outer, rows inner."""
+    jj, ii = np.nonzero(grid.T >= 0)
+    d = grid[ii, jj]
+    return np.stack([jj * step, ii * step, d], axis=1).astype(np.int32)
+
+
+def corner_points(points: np.ndarray, width: int, height: int) -> np.ndarray:
+    """The 4 image corners with the disparity of their nearest support point, and
+    the 4 points ``(u_c + d, v_c, d)`` that put a vertex on each right-image corner.
+
+    Returns int32 (8, 3) rows ``(u, v, d)`` (empty when ``points`` is empty).
+    """
+    if len(points) == 0:
+        return np.zeros((0, 3), np.int32)
+    corners = np.array([[0, 0], [width - 1, 0], [0, height - 1], [width - 1, height - 1]],
+                       dtype=np.int64)
+    uv = points[:, :2].astype(np.int64)
+    dist2 = ((uv[None, :, :] - corners[:, None, :]) ** 2).sum(axis=2)
+    d = points[np.argmin(dist2, axis=1), 2].astype(np.int64)
+    left = np.column_stack([corners, d])
+    right = np.column_stack([corners[:, 0] + d, corners[:, 1], d])
+    return np.vstack([left, right]).astype(np.int32)
+
+
+def support_points(desc_left, desc_right, tex_left, tex_right, params) -> np.ndarray:
+    """Support points of a pair, int32 (N, 3) rows ``(u, v, d)`` (left-image pixels).
+
+    ``params`` is an :class:`~canopy_stereo.elas.params.ElasParams`; the corner
+    points of ``add_corners`` are appended last.
+    """
+    step = int(params.candidate_stepsize)
+    grid = candidate_grid(desc_left, desc_right, tex_left, tex_right, step, params.disp_min,
+                          params.disp_max, params.support_texture, params.support_threshold,
+                          params.lr_threshold)
+    remove_inconsistent(grid, int(params.incon_window_size), int(params.incon_threshold),
+                        int(params.incon_min_support))
+    remove_redundant(grid, REDUNDANT_MAX_DIST, REDUNDANT_THRESHOLD, True)
+    remove_redundant(grid, REDUNDANT_MAX_DIST, REDUNDANT_THRESHOLD, False)
+    points = grid_to_points(grid, step)
+    if params.add_corners:
+        h, w = desc_left.shape[:2]
+        points = np.vstack([points, corner_points(points, w, h)])
+    return points
