@@ -1,0 +1,115 @@
+"""``canopy-stereo segment``: plant mask of an image (GrabCut from a rectangle, or automatic)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.io.images import read_image
+
+COMMAND = "segment"
+HELP = "plant mask of an image: GrabCut from a rectangle, a rough mask, or automatic"
+DESCRIPTION = """Separate the plant from the background (the paper's GrabCut step).
+--rect x,y,w,h: GrabCut from a rectangle drawn around the plant (everything outside is
+background). --seed MASK.png: GrabCut from a rough mask (0/255, or GrabCut labels 0..3).
+--auto (the default): vegetation index (ExG on normalised chromaticity) with Otsu's
+threshold, plus, with --disparity or --depth, near = plant; the cues seed GrabCut.
+For red, yellow or brown plants use --index none with a depth cue, or a rectangle.
+The disparity/depth map must be registered to IMAGE (same grid: e.g. a rectified left
+image and its disparity). Writes an 8-bit PNG, 255 = plant."""
+
+
+def add_arguments(p):
+    p.add_argument("image", help="image to segment (colour)")
+    how = p.add_mutually_exclusive_group()
+    how.add_argument("--rect", metavar="x,y,w,h", help="rectangle around the plant (pixels)")
+    how.add_argument("--seed", metavar="MASK.png", help="rough plant mask or GrabCut labels to refine")
+    how.add_argument("--auto", action="store_true", help="automatic plant mask (default)")
+    cue = p.add_mutually_exclusive_group()
+    cue.add_argument("--disparity", metavar="D.pfm",
+                     help="disparity registered to IMAGE (PFM or .npy; high = near; inf/negative = unknown)")
+    cue.add_argument("--depth", metavar="Z.npy",
+                     help="depth or distance registered to IMAGE (.npy or PFM; NaN = unknown), "
+                          "or an organized cloud ORG.npy (distance from its camera is used)")
+    p.add_argument("--range", metavar="lo,hi", help="plant range of the disparity/depth cue "
+                                                     "(default: automatic, Otsu)")
+    p.add_argument("--index", choices=["exg", "exgr", "none"], default="exg",
+                   help="colour cue of --auto (default exg; 'none' = depth cue only)")
+    p.add_argument("--iterations", type=int, default=5, help="GrabCut iterations (default 5)")
+    p.add_argument("--no-refine", action="store_true", help="--auto: skip GrabCut, keep the seed")
+    p.add_argument("-o", "--output", required=True, metavar="MASK.png")
+
+
+def _load_map(path: str, name: str) -> np.ndarray:
+    path_ = Path(path)
+    if not path_.is_file():
+        raise CanopyStereoError(f"{name} file not found: {path_}")
+    if path_.suffix.lower() == ".npy":
+        try:
+            arr = np.load(path_, allow_pickle=False)
+        except (ValueError, OSError, EOFError) as exc:
+            raise CanopyStereoError(f"{path_} is not a readable .npy array: {exc}") from None
+    else:
+        from canopy_stereo.io.pfm import read_pfm
+
+        arr = read_pfm(path_)
+    arr = np.asarray(arr, np.float64)
+    if arr.ndim == 3 and arr.shape[2] == 3 and name == "depth":
+        from canopy_stereo.geometry.camera import camera_centre
+        from canopy_stereo.measure.viewpoint import estimate_camera
+
+        P = estimate_camera(arr)
+        if P is None:
+            raise CanopyStereoError(f"{path_}: cannot tell the camera of this organized cloud; "
+                                    "pass a depth map instead")
+        return np.linalg.norm(arr - camera_centre(P), axis=-1)
+    if arr.ndim == 3 and arr.shape[2] == 1:
+        arr = arr[..., 0]
+    if arr.ndim != 2:
+        raise CanopyStereoError(f"{path_}: {name} map must be (H, W), got shape {arr.shape}")
+    return arr
+
+
+def _parse_range(text):
+    if text is None:
+        return None
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+    except ValueError:
+        raise CanopyStereoError(f"--range must be lo,hi (two numbers), got {text!r}") from None
+    return lo, hi
+
+
+def run(args) -> int:
+    from canopy_stereo.segmentation import auto_plant_mask, grabcut_mask, grabcut_rect, parse_rect, write_mask
+
+    image = read_image(args.image)
+    if args.rect:
+        if args.disparity or args.depth:
+            raise CanopyStereoError("--disparity/--depth are cues of --auto, not of --rect")
+        mask = grabcut_rect(image, parse_rect(args.rect), iterations=args.iterations)
+        how = f"GrabCut from rectangle {args.rect}"
+    elif args.seed:
+        seed = read_image(args.seed, color=False)
+        mask = grabcut_mask(image, seed, iterations=args.iterations)
+        how = f"GrabCut from {args.seed}"
+    else:
+        disparity = _load_map(args.disparity, "disparity") if args.disparity else None
+        depth = _load_map(args.depth, "depth") if args.depth else None
+        rng = _parse_range(args.range)
+        if rng is not None and disparity is None and depth is None:
+            raise CanopyStereoError("--range needs --disparity or --depth")
+        mask = auto_plant_mask(image, disparity=disparity, depth=depth, index=args.index,
+                               disparity_range=rng if disparity is not None else None,
+                               depth_range=rng if depth is not None else None,
+                               iterations=args.iterations, refine=not args.no_refine)
+        cues = [f"index {args.index}"] if args.index != "none" else []
+        if disparity is not None or depth is not None:
+            cues.append("disparity" if disparity is not None else "depth")
+        how = "automatic (" + ", ".join(cues) + ")"
+    write_mask(args.output, mask)
+    n = int(np.count_nonzero(mask))
+    print(f"{how}: {100.0 * n / mask.size:.1f} % plant ({n} of {mask.size} pixels)")
+    print(f"wrote {args.output}")
+    return 0

@@ -1,0 +1,26 @@
+"""Measurement of leaves and canopies in organized clouds.
+
+``measure_organized(organized, leaf_ids=None, mask=None, ground="auto", unit="mm", ...)``
+returns the REPORT.json dict; :func:`write_report` writes it (and a per-leaf
+CSV); :func:`measure_leaf` measures one leaf; :func:`plot_views` draws top and
+side views with the measured dimensions.
+"""
+from canopy_stereo.measure.canopy import MeasuringFrame, canopy_dimensions, hull_volume, voxel_volume
+from canopy_stereo.measure.leaf import LeafMeasurement, measure_leaf
+from canopy_stereo.measure.plot import plot_views
+from canopy_stereo.measure.report import (
+    SceneMeasurement,
+    load_cloud,
+    measure_organized,
+    measure_points,
+    measure_scene,
+    write_leaves_csv,
+    write_report,
+)
+from canopy_stereo.measure.viewpoint import estimate_camera
+
+__all__ = [
+    "LeafMeasurement", "MeasuringFrame", "SceneMeasurement", "canopy_dimensions", "estimate_camera",
+    "hull_volume", "load_cloud", "measure_leaf", "measure_organized", "measure_points",
+    "measure_scene", "plot_views", "voxel_volume", "write_leaves_csv", "write_report",
+]

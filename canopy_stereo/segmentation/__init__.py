@@ -1,0 +1,27 @@
+"""Plant segmentation: GrabCut from a rectangle or mask, automatic plant masks
+from vegetation indices and depth, and leaf instances from an organized cloud."""
+from canopy_stereo.segmentation.auto import auto_plant_mask, plant_seed
+from canopy_stereo.segmentation.grabcut import grabcut_labels, grabcut_mask, grabcut_rect
+from canopy_stereo.segmentation.indices import (
+    chromaticity,
+    excess_green,
+    excess_green_minus_red,
+    excess_red,
+    otsu_threshold,
+    vegetation_index,
+)
+from canopy_stereo.segmentation.instances import clean_mask_regions, separate_leaves
+from canopy_stereo.segmentation.masks import (
+    parse_rect,
+    read_leaf_ids,
+    read_mask,
+    write_leaf_ids,
+    write_mask,
+)
+
+__all__ = [
+    "auto_plant_mask", "chromaticity", "clean_mask_regions", "excess_green",
+    "excess_green_minus_red", "excess_red", "grabcut_labels", "grabcut_mask", "grabcut_rect",
+    "otsu_threshold", "parse_rect", "plant_seed", "read_leaf_ids", "read_mask", "separate_leaves",
+    "vegetation_index", "write_leaf_ids", "write_mask",
+]

@@ -1,0 +1,151 @@
+"""GrabCut (Rother, Kolmogorov & Blake 2004) from a rectangle or from a mask.
+
+The paper's interaction: the user draws a rough rectangle around the plant
+and GrabCut separates it from the background (colour models of both, refined
+by iterated graph cuts). A mask can seed it instead: either OpenCV GrabCut
+labels or a rough binary plant mask.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from canopy_stereo.errors import ImageError
+from canopy_stereo.io.images import to_bgr
+
+#: OpenCV GrabCut labels.
+GC_BGD, GC_FGD, GC_PR_BGD, GC_PR_FGD = cv2.GC_BGD, cv2.GC_FGD, cv2.GC_PR_BGD, cv2.GC_PR_FGD
+
+
+def _check_image(image_bgr) -> np.ndarray:
+    img = to_bgr(np.asarray(image_bgr), "image")
+    if img.shape[0] < 2 or img.shape[1] < 2:
+        raise ImageError(f"image is too small for GrabCut: {img.shape[1]}x{img.shape[0]}")
+    return np.ascontiguousarray(img)
+
+
+def _check_iterations(iterations) -> int:
+    it = int(iterations)
+    if it < 1:
+        raise ImageError(f"GrabCut needs at least 1 iteration, got {iterations}")
+    return it
+
+
+def labels_to_mask(labels: np.ndarray) -> np.ndarray:
+    """uint8 mask, 255 where GrabCut labels say (probably) plant, else 0."""
+    return np.where((labels == GC_FGD) | (labels == GC_PR_FGD), 255, 0).astype(np.uint8)
+
+
+def grabcut_labels(image_bgr, labels: np.ndarray, iterations: int = 5) -> np.ndarray:
+    """Run GrabCut from initial labels; returns the final (H, W) uint8 labels.
+
+    Args:
+        image_bgr: uint8 colour (or grey) image.
+        labels: (H, W) uint8 with values in ``{GC_BGD, GC_FGD, GC_PR_BGD, GC_PR_FGD}``.
+        iterations: GrabCut iterations.
+
+    Raises:
+        ImageError: size mismatch, or labels without any (probable) plant or
+            without any (probable) background pixel.
+    """
+    img = _check_image(image_bgr)
+    it = _check_iterations(iterations)
+    lab = np.asarray(labels)
+    if lab.shape != img.shape[:2]:
+        raise ImageError(f"mask is {lab.shape[1] if lab.ndim > 1 else '?'}x{lab.shape[0]} "
+                         f"but the image is {img.shape[1]}x{img.shape[0]}")
+    lab = lab.astype(np.uint8).copy()
+    if lab.max() > 3:
+        raise ImageError("GrabCut labels must be 0 (background), 1 (plant), 2 (probable background) "
+                         "or 3 (probable plant)")
+    fg = (lab == GC_FGD) | (lab == GC_PR_FGD)
+    bg = (lab == GC_BGD) | (lab == GC_PR_BGD)
+    if not fg.any():
+        raise ImageError("the GrabCut seed has no plant pixel (the mask is empty)")
+    if not bg.any():
+        raise ImageError("the GrabCut seed has no background pixel (the mask covers the whole image)")
+    if not ((lab == GC_PR_FGD) | (lab == GC_PR_BGD)).any():
+        return lab  # nothing left to decide
+    bgd = np.zeros((1, 65), np.float64)
+    fgd = np.zeros((1, 65), np.float64)
+    try:
+        cv2.grabCut(img, lab, None, bgd, fgd, it, cv2.GC_INIT_WITH_MASK)
+    except cv2.error as exc:
+        raise ImageError(f"GrabCut failed on this seed: {str(exc).strip().splitlines()[-1]}") from None
+    return lab
+
+
+def grabcut_rect(image_bgr, rect, iterations: int = 5) -> np.ndarray:
+    """Plant mask from a rectangle around the plant (the paper's interaction).
+
+    Args:
+        image_bgr: uint8 BGR (or grey) image.
+        rect: ``(x, y, w, h)`` in pixels; everything outside is background.
+            Clipped to the image; some image must remain outside it.
+        iterations: GrabCut iterations.
+
+    Returns:
+        (H, W) uint8 mask, 255 = plant.
+    """
+    img = _check_image(image_bgr)
+    it = _check_iterations(iterations)
+    try:
+        x, y, w, h = (int(round(float(v))) for v in rect)
+    except (TypeError, ValueError):
+        raise ImageError(f"rectangle must be 4 numbers x, y, w, h; got {rect!r}") from None
+    H, W = img.shape[:2]
+    if w <= 0 or h <= 0:
+        raise ImageError(f"rectangle must have positive width and height, got {w}x{h}")
+    x0, y0 = max(x, 0), max(y, 0)
+    x1, y1 = min(x + w, W), min(y + h, H)
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        raise ImageError(f"rectangle {x},{y},{w},{h} lies (almost) outside the {W}x{H} image")
+    if x0 == 0 and y0 == 0 and x1 == W and y1 == H:
+        raise ImageError("the rectangle covers the whole image; GrabCut needs background outside it")
+    labels = np.full((H, W), GC_BGD, np.uint8)
+    labels[y0:y1, x0:x1] = GC_PR_FGD
+    bgd = np.zeros((1, 65), np.float64)
+    fgd = np.zeros((1, 65), np.float64)
+    try:
+        cv2.grabCut(img, labels, (x0, y0, x1 - x0, y1 - y0), bgd, fgd, it, cv2.GC_INIT_WITH_RECT)
+    except cv2.error as exc:
+        raise ImageError(f"GrabCut failed on this rectangle: {str(exc).strip().splitlines()[-1]}") from None
+    return labels_to_mask(labels)
+
+
+def grabcut_mask(image_bgr, mask, iterations: int = 5, margin_px: int = 0) -> np.ndarray:
+    """Plant mask refined by GrabCut from an initial mask.
+
+    Args:
+        image_bgr: uint8 BGR (or grey) image.
+        mask: (H, W) initial mask, one of
+            * GrabCut labels (uint8 with values 0..3: background, plant,
+              probable background, probable plant);
+            * a rough binary plant mask (bool, or uint8 0/255): plant pixels
+              are probable plant, the others probable background; with
+              ``margin_px > 0`` pixels deeper than ``margin_px`` inside the
+              plant become sure plant and those farther than ``margin_px``
+              outside it sure background.
+        iterations: GrabCut iterations.
+        margin_px: see above.
+
+    Returns:
+        (H, W) uint8 mask, 255 = plant.
+    """
+    m = np.asarray(mask)
+    if m.ndim == 3:
+        m = m.max(axis=2)
+    if m.ndim != 2:
+        raise ImageError(f"mask must be (H, W), got shape {m.shape}")
+    if m.dtype != np.bool_ and m.size and m.max() <= 3 and np.issubdtype(m.dtype, np.integer):
+        labels = m.astype(np.uint8)
+    else:
+        plant = m.astype(bool)
+        labels = np.where(plant, GC_PR_FGD, GC_PR_BGD).astype(np.uint8)
+        if margin_px > 0:
+            k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1, 2 * margin_px + 1))
+            inner = cv2.erode(plant.astype(np.uint8), k).astype(bool)
+            outer = cv2.dilate(plant.astype(np.uint8), k).astype(bool)
+            labels[inner] = GC_FGD
+            labels[~outer] = GC_BGD
+    return labels_to_mask(grabcut_labels(image_bgr, labels, iterations))
