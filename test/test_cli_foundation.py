@@ -100,3 +100,28 @@ def test_bad_input_one_line_no_traceback(tmp_path, paper_rig, rng, case):
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1, res.stderr
     assert word in lines[0] and "Traceback" not in res.stderr
+
+
+def test_reconstruct_and_measure_croton(cli, tmp_path):
+    """reconstruct --measure on the synthetic croton: marked leaves within 2 % of truth."""
+    import json
+
+    sim = tmp_path / "sim"
+    code, _, err = cli("simulate", "croton", "-o", sim, "--seed", "2")
+    assert code == 0, err
+    code, out, err = cli("reconstruct", sim / "left.png", sim / "right.png", "--rig", sim / "rig.yaml",
+                         "-o", tmp_path / "c.ply", "--measure", "--leaf-ids", sim / "leaf_ids_left.png",
+                         "--report", tmp_path / "r.json", "--csv", tmp_path / "l.csv")
+    assert code == 0, err
+    report = json.loads((tmp_path / "r.json").read_text())
+    truth = json.loads((sim / "truth.json").read_text())
+    assert report["unit"] == "mm"
+    by_id = {lf["id"]: lf for lf in report["leaves"]}
+    for leaf in (lf for lf in truth["leaves"] if lf["marked"]):
+        got = by_id[leaf["id"]]
+        assert abs(got["length"] / leaf["length"] - 1) < 0.02
+        assert abs(got["width"] / leaf["width"] - 1) < 0.02
+    assert (tmp_path / "l.csv").read_text().count("\n") >= 3
+    code, _, err = cli("reconstruct", sim / "left.png", sim / "right.png", "--rig", sim / "rig.yaml",
+                       "-o", tmp_path / "c.ply", "--measure")
+    assert code == 2 and "--report" in err

@@ -27,16 +27,29 @@ def add_arguments(p):
     p.add_argument("--method", choices=RECTIFICATION_METHODS, default="fusiello")
     p.add_argument("--match-pairs", nargs=2, metavar=("LEFT_GLOB", "RIGHT_GLOB"),
                    help="hartley: pool matches from more pairs taken by the same rig")
-    p.add_argument("--matcher", choices=sorted(_MATCHERS), default="sgbm")
+    p.add_argument("--matcher", choices=sorted(_MATCHERS), default="elas",
+                   help="dense matcher (default elas, as in the paper)")
     p.add_argument("--mask", metavar="MASK.png", help="foreground mask on the left image (non-zero = keep)")
     p.add_argument("--disp-min", type=int, default=None, help="smallest disparity searched (px)")
     p.add_argument("--disp-max", type=int, default=None, help="largest disparity searched (px)")
     p.add_argument("--organized", metavar="ORG.npy",
                    help="also save the H x W x 3 world points of the left image's pixels (NaN where none)")
     p.add_argument("--disparity-out", metavar="DISP.pfm", help="also save the rectified disparity")
+    m = p.add_argument_group("measurement (see also: canopy-stereo measure)")
+    m.add_argument("--measure", action="store_true", help="measure leaves and canopy after reconstructing")
+    m.add_argument("--leaf-ids", metavar="IDS.png", help="leaf-id image on the left image (0 = none)")
+    m.add_argument("--report", metavar="REPORT.json", help="measurement report (required with --measure)")
+    m.add_argument("--csv", metavar="LEAVES.csv", help="per-leaf table")
+    m.add_argument("--plot", metavar="VIEWS.png", help="top and side views with the measured dimensions")
 
 
 def run(args) -> int:
+    from canopy_stereo.errors import CanopyStereoError
+
+    if args.measure and not args.report:
+        raise CanopyStereoError("--measure needs --report REPORT.json")
+    if (args.leaf_ids or args.report or args.csv or args.plot) and not args.measure:
+        raise CanopyStereoError("--leaf-ids/--report/--csv/--plot need --measure")
     t0 = time.perf_counter()
     rig = load_rig(args.rig)
     left, right = read_image(args.left), read_image(args.right)
@@ -64,6 +77,10 @@ def run(args) -> int:
         d[d < 0] = np.inf
         write_pfm(args.disparity_out, d)
     rec.timings["write"] = time.perf_counter() - t
+    if args.measure:
+        t = time.perf_counter()
+        _measure(args, rec, rig, mask)
+        rec.timings["measure"] = time.perf_counter() - t
     lo, hi = rec.bounding_box()
     u = rig.world_unit
     print(f"points: {len(rec.points)}  (disparity range searched {rec.disp_range[0]}..{rec.disp_range[1]} px)")
@@ -72,3 +89,24 @@ def run(args) -> int:
           + f"; total {(time.perf_counter() - t0) * 1e3:.0f} ms")
     print(f"wrote {args.output}")
     return 0
+
+
+def _measure(args, rec, rig, mask) -> None:
+    """Measure the reconstruction's leaves and canopy; write REPORT.json (+ CSV, PNG)."""
+    from canopy_stereo.measure import measure_scene, plot_views, write_report
+    from canopy_stereo.segmentation import read_leaf_ids
+
+    ids = read_leaf_ids(args.leaf_ids) if args.leaf_ids else None
+    res = measure_scene(rec.organized, leaf_ids=ids, mask=mask, ground="auto", unit=rig.world_unit,
+                        camera=rig.P_left)
+    write_report(res.report, args.report, csv=args.csv)
+    if args.plot:
+        plot_views(res, args.plot)
+    c, u = res.report["canopy"], rig.world_unit
+    print(f"canopy: height {c['height']:.1f} {u}, width {c['width']:.1f} {u}, depth {c['depth']:.1f} {u}, "
+          f"hull volume {c['hull_volume'] / 1e6 if u == 'mm' else c['hull_volume']:.3g} "
+          f"{'L' if u == 'mm' else u + '^3'}; {len(res.report['leaves'])} leaves measured")
+    for lf in res.report["leaves"]:
+        print(f"  leaf {lf['id']}: length {lf['length']:.1f} {u}, width {lf['width']:.1f} {u}, "
+              f"area {lf['area']:.0f} {u}^2")
+    print(f"wrote {args.report}" + (f", {args.csv}" if args.csv else "") + (f", {args.plot}" if args.plot else ""))

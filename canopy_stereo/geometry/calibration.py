@@ -71,7 +71,7 @@ def dlt_projection(X, x) -> np.ndarray:
     A[0::2, 8:12] = xn[:, 1:2] * Xn
     A[1::2, 0:4] = xn[:, 2:3] * Xn
     A[1::2, 8:12] = -xn[:, 0:1] * Xn
-    _, s, Vt = np.linalg.svd(A)
+    _, _, Vt = np.linalg.svd(A, full_matrices=False)
     Pn = Vt[-1].reshape(3, 4)
     P = np.linalg.solve(T, Pn @ U)
     return normalize_projection(P)

@@ -100,7 +100,7 @@ def disparity_range_for(rig, rect: Rectification, disp_min=None, disp_max=None) 
     return dmin, dmax
 
 
-def reconstruct_pair(left_bgr, right_bgr, rig, method: str = "fusiello", matcher: str = "sgbm",
+def reconstruct_pair(left_bgr, right_bgr, rig, method: str = "fusiello", matcher: str = "elas",
                      mask=None, disp_min=None, disp_max=None, matcher_params=None,
                      rectification: Rectification | None = None) -> Reconstruction:
     """Reconstruct one stereo pair into world coordinates.
@@ -109,7 +109,7 @@ def reconstruct_pair(left_bgr, right_bgr, rig, method: str = "fusiello", matcher
         left_bgr, right_bgr: original (raw) images, uint8 grey or BGR, of the rig's size.
         rig: :class:`~canopy_stereo.io.rig.Rig` with world-frame P matrices.
         method: ``"fusiello"`` (calibrated) or ``"hartley"`` (projective, from matches).
-        matcher: disparity matcher name (``"sgbm"``, ``"elas"``).
+        matcher: disparity matcher name (``"elas"``, the paper's, or ``"sgbm"``).
         mask: optional (H, W) foreground mask on the original left image (non-zero = keep).
         disp_min, disp_max: disparity search range in rectified pixels (default: from
             the rig file or the rectification).
