@@ -10,7 +10,7 @@ or uncalibrated Hartley).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from canopy_stereo.geometry.camera import normalize_projection
 
@@ -112,20 +112,20 @@ def _dlt_point(P1, P2, u1, v1, u2, v2, drop_behind, out):  # pragma: no cover - 
     out[2] = z
 
 
-@njit(cache=True, parallel=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _triangulate_kernel(P1, P2, x1, x2, drop_behind):  # pragma: no cover - compiled
     n = x1.shape[0]
     out = np.empty((n, 3))
-    for i in prange(n):
+    for i in range(n):
         _dlt_point(P1, P2, x1[i, 0], x1[i, 1], x2[i, 0], x2[i, 1], drop_behind, out[i])
     return out
 
 
-@njit(cache=True, parallel=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _rectified_grid_kernel(disp, Hl_inv, Hr_inv, P1, P2):  # pragma: no cover - compiled
     h, w = disp.shape
     out = np.full((h, w, 3), np.nan)
-    for v in prange(h):
+    for v in range(h):
         for u in range(w):
             d = disp[v, u]
             if not (d >= 0) or not np.isfinite(d):
@@ -141,12 +141,12 @@ def _rectified_grid_kernel(disp, Hl_inv, Hr_inv, P1, P2):  # pragma: no cover - 
     return out
 
 
-@njit(cache=True, parallel=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _original_grid_kernel(disp, qx, qy, Hl, Hr_inv, P1, P2, max_jump):  # pragma: no cover - compiled
     hr, wr = disp.shape
     h, w = qx.shape
     out = np.full((h, w, 3), np.nan)
-    for i in prange(h):
+    for i in range(h):
         for j in range(w):
             x, y = qx[i, j], qy[i, j]
             z = Hl[2, 0] * x + Hl[2, 1] * y + Hl[2, 2]

@@ -8,6 +8,7 @@ not see each other's topics.
 from __future__ import annotations
 
 import os
+import sys
 import time
 from contextlib import contextmanager
 
@@ -32,6 +33,23 @@ def env_domain_id() -> int:
         return 0
 
 
+#: GIL switch interval (seconds) for processes that run pipeline nodes.
+PIPELINE_SWITCH_INTERVAL_S = 0.001
+
+
+def tune_thread_switching(interval_s: float = PIPELINE_SWITCH_INTERVAL_S) -> None:
+    """Shorten Python's GIL switch interval (default 5 ms) in a node process.
+
+    The heavy kernels (ELAS, triangulation) release the GIL, but each stage
+    hand-off must take it back while executor threads run Python code; with
+    the default 5 ms interval a frame waits that long at every hand-off.
+    Measured on the croton bag (2 cores, ELAS + GrabCut): 5.0 frames/s at 5 ms,
+    9.8 frames/s at 1 ms.
+    """
+    if sys.getswitchinterval() > interval_s:
+        sys.setswitchinterval(interval_s)
+
+
 @contextmanager
 def ros_context(domain_id: int | None = None, localhost_only: bool = True, args=None):
     """An initialised rclpy context, shut down on exit.
@@ -45,6 +63,7 @@ def ros_context(domain_id: int | None = None, localhost_only: bool = True, args=
     """
     if localhost_only:
         os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    tune_thread_switching()
     context = Context()
     rclpy.init(args=list(args or []), context=context, domain_id=private_domain_id() if domain_id is None else int(domain_id),
                signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)

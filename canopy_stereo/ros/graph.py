@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from rclpy.executors import MultiThreadedExecutor
 
 from canopy_stereo.io.rig import Rig
+from canopy_stereo.ros.context import tune_thread_switching
 from canopy_stereo.ros.params import parameters_from_dict, rig_parameter_overrides
 
 #: Default thread count of the executor: enough for every stage to have a frame in flight.
@@ -197,6 +198,7 @@ def main(args=None) -> int:
     if opts.cameras:
         # free-running cameras: any two frames are at most half a period apart from the nearest
         options.node_parameters = {"rectify_node": {"sync_slop": 0.5 / max(opts.fps, 1e-3)}}
+    tune_thread_switching()
     rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     install_stop_signals()
     context = rclpy.get_default_context()
