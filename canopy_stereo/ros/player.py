@@ -107,6 +107,18 @@ class BagPlayer:
         pubs = [self.publishers[t] for t in (topics or self.topics)]
         return wait_for_subscribers(pubs, timeout_s)
 
+    def wait_until_delivered(self, timeout_s: float = 5.0) -> bool:
+        """Wait until every reliable subscriber acknowledged all published messages
+        (call before the process exits, or the last messages may never leave it)."""
+        from rclpy.duration import Duration
+
+        deadline = time.monotonic() + timeout_s
+        ok = True
+        for pub in self.publishers.values():
+            left = max(0.0, deadline - time.monotonic())
+            ok = pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))) and ok
+        return ok
+
     def play(self, stop: threading.Event | None = None, before_publish=None,
              on_published=None) -> PlayStats:
         """Publish until the end (or forever with ``loop``) or until ``stop`` is set.
@@ -158,7 +170,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--remap", nargs="*", default=[], metavar="FROM:=TO", help="rename topics")
     p.add_argument("--topics", nargs="*", default=None, metavar="TOPIC", help="play only these topics")
     p.add_argument("--delay", type=float, default=1.0, metavar="S",
-                   help="wait S seconds for subscribers to connect before playing")
+                   help="wait up to S seconds for subscribers to connect before playing")
+    p.add_argument("--queue", type=int, default=10, metavar="N", help="publisher queue depth (default 10)")
     return p
 
 
@@ -182,9 +195,11 @@ def main(args=None) -> int:
                   "playing the readable part", file=sys.stderr)
         node = rclpy.create_node("bag_player")
         player = BagPlayer(node, bag, opts.rate, opts.loop, opts.start_offset,
-                           parse_remaps(opts.remap), opts.topics)
-        time.sleep(max(0.0, opts.delay))
+                           parse_remaps(opts.remap), opts.topics, depth=max(1, opts.queue))
+        if player.wait_for_subscribers(max(0.0, opts.delay)):
+            time.sleep(0.2)  # let the matched readers finish their handshake
         stats = player.play()
+        player.wait_until_delivered(5.0)
         print(f"bag_play: published {stats.total} messages in {stats.wall_s:.2f} s")
         return 0
     except CanopyStereoError as exc:
