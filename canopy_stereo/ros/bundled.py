@@ -5,8 +5,9 @@ Scenes:
 * ``croton``: the synthetic potted croton of :mod:`canopy_stereo.sim` seen
   through the paper's rig (640x480), several frames of a gentle breeze at
   10 frames/s, the right camera 4 ms behind the left (webcams are never in
-  step). The bag also holds the truth: ``/truth/left/depth`` (32FC1, metres,
-  depth along the left camera's optical axis at each original left pixel).
+  step). The bag also holds the truth: ``/truth/left/depth`` (16UC1,
+  millimetres as in REP 118, 0 = nothing: depth along the left camera's
+  optical axis at each original left pixel).
 * ``plants``: the Middlebury 2014 "Plants" pair (quarter size, 710x496), a real
   potted plant, with its calibration as a rig (Scharstein et al., GCPR 2014).
 
@@ -79,8 +80,10 @@ def write_stereo_bag(path, frames, truth_depths=None, compression: str = "zstd")
     Args:
         path: output ``.mcap``.
         frames: iterable of ``(left_bgr, right_bgr, left_stamp_ns, right_stamp_ns)``.
-        truth_depths: optional list of float32 (H, W) depth maps (metres), one per frame,
-            stamped like the left image, on :data:`TRUTH_DEPTH_TOPIC`.
+        truth_depths: optional list of float (H, W) depth maps (metres, NaN = nothing),
+            one per frame, stamped like the left image, on :data:`TRUTH_DEPTH_TOPIC`
+            as 16UC1 millimetres (REP 118; 0 = nothing). Rounding to 0.5 mm is
+            below 0.1 % of the scene's depth and keeps the bag small.
     """
     from canopy_stereo.ros.bag import BagWriter
     from canopy_stereo.ros.convert import image_to_msg
@@ -92,8 +95,9 @@ def write_stereo_bag(path, frames, truth_depths=None, compression: str = "zstd")
             bag.write(RIGHT_TOPIC, image_to_msg(right, "bgr8", t_right, "right_camera"),
                       t_right + transport_ns)
             if truth_depths is not None:
-                depth = np.asarray(truth_depths[k], np.float32)
-                bag.write(TRUTH_DEPTH_TOPIC, image_to_msg(depth, "32FC1", t_left, "left_camera"),
+                depth_mm = np.rint(np.nan_to_num(np.asarray(truth_depths[k], np.float64) * 1000.0,
+                                                 nan=0.0)).clip(0, 65535).astype(np.uint16)
+                bag.write(TRUTH_DEPTH_TOPIC, image_to_msg(depth_mm, "16UC1", t_left, "left_camera"),
                           t_left + transport_ns + 1)
     return Path(path)
 
@@ -167,16 +171,22 @@ def make_plants(bag_path, rig_path, scene_folder) -> tuple[Path, Path]:
 
 
 def read_truth_depths(bag_path) -> dict:
-    """Left stamp (ns) -> truth depth map (float32 (H, W), metres) of a bag's
-    :data:`TRUTH_DEPTH_TOPIC` (empty if it has none)."""
+    """Left stamp (ns) -> truth depth map (float32 (H, W), metres, NaN = nothing)
+    of a bag's :data:`TRUTH_DEPTH_TOPIC` (empty if it has none). Accepts 16UC1
+    millimetres (REP 118) and 32FC1 metres."""
     from canopy_stereo.ros.bag import BagReader
     from canopy_stereo.ros.convert import msg_to_image, stamp_to_ns
 
     bag = BagReader(bag_path)
     if TRUTH_DEPTH_TOPIC not in bag.topics:
         return {}
-    return {stamp_to_ns(m.header.stamp): msg_to_image(m, ("32FC1",)).copy()
-            for _, m in bag.read(TRUTH_DEPTH_TOPIC)}
+    out = {}
+    for _, m in bag.read(TRUTH_DEPTH_TOPIC):
+        depth = msg_to_image(m, ("16UC1", "32FC1")).astype(np.float32)
+        if m.encoding == "16UC1":
+            depth = np.where(depth > 0, depth / 1000.0, np.nan).astype(np.float32)
+        out[stamp_to_ns(m.header.stamp)] = depth
+    return out
 
 
 def relative_depth_errors(points_m: np.ndarray, rig: Rig, truth_depth: np.ndarray) -> np.ndarray:
