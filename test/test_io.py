@@ -85,3 +85,16 @@ def test_middlebury_calib(shared_data):
     assert c["doffs"] == pytest.approx(85.019) and c["baseline"] == pytest.approx(169.843)
     rig = rig_from_middlebury(c)
     assert rig.baseline == pytest.approx(169.843) and rig.image_size == (710, 496)
+
+
+def test_ply_extra_vertex_properties(tmp_path, rng):
+    pts = rng.normal(size=(50, 3))
+    views = rng.integers(1, 9, 50).astype(np.uint8)
+    counts = rng.integers(1, 10_000, 50).astype(np.uint32)
+    path = write_ply(tmp_path / "e.ply", pts, properties={"views": views, "points": counts})
+    head = path.read_bytes()[:400]
+    assert b"property uchar views" in head and b"property uint points" in head
+    cloud = read_ply(path)
+    assert np.array_equal(cloud.extra["views"], views) and np.array_equal(cloud.extra["points"], counts)
+    with pytest.raises(CanopyStereoError, match="views"):
+        write_ply(tmp_path / "f.ply", pts, properties={"views": views[:3]})

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from canopy_stereo.disparity.registry import _MATCHERS
+from canopy_stereo.disparity import matcher_names
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.rig import UNIT_TO_METRES, unit_to_metres
 from canopy_stereo.pipeline.reconstruct import RECTIFICATION_METHODS
@@ -55,7 +55,7 @@ def add_arguments(p):
     p.add_argument("--min-views", type=int, default=1, help="keep points seen by at least N views")
     p.add_argument("--no-free-space", action="store_true", help="keep single-view points others see through")
     p.add_argument("--method", choices=RECTIFICATION_METHODS, default="fusiello")
-    p.add_argument("--matcher", choices=sorted(_MATCHERS), default="sgbm")
+    p.add_argument("--matcher", choices=matcher_names(), default="sgbm")
     p.add_argument("--poses-out", metavar="POSES.yaml", help="write the poses used (e.g. registered ones)")
 
 

@@ -6,7 +6,7 @@ import time
 import numpy as np
 
 from canopy_stereo.cli.common import add_rig_argument
-from canopy_stereo.disparity.registry import _MATCHERS
+from canopy_stereo.disparity import matcher_names
 from canopy_stereo.io.images import read_image
 from canopy_stereo.io.ply import write_ply
 from canopy_stereo.io.rig import load_rig
@@ -27,7 +27,7 @@ def add_arguments(p):
     p.add_argument("--method", choices=RECTIFICATION_METHODS, default="fusiello")
     p.add_argument("--match-pairs", nargs=2, metavar=("LEFT_GLOB", "RIGHT_GLOB"),
                    help="hartley: pool matches from more pairs taken by the same rig")
-    p.add_argument("--matcher", choices=sorted(_MATCHERS), default="elas",
+    p.add_argument("--matcher", choices=matcher_names(), default="elas",
                    help="dense matcher (default elas, as in the paper)")
     p.add_argument("--mask", metavar="MASK.png", help="foreground mask on the left image (non-zero = keep)")
     p.add_argument("--disp-min", type=int, default=None, help="smallest disparity searched (px)")

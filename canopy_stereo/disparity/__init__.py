@@ -11,8 +11,9 @@ from canopy_stereo.disparity.registry import (
     available_matchers,
     compute_disparity,
     get_matcher,
+    matcher_names,
     register_matcher,
 )
 
 __all__ = ["INVALID_DISPARITY", "available_matchers", "compute_disparity", "get_matcher",
-           "register_matcher"]
+           "matcher_names", "register_matcher"]

@@ -32,6 +32,11 @@ def register_matcher(name: str, matcher: str | Callable) -> None:
     _MATCHERS[name] = matcher
 
 
+def matcher_names() -> list[str]:
+    """Names of all registered matchers, sorted (whether importable here or not)."""
+    return sorted(_MATCHERS)
+
+
 def available_matchers() -> list[str]:
     """Names of the registered matchers whose implementation can be imported."""
     names = []

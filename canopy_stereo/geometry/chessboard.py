@@ -15,7 +15,7 @@ import numpy as np
 
 from canopy_stereo.errors import CalibrationError
 from canopy_stereo.geometry.calibration import StereoCalibration, TriangulationCheck, triangulation_check
-from canopy_stereo.geometry.rectification import undistort_pixels
+from canopy_stereo.geometry.distortion import undistort_pixels
 from canopy_stereo.io.images import read_image
 
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from canopy_stereo.errors import MatchingError, RigError
 from canopy_stereo.geometry.camera import compose_projection, decompose_projection, validate_projection
-from canopy_stereo.geometry.distortion import distort_pixels, undistort_pixels  # noqa: F401 (re-export)
+from canopy_stereo.geometry.distortion import distort_pixels
 from canopy_stereo.geometry.triangulation import apply_homography
 
 
@@ -149,26 +149,6 @@ def default_disparity_range(rect: Rectification, near_depth: float | None = None
 # --------------------------------------------------------------------------- Hartley
 
 
-def estimate_fundamental_ransac(x_left, x_right, threshold_px: float = 1.0,
-                                confidence: float = 0.999) -> tuple[np.ndarray, np.ndarray]:
-    """Fundamental matrix by RANSAC (OpenCV) with ``x_right^T F x_left = 0``.
-
-    Returns ``(F, inlier_mask)``; raises :class:`MatchingError` with fewer than 8 matches
-    or when no consistent ``F`` is found.
-    """
-    x1 = np.asarray(x_left, np.float64).reshape(-1, 2)
-    x2 = np.asarray(x_right, np.float64).reshape(-1, 2)
-    if len(x1) < 8:
-        raise MatchingError(f"need at least 8 matches to estimate F, got {len(x1)}")
-    method = getattr(cv2, "USAC_MAGSAC", cv2.FM_RANSAC)
-    F, mask = cv2.findFundamentalMat(x1, x2, method, threshold_px, confidence, 10000)
-    if F is None or F.shape != (3, 3):
-        F, mask = cv2.findFundamentalMat(x1, x2, cv2.FM_RANSAC, threshold_px, confidence)
-    if F is None or F.shape != (3, 3):
-        raise MatchingError("no fundamental matrix is consistent with the matches")
-    return F / np.linalg.norm(F), mask.ravel().astype(bool)
-
-
 def _cross_matrix(e: np.ndarray) -> np.ndarray:
     return np.array([[0, -e[2], e[1]], [e[2], 0, -e[0]], [-e[1], e[0], 0]])
 
@@ -176,7 +156,8 @@ def _cross_matrix(e: np.ndarray) -> np.ndarray:
 def hartley_rectify(x_left, x_right, image_size, F=None, threshold_px: float = 1.0) -> Rectification:
     """Projective rectification from point matches (Hartley 1999; H&Z sec. 11.12).
 
-    1. ``F`` by RANSAC from the matches (unless given); right epipole ``e'``.
+    1. ``F`` by RANSAC from the matches (unless given; see
+       :func:`canopy_stereo.features.estimate_fundamental`); right epipole ``e'``.
     2. ``H' = G R T`` sends ``e'`` to the point at infinity ``(1, 0, 0)``.
     3. ``H = H_A H' M`` with ``M = [e']_x F + e' (1,1,1)^T`` and the affine
        ``H_A`` minimising ``sum (H x_i - H' x'_i)_u^2`` over the inliers.
@@ -192,7 +173,9 @@ def hartley_rectify(x_left, x_right, image_size, F=None, threshold_px: float = 1
     x1 = np.asarray(x_left, np.float64).reshape(-1, 2)
     x2 = np.asarray(x_right, np.float64).reshape(-1, 2)
     if F is None:
-        F, inl = estimate_fundamental_ransac(x1, x2, threshold_px)
+        from canopy_stereo.features.fundamental import estimate_fundamental
+
+        F, inl = estimate_fundamental(x1, x2, "ransac", threshold_px)
     else:
         F = np.asarray(F, np.float64)
         inl = np.ones(len(x1), bool)

@@ -33,7 +33,12 @@ class PointCloud:
         return len(self.points)
 
 
-def write_ply(path, points, colors=None, unit: str = "mm", comments=()) -> Path:
+#: numpy dtype -> PLY property type for extra per-vertex properties.
+_NUMPY_TO_PLY = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": "int",
+                 "u4": "uint", "f4": "float", "f8": "double"}
+
+
+def write_ply(path, points, colors=None, unit: str = "mm", comments=(), properties=None) -> Path:
     """Write a binary little-endian PLY.
 
     Args:
@@ -41,6 +46,9 @@ def write_ply(path, points, colors=None, unit: str = "mm", comments=()) -> Path:
         colors: optional (N, 3) uint8 RGB.
         unit: world unit written as ``comment unit <unit>``.
         comments: further header comment lines.
+        properties: optional ``{name: (N,) array}`` of extra per-vertex scalars
+            (e.g. view counts), written with their own dtype (int/uint 8-32 bit,
+            float32/64); :func:`read_ply` returns them in ``PointCloud.extra``.
     """
     path = Path(path)
     pts = np.asarray(points, dtype=np.float32).reshape(-1, 3)
@@ -50,17 +58,29 @@ def write_ply(path, points, colors=None, unit: str = "mm", comments=()) -> Path:
         if len(cols) != len(pts):
             raise CanopyStereoError(f"{len(cols)} colours for {len(pts)} points")
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    extra = {}
+    for name, values in (properties or {}).items():
+        arr = np.asarray(values).ravel()
+        code = arr.dtype.str[1:]
+        if code not in _NUMPY_TO_PLY or len(arr) != len(pts):
+            raise CanopyStereoError(f"PLY property {name!r}: need {len(pts)} values of an 8-64 bit "
+                                    f"numeric type, got {len(arr)} of {arr.dtype}")
+        extra[name] = arr
+        fields.append((name, "<" + code if arr.dtype.itemsize > 1 else code))
     rec = np.empty(len(pts), dtype=fields)
     rec["x"], rec["y"], rec["z"] = pts[:, 0], pts[:, 1], pts[:, 2]
     if colors is not None:
         cols = np.clip(cols, 0, 255).astype(np.uint8)
         rec["red"], rec["green"], rec["blue"] = cols[:, 0], cols[:, 1], cols[:, 2]
+    for name, arr in extra.items():
+        rec[name] = arr
     lines = ["ply", "format binary_little_endian 1.0", f"comment unit {unit}",
              "comment generator canopy_stereo"]
     lines += [f"comment {c}" for c in comments]
     lines += [f"element vertex {len(pts)}", "property float x", "property float y", "property float z"]
     if colors is not None:
         lines += ["property uchar red", "property uchar green", "property uchar blue"]
+    lines += [f"property {_NUMPY_TO_PLY[arr.dtype.str[1:]]} {name}" for name, arr in extra.items()]
     lines.append("end_header")
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "wb") as f:
