@@ -15,7 +15,10 @@ for each matcher and with/without ``segment_node``. Also prints the busy time
 per frame of every node (seconds inside its callbacks), and the figures of the
 CLI itself for the default configuration (ELAS, segmentation, recording).
 
-    .venv/bin/python benchmarks/bench_graph.py [--frames 40] [--matchers elas sgbm]
+``--executors per-node multi`` also runs the graph on one rclpy
+MultiThreadedExecutor for comparison.
+
+    .venv/bin/python benchmarks/bench_graph.py [--frames 40] [--matchers elas sgbm] [--executors per-node multi]
 """
 from __future__ import annotations
 
@@ -59,6 +62,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--frames", type=int, default=40)
     p.add_argument("--matchers", nargs="*", default=["elas", "sgbm"])
+    p.add_argument("--executors", nargs="*", default=["per-node"], choices=["per-node", "multi"])
     p.add_argument("--no-cli", action="store_true", help="skip the CLI run")
     args = p.parse_args(argv)
     rig = load_rig(bundled_rig("croton"))
@@ -67,17 +71,18 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         bag = make_bag(Path(tmp) / "bench.mcap", args.frames)
         warm = make_bag(Path(tmp) / "warm.mcap", 2)
-        print(f"{'matcher':8s} {'segment':8s} {'frames/s':>9s} {'latency median':>15s} "
+        print(f"{'executor':9s} {'matcher':8s} {'segment':8s} {'frames/s':>9s} {'latency median':>15s} "
               f"{'latency max':>12s}  busy ms/frame per node")
-        for matcher in args.matchers:
-            for segment in (True, False):
-                options = GraphOptions(matcher=matcher, segment=segment, parameter_services=False)
-                run_bag(warm, rig, rate=0, options=options)  # JIT caches, first-call costs
-                thr = run_bag(bag, rig, rate=0, options=options, max_in_flight=2)
-                lat = run_bag(bag, rig, rate=0, options=options, max_in_flight=1)
-                print(f"{matcher:8s} {str(segment):8s} {thr.fps:9.2f} "
-                      f"{lat.latency_median_s * 1e3:12.0f} ms {max(lat.latencies_s) * 1e3:9.0f} ms  "
-                      f"{per_frame_busy(thr)}", flush=True)
+        for executor, matcher, segment in [(e, m, s) for e in args.executors for m in args.matchers
+                                           for s in (True, False)]:
+            options = GraphOptions(matcher=matcher, segment=segment, parameter_services=False,
+                                   executor=executor)
+            run_bag(warm, rig, rate=0, options=options)  # JIT caches, first-call costs
+            thr = run_bag(bag, rig, rate=0, options=options, max_in_flight=2)
+            lat = run_bag(bag, rig, rate=0, options=options, max_in_flight=1)
+            print(f"{executor:9s} {matcher:8s} {str(segment):8s} {thr.fps:9.2f} "
+                  f"{lat.latency_median_s * 1e3:12.0f} ms {max(lat.latencies_s) * 1e3:9.0f} ms  "
+                  f"{per_frame_busy(thr)}", flush=True)
         if not args.no_cli:
             out = io.StringIO()
             with contextlib.redirect_stdout(out):

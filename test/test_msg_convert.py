@@ -133,6 +133,25 @@ def test_packed_rgb_matches_pcl_layout():
     np.testing.assert_array_equal(convert.unpack_rgb(packed), [[255, 128, 1]])
 
 
+def test_packed_bgr_image_and_prepacked_cloud():
+    rng = np.random.default_rng(5)
+    bgr = rng.integers(0, 256, size=(6, 7, 3)).astype(np.uint8)
+    packed = convert.pack_bgr_image(bgr)
+    assert packed.shape == (6, 7) and packed.dtype == np.float32
+    np.testing.assert_array_equal(packed.view(np.uint32), convert.pack_rgb(bgr[..., ::-1]).view(np.uint32))
+    pts = rng.normal(size=(6, 7, 3)).astype(np.float32)
+    pts[0, :3, 1] = np.nan  # one coordinate missing is enough to drop a point
+    msg = convert.points_to_cloud2(pts, rgb=packed, organized=False)
+    back, cols = convert.cloud2_to_points(msg)
+    keep = np.isfinite(pts).all(axis=2)
+    np.testing.assert_array_equal(back, pts[keep])
+    np.testing.assert_array_equal(cols, bgr[..., ::-1][keep])
+    with pytest.raises(ImageError, match="not both"):
+        convert.points_to_cloud2(pts, bgr, rgb=packed)
+    with pytest.raises(ImageError, match="packed rgb"):
+        convert.points_to_cloud2(pts, rgb=packed[:3])
+
+
 def test_cloud_reader_handles_foreign_layouts():
     """A cloud with float64 fields in another order and row padding."""
     pts = np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]])

@@ -155,6 +155,23 @@ def test_run_keeps_recorded_timing(croton, tmp_path):
     assert result.wall_s >= 0.3
 
 
+def test_shared_multithreaded_executor_runs_the_graph_too(croton):
+    """``executor="multi"`` (one rclpy MultiThreadedExecutor) gives the same clouds; an
+    unknown executor layout is refused by name."""
+    from canopy_stereo.errors import CanopyStereoError
+    from canopy_stereo.ros.context import ros_context
+    from canopy_stereo.ros.graph import CanopyGraph
+
+    bag, rig = croton
+    options = GraphOptions(matcher="sgbm", segment=False, parameter_services=False, executor="multi", threads=4)
+    result = run_bag(bag, rig, rate=0, options=options, keep=("points2",))
+    assert result.frames_out == 4 and result.frames_dropped == 0
+    pts, _ = convert.cloud2_to_points(deserialize_message(result.outputs["points2"][0][1], PointCloud2))
+    assert len(pts) > 100_000
+    with ros_context() as ctx, pytest.raises(CanopyStereoError, match="unknown executor 'pool'"):
+        CanopyGraph(rig, ctx, GraphOptions(executor="pool"))
+
+
 def test_run_needs_the_input_topics(croton, tmp_path):
     from canopy_stereo.errors import CanopyStereoError
 
@@ -247,3 +264,17 @@ def test_graph_from_cameras(croton, tmp_path):
     # the croton and its backdrop lie 0.5 to 1.1 m in front of the paper's rig
     z = np.median(pts[:, 2])
     assert 0.5 < z < 1.1 and len(pts) > 100_000
+
+
+def test_node_processes_tune_the_allocator_unless_the_environment_does():
+    import os
+    import subprocess
+    import sys
+
+    code = "from canopy_stereo.ros.context import tune_memory_allocator as t; print(t(), t())"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_")}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["True", "True"]  # glibc: applied (and idempotent)
+    env["MALLOC_MMAP_THRESHOLD_"] = "1048576"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "False"]  # the user's own setting wins

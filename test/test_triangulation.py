@@ -3,7 +3,8 @@ import numpy as np
 from canopy_stereo.geometry.camera import project
 from canopy_stereo.geometry.rectification import fusiello_rectify
 from canopy_stereo.geometry.triangulation import (
-    apply_homography, backmap_matches, organized_from_disparity, triangulate_disparity, triangulate_dlt)
+    apply_homography, backmap_matches, organized_from_disparity, triangulate_disparity,
+    triangulate_disparity_points, triangulate_dlt)
 
 
 def _scene(rng, n):
@@ -55,3 +56,24 @@ def test_plane_disparity_gives_plane_on_both_grids(paper_rig):
     # every valid organized point projects back onto its own left pixel
     vv, uu = np.nonzero(ok)
     assert np.abs(project(paper_rig.P_left, org[ok]) - np.column_stack([uu, vv])).max() < 1e-6
+
+
+def test_one_pass_points_equal_the_grid_triangulation(paper_rig, rng):
+    """triangulate_disparity_points (the node's kernel) = triangulate_disparity, bit for bit
+    in float64 before the float32 cast: valid pixels, scale, mask and organized layout."""
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    w, h = rect.size
+    disp = rng.uniform(20, 60, size=(h, w)).astype(np.float32)
+    disp[rng.random((h, w)) < 0.3] = -1
+    disp[5, 5] = np.nan
+    mask = (rng.random((h, w)) < 0.8).astype(np.uint8) * 255
+    grid = triangulate_disparity(disp, rect, paper_rig.P_left, paper_rig.P_right)
+    pts, index = triangulate_disparity_points(disp, rect, paper_rig.P_left, paper_rig.P_right, scale=1e-3)
+    valid = np.isfinite(grid).all(axis=2).ravel()
+    np.testing.assert_array_equal(index, np.flatnonzero(valid))
+    np.testing.assert_array_equal(pts, (grid.reshape(-1, 3)[valid] * 1e-3).astype(np.float32))
+    mpts, mindex = triangulate_disparity_points(disp, rect, paper_rig.P_left, paper_rig.P_right, mask=mask)
+    np.testing.assert_array_equal(mindex, np.flatnonzero(valid & (mask.ravel() > 0)))
+    org, oindex = triangulate_disparity_points(disp, rect, paper_rig.P_left, paper_rig.P_right, organized=True)
+    assert org.shape == (h * w, 3) and np.array_equal(oindex, np.arange(h * w))
+    np.testing.assert_array_equal(np.isnan(org[:, 0]), ~valid)

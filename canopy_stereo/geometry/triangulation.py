@@ -52,7 +52,7 @@ def triangulate_dlt(P_left, P_right, x_left, x_right, drop_behind: bool = True) 
     return _triangulate_kernel(P1, P2, np.ascontiguousarray(x1), np.ascontiguousarray(x2), drop_behind)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _dlt_point(P1, P2, u1, v1, u2, v2, drop_behind, out):  # pragma: no cover - compiled
     """Triangulate one match into ``out`` (3,): 4 unit-normalised DLT rows,
     3x3 normal equations solved by Cramer's rule; NaN if degenerate/behind."""
@@ -112,7 +112,7 @@ def _dlt_point(P1, P2, u1, v1, u2, v2, drop_behind, out):  # pragma: no cover - 
     out[2] = z
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _triangulate_kernel(P1, P2, x1, x2, drop_behind):  # pragma: no cover - compiled
     n = x1.shape[0]
     out = np.empty((n, 3))
@@ -121,7 +121,7 @@ def _triangulate_kernel(P1, P2, x1, x2, drop_behind):  # pragma: no cover - comp
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _rectified_grid_kernel(disp, Hl_inv, Hr_inv, P1, P2):  # pragma: no cover - compiled
     h, w = disp.shape
     out = np.full((h, w, 3), np.nan)
@@ -141,7 +141,81 @@ def _rectified_grid_kernel(disp, Hl_inv, Hr_inv, P1, P2):  # pragma: no cover - 
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
+def _rectified_points_kernel(disp, mask, Hl_inv, Hr_inv, P1, P2, scale, organized):  # pragma: no cover
+    """One pass over the rectified grid: valid pixels -> float32 points (scaled) + flat index."""
+    h, w = disp.shape
+    n_max = h * w
+    pts = np.empty((n_max, 3), np.float32)
+    index = np.empty(n_max, np.int32)
+    xyz = np.empty(3)
+    use_mask = mask.shape[0] == h
+    n = 0
+    for v in range(h):
+        for u in range(w):
+            d = disp[v, u]
+            ok = d >= 0 and np.isfinite(d) and (not use_mask or mask[v, u] != 0)
+            if ok:
+                z1 = Hl_inv[2, 0] * u + Hl_inv[2, 1] * v + Hl_inv[2, 2]
+                u1 = (Hl_inv[0, 0] * u + Hl_inv[0, 1] * v + Hl_inv[0, 2]) / z1
+                v1 = (Hl_inv[1, 0] * u + Hl_inv[1, 1] * v + Hl_inv[1, 2]) / z1
+                ur = u - d
+                z2 = Hr_inv[2, 0] * ur + Hr_inv[2, 1] * v + Hr_inv[2, 2]
+                u2 = (Hr_inv[0, 0] * ur + Hr_inv[0, 1] * v + Hr_inv[0, 2]) / z2
+                v2 = (Hr_inv[1, 0] * ur + Hr_inv[1, 1] * v + Hr_inv[1, 2]) / z2
+                _dlt_point(P1, P2, u1, v1, u2, v2, True, xyz)
+                ok = np.isfinite(xyz[0])
+            if ok:
+                pts[n, 0] = xyz[0] * scale
+                pts[n, 1] = xyz[1] * scale
+                pts[n, 2] = xyz[2] * scale
+            elif organized:
+                pts[n, 0] = pts[n, 1] = pts[n, 2] = np.nan
+            else:
+                continue
+            index[n] = v * w + u
+            n += 1
+    return pts[:n], index[:n]
+
+
+def triangulate_disparity_points(disp, rect, P_left, P_right, scale: float = 1.0, mask=None,
+                                 organized: bool = False):
+    """Points of the valid pixels of a rectified disparity, in one compiled pass.
+
+    The same back-mapping and DLT triangulation as :func:`triangulate_disparity`
+    (to the last bit of the float64 computation), without the float64
+    (Hr, Wr, 3) intermediate: what a live node needs per frame.
+
+    Args:
+        disp: (Hr, Wr) rectified disparity ``u_left - u_right`` (pixels); negative
+            or non-finite = no match.
+        rect: the :class:`~canopy_stereo.geometry.rectification.Rectification`.
+        P_left, P_right: (3, 4) world-frame projection matrices.
+        scale: factor applied to the world coordinates (e.g. 0.001 for mm -> m).
+        mask: optional (Hr, Wr) array; pixels where it is 0 are dropped.
+        organized: keep every pixel (NaN where none) instead of only valid ones.
+
+    Returns:
+        ``(points, index)``: float32 (N, 3) world points times ``scale`` and
+        int32 (N,) flat indices ``v * Wr + u`` of their rectified left pixels
+        (N = Hr * Wr and ``index = arange`` when ``organized``).
+    """
+    disp = np.ascontiguousarray(disp, dtype=np.float32)
+    if mask is None:
+        mask_arr = np.zeros((0, 0), np.uint8)
+    else:
+        mask_arr = np.ascontiguousarray(mask)
+        if mask_arr.shape != disp.shape:
+            raise ValueError(f"mask {mask_arr.shape} does not match disparity {disp.shape}")
+        if mask_arr.dtype != np.uint8:
+            mask_arr = (mask_arr != 0).astype(np.uint8)
+    return _rectified_points_kernel(disp, mask_arr, np.asarray(rect.H_left_inv, np.float64),
+                                    np.asarray(rect.H_right_inv, np.float64),
+                                    normalize_projection(P_left), normalize_projection(P_right),
+                                    float(scale), bool(organized))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _original_grid_kernel(disp, qx, qy, Hl, Hr_inv, P1, P2, max_jump):  # pragma: no cover - compiled
     hr, wr = disp.shape
     h, w = qx.shape

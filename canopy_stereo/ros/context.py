@@ -50,6 +50,59 @@ def tune_thread_switching(interval_s: float = PIPELINE_SWITCH_INTERVAL_S) -> Non
         sys.setswitchinterval(interval_s)
 
 
+#: glibc malloc settings for node processes (bytes): see :func:`tune_memory_allocator`.
+PIPELINE_MALLOC_OPTIONS = {"mmap_threshold": 256 << 20, "trim_threshold": 1 << 30, "top_pad": 256 << 20}
+
+_M_TRIM_THRESHOLD, _M_TOP_PAD, _M_MMAP_THRESHOLD = -1, -2, -3  # glibc <malloc.h>
+_malloc_tuned = False
+
+
+def tune_memory_allocator(mmap_threshold: int = PIPELINE_MALLOC_OPTIONS["mmap_threshold"],
+                          trim_threshold: int = PIPELINE_MALLOC_OPTIONS["trim_threshold"],
+                          top_pad: int = PIPELINE_MALLOC_OPTIONS["top_pad"]) -> bool:
+    """Keep the frame-sized buffers of a node process on the heap (glibc only).
+
+    Every frame allocates and frees images, disparity maps, serialized messages
+    and point clouds of 0.3 to 5 MB. glibc serves blocks above its mmap
+    threshold (128 kB at start, raised adaptively only after the first frees)
+    with fresh ``mmap`` calls, so each frame pays thousands of page faults and
+    zeroed pages in the kernel, and returns the memory with ``munmap``. Raising
+    the thresholds lets freed frame buffers be reused. Measured with
+    ``canopy-stereo run --rate 0`` on the croton bag (2 cores, ELAS, GrabCut,
+    recording): system time 41 -> 20 ms per frame, 10.8 -> 14 frames/s.
+    The same effect as the ``MALLOC_MMAP_THRESHOLD_``, ``MALLOC_TRIM_THRESHOLD_``
+    and ``MALLOC_TOP_PAD_`` environment variables; those, when set, win.
+
+    Returns True when the settings were applied (False off glibc, or when
+    the environment already sets them).
+    """
+    global _malloc_tuned
+    if _malloc_tuned:
+        return True
+    if any(os.environ.get(k) for k in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_TOP_PAD_")):
+        return False
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None)
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):  # not glibc
+        return False
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    ok = (mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold)) == 1
+          and mallopt(_M_TRIM_THRESHOLD, int(trim_threshold)) == 1
+          and mallopt(_M_TOP_PAD, int(top_pad)) == 1)
+    _malloc_tuned = ok
+    return ok
+
+
+def tune_node_process() -> None:
+    """Process settings for running pipeline nodes: :func:`tune_thread_switching` and
+    :func:`tune_memory_allocator`."""
+    tune_thread_switching()
+    tune_memory_allocator()
+
+
 @contextmanager
 def ros_context(domain_id: int | None = None, localhost_only: bool = True, args=None):
     """An initialised rclpy context, shut down on exit.
@@ -63,7 +116,7 @@ def ros_context(domain_id: int | None = None, localhost_only: bool = True, args=
     """
     if localhost_only:
         os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    tune_thread_switching()
+    tune_node_process()
     context = Context()
     rclpy.init(args=list(args or []), context=context, domain_id=private_domain_id() if domain_id is None else int(domain_id),
                signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)

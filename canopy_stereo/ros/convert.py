@@ -278,9 +278,21 @@ _PF_DTYPES = {PointField.INT8: "i1", PointField.UINT8: "u1", PointField.INT16: "
 def pack_rgb(colors: np.ndarray) -> np.ndarray:
     """uint8 RGB (..., 3) -> float32 (...) holding ``0x00RRGGBB`` bits (PCL's ``rgb``)."""
     c = np.asarray(colors, np.uint8)
-    bgrx = np.zeros(c.shape[:-1] + (4,), np.uint8)  # little-endian uint32 0x00RRGGBB = B, G, R, 0
-    bgrx[..., 0], bgrx[..., 1], bgrx[..., 2] = c[..., 2], c[..., 1], c[..., 0]
-    return bgrx.view("<u4")[..., 0].astype(np.uint32).view(np.float32)
+    packed = (c[..., 0].astype(np.uint32) << 16) | (c[..., 1].astype(np.uint32) << 8) | c[..., 2]
+    return packed.view(np.float32)
+
+
+def pack_bgr_image(bgr: np.ndarray) -> np.ndarray:
+    """uint8 BGR image (H, W, 3) -> float32 (H, W) packed ``rgb`` (as :func:`pack_rgb` of
+    its RGB), in one OpenCV pass: the byte order B, G, R, 0 is little-endian ``0x00RRGGBB``."""
+    import cv2
+
+    bgr = np.ascontiguousarray(bgr, np.uint8)
+    if bgr.ndim != 3 or bgr.shape[2] != 3:
+        raise ImageError(f"a BGR image must be (H, W, 3), got shape {bgr.shape}")
+    bgrx = cv2.cvtColor(bgr, cv2.COLOR_BGR2BGRA)
+    bgrx[..., 3] = 0
+    return bgrx.view("<u4")[..., 0].view(np.float32)
 
 
 def unpack_rgb(rgb: np.ndarray) -> np.ndarray:
@@ -290,7 +302,8 @@ def unpack_rgb(rgb: np.ndarray) -> np.ndarray:
 
 
 def points_to_cloud2(points: np.ndarray, colors: np.ndarray | None = None, stamp_ns: int = 0,
-                     frame_id: str = "canopy_world", organized: bool | None = None) -> PointCloud2:
+                     frame_id: str = "canopy_world", organized: bool | None = None,
+                     rgb: np.ndarray | None = None) -> PointCloud2:
     """``sensor_msgs/PointCloud2`` (float32 x, y, z [, packed rgb]) from points in metres.
 
     Args:
@@ -300,28 +313,41 @@ def points_to_cloud2(points: np.ndarray, colors: np.ndarray | None = None, stamp
         organized: keep the (H, W) layout with NaN points (``is_dense = False``);
             default: True for (H, W, 3) input. When False, NaN points are removed
             and the cloud is one row with ``is_dense = True``.
+        rgb: instead of ``colors``, the already packed float32 ``rgb`` values
+            (:func:`pack_rgb`, :func:`pack_bgr_image`) with the points' leading shape.
     """
     pts = np.asarray(points, np.float32)
     if pts.shape[-1] != 3 or pts.ndim not in (2, 3):
         raise ImageError(f"points must be (N, 3) or (H, W, 3), got shape {pts.shape}")
+    if colors is not None and rgb is not None:
+        raise ImageError("give colours or packed rgb, not both")
     if colors is not None:
         colors = np.asarray(colors)
         if colors.shape != pts.shape:
             raise ImageError(f"colours {colors.shape} do not match points {pts.shape}")
+        rgb = pack_rgb(colors)
+    elif rgb is not None:
+        rgb = np.asarray(rgb)
+        if rgb.shape != pts.shape[:-1] or rgb.dtype != np.float32:
+            raise ImageError(f"packed rgb must be float32 {pts.shape[:-1]}, got {rgb.dtype} {rgb.shape}")
     if organized is None:
         organized = pts.ndim == 3
     flat = pts.reshape(-1, 3)
-    fields = _XYZRGB_FIELDS if colors is not None else _XYZRGB_FIELDS[:3]
+    fields = _XYZRGB_FIELDS if rgb is not None else _XYZRGB_FIELDS[:3]
     rec = np.empty((len(flat), len(fields)), np.float32)
     rec[:, :3] = flat
-    if colors is not None:
-        rec[:, 3] = pack_rgb(colors.reshape(-1, 3))
-    finite = np.isfinite(flat).all(axis=1)
+    if rgb is not None:
+        rec[:, 3] = rgb.reshape(-1)
+    # a sum is NaN/inf when any term is (and only overflows for |x| > 1e38 m): one pass,
+    # where isfinite(...).all(axis=1) over the strided columns takes ten times longer
+    finite = np.isfinite(rec[:, 0] + rec[:, 1] + rec[:, 2])
+    all_finite = bool(finite.all())
     if organized:
         height, width = (pts.shape[0], pts.shape[1]) if pts.ndim == 3 else (1, len(flat))
-        dense = bool(finite.all())
+        dense = all_finite
     else:
-        rec = rec.take(np.flatnonzero(finite), axis=0)
+        if not all_finite:
+            rec = rec[finite]
         height, width, dense = 1, len(rec), True
     point_step = 4 * len(fields)
     msg = PointCloud2()

@@ -2,10 +2,15 @@
 
 :class:`CanopyGraph` creates ``rectify_node``, ``disparity_node``,
 ``segment_node`` and ``point_cloud_node`` (plus two ``camera_node`` for live
-capture) with the rig's parameters, on one multi-threaded executor. Each node
-keeps its own mutually exclusive callback group, so different stages of
-consecutive frames run concurrently (OpenCV and the numba kernels release the
-GIL).
+capture) with the rig's parameters in one process. By default every node gets
+its own single-threaded executor and thread (``executor="per-node"``): a
+node's callbacks run one at a time, as in a process of its own, while
+different stages of consecutive frames run concurrently (OpenCV and the numba
+kernels release the GIL), and a thread whose node has nothing to do sleeps in
+``rcl_wait``. ``executor="multi"`` puts all nodes on one rclpy
+``MultiThreadedExecutor`` instead; on the 2-core development machine that is
+slower (about 10 against 13-19 frames/s, twice the latency) because its
+dispatcher rebuilds and re-polls the wait set in Python while holding the GIL.
 
 ``canopy_graph`` (``ros2 run canopy_stereo canopy_graph --rig RIG.yaml``) runs
 it from live cameras (``--left-device``/``--right-device``) or from a bag
@@ -16,16 +21,21 @@ from __future__ import annotations
 import argparse
 import sys
 import threading
+import time
 from dataclasses import dataclass, field
 
-from rclpy.executors import MultiThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
 
+from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.rig import Rig
-from canopy_stereo.ros.context import tune_thread_switching
+from canopy_stereo.ros.context import tune_node_process
 from canopy_stereo.ros.params import parameters_from_dict, rig_parameter_overrides
 
-#: Default thread count of the executor: enough for every stage to have a frame in flight.
+#: Default thread count of the ``multi`` executor: enough for every stage to have a frame in flight.
 DEFAULT_THREADS = 6
+
+#: Executor layouts of :class:`CanopyGraph`.
+EXECUTOR_CHOICES = ("per-node", "multi")
 
 
 @dataclass
@@ -42,7 +52,9 @@ class GraphOptions:
         node_parameters: node name -> extra parameters (e.g. ``{"disparity_node":
             {"elas.subsampling": True}}``).
         parameter_services: start the parameter services (``ros2 param``) of each node.
-        threads: executor threads.
+        executor: ``"per-node"`` (one single-threaded executor and thread per node)
+            or ``"multi"`` (one rclpy ``MultiThreadedExecutor`` for all nodes).
+        threads: threads of the ``multi`` executor.
     """
 
     namespace: str = "/stereo"
@@ -54,10 +66,11 @@ class GraphOptions:
     node_parameters: dict = field(default_factory=dict)
     parameter_services: bool = True
     threads: int = DEFAULT_THREADS
+    executor: str = "per-node"
 
 
 class CanopyGraph:
-    """The processing nodes (and optional cameras) of one rig on one executor.
+    """The processing nodes (and optional cameras) of one rig, spun in one process.
 
     Args:
         rig: the rig (its extras, e.g. ``disp_min``, become node parameters too).
@@ -77,9 +90,15 @@ class CanopyGraph:
         self.rig = rig
         self.context = context
         self.options = o = options or GraphOptions()
+        if o.executor not in EXECUTOR_CHOICES:
+            raise CanopyStereoError(f"unknown executor {o.executor!r}; choose "
+                                    f"{' or '.join(EXECUTOR_CHOICES)}")
         self.nodes: dict = {}
-        self.executor = MultiThreadedExecutor(num_threads=o.threads, context=context)
-        self._thread: threading.Thread | None = None
+        # node -> its executor (per-node), or every node -> the one shared executor (multi)
+        self._executors: list = []
+        self._shared = (MultiThreadedExecutor(num_threads=o.threads, context=context)
+                        if o.executor == "multi" else None)
+        self._threads: list[threading.Thread] = []
         self._stop = threading.Event()
         common = {"reliability": o.reliability}
         per_node = {
@@ -112,26 +131,55 @@ class CanopyGraph:
                       start_parameter_services=self.options.parameter_services)
         node = cls(node_name=key, **kwargs)
         self.nodes[key] = node
-        self.executor.add_node(node)
+        self.add_node(node)
 
     def add_node(self, node) -> None:
-        """Run another node (a player, a recorder, a test sink) on the same executor."""
-        self.executor.add_node(node)
+        """Spin another node (a player, a recorder, a test sink) with the graph: on an
+        executor and thread of its own, or on the shared executor with ``executor="multi"``.
+        Nodes added after :meth:`spin_in_background` start spinning at once."""
+        if self._shared is not None:
+            self._shared.add_node(node)
+            if not self._executors:
+                self._executors.append(self._shared)
+            return
+        executor = SingleThreadedExecutor(context=self.context)
+        executor.add_node(node)
+        self._executors.append(executor)
+        if self._threads:
+            self._start(executor, node.get_name())
 
-    def spin_in_background(self) -> threading.Thread:
-        """Spin the executor in a daemon thread (stopped by :meth:`shutdown`)."""
+    def _start(self, executor, name: str) -> None:
         def spin():
             try:
                 while self.context.ok() and not self._stop.is_set():
-                    self.executor.spin_once(timeout_sec=0.05)
+                    executor.spin_once(timeout_sec=0.05)
             except Exception:  # noqa: BLE001 - context shut down under the executor
                 if self.context.ok() and not self._stop.is_set():
                     raise
 
+        thread = threading.Thread(target=spin, name=f"canopy_graph:{name}", daemon=True)
+        self._threads.append(thread)
+        thread.start()
+
+    @property
+    def executors(self) -> list:
+        """The executors spinning the graph's nodes (one per node, or the shared one)."""
+        return list(self._executors)
+
+    def spin_in_background(self) -> list[threading.Thread]:
+        """Spin every executor in a daemon thread (stopped by :meth:`shutdown`); returns the threads."""
         self._stop.clear()
-        self._thread = threading.Thread(target=spin, name="canopy_graph", daemon=True)
-        self._thread.start()
-        return self._thread
+        for executor in self._executors:
+            nodes = executor.get_nodes()
+            self._start(executor, nodes[0].get_name() if len(nodes) == 1 else "shared")
+        return list(self._threads)
+
+    def spin_until_interrupted(self) -> None:
+        """Spin in the background and wait in the main thread (where signals arrive) until
+        Ctrl-C/SIGTERM (:func:`~canopy_stereo.ros.nodes.base.install_stop_signals`) or shutdown."""
+        self.spin_in_background()
+        while self.context.ok() and not self._stop.is_set():
+            time.sleep(0.1)
 
     def stats(self) -> dict:
         """Node name -> ``{"counts": ..., "drops": ...}``."""
@@ -140,16 +188,18 @@ class CanopyGraph:
     def shutdown(self) -> None:
         """Stop spinning and destroy the nodes (the context stays up)."""
         self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=10)
-            self._thread = None
-        # rclpy's Executor.shutdown neither waits for work already handed to the thread
-        # pool (a message take, a callback) nor keeps its guard condition for it: drain
-        # the pool first, then shut the executor down, then destroy the nodes
-        pool = getattr(self.executor, "_executor", None)
-        if pool is not None and hasattr(pool, "shutdown"):
-            pool.shutdown(wait=True)
-        self.executor.shutdown(timeout_sec=30.0)
+        for thread in self._threads:
+            thread.join(timeout=10)
+        self._threads.clear()
+        for executor in self._executors:
+            # rclpy's MultiThreadedExecutor.shutdown neither waits for work already handed to
+            # its thread pool (a message take, a callback) nor keeps its guard condition for
+            # it: drain the pool first, then shut the executor down, then destroy the nodes
+            pool = getattr(executor, "_executor", None)
+            if pool is not None and hasattr(pool, "shutdown"):
+                pool.shutdown(wait=True)
+            executor.shutdown(timeout_sec=30.0)
+        self._executors.clear()
         for node in list(self.nodes.values()):
             node.destroy_node()
         self.nodes.clear()
@@ -176,7 +226,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-segment", action="store_true", help="do not run segment_node")
     p.add_argument("--organized", action="store_true", help="organized clouds")
     p.add_argument("--namespace", default="/stereo")
-    p.add_argument("--threads", type=int, default=DEFAULT_THREADS, help="executor threads")
+    p.add_argument("--executor", choices=EXECUTOR_CHOICES, default="per-node",
+                   help="one single-threaded executor per node (default) or one multi-threaded one")
+    p.add_argument("--threads", type=int, default=DEFAULT_THREADS,
+                   help="threads of the multi-threaded executor")
     return p
 
 
@@ -186,19 +239,19 @@ def main(args=None) -> int:
     from rclpy.executors import ExternalShutdownException
     from rclpy.utilities import remove_ros_args
 
-    from canopy_stereo.errors import CanopyStereoError
     from canopy_stereo.io.rig import load_rig
-    from canopy_stereo.ros.nodes.base import install_stop_signals, spin_until_interrupted
+    from canopy_stereo.ros.nodes.base import install_stop_signals
 
     argv = sys.argv if args is None else args
     opts = build_parser().parse_args(remove_ros_args(argv)[1:])
     options = GraphOptions(namespace=opts.namespace, matcher=opts.matcher,
                            segment=not opts.no_segment or opts.use_mask, use_mask=opts.use_mask,
-                           organized=opts.organized, threads=opts.threads)
+                           organized=opts.organized, threads=opts.threads,
+                           executor=opts.executor)
     if opts.cameras:
         # free-running cameras: any two frames are at most half a period apart from the nearest
         options.node_parameters = {"rectify_node": {"sync_slop": 0.5 / max(opts.fps, 1e-3)}}
-    tune_thread_switching()
+    tune_node_process()
     rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     install_stop_signals()
     context = rclpy.get_default_context()
@@ -228,7 +281,7 @@ def main(args=None) -> int:
                                              "right/camera_info", "left/image_raw", "right/image_raw")]
             recorder = BagRecorder(BagWriter(opts.record, compression="lz4"), topics, context=context)
             graph.add_node(recorder)
-        spin_until_interrupted(graph.executor, context)
+        graph.spin_until_interrupted()
         return 0
     except CanopyStereoError as exc:
         print(f"canopy_graph: error: {exc}", file=sys.stderr)

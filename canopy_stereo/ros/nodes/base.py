@@ -28,7 +28,7 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.ros.qos import RELIABILITY_CHOICES, publisher_qos, subscription_qos
-from canopy_stereo.ros.context import tune_thread_switching
+from canopy_stereo.ros.context import tune_node_process
 
 #: Namespace of the nodes when none is given (``--ros-args -r __ns:=/x`` overrides it).
 DEFAULT_NAMESPACE = "/stereo"
@@ -187,7 +187,7 @@ def run_node(factory, args=None) -> int:
     from rclpy.executors import SingleThreadedExecutor
 
     args = sys.argv if args is None else args
-    tune_thread_switching()
+    tune_node_process()
     rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     install_stop_signals()
     node = executor = None

@@ -7,7 +7,7 @@ by exact stamp, and publishes ``points2`` (``sensor_msgs/PointCloud2``).
 Every valid rectified match ``(u, v) <-> (u - d, v)`` is mapped back to the
 original images through the inverse rectifying homographies and triangulated
 with the world-frame projection matrices of the rig
-(:func:`canopy_stereo.geometry.triangulation.triangulate_disparity`), so x, y, z
+(:func:`canopy_stereo.geometry.triangulation.triangulate_disparity_points`), so x, y, z
 are in the rig's world frame, converted to metres. Fields: float32 ``x y z`` and
 packed float32 ``rgb`` from the rectified left colour image.
 
@@ -24,8 +24,9 @@ from sensor_msgs.msg import Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
 from canopy_stereo.errors import CanopyStereoError, ImageError
-from canopy_stereo.geometry.triangulation import triangulate_disparity
-from canopy_stereo.ros.convert import msg_to_bgr, msg_to_disparity, msg_to_image, points_to_cloud2, stamp_to_ns
+from canopy_stereo.geometry.triangulation import triangulate_disparity_points
+from canopy_stereo.ros.convert import (msg_to_bgr, msg_to_disparity, msg_to_image, pack_bgr_image,
+                                       points_to_cloud2, stamp_to_ns)
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.params import declare_rig_parameters, rectification_from_node, rig_from_node
 from canopy_stereo.ros.sync import ExactTimeSynchronizer
@@ -33,7 +34,7 @@ from canopy_stereo.ros.sync import ExactTimeSynchronizer
 
 def cloud_from_disparity(disp: np.ndarray, left_bgr: np.ndarray, rig, rect, mask=None,
                          organized: bool = True):
-    """World points (metres) and RGB colours of the valid rectified left pixels.
+    """World points (metres) and packed colours of the valid rectified left pixels.
 
     Args:
         disp: float32 (Hr, Wr) rectified disparity ``u_left - u_right``, invalid < 0.
@@ -43,8 +44,9 @@ def cloud_from_disparity(disp: np.ndarray, left_bgr: np.ndarray, rig, rect, mask
         organized: return the rectified grid (NaN where no point) rather than
             only the valid points.
 
-    Returns ``(points, colours)``: float32 metres and uint8 RGB, (Hr, Wr, 3) when
-    ``organized`` else (N, 3).
+    Returns ``(points, rgb)``: float32 metres and the packed float32 ``rgb`` of
+    PointCloud2 (:func:`~canopy_stereo.ros.convert.pack_rgb`), (Hr, Wr, 3) and
+    (Hr, Wr) when ``organized``, else (N, 3) and (N,).
     """
     w, h = rect.size
     if disp.shape != (h, w):
@@ -55,15 +57,13 @@ def cloud_from_disparity(disp: np.ndarray, left_bgr: np.ndarray, rig, rect, mask
                          f"disparity {w}x{h}")
     if mask is not None and mask.shape != disp.shape:
         raise ImageError(f"mask is {mask.shape[1]}x{mask.shape[0]}, disparity {w}x{h}")
-    if mask is not None:
-        disp = np.where(mask > 0, disp, np.float32(-1))
-    xyz = triangulate_disparity(disp, rect, rig.P_left, rig.P_right)
-    points = (xyz * rig.metres_per_unit).astype(np.float32)
-    colors = left_bgr[..., ::-1]
+    points, index = triangulate_disparity_points(disp, rect, rig.P_left, rig.P_right,
+                                                 scale=rig.metres_per_unit, mask=mask,
+                                                 organized=organized)
+    rgb = pack_bgr_image(left_bgr).reshape(-1)
     if organized:
-        return points, colors
-    keep = np.flatnonzero(np.isfinite(points).all(axis=2))
-    return points.reshape(-1, 3)[keep], colors.reshape(-1, 3)[keep]
+        return points.reshape(h, w, 3), rgb.reshape(h, w)
+    return points, rgb[index]
 
 
 class PointCloudNode(CanopyNode):
@@ -116,9 +116,9 @@ class PointCloudNode(CanopyNode):
 
     def _publish(self, stamp_ns: int, disp, bgr, mask=None) -> None:
         organized = bool(self.get_parameter("organized").value)
-        points, colors = cloud_from_disparity(disp, bgr, self.rig, self.rect, mask, organized)
-        self.pub.publish(points_to_cloud2(points, colors, stamp_ns,
-                                          self.get_parameter("frame_id").value, organized=organized))
+        points, rgb = cloud_from_disparity(disp, bgr, self.rig, self.rect, mask, organized)
+        self.pub.publish(points_to_cloud2(points, None, stamp_ns, self.get_parameter("frame_id").value,
+                                          organized=organized, rgb=rgb))
         self.count("clouds_published")
 
 
