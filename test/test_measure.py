@@ -369,3 +369,18 @@ def test_cli_measure_bad_input_is_one_line(tmp_path, cli):
     cv2.imwrite(str(tmp_path / "m.png"), np.full((5, 5), 255, np.uint8))
     code, _, err = cli("measure", tmp_path / "o.npy", "--mask", tmp_path / "m.png", "-o", tmp_path / "r.json")
     assert code == 2 and "mask is 5x5 but the organized cloud is 8x6" in err
+
+
+def test_detached_clusters_are_dropped_attached_ones_kept():
+    from canopy_stereo.measure.report import drop_detached_clusters
+
+    rng = np.random.default_rng(3)
+    canopy = rng.uniform(0, 300, size=(20000, 3))            # the canopy: a 300 mm block
+    sliver = rng.normal([300, 150, 600], 2.0, size=(30, 3))  # stray matches 300 mm behind it
+    tip = rng.normal([150, 150, 305], 1.0, size=(30, 3))     # a small tip touching the canopy
+    P = np.concatenate([canopy, sliver, tip])
+    keep = drop_detached_clusters(P, cell=12.0, min_fraction=0.002)
+    assert keep[:20000].all() and not keep[20000:20030].any() and keep[20030:].all()
+    # only candidates may go
+    cand = np.zeros(len(P), bool)
+    assert drop_detached_clusters(P, cell=12.0, min_fraction=0.002, candidates=cand).all()

@@ -80,6 +80,8 @@ class LeafMeasurement:
         surface_points: (n, 3) points of the fitted leaf surface at the leaf's
             pixels (not in the report; used for canopy extents).
         inlier_points: (m, 3) the leaf's own points that the surface fit kept.
+        outlier_mask: (H, W) bool, the leaf's pixels whose points the surface
+            fit rejected (matching errors: not used for canopy extents either).
         extra: further report fields: ``surface_model``, ``outliers`` (points
             dropped), ``view_angle_deg`` (between the normal and the line of
             sight; above about 70 degrees a leaf is seen nearly edge-on and its
@@ -108,6 +110,7 @@ class LeafMeasurement:
     touches_border: bool
     surface_points: np.ndarray | None = None
     inlier_points: np.ndarray | None = None
+    outlier_mask: np.ndarray | None = None
     extra: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
@@ -359,11 +362,13 @@ def measure_leaf(organized: np.ndarray, leaf_mask: np.ndarray, leaf_id: int = 1,
         width, width_ends, wcomplete = _leaf_width(surface, phi, midrib, normal)
         complete &= wcomplete
     outliers = int(np.sum(val_all & ~inl))
+    outlier_mask = np.zeros((H, W), bool)
+    outlier_mask[crop] = val_all & m & ~inl
     return LeafMeasurement(
         id=int(leaf_id), length=float(length), width=float(width), area=area, normal=normal,
         centroid=centroid, chord=float(chord), ends=np.asarray(ends), width_ends=np.asarray(width_ends),
         plane_rms=plane_rms, n_pixels=n_pixels, n_points=n_valid, complete=bool(complete),
-        touches_border=touches, surface_points=P, inlier_points=pts[inl & m],
+        touches_border=touches, surface_points=P, inlier_points=pts[inl & m], outlier_mask=outlier_mask,
         extra={"surface_model": used, "outliers": outliers,
                "view_angle_deg": None if not np.isfinite(view_angle) else round(view_angle, 3),
                "grazing_fraction": round(grazing, 4),

@@ -46,7 +46,12 @@ CSV_COLUMNS = ["id", "length", "width", "area", "chord", "normal_x", "normal_y",
 #: Leaves seen more obliquely than this (nearly edge-on) add their cleaned raw
 #: points to the canopy of a reconstruction instead of their fitted surface,
 #: which is poorly determined along the line of sight.
-MAX_SURFACE_VIEW_ANGLE_DEG = RELIABLE_VIEW_ANGLE_DEG
+MAX_SURFACE_VIEW_ANGLE_DEG = 70.0
+
+
+#: Cell edge, as a fraction of the canopy's size, of the clustering that drops
+#: stray matches detached from the canopy (:func:`drop_detached_clusters`).
+DETACHED_CELL_FRACTION = 0.04
 
 
 @dataclass
@@ -247,6 +252,40 @@ def drop_isolated_points(points: np.ndarray, k: int = 8, factor: float = 4.0) ->
     return P[mean_d <= factor * np.median(mean_d)]
 
 
+def drop_detached_clusters(points: np.ndarray, cell: float, min_fraction: float = 0.002,
+                           candidates: np.ndarray | None = None) -> np.ndarray:
+    """Keep-mask (N,) of points not in small clusters detached from the rest.
+
+    Points are binned into cubic cells of edge ``cell``; occupied cells touching
+    (26-neighbourhood) form clusters. Clusters holding fewer than
+    ``min_fraction`` of the points are dropped: stray matches floating off the
+    canopy (a mismatched sliver of a leaf seen edge-on lands tens of
+    centimetres behind it), which would set the extents. With ``candidates``
+    (N,) bool, only those points may be dropped.
+    """
+    from scipy import ndimage
+
+    P = np.asarray(points, np.float64)
+    keep = np.ones(len(P), bool)
+    if len(P) < 10 or not (cell > 0):
+        return keep
+    idx = np.floor((P - P.min(axis=0)) / cell).astype(np.int64)
+    shape = idx.max(axis=0) + 1
+    if np.prod(shape) > 50_000_000:  # absurd spread for the cell: leave the points alone
+        return keep
+    grid = np.zeros(shape, bool)
+    grid[idx[:, 0], idx[:, 1], idx[:, 2]] = True
+    labels, n = ndimage.label(grid, structure=np.ones((3, 3, 3), bool))
+    if n <= 1:
+        return keep
+    point_label = labels[idx[:, 0], idx[:, 1], idx[:, 2]]
+    counts = np.bincount(point_label, minlength=n + 1)
+    small = counts[point_label] < min_fraction * len(P)
+    if candidates is not None:
+        small &= candidates
+    return ~small
+
+
 def measure_scene(organized, leaf_ids=None, mask=None, ground="auto", unit: str = "mm",
                   camera="auto", voxel_size: float | None = None, separate: bool = True,
                   min_leaf_pixels: int = 100, model: str = "auto", degree: int = 2,
@@ -307,6 +346,7 @@ def measure_scene(organized, leaf_ids=None, mask=None, ground="auto", unit: str 
     exact_cloud = bool(all_plant.sum() >= 16 and roughness(organized, all_plant) < EXACT_ROUGHNESS)
     leaves, skipped, leaf_surfaces = [], [], []
     in_leaf = np.zeros((h, w), bool)
+    rejected = np.zeros((h, w), bool)  # leaf points its surface fit found to be matching errors
     if ids is not None:
         values, counts = np.unique(ids[ids != 0], return_counts=True)
         for value, count in zip(values.tolist(), counts.tolist()):
@@ -321,6 +361,8 @@ def measure_scene(organized, leaf_ids=None, mask=None, ground="auto", unit: str 
                 skipped.append({"id": int(value), "reason": str(exc)})
                 continue
             leaves.append(lm.to_dict())
+            if lm.outlier_mask is not None and not exact_cloud:
+                rejected |= lm.outlier_mask
             if plant is not None and (leaf_mask & plant).sum() < 0.5 * count:
                 continue  # a leaf outside the given plant mask is not canopy
             angle = lm.extra.get("view_angle_deg")
@@ -330,7 +372,7 @@ def measure_scene(organized, leaf_ids=None, mask=None, ground="auto", unit: str 
 
     # canopy points: the fitted surfaces of the measured leaves (free of matching
     # noise, which would widen the extents) and the other plant points, cleaned
-    plant_valid = (plant if plant is not None else finite) & finite & ~in_leaf
+    plant_valid = (plant if plant is not None else finite) & finite & ~in_leaf & ~rejected
     rest_pts = np.zeros((0, 3))
     if plant_valid.sum() >= 3:
         if exact_cloud:  # a rendered cloud: nothing to clean
@@ -342,6 +384,12 @@ def measure_scene(organized, leaf_ids=None, mask=None, ground="auto", unit: str 
             rest_pts = drop_isolated_points(median_along_rays(organized, kept, viewpoint)
                                             if viewpoint is not None else organized[kept])
     canopy_pts = np.concatenate(leaf_surfaces + [rest_pts])
+    if not exact_cloud and len(canopy_pts) >= 10:
+        span = float(np.max(np.percentile(canopy_pts, 99, axis=0) - np.percentile(canopy_pts, 1, axis=0)))
+        is_rest = np.zeros(len(canopy_pts), bool)
+        is_rest[len(canopy_pts) - len(rest_pts):] = True
+        canopy_pts = canopy_pts[drop_detached_clusters(canopy_pts, DETACHED_CELL_FRACTION * span,
+                                                       candidates=is_rest)]
     if len(canopy_pts) < 3:
         raise CanopyStereoError(f"the canopy has {len(canopy_pts)} usable 3D points; need at least 3")
     background = organized[finite & ~(plant if plant is not None else np.zeros_like(finite))]
