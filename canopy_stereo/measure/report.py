@@ -32,7 +32,7 @@ from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.geometry.camera import camera_centre, decompose_projection
 from canopy_stereo.io.ply import read_ply
 from canopy_stereo.measure.canopy import MeasuringFrame, canopy_dimensions, find_ground, frame_from_up
-from canopy_stereo.measure.leaf import EXACT_ROUGHNESS, RELIABLE_VIEW_ANGLE_DEG, measure_leaf, roughness
+from canopy_stereo.measure.leaf import EXACT_ROUGHNESS, measure_leaf, roughness
 from canopy_stereo.measure.surface import local_linear_fit
 from canopy_stereo.measure.viewpoint import resolve_camera
 from canopy_stereo.segmentation.instances import connected_surface_parts, neighbour_spacing, separate_leaves
@@ -43,7 +43,7 @@ CSV_COLUMNS = ["id", "length", "width", "area", "chord", "normal_x", "normal_y",
                "complete", "touches_border", "view_angle_deg", "reliable", "surface_model"]
 
 
-#: Leaves seen more obliquely than this (nearly edge-on) add their cleaned raw
+#: Leaves seen more obliquely than this (70 degrees; nearly edge-on) add their cleaned raw
 #: points to the canopy of a reconstruction instead of their fitted surface,
 #: which is poorly determined along the line of sight.
 MAX_SURFACE_VIEW_ANGLE_DEG = 70.0
