@@ -168,6 +168,8 @@ class CanopyGraph:
 
     def spin_in_background(self) -> list[threading.Thread]:
         """Spin every executor in a daemon thread (stopped by :meth:`shutdown`); returns the threads."""
+        if self._threads:  # already spinning
+            return list(self._threads)
         self._stop.clear()
         for executor in self._executors:
             nodes = executor.get_nodes()
