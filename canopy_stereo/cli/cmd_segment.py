@@ -15,9 +15,14 @@ DESCRIPTION = """Separate the plant from the background (the paper's GrabCut ste
 background). --seed MASK.png: GrabCut from a rough mask (0/255, or GrabCut labels 0..3).
 --auto (the default): vegetation index (ExG on normalised chromaticity) with Otsu's
 threshold, plus, with --disparity or --depth, near = plant; the cues seed GrabCut.
-For red, yellow or brown plants use --index none with a depth cue, or a rectangle.
-The disparity/depth map must be registered to IMAGE (same grid: e.g. a rectified left
-image and its disparity). Writes an 8-bit PNG, 255 = plant."""
+For red, yellow or brown plants, or green plants before green foliage, use --index none
+with a depth cue, or a rectangle. With --index none, colour models of plant and background
+are learned from the pixels the depth cue is sure of; they remove the background gaps
+between leaves that the matcher filled with the leaves' disparity (--no-colour-model: the
+depth cue alone). The disparity/depth map must be registered to IMAGE (same grid: e.g. a
+rectified left image and the D.pfm `canopy-stereo disparity` writes for it, or the
+original left image and a reconstruction's organized cloud). Writes an 8-bit PNG,
+255 = plant."""
 
 
 def add_arguments(p):
@@ -35,9 +40,12 @@ def add_arguments(p):
     p.add_argument("--range", metavar="lo,hi", help="plant range of the disparity/depth cue "
                                                      "(default: automatic, Otsu)")
     p.add_argument("--index", choices=["exg", "exgr", "none"], default="exg",
-                   help="colour cue of --auto (default exg; 'none' = depth cue only)")
+                   help="colour cue of --auto (default exg; 'none' = no vegetation index: the "
+                        "depth cue, with colour models learned from it)")
     p.add_argument("--iterations", type=int, default=5, help="GrabCut iterations (default 5)")
     p.add_argument("--no-refine", action="store_true", help="--auto: skip GrabCut, keep the seed")
+    p.add_argument("--no-colour-model", action="store_true",
+                   help="--auto --index none: do not learn colour models from the depth cue")
     p.add_argument("-o", "--output", required=True, metavar="MASK.png")
 
 
@@ -103,10 +111,13 @@ def run(args) -> int:
         mask = auto_plant_mask(image, disparity=disparity, depth=depth, index=args.index,
                                disparity_range=rng if disparity is not None else None,
                                depth_range=rng if depth is not None else None,
-                               iterations=args.iterations, refine=not args.no_refine)
+                               iterations=args.iterations, refine=not args.no_refine,
+                               colour_model=False if args.no_colour_model else None)
         cues = [f"index {args.index}"] if args.index != "none" else []
         if disparity is not None or depth is not None:
             cues.append("disparity" if disparity is not None else "depth")
+            if args.index == "none" and not args.no_colour_model:
+                cues.append("learned colour")
         how = "automatic (" + ", ".join(cues) + ")"
     write_mask(args.output, mask)
     n = int(np.count_nonzero(mask))

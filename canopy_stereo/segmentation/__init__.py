@@ -1,6 +1,7 @@
 """Plant segmentation: GrabCut from a rectangle or mask, automatic plant masks
 from vegetation indices and depth, and leaf instances from an organized cloud."""
 from canopy_stereo.segmentation.auto import auto_plant_mask, plant_seed
+from canopy_stereo.segmentation.colour_model import ColourGMM, colour_log_ratio, fit_colour_gmm
 from canopy_stereo.segmentation.grabcut import grabcut_labels, grabcut_mask, grabcut_rect
 from canopy_stereo.segmentation.indices import (
     chromaticity,
@@ -20,7 +21,8 @@ from canopy_stereo.segmentation.masks import (
 )
 
 __all__ = [
-    "auto_plant_mask", "chromaticity", "clean_mask_regions", "excess_green",
+    "ColourGMM", "auto_plant_mask", "chromaticity", "clean_mask_regions", "colour_log_ratio",
+    "excess_green", "fit_colour_gmm",
     "excess_green_minus_red", "excess_red", "grabcut_labels", "grabcut_mask", "grabcut_rect",
     "otsu_threshold", "parse_rect", "plant_seed", "read_leaf_ids", "read_mask", "separate_leaves",
     "vegetation_index", "write_leaf_ids", "write_mask",

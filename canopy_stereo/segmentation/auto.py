@@ -17,10 +17,20 @@ pot, soil), and a pixel is sure plant only when both cues agree; far pixels
 are sure background. The seed is then refined by GrabCut, and regions smaller
 than ``min_region`` pixels are dropped.
 
-Non-green plants (croton's red and yellow leaves, autumn foliage): use the
-depth cue alone (``index="none"``) or a rectangle (:func:`grabcut_rect`);
-with ``index="none"`` a pot at the plant's distance stays in the mask, so
-draw a rectangle that leaves it out, or cut it with a depth range.
+Non-green plants (croton's red and yellow leaves, autumn foliage), or green
+plants before green foliage: use the depth cue without an index
+(``index="none"``) or a rectangle (:func:`grabcut_rect`). With
+``index="none"`` a pot at the plant's distance stays in the mask, so draw a
+rectangle that leaves it out, or cut it with a depth range.
+
+Without an index the colour cue is learned instead (``colour_model``, on by
+default there; :mod:`canopy_stereo.segmentation.colour_model`): colour models
+of plant and background are fitted to the pixels the depth cue is sure of
+(near and away from depth edges; far), and their log likelihood ratio
+relabels the seed: it removes the background gaps between leaves that a
+window matcher fills with the leaves' disparity, and decides the pixels
+without depth (occlusions, the image border the other camera does not see).
+GrabCut then cuts once with those models kept fixed.
 """
 from __future__ import annotations
 
@@ -28,12 +38,22 @@ import numpy as np
 
 from canopy_stereo.errors import ImageError
 from canopy_stereo.io.images import to_bgr
+from canopy_stereo.segmentation.colour_model import (
+    MIN_SAMPLES,
+    SURE_LOG_RATIO,
+    colour_log_ratio,
+    grabcut_with_models,
+    relabel_by_colour,
+)
 from canopy_stereo.segmentation.grabcut import GC_BGD, GC_FGD, GC_PR_BGD, GC_PR_FGD, grabcut_labels
 from canopy_stereo.segmentation.indices import INDICES, class_means, otsu_threshold, vegetation_index
 from canopy_stereo.segmentation.instances import clean_mask_regions
 
 #: Vote values of a cue.
 SURE_BG, PROB_BG, PROB_FG, SURE_FG = -2, -1, 1, 2
+#: Margin (pixels) by which the sure-plant pixels of the depth seed are eroded
+#: before a colour model is learned from them.
+TRAIN_MARGIN_PX = 2
 
 
 def otsu_votes(values: np.ndarray, valid: np.ndarray | None = None, within: np.ndarray | None = None):
@@ -141,25 +161,11 @@ def soften_edges(votes: np.ndarray, edge_px: int) -> np.ndarray:
     return out
 
 
-def plant_seed(image_bgr, disparity=None, depth=None, index: str = "exg", disparity_range=None,
-               depth_range=None, edge_px: int = 4) -> np.ndarray:
-    """GrabCut seed labels (H, W) uint8 from the colour and depth cues (see module doc).
-
-    Args:
-        image_bgr: uint8 BGR image.
-        disparity: optional (H, W) disparity on the image's grid (pixels; high =
-            near; negative or non-finite = unknown).
-        depth: optional (H, W) depth or distance (low = near; non-finite = unknown).
-        index: ``"exg"``, ``"exgr"`` (ExG - ExR) or ``"none"`` (no colour cue).
-        disparity_range, depth_range: optional ``(lo, hi)`` plant range instead
-            of an automatic threshold.
-        edge_px: width (pixels) of the unsure band of the depth cue along depth edges.
-    """
-    img = to_bgr(np.asarray(image_bgr), "image")
+def _depth_and_colour_votes(img, disparity, depth, index, disparity_range, depth_range, edge_px):
     h, w = img.shape[:2]
-    near = None
     if disparity is not None and depth is not None:
         raise ImageError("give either a disparity or a depth map, not both")
+    depth_votes = None
     if disparity is not None or depth is not None:
         arr = np.asarray(disparity if disparity is not None else depth, np.float64)
         if arr.ndim == 3:
@@ -180,8 +186,6 @@ def plant_seed(image_bgr, disparity=None, depth=None, index: str = "exg", dispar
             raise ImageError("the disparity/depth map has no valid value")
         depth_votes = range_votes(near, *rng) if rng is not None else otsu_votes(near)[0]
         depth_votes = soften_edges(depth_votes, edge_px)
-    else:
-        depth_votes = None
     colour_votes = None
     if index != "none":
         if index not in INDICES:
@@ -193,31 +197,111 @@ def plant_seed(image_bgr, disparity=None, depth=None, index: str = "exg", dispar
         if within is not None and within.sum() < 2:
             within = None
         colour_votes = otsu_votes(vi, within=within)[0]
-    return combine_votes(colour_votes, depth_votes)
+    return colour_votes, depth_votes
+
+
+def _use_colour_model(colour_model, index: str, has_depth: bool) -> bool:
+    if colour_model is None:
+        return index == "none" and has_depth
+    if colour_model:
+        if not has_depth:
+            raise ImageError("colour_model learns from the depth cue: give a disparity or depth map")
+        if index != "none":
+            raise ImageError(f"colour_model replaces the vegetation index: use index='none', "
+                             f"not {index!r}")
+        return True
+    return False
+
+
+def _seed(image_bgr, disparity, depth, index, disparity_range, depth_range, edge_px, colour_model):
+    """Seed labels and, when a colour model was learned, ``(plant_gmm, background_gmm)``."""
+    img = to_bgr(np.asarray(image_bgr), "image")
+    has_depth = disparity is not None or depth is not None
+    learn = _use_colour_model(colour_model, index, has_depth)
+    colour_votes, depth_votes = _depth_and_colour_votes(img, disparity, depth, index, disparity_range,
+                                                        depth_range, edge_px)
+    labels = combine_votes(colour_votes, depth_votes)
+    if not learn:
+        return labels, None
+    import cv2
+
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * TRAIN_MARGIN_PX + 1,) * 2)
+    plant = cv2.erode((labels == GC_FGD).astype(np.uint8), k).astype(bool)
+    background = labels == GC_BGD
+    if plant.sum() < MIN_SAMPLES or background.sum() < MIN_SAMPLES:
+        if colour_model:
+            raise ImageError(f"too few sure pixels to learn colour models from the depth cue "
+                             f"({int(plant.sum())} plant, {int(background.sum())} background; "
+                             f"need {MIN_SAMPLES} each)")
+        return labels, None
+    llr, plant_gmm, background_gmm = colour_log_ratio(img, plant, background)
+    return relabel_by_colour(labels, llr, SURE_LOG_RATIO), (plant_gmm, background_gmm)
+
+
+def plant_seed(image_bgr, disparity=None, depth=None, index: str = "exg", disparity_range=None,
+               depth_range=None, edge_px: int = 4, colour_model: bool | None = None) -> np.ndarray:
+    """GrabCut seed labels (H, W) uint8 from the colour and depth cues (see module doc).
+
+    Args:
+        image_bgr: uint8 BGR image.
+        disparity: optional (H, W) disparity on the image's grid (pixels; high =
+            near; negative or non-finite = unknown).
+        depth: optional (H, W) depth or distance (low = near; non-finite = unknown).
+        index: ``"exg"``, ``"exgr"`` (ExG - ExR) or ``"none"`` (no colour cue).
+        disparity_range, depth_range: optional ``(lo, hi)`` plant range instead
+            of an automatic threshold.
+        edge_px: width (pixels) of the unsure band of the depth cue along depth edges.
+        colour_model: learn plant and background colour models from the depth
+            cue's sure pixels and relabel the seed with them
+            (:func:`~canopy_stereo.segmentation.colour_model.relabel_by_colour`).
+            ``None`` (default): exactly when ``index="none"`` and a depth cue is
+            given (skipped if the depth cue is sure of fewer than 50 pixels of
+            either class); ``True`` requires both (else :class:`ImageError`);
+            ``False``: the depth votes alone.
+    """
+    return _seed(image_bgr, disparity, depth, index, disparity_range, depth_range, edge_px,
+                 colour_model)[0]
 
 
 def auto_plant_mask(image_bgr, disparity=None, depth=None, index: str = "exg", disparity_range=None,
                     depth_range=None, iterations: int = 5, refine: bool = True,
-                    min_region: int | None = None, edge_px: int = 4) -> np.ndarray:
+                    min_region: int | None = None, edge_px: int = 4,
+                    colour_model: bool | None = None) -> np.ndarray:
     """Plant mask without interaction (uint8 (H, W), 255 = plant).
+
+    Depth input: the disparity of the image on its own grid (e.g. the rectified
+    left image and ``canopy-stereo disparity``'s D.pfm) or the distance of the
+    points of ``reconstruct_pair(...).organized`` from the left camera centre on
+    the original image; the default matcher output (ELAS, or SGBM) is right:
+    the holes its left-right check leaves are decided by colour.
 
     Args:
         image_bgr: uint8 BGR image.
         disparity, depth: optional depth cue registered to the image (see :func:`plant_seed`).
         index: colour cue ``"exg"``, ``"exgr"`` or ``"none"``.
         disparity_range, depth_range: optional plant range for the depth cue.
-        iterations: GrabCut iterations.
+        iterations: GrabCut iterations (with a learned colour model GrabCut cuts
+            once with the models fixed, and this is not used).
         refine: run GrabCut on the seed (else the seed's plant labels are the mask).
         min_region: drop plant regions smaller than this many pixels
             (default: 0.05 % of the image).
         edge_px: unsure band of the depth cue along depth edges (pixels).
+        colour_model: learn the colour cue from the depth cue (see
+            :func:`plant_seed`); default: with ``index="none"`` and a depth cue.
     """
-    seed = plant_seed(image_bgr, disparity=disparity, depth=depth, index=index,
-                      disparity_range=disparity_range, depth_range=depth_range, edge_px=edge_px)
+    if refine and int(iterations) < 1:
+        raise ImageError(f"GrabCut needs at least 1 iteration, got {iterations}")
+    seed, models = _seed(image_bgr, disparity, depth, index, disparity_range, depth_range, edge_px,
+                         colour_model)
     fg = (seed == GC_FGD) | (seed == GC_PR_FGD)
     if not fg.any():
         raise ImageError("no pixel looks like plant: try another index, a depth cue or a rectangle")
-    labels = grabcut_labels(image_bgr, seed, iterations) if refine else seed
+    if not refine:
+        labels = seed
+    elif models is not None:
+        labels = grabcut_with_models(image_bgr, seed, *models)
+    else:
+        labels = grabcut_labels(image_bgr, seed, iterations)
     mask = (labels == GC_FGD) | (labels == GC_PR_FGD)
     if min_region is None:
         min_region = max(1, int(0.0005 * mask.size))
