@@ -95,8 +95,13 @@ def test_end_to_end_marked_leaves_within_targets(croton, reconstruction):
 
 
 def test_end_to_end_canopy_extents(croton, reconstruction, true_scene):
-    """Height and width within 1 % of the true cloud's in the same frame; depth is
-    bounded by stereo resolution (1 px of disparity is about 26 mm at 700 mm)."""
+    """Height, width and depth within 1 % of the true cloud's in the same frame.
+
+    Depth (along the horizontal line of sight) is the extent stereo measures
+    worst: its ends usually lie on leaves seen edge-on, thin slivers whose
+    disparity the matcher takes from their neighbours. On this seed it is
+    within 1 %; benchmarks/bench_measure.py reports all three over 10 seeds.
+    """
     sim, plant = croton
     ground = true_scene.report["frame"]["ground_plane"]
     rep = measure_scene(reconstruction.organized, leaf_ids=sim.leaf_ids_left, mask=plant,
@@ -104,7 +109,7 @@ def test_end_to_end_canopy_extents(croton, reconstruction, true_scene):
     ct, cm = true_scene.report["canopy"], rep["canopy"]
     assert abs(cm["height"] / ct["height"] - 1) < 0.01
     assert abs(cm["width"] / ct["width"] - 1) < 0.01
-    assert abs(cm["depth"] / ct["depth"] - 1) < 0.15
+    assert abs(cm["depth"] / ct["depth"] - 1) < 0.01
     marked = {lf["id"]: lf for lf in rep["leaves"] if lf["id"] in (1, 2)}
     assert set(marked) == {1, 2}
     # the camera was estimated from the cloud when not given
