@@ -122,6 +122,19 @@ def _triangulate_kernel(P1, P2, x1, x2, drop_behind):  # pragma: no cover - comp
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _backmap_match(u, v, d, Hl_inv, Hr_inv):  # pragma: no cover - compiled
+    """Original pixels ``(u1, v1, u2, v2)`` of the rectified match ``(u, v) <-> (u - d, v)``."""
+    z1 = Hl_inv[2, 0] * u + Hl_inv[2, 1] * v + Hl_inv[2, 2]
+    u1 = (Hl_inv[0, 0] * u + Hl_inv[0, 1] * v + Hl_inv[0, 2]) / z1
+    v1 = (Hl_inv[1, 0] * u + Hl_inv[1, 1] * v + Hl_inv[1, 2]) / z1
+    ur = u - d
+    z2 = Hr_inv[2, 0] * ur + Hr_inv[2, 1] * v + Hr_inv[2, 2]
+    u2 = (Hr_inv[0, 0] * ur + Hr_inv[0, 1] * v + Hr_inv[0, 2]) / z2
+    v2 = (Hr_inv[1, 0] * ur + Hr_inv[1, 1] * v + Hr_inv[1, 2]) / z2
+    return u1, v1, u2, v2
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _rectified_grid_kernel(disp, Hl_inv, Hr_inv, P1, P2):  # pragma: no cover - compiled
     h, w = disp.shape
     out = np.full((h, w, 3), np.nan)
@@ -130,13 +143,7 @@ def _rectified_grid_kernel(disp, Hl_inv, Hr_inv, P1, P2):  # pragma: no cover - 
             d = disp[v, u]
             if not (d >= 0) or not np.isfinite(d):
                 continue
-            z1 = Hl_inv[2, 0] * u + Hl_inv[2, 1] * v + Hl_inv[2, 2]
-            u1 = (Hl_inv[0, 0] * u + Hl_inv[0, 1] * v + Hl_inv[0, 2]) / z1
-            v1 = (Hl_inv[1, 0] * u + Hl_inv[1, 1] * v + Hl_inv[1, 2]) / z1
-            ur = u - d
-            z2 = Hr_inv[2, 0] * ur + Hr_inv[2, 1] * v + Hr_inv[2, 2]
-            u2 = (Hr_inv[0, 0] * ur + Hr_inv[0, 1] * v + Hr_inv[0, 2]) / z2
-            v2 = (Hr_inv[1, 0] * ur + Hr_inv[1, 1] * v + Hr_inv[1, 2]) / z2
+            u1, v1, u2, v2 = _backmap_match(u, v, d, Hl_inv, Hr_inv)
             _dlt_point(P1, P2, u1, v1, u2, v2, True, out[v, u])
     return out
 
@@ -156,13 +163,7 @@ def _rectified_points_kernel(disp, mask, Hl_inv, Hr_inv, P1, P2, scale, organize
             d = disp[v, u]
             ok = d >= 0 and np.isfinite(d) and (not use_mask or mask[v, u] != 0)
             if ok:
-                z1 = Hl_inv[2, 0] * u + Hl_inv[2, 1] * v + Hl_inv[2, 2]
-                u1 = (Hl_inv[0, 0] * u + Hl_inv[0, 1] * v + Hl_inv[0, 2]) / z1
-                v1 = (Hl_inv[1, 0] * u + Hl_inv[1, 1] * v + Hl_inv[1, 2]) / z1
-                ur = u - d
-                z2 = Hr_inv[2, 0] * ur + Hr_inv[2, 1] * v + Hr_inv[2, 2]
-                u2 = (Hr_inv[0, 0] * ur + Hr_inv[0, 1] * v + Hr_inv[0, 2]) / z2
-                v2 = (Hr_inv[1, 0] * ur + Hr_inv[1, 1] * v + Hr_inv[1, 2]) / z2
+                u1, v1, u2, v2 = _backmap_match(u, v, d, Hl_inv, Hr_inv)
                 _dlt_point(P1, P2, u1, v1, u2, v2, True, xyz)
                 ok = np.isfinite(xyz[0])
             if ok:
