@@ -38,6 +38,14 @@ def is_device(source: str) -> bool:
     return source.strip().isdigit() or source.startswith("/dev/")
 
 
+def quiet_opencv_warnings() -> None:
+    """Keep OpenCV's own warnings (one per read past the end of an image sequence, per
+    failed device probe) off the console: the node logs what happened itself."""
+    log = getattr(getattr(cv2, "utils", None), "logging", None)
+    if log is not None and hasattr(log, "setLogLevel"):
+        log.setLogLevel(log.LOG_LEVEL_ERROR)
+
+
 def open_capture(source: str, width: int = 0, height: int = 0, fps: float = 0.0,
                  fourcc: str = "") -> cv2.VideoCapture | None:
     """An opened ``cv2.VideoCapture`` for ``source`` with the requested settings, or None."""
@@ -68,6 +76,7 @@ class CameraNode(CanopyNode):
 
     def __init__(self, node_name: str = "camera_node", **kwargs):
         super().__init__(node_name, **kwargs)
+        quiet_opencv_warnings()
         ro = ParameterDescriptor(read_only=True)
         self.declare_parameter("device", "0", ParameterDescriptor(
             description="V4L2 index, /dev path, video file or image-sequence pattern",
