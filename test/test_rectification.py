@@ -99,3 +99,22 @@ def test_hartley_from_pooled_qdmatch_on_raw_chessboard_pairs(shared_data):
         pr = apply_homography(rect.H_right, undistort_pixels(rig.P_right, rig.D_right, cr))
         dv.append(pl[:, 1] - pr[:, 1])
     assert np.median(np.abs(np.concatenate(dv))) <= 0.5
+
+
+def test_cached_rectifier_is_reused_only_for_the_same_geometry(paper_rig):
+    import dataclasses
+
+    from canopy_stereo.geometry.rectification import StereoRectifier, cached_rectifier
+
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    a = cached_rectifier(paper_rig, rect)
+    same = dataclasses.replace(paper_rig, P_left=paper_rig.P_left.copy())  # equal values, new arrays
+    assert cached_rectifier(same, fusiello_rectify(same.P_left, same.P_right, same.image_size)) is a
+    distorted = dataclasses.replace(paper_rig, D_left=np.array([0.05, 0.0, 0.0, 0.0, 0.0]))
+    b = cached_rectifier(distorted, rect)
+    assert b is not a
+    img = np.random.default_rng(0).integers(0, 256, (paper_rig.image_size[1], paper_rig.image_size[0], 3), np.uint8)
+    for rectifier, rig in ((a, paper_rig), (b, distorted)):
+        want = StereoRectifier(rig, rect).rectify(img, img)
+        got = rectifier.rectify(img, img)
+        assert all(np.array_equal(g, w) for g, w in zip(got, want))

@@ -16,7 +16,7 @@ from canopy_stereo.disparity import compute_disparity
 from canopy_stereo.errors import CanopyStereoError, ImageError
 from canopy_stereo.geometry.rectification import (
     Rectification,
-    StereoRectifier,
+    cached_rectifier,
     default_disparity_range,
     fusiello_rectify,
     hartley_rectify,
@@ -137,7 +137,7 @@ def reconstruct_pair(left_bgr, right_bgr, rig, method: str = "fusiello", matcher
     timings["rectification"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    left_r, right_r = StereoRectifier(rig, rect).rectify(left, right)
+    left_r, right_r = cached_rectifier(rig, rect).rectify(left, right)
     timings["warp"] = time.perf_counter() - t
 
     t = time.perf_counter()
