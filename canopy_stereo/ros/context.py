@@ -69,7 +69,7 @@ def tune_memory_allocator(mmap_threshold: int = PIPELINE_MALLOC_OPTIONS["mmap_th
     zeroed pages in the kernel, and returns the memory with ``munmap``. Raising
     the thresholds lets freed frame buffers be reused. Measured with
     ``canopy-stereo run --rate 0`` on the croton bag (2 cores, ELAS, GrabCut,
-    recording): system time 41 -> 20 ms per frame, 10.8 -> 14 frames/s.
+    recording): system time 41 -> 20-24 ms per frame, 10.8 -> 12.4-13.8 frames/s.
     The same effect as the ``MALLOC_MMAP_THRESHOLD_``, ``MALLOC_TRIM_THRESHOLD_``
     and ``MALLOC_TOP_PAD_`` environment variables; those, when set, win.
 
