@@ -32,12 +32,12 @@ class Rectification:
         size: ``(width, height)`` of the rectified images (pixels).
         method: ``"fusiello"`` or ``"hartley"``.
         K_rect_left, K_rect_right: (3, 3) intrinsics of the rectified cameras
-            (Fusiello only; they share ``f`` and ``cy`` and may differ in ``cx``).
+            (Fusiello only; equal: one focal length and one principal point).
         R_rect: (3, 3) world-to-rectified-camera rotation shared by both cameras.
         P_rect_left, P_rect_right: (3, 4) world -> rectified pixel (Fusiello only).
         baseline: distance between the camera centres (world units; Fusiello only).
         doffs: ``cx_left - cx_right`` of the rectified cameras (pixels): the
-            disparity of a point at infinity.
+            disparity of a point at infinity (0 for :func:`fusiello_rectify`).
         disparity_range: suggested ``(disp_min, disp_max)`` search range in pixels
             (Hartley: from the matches; Fusiello: None, see :func:`default_disparity_range`).
         F: fundamental matrix used (Hartley), ``x_right^T F x_left = 0``.
@@ -82,9 +82,14 @@ def fusiello_rectify(P_left, P_right, image_size) -> Rectification:
     The new cameras keep the old centres ``C1``, ``C2`` and share one
     orientation: x along the baseline ``C2 - C1``, y orthogonal to x and the
     old left optical axis, z = x * y. They share the focal length (mean of the
-    old ones, square pixels) and principal row; each principal column is chosen
-    so the image centre stays centred. If that would give far points a negative
-    disparity (converging cameras), both use the mean column (``doffs = 0``).
+    old ones, square pixels) and the whole principal point, as OpenCV's
+    ``stereoRectify`` with ``CALIB_ZERO_DISPARITY`` and as every ROS stereo
+    calibration: a point at infinity has disparity 0 (``doffs = 0``), so
+    ``Z = f B / d`` and image_geometry's Q matrix built from the two rectified
+    ``CameraInfo`` messages gives the same depth. The common principal point is
+    the mean of the points that would keep each image centred, so each image
+    moves by half the difference and both stay in view (verged cameras, or
+    cameras whose principal points differ, are shifted in opposite directions).
 
     Args:
         P_left, P_right: (3, 4) world-frame projection matrices.
@@ -116,18 +121,15 @@ def fusiello_rectify(P_left, P_right, image_size) -> Rectification:
             raise RigError("a camera looks away from the rectified viewing direction")
         cx.append(centre[0] - f * ray[0] / ray[2])
         cy.append(centre[1] - f * ray[1] / ray[2])
-    cy_common = float(np.mean(cy))
-    if cx[0] - cx[1] < 0:
-        cx = [float(np.mean(cx))] * 2
-    K1n = np.array([[f, 0, cx[0]], [0, f, cy_common], [0, 0, 1.0]])
-    K2n = np.array([[f, 0, cx[1]], [0, f, cy_common], [0, 0, 1.0]])
-    H1 = K1n @ R @ cam1.R.T @ np.linalg.inv(cam1.K)
-    H2 = K2n @ R @ cam2.R.T @ np.linalg.inv(cam2.K)
+    cx_common, cy_common = float(np.mean(cx)), float(np.mean(cy))
+    K_new = np.array([[f, 0, cx_common], [0, f, cy_common], [0, 0, 1.0]])
+    H1 = K_new @ R @ cam1.R.T @ np.linalg.inv(cam1.K)
+    H2 = K_new @ R @ cam2.R.T @ np.linalg.inv(cam2.K)
     return Rectification(
         H_left=H1 / H1[2, 2], H_right=H2 / H2[2, 2], size=(w, h), method="fusiello",
-        K_rect_left=K1n, K_rect_right=K2n, R_rect=R,
-        P_rect_left=compose_projection(K1n, R, cam1.C), P_rect_right=compose_projection(K2n, R, cam2.C),
-        baseline=B, doffs=float(cx[0] - cx[1]))
+        K_rect_left=K_new, K_rect_right=K_new.copy(), R_rect=R,
+        P_rect_left=compose_projection(K_new, R, cam1.C), P_rect_right=compose_projection(K_new, R, cam2.C),
+        baseline=B, doffs=0.0, extra={"centring_cx": (float(cx[0]), float(cx[1]))})
 
 
 def default_disparity_range(rect: Rectification, near_depth: float | None = None,

@@ -91,7 +91,16 @@ def rectify_rig(rig, method: str = "fusiello", left=None, right=None,
 
 def disparity_range_for(rig, rect: Rectification, disp_min=None, disp_max=None) -> tuple[int, int]:
     """Search range: explicit values win, then ``disp_min``/``disp_max`` in the rig
-    file's extra parameters, then :func:`default_disparity_range`."""
+    file's extra parameters, then :func:`default_disparity_range`.
+
+    This is the one place where a rig file's range meets a rectification. The values
+    are disparities ``u_left - u_right`` of the rectified pair; with the package's
+    Fusiello rectification (one principal point for both cameras, ``doffs = 0``)
+    they are ``f B / Z``, the same numbers as a ``stereo_msgs/DisparityImage``'s
+    ``min_disparity``/``max_disparity``. (Rig files written before the common
+    principal point, for a rectification with ``doffs > 0``, need their range
+    lowered by that ``doffs``; the bundled ``config/croton_rig.yaml`` was.)
+    """
     dmin, dmax = default_disparity_range(rect)
     dmin = int(rig.extra.get("disp_min", dmin)) if disp_min is None else int(disp_min)
     dmax = int(rig.extra.get("disp_max", dmax)) if disp_max is None else int(disp_max)

@@ -138,7 +138,8 @@ def make_croton(bag_path, rig_path, paper_rig: Rig, n_frames: int = 4, seed: int
     rig = paper_rig.with_extra(disp_min=dmin, disp_max=dmax, elas={"subpixel": True})
     save_rig(rig, rig_path, comment=(
         "The paper's rig (config/paper_rig.yaml) for the bundled synthetic croton bag "
-        "(bags/croton.mcap),\nwith the scene's disparity range and sub-pixel ELAS as node parameters."))
+        "(bags/croton.mcap),\nwith the scene's disparity range (f B / Z of the Fusiello rectification: "
+        "0 at infinity) and sub-pixel ELAS."))
     return Path(bag_path), Path(rig_path)
 
 
