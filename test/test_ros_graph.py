@@ -82,7 +82,9 @@ def test_croton_bag_through_the_real_nodes_is_metric(croton, tmp_path):
     recorded = BagReader(out)
     assert recorded.topics["/stereo/points2"].message_count == 4
     assert recorded.topics["/stereo/left/mask"].message_count == 4
-    assert recorded.topics["/stereo/right/camera_info"].message_count == 4
+    assert recorded.topics["/stereo/right/image_rect/camera_info"].message_count == 4
+    assert recorded.topics["/stereo/left/depth"].message_count == 4
+    assert recorded.topics["/tf_static"].message_count == 1
     rosbags = pytest.importorskip("rosbags.highlevel")
     with rosbags.AnyReader([out]) as reader:
         conns = [c for c in reader.connections if c.topic == "/stereo/disparity"]

@@ -105,6 +105,32 @@ def textured_pair(rig, shift_px=20, seed=0):
     return tex[:h, :w].copy(), tex[:h, shift_px:shift_px + w].copy()
 
 
+def rect_info_publishers(harness):
+    return (harness.publisher(CameraInfo, "left/image_rect/camera_info"),
+            harness.publisher(CameraInfo, "right/image_rect/camera_info"))
+
+
+def publish_rect_infos(il, ir, rig, rect, stamp, frames=("left_camera_rect_optical_frame",
+                                                          "right_camera_rect_optical_frame")):
+    """What rectify_node publishes beside a rectified pair (Fusiello)."""
+    t = rect.baseline * rig.metres_per_unit
+    il.publish(convert.rectified_camera_info(rect.K_rect_left, rect.size, t, "left", stamp, frames[0]))
+    ir.publish(convert.rectified_camera_info(rect.K_rect_right, rect.size, t, "right", stamp, frames[1]))
+
+
+def geometry_publisher(harness, rig, rect):
+    """rectify_node's latched stereo_geometry, published by the test."""
+    from std_msgs.msg import String
+
+    from canopy_stereo.geometry.frames import FrameNames
+    from canopy_stereo.ros.stereo_geometry import stereo_geometry_msg
+    from canopy_stereo.ros.tf import latched_qos
+
+    pub = harness.helper.create_publisher(String, "stereo_geometry", latched_qos())
+    pub.publish(stereo_geometry_msg(rig, rect, FrameNames()))
+    return pub
+
+
 # --------------------------------------------------------------------------- rectify_node
 
 
@@ -115,8 +141,9 @@ def test_rectify_node_pairs_by_approximate_time_and_publishes_ros_camera_info(ha
     rect_l = harness.collect(Image, "left/image_rect")
     rect_r = harness.collect(Image, "right/image_rect")
     color = harness.collect(Image, "left/image_rect_color")
-    info_l = harness.collect(CameraInfo, "left/camera_info")
-    info_r = harness.collect(CameraInfo, "right/camera_info")
+    info_l = harness.collect(CameraInfo, "left/image_rect/camera_info")
+    info_r = harness.collect(CameraInfo, "right/image_rect/camera_info")
+    driver_info = harness.collect(CameraInfo, "left/camera_info")  # the raw camera's: not rectify_node's
     pl, pr = harness.publisher(Image, "left/image_raw"), harness.publisher(Image, "right/image_raw")
     harness.connect(pl, pr)
     left, right = textured_pair(paper_rig)
@@ -140,8 +167,11 @@ def test_rectify_node_pairs_by_approximate_time_and_publishes_ros_camera_info(ha
     assert PL[0, 0] == pytest.approx(f) and PL[0, 3] == 0
     assert PR[0, 3] == pytest.approx(-f * paper_rig.baseline * 1e-3)  # -fx * baseline [m]
     assert -PR[0, 3] / PR[0, 0] == pytest.approx(0.0296, abs=1e-4)
-    assert PL[0, 2] - PR[0, 2] == pytest.approx(rect.doffs)
+    assert PL[0, 2] - PR[0, 2] == pytest.approx(rect.doffs) == 0.0  # one principal point
     assert (info_l[0].width, info_l[0].height) == (640, 480)
+    assert info_l[0].header.frame_id == color[0].header.frame_id == "left_camera_rect_optical_frame"
+    assert info_r[0].header.frame_id == rect_r[0].header.frame_id == "right_camera_rect_optical_frame"
+    assert driver_info == []
     assert node.stats()["drops"] == {}
 
 
@@ -184,15 +214,19 @@ def test_disparity_node_fields_match_the_rig(harness, paper_rig):
                                                    disp_min=16, disp_max=48)))
     out = harness.collect(DisparityImage, "disparity")
     pl, pr = harness.publisher(Image, "left/image_rect"), harness.publisher(Image, "right/image_rect")
-    harness.connect(pl, pr)
+    il, ir = rect_info_publishers(harness)
+    harness.connect(pl, pr, il, ir)
     shift = 30
     left, right = textured_pair(paper_rig, shift)
     gl, gr = cv2.cvtColor(left, cv2.COLOR_BGR2GRAY), cv2.cvtColor(right, cv2.COLOR_BGR2GRAY)
     pl.publish(convert.image_to_msg(gl, "mono8", T0, "rect"))
     pr.publish(convert.image_to_msg(gr, "mono8", T0, "rect"))
+    time.sleep(0.1)
+    assert out == []  # no camera_info yet: nothing to tell f and t
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    publish_rect_infos(il, ir, paper_rig, rect, T0)
     assert wait_for(lambda: len(out) == 1, TIMEOUT)
     msg = out[0]
-    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
     assert msg.f == pytest.approx(rect.focal_length, rel=1e-6)
     assert msg.t == pytest.approx(paper_rig.baseline * 1e-3, rel=1e-6)  # metres
     assert msg.min_disparity == pytest.approx(16 - rect.doffs, abs=1e-4)
@@ -234,8 +268,7 @@ def test_disparity_node_parameters_change_at_run_time_and_are_validated(harness,
     assert good.successful
     assert node.config["matcher"] == "elas" and node.config["params"]["subpixel"] is True
     assert node.config["params"]["preset"] == "middlebury" and node.config["delta_d"] == 1 / 16
-    ro = node.set_parameters([Parameter("P_left", value=[1.0] * 12)])
-    assert not ro[0].successful  # the rig is read-only
+    assert not node.has_parameter("P_left")  # the rig is rectify_node's alone
 
 
 # --------------------------------------------------------------------------- point_cloud_node
@@ -251,11 +284,14 @@ def _plane_disparity(rig, rect, depth_mm):
 def test_point_cloud_node_triangulates_in_world_metres(harness, paper_rig, organized):
     from canopy_stereo.ros.nodes.point_cloud import PointCloudNode
 
-    harness.add(PointCloudNode(**node_kwargs(harness, paper_rig, organized=organized)))
+    harness.add(PointCloudNode(**node_kwargs(harness, organized=organized)))
     out = harness.collect(PointCloud2, "points2")
     pd, pc = harness.publisher(DisparityImage, "disparity"), harness.publisher(Image, "left/image_rect_color")
-    harness.connect(pd, pc)
+    il, ir = rect_info_publishers(harness)
+    harness.connect(pd, pc, il)
     rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    geometry_publisher(harness, paper_rig, rect)
+    publish_rect_infos(il, ir, paper_rig, rect, T0)
     depth_mm = 500.0
     disp = _plane_disparity(paper_rig, rect, depth_mm)
     disp[:10] = -1  # some invalid rows
@@ -287,12 +323,15 @@ def test_point_cloud_node_triangulates_in_world_metres(harness, paper_rig, organ
 def test_point_cloud_node_applies_the_mask(harness, paper_rig):
     from canopy_stereo.ros.nodes.point_cloud import PointCloudNode
 
-    harness.add(PointCloudNode(**node_kwargs(harness, paper_rig, use_mask=True)))
+    harness.add(PointCloudNode(**node_kwargs(harness, use_mask=True)))
     out = harness.collect(PointCloud2, "points2")
     pd = harness.publisher(DisparityImage, "disparity")
     pc, pm = harness.publisher(Image, "left/image_rect_color"), harness.publisher(Image, "left/mask")
-    harness.connect(pd, pc, pm)
+    il, ir = rect_info_publishers(harness)
+    harness.connect(pd, pc, pm, il)
     rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    geometry_publisher(harness, paper_rig, rect)
+    publish_rect_infos(il, ir, paper_rig, rect, T0)
     disp = _plane_disparity(paper_rig, rect, 400.0)
     mask = np.zeros((480, 640), np.uint8)
     mask[100:150, 200:300] = 255
@@ -361,7 +400,7 @@ def test_camera_node_image_sequence_and_device_loss(harness, tmp_path):
     got = [int(convert.msg_to_image(m)[0, 0, 0]) for m in out[:5]]
     start = got.index(40)
     assert got[start:start + 3] == [40, 80, 120]  # in order, looping
-    assert all(m.encoding == "bgr8" and m.header.frame_id == "left_camera" for m in out)
+    assert all(m.encoding == "bgr8" and m.header.frame_id == "left_camera_optical_frame" for m in out)
     stamps = [convert.stamp_to_ns(m.header.stamp) for m in out]
     assert stamps == sorted(stamps) and stamps[0] > T0  # stamped at capture (wall clock)
     # the "device" disappears mid-stream, then comes back: the node resumes by itself
@@ -388,10 +427,10 @@ def test_hartley_homographies_from_parameters_give_the_same_cloud(harness, paper
     H = dict(method="hartley", H_left=[float(v) for v in rect.H_left.ravel()],
              H_right=[float(v) for v in rect.H_right.ravel()])
     rectify = harness.add(RectifyNode(**node_kwargs(harness, paper_rig, **H)))
-    harness.add(PointCloudNode(**node_kwargs(harness, paper_rig, organized=True, **H)))
+    harness.add(PointCloudNode(**node_kwargs(harness, organized=True)))  # no rig: from rectify_node
     assert rectify.rect.method == "hartley" and rectify.rect.K_rect_left is None
     color = harness.collect(Image, "left/image_rect_color")
-    infos = harness.collect(CameraInfo, "left/camera_info")
+    infos = harness.collect(CameraInfo, "left/image_rect/camera_info")
     clouds = harness.collect(PointCloud2, "points2")
     pl, pr = harness.publisher(Image, "left/image_raw"), harness.publisher(Image, "right/image_raw")
     pd = harness.publisher(DisparityImage, "disparity")
@@ -411,7 +450,9 @@ def test_hartley_homographies_from_parameters_give_the_same_cloud(harness, paper
 
     np.testing.assert_allclose(pts, triangulate_disparity(disp, rect, paper_rig.P_left, paper_rig.P_right)
                                * 1e-3, rtol=1e-5, atol=1e-6)
-    assert infos == []  # a projective rectification has no metric camera_info
+    # a projective rectification has no metric camera: its camera_info is the uncalibrated one
+    assert len(infos) == 1 and not any(infos[0].p) and not any(infos[0].k)
+    assert (infos[0].width, infos[0].height) == (640, 480)
 
 
 def test_node_executable_reads_the_rig_file(repo_root, tmp_path):
@@ -429,10 +470,10 @@ def test_node_executable_reads_the_rig_file(repo_root, tmp_path):
     rig_file = repo_root / "config" / "croton_rig.yaml"
     # large best-effort samples can be lost between processes: make the inputs reliable
     # with ROS 2's standard QoS override parameters
-    reliable = [f"qos_overrides./stereo/{side}/image_rect.subscription.reliability:=reliable"
-                for side in ("left", "right")]
+    reliable = [f"qos_overrides./stereo/{side}/{topic}.subscription.reliability:=reliable"
+                for side in ("left", "right") for topic in ("image_rect", "image_rect/camera_info")]
     proc = subprocess.Popen([sys.executable, "-c", code, "--ros-args", "--params-file", str(rig_file),
-                             "-p", "matcher:=sgbm", "-p", reliable[0], "-p", reliable[1]],
+                             "-p", "matcher:=sgbm", *[a for r in reliable for a in ("-p", r)]],
                             env=env, stderr=subprocess.PIPE, text=True)
     try:
         with ros_context(domain) as ctx:
@@ -440,11 +481,13 @@ def test_node_executable_reads_the_rig_file(repo_root, tmp_path):
             try:
                 out = h.collect(DisparityImage, "disparity")
                 pl, pr = h.publisher(Image, "left/image_rect"), h.publisher(Image, "right/image_rect")
-                h.connect(pl, pr)
+                il, ir = rect_info_publishers(h)
+                h.connect(pl, pr, il, ir)
                 h.wait_publishers("disparity")
                 from canopy_stereo.io.rig import load_rig
 
                 rig = load_rig(rig_file)
+                publish_rect_infos(il, ir, rig, fusiello_rectify(rig.P_left, rig.P_right, rig.image_size), T0)
                 left, right = textured_pair(rig, 40)
                 pl.publish(convert.image_to_msg(cv2.cvtColor(left, cv2.COLOR_BGR2GRAY), "mono8", T0))
                 pr.publish(convert.image_to_msg(cv2.cvtColor(right, cv2.COLOR_BGR2GRAY), "mono8", T0))

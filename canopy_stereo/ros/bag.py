@@ -134,25 +134,30 @@ class BagWriter:
         self.message_count = 0
         self.closed = False
 
-    def add_topic(self, topic: str, msg_type: str, qos_yaml: str | None = None) -> None:
-        """Declare ``topic`` with type ``msg_type`` (``"sensor_msgs/msg/Image"``)."""
+    def add_topic(self, topic: str, msg_type: str, qos_yaml: str | None = None,
+                  definition: str | None = None) -> None:
+        """Declare ``topic`` with type ``msg_type`` (``"sensor_msgs/msg/Image"``); ``definition``
+        is the type's ``ros2msg`` text when its Python package is not installed
+        (``tf2_msgs/msg/TFMessage``: :func:`canopy_stereo.ros.tf.write_static_transforms`)."""
         with self._lock:
-            self._add_topic(topic, msg_type, qos_yaml)
+            self._add_topic(topic, msg_type, qos_yaml, definition)
 
-    def _add_topic(self, topic, msg_type, qos_yaml=None):
+    def _add_topic(self, topic, msg_type, qos_yaml=None, definition=None):
         if topic in self._channels:
             if self.topics[topic].type_name != msg_type:
                 raise BagError(f"topic {topic} already has type {self.topics[topic].type_name}")
             return
-        msg_type = type_name(message_class(msg_type))
+        if definition is None:
+            msg_type = type_name(message_class(msg_type))
+            definition = message_definition(msg_type)
         if msg_type not in self._schemas:
             self._schemas[msg_type] = self._writer.register_schema(
-                name=msg_type, encoding="ros2msg", data=message_definition(msg_type).encode())
+                name=msg_type, encoding="ros2msg", data=definition.encode())
         qos_yaml = qos_yaml if qos_yaml is not None else qos_profiles_yaml()
         self._channels[topic] = self._writer.register_channel(
             topic=topic, message_encoding="cdr", schema_id=self._schemas[msg_type],
             metadata={"offered_qos_profiles": qos_yaml})
-        self.topics[topic] = TopicInfo(topic, msg_type, 0, message_definition(msg_type), qos_yaml)
+        self.topics[topic] = TopicInfo(topic, msg_type, 0, definition, qos_yaml)
 
     def write(self, topic: str, msg, log_time_ns: int, publish_time_ns: int | None = None,
               msg_type: str | None = None) -> None:

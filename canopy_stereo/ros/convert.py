@@ -440,3 +440,52 @@ def rectified_camera_info(K_rect: np.ndarray, size, baseline_m: float, side: str
     info.binning_x = info.binning_y = 0
     info.roi = RegionOfInterest(x_offset=0, y_offset=0, width=0, height=0, do_rectify=False)
     return info
+
+
+def camera_info_msg(calibration, stamp_ns: int = 0, frame_id: str = "") -> CameraInfo:
+    """``sensor_msgs/CameraInfo`` of a raw camera from a
+    :class:`~canopy_stereo.geometry.frames.CameraCalibration` (REP 104: ``K``, ``D`` of the
+    raw image, ``R`` to the rectified camera, ``P`` of the rectified camera)."""
+    c = calibration
+    info = CameraInfo()
+    info.header = make_header(stamp_ns, frame_id)
+    info.width, info.height = int(c.width), int(c.height)
+    info.distortion_model = c.distortion_model
+    info.d = [float(v) for v in np.asarray(c.D, np.float64).ravel()]
+    info.k = [float(v) for v in np.asarray(c.K, np.float64).ravel()]
+    info.r = [float(v) for v in np.asarray(c.R, np.float64).ravel()]
+    info.p = [float(v) for v in np.asarray(c.P, np.float64).ravel()]
+    info.binning_x = info.binning_y = 0
+    info.roi = RegionOfInterest(x_offset=0, y_offset=0, width=0, height=0, do_rectify=False)
+    return info
+
+
+def uncalibrated_camera_info(size, stamp_ns: int = 0, frame_id: str = "") -> CameraInfo:
+    """``CameraInfo`` of an image without a metric camera (a projective, Hartley,
+    rectification): size only, ``D``, ``K``, ``R``, ``P`` zero, as the message
+    definition prescribes for an uncalibrated camera."""
+    info = CameraInfo()
+    info.header = make_header(stamp_ns, frame_id)
+    info.width, info.height = int(size[0]), int(size[1])
+    info.distortion_model = ""
+    info.roi = RegionOfInterest(x_offset=0, y_offset=0, width=0, height=0, do_rectify=False)
+    return info
+
+
+def camera_info_matrices(info: CameraInfo) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(K (3, 3), D (n,), R (3, 3), P (3, 4))`` of a ``CameraInfo`` (float64)."""
+    return (np.asarray(info.k, np.float64).reshape(3, 3), np.asarray(info.d, np.float64),
+            np.asarray(info.r, np.float64).reshape(3, 3), np.asarray(info.p, np.float64).reshape(3, 4))
+
+
+def is_calibrated(info: CameraInfo) -> bool:
+    """True when the ``CameraInfo`` has a projection (``P[0, 0] > 0``)."""
+    return float(info.p[0]) > 0.0
+
+
+def depth_to_msg(depth_m: np.ndarray, stamp_ns: int = 0, frame_id: str = "") -> Image:
+    """REP 118 depth image: 32FC1, metres along the optical axis, NaN where unknown."""
+    d = np.asarray(depth_m, np.float32)
+    if d.ndim != 2:
+        raise ImageError(f"a depth image must be (H, W), got shape {d.shape}")
+    return image_to_msg(d, "32FC1", stamp_ns, frame_id)

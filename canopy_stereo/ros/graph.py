@@ -279,9 +279,12 @@ def main(args=None) -> int:
             from canopy_stereo.ros.recorder import BagRecorder
 
             ns = "/" + options.namespace.strip("/")
-            topics = [f"{ns}/{t}" for t in ("points2", "disparity", "left/mask", "left/camera_info",
+            topics = [f"{ns}/{t}" for t in ("points2", "disparity", "left/mask", "left/depth",
+                                             "left/depth/camera_info", "left/image_rect/camera_info",
+                                             "right/image_rect/camera_info", "left/camera_info",
                                              "right/camera_info", "left/image_raw", "right/image_raw")]
-            recorder = BagRecorder(BagWriter(opts.record, compression="lz4"), topics, context=context)
+            recorder = BagRecorder(BagWriter(opts.record, compression="lz4"), topics, context=context,
+                                   static_transforms=graph.nodes["rectify_node"].transforms)
             graph.add_node(recorder)
         graph.spin_until_interrupted()
         return 0

@@ -57,12 +57,18 @@ class BagRecorder(Node):
         depth: subscription queue depth.
         flush_period_s: how often completed chunks are written out (0 = never).
         on_message: optional ``f(topic, data, log_time_ns)`` called for each message.
+        static_transforms: ``[(parent, child, T), ...]`` written at once on ``/tf_static``
+            (:func:`canopy_stereo.ros.tf.write_static_transforms`). Otherwise, unless
+            ``/tf_static`` itself is recorded, the transforms of every ``stereo_geometry``
+            topic that appears (a rectify_node's) are written there: a bag always has them.
     """
 
     def __init__(self, writer: BagWriter, topics=(), all_topics: bool = False, depth: int = 50,
                  flush_period_s: float = 1.0, on_message=None, node_name: str = "bag_recorder",
-                 **kwargs):
+                 static_transforms=None, **kwargs):
         super().__init__(node_name, **kwargs)
+        self._geometry_subs = {}
+        self._tf_written = static_transforms is not None
         self.writer = writer
         self.depth = int(depth)
         self.all_topics = bool(all_topics)
@@ -71,6 +77,10 @@ class BagRecorder(Node):
         self.received = {}
         self._lock = threading.Lock()
         self._pending = [self.resolve_topic_name(t) for t in topics]
+        if static_transforms is not None:
+            from canopy_stereo.ros.tf import write_static_transforms
+
+            write_static_transforms(writer, static_transforms, time.time_ns())
         self._try_subscribe()
         self._timer = self.create_timer(0.2, self._try_subscribe)
         if flush_period_s > 0:
@@ -85,6 +95,7 @@ class BagRecorder(Node):
     def _try_subscribe(self) -> None:
         """Subscribe to pending topics whose type is known (from the ROS graph)."""
         known = dict(self.get_topic_names_and_types())
+        self._watch_geometry(known)
         if self.all_topics:
             for name in known:
                 if name not in IGNORED_TOPICS and name not in self.subscriptions_by_topic \
@@ -101,6 +112,35 @@ class BagRecorder(Node):
                 self._pending.remove(topic)
                 continue
             self.add_topic(topic, cls, self._publisher_reliability(topic))
+
+    def _watch_geometry(self, known: dict) -> None:
+        """Subscribe (latched) to rectify_nodes' ``stereo_geometry`` to write /tf_static."""
+        if self._tf_written or "/tf_static" in self.subscriptions_by_topic or "/tf_static" in self._pending:
+            return
+        from std_msgs.msg import String
+
+        from canopy_stereo.ros.tf import latched_qos
+
+        for name, types in known.items():
+            if name.endswith("/stereo_geometry") and "std_msgs/msg/String" in types \
+                    and name not in self._geometry_subs:
+                self._geometry_subs[name] = self.create_subscription(
+                    String, name, self._on_geometry, latched_qos())
+
+    def _on_geometry(self, msg) -> None:
+        from canopy_stereo.ros.stereo_geometry import parse_stereo_geometry
+        from canopy_stereo.ros.tf import write_static_transforms
+
+        if self._tf_written:
+            return
+        try:
+            g = parse_stereo_geometry(msg)
+        except CanopyStereoError as exc:
+            self.get_logger().warning(f"stereo_geometry ignored: {exc}")
+            return
+        write_static_transforms(self.writer, [(p, c, T) for c, (p, T) in g.transforms.items()],
+                                time.time_ns())
+        self._tf_written = True
 
     def add_topic(self, topic: str, msg_class, reliability: str = "reliable") -> None:
         """Start recording ``topic`` of type ``msg_class`` now (no graph lookup)."""

@@ -195,8 +195,9 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
             f"{bag.path} has no {in_left} and {in_right} to play (topics: "
             f"{', '.join(sorted(bag.topics)) or 'none'}); use remapping")
     left_topics = {t for t in play_topics if remap.get(t, t) == in_left}
-    outputs = {"points2": PointCloud2, "disparity": DisparityImage,
-               "left/camera_info": CameraInfo, "right/camera_info": CameraInfo}
+    outputs = {"points2": PointCloud2, "disparity": DisparityImage, "left/depth": Image,
+               "left/depth/camera_info": CameraInfo,
+               "left/image_rect/camera_info": CameraInfo, "right/image_rect/camera_info": CameraInfo}
     if options.segment or options.use_mask:
         outputs["left/mask"] = Image
     result = RunResult(truncated=bag.truncated, problem=bag.problem,
@@ -225,6 +226,10 @@ def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, r
         graph = CanopyGraph(rig, ctx, options)
         io_node = CanopyNode("canopy_run", context=ctx, namespace=ns or "/",
                              start_parameter_services=False)
+        if writer is not None:  # the rig's frames, always in the bag (REP 105 /tf_static)
+            from canopy_stereo.ros.tf import write_static_transforms
+
+            write_static_transforms(writer, graph.nodes["rectify_node"].transforms, time.time_ns())
         try:
             def on_output(rel: str, data: bytes) -> None:
                 now = time.monotonic()

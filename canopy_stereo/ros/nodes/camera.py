@@ -10,7 +10,9 @@ Parameters:
   image-sequence pattern (``frames/left_%03d.png``, OpenCV numbering);
 * ``width``, ``height``, ``fps``, ``fourcc`` (e.g. ``MJPG``): requested capture
   settings (0/empty = the device's default; ``fps`` also paces files);
-* ``frame_id`` (default ``<camera_name>_camera``), ``camera_name`` (``left``);
+* ``frame_id`` (default ``<camera_name>_camera_optical_frame``, REP 103), ``camera_name`` (``left``);
+* the rig (``--params-file RIG.yaml`` or ``rig_file``): then ``<camera_name>/camera_info``
+  is published with each frame (REP 104, :mod:`canopy_stereo.ros.camera_info`);
 * ``loop``: restart a file or sequence at its end (otherwise stop there).
 
 When the device disappears (unplugged, read failure) the node logs once,
@@ -26,6 +28,7 @@ import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor
 from sensor_msgs.msg import Image
 
+from canopy_stereo.ros.camera_info import RawCameraInfoPublisher
 from canopy_stereo.ros.convert import image_to_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 
@@ -90,13 +93,14 @@ class CameraNode(CanopyNode):
         self.declare_parameter("loop", True, ro)
         self.source = str(self.get_parameter("device").value)
         self.camera_name = self.get_parameter("camera_name").value
-        self.frame_id = self.get_parameter("frame_id").value or f"{self.camera_name}_camera"
+        self.frame_id = self.get_parameter("frame_id").value or f"{self.camera_name}_camera_optical_frame"
         self.settings = dict(width=int(self.get_parameter("width").value),
                              height=int(self.get_parameter("height").value),
                              fps=float(self.get_parameter("fps").value),
                              fourcc=str(self.get_parameter("fourcc").value))
         self.loop = bool(self.get_parameter("loop").value)
         self.pub = self.make_publisher(Image, f"{self.camera_name}/image_raw")
+        self.info = RawCameraInfoPublisher(self, self.camera_name)  # <name>/camera_info with a rig
         self.cap = None
         self.backoff = BACKOFF_START_S
         self.next_attempt = 0.0
@@ -153,6 +157,7 @@ class CameraNode(CanopyNode):
         if frame.ndim == 2:
             frame = cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
         self.pub.publish(image_to_msg(np.ascontiguousarray(frame[..., :3]), "bgr8", stamp_ns, self.frame_id))
+        self.info.publish(stamp_ns, self.frame_id, frame.shape)
         self.count("frames_published")
 
     def destroy_node(self):

@@ -1,13 +1,17 @@
 """``disparity_node``: dense disparity (ELAS by default) of exact-time rectified pairs.
 
 Subscribes ``left/image_rect`` and ``right/image_rect`` (mono8, or any 8-bit
-colour encoding) and publishes ``disparity`` (``stereo_msgs/DisparityImage``):
+colour encoding) with their rectified cameras ``left/image_rect/camera_info`` and
+``right/image_rect/camera_info`` (four-way exact-time pairing, as stereo_image_proc's
+disparity node), and publishes ``disparity`` (``stereo_msgs/DisparityImage``):
 32FC1 disparities in rectified pixels, ``f`` the rectified focal length
-(pixels), ``t`` the baseline (metres), ``min_disparity``/``max_disparity`` the
-search range, ``delta_d`` the matcher's resolution, ``valid_window`` the box of
-valid pixels; invalid pixels are ``min_disparity - 1``. As the message
-definition asks, values (and the range) are reduced by ``cx_left - cx_right``
-of the rectified cameras, so depth is ``Z = f t / d``.
+(pixels) and ``t`` the baseline (metres), both read from the two ``CameraInfo``
+``P`` matrices (``f = P_r[0,0]``, ``t = -P_r[0,3] / f``), ``min_disparity``/``max_disparity``
+the search range, ``delta_d`` the matcher's resolution, ``valid_window`` the box of
+valid pixels; invalid pixels are ``min_disparity - 1``. As the message definition
+asks, values (and the range) are reduced by ``cx_left - cx_right`` of the two
+``P`` (0 for the package's Fusiello rectification), so depth is ``Z = f t / d``.
+An uncalibrated (Hartley) camera pair gives ``f = t = 0``. This node holds no rig.
 
 Parameters (changeable at run time unless marked read-only):
 
@@ -15,9 +19,10 @@ Parameters (changeable at run time unless marked read-only):
 * ``preset``: ELAS preset (``robotics``, ``middlebury``);
 * ``elas.<name>``: every ELAS parameter (:class:`~canopy_stereo.elas.params.ElasParams`),
   unset = the preset's value; ``sgbm.<name>``: the SGBM matcher's parameters;
-* ``disp_min``, ``disp_max``: search range in pixels, -1 = from the rig file
-  (``disp_min``/``disp_max`` extras) or from the rectification;
-* read-only: the rig, ``method``, ``H_left``/``H_right``, ``queue_size``, ``reliability``.
+* ``disp_min``, ``disp_max``: search range in pixels (a rig file's ``disp_min``/``disp_max``
+  set them); -1 = from the cameras: 0 to the disparity of a point 8 baselines away
+  (``f / 8``), or 0 to 128 for an uncalibrated pair;
+* read-only: ``queue_size``, ``reliability``.
 
 New values are validated before they are accepted (an invalid ELAS combination
 is refused with the reason); they apply from the next frame.
@@ -27,16 +32,17 @@ from __future__ import annotations
 import inspect
 import threading
 
+import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
 
 from canopy_stereo.disparity import available_matchers, compute_disparity, get_matcher
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.pipeline.reconstruct import disparity_range_for
-from canopy_stereo.ros.convert import disparity_to_msg, msg_to_mono, stamp_to_ns
+from canopy_stereo.ros.convert import (camera_info_matrices, disparity_to_msg, is_calibrated, msg_to_mono,
+                                       stamp_to_ns)
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
-from canopy_stereo.ros.params import declare_rig_parameters, rectification_from_node, rig_from_node
+from canopy_stereo.ros.nodes.rectify import RECT_INFO_TOPICS
 from canopy_stereo.ros.sync import ExactTimeSynchronizer
 
 _RANGE = ("disp_min", "disp_max")
@@ -86,16 +92,15 @@ class DisparityNode(CanopyNode):
 
     def __init__(self, node_name: str = "disparity_node", **kwargs):
         super().__init__(node_name, **kwargs)
-        declare_rig_parameters(self)
         self.declare_parameter("queue_size", 5, ParameterDescriptor(read_only=True))
         self.declare_parameter("matcher", default_matcher(), ParameterDescriptor(
             description="disparity matcher: elas or sgbm"))
         self.declare_parameter("preset", "robotics", ParameterDescriptor(
             description="ELAS preset: robotics or middlebury"))
         self.declare_parameter("disp_min", -1, ParameterDescriptor(
-            description="smallest disparity searched (pixels); -1: from the rig/rectification"))
+            description="smallest disparity searched (pixels); -1: from the rectified cameras"))
         self.declare_parameter("disp_max", -1, ParameterDescriptor(
-            description="largest disparity searched (pixels); -1: from the rig/rectification"))
+            description="largest disparity searched (pixels); -1: from the rectified cameras"))
         self._defaults = {}
         for matcher in ("elas", "sgbm"):
             try:
@@ -107,24 +112,23 @@ class DisparityNode(CanopyNode):
                 self.declare_parameter(f"{matcher}.{name}", None, ParameterDescriptor(
                     dynamic_typing=True,
                     description=f"{matcher} parameter {name} (unset: preset/default {default!r})"))
-        self.rig = rig_from_node(self)
-        self.rect = rectification_from_node(self, self.rig)
-        if self.rect.method == "fusiello":
-            self.f = float(self.rect.focal_length)
-            self.t = float(self.rect.baseline) * self.rig.metres_per_unit
-        else:
-            self.f = self.t = 0.0
-            self.get_logger().info("hartley rectification: f and t are 0 (no metric rectified camera)")
         self._config_lock = threading.Lock()
         self.config = self._build_config({})
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.sync = ExactTimeSynchronizer(2, int(self.get_parameter("queue_size").value))
+        # streams: 0 left image, 1 right image, 2 left camera_info, 3 right camera_info
+        self.sync = ExactTimeSynchronizer(4, int(self.get_parameter("queue_size").value))
         self.pub = self.make_publisher(DisparityImage, "disparity")
         self.sub_left = self.make_subscription(Image, "left/image_rect", lambda m: self._on_image(0, m))
         self.sub_right = self.make_subscription(Image, "right/image_rect", lambda m: self._on_image(1, m))
+        self.sub_info_left = self.make_subscription(CameraInfo, RECT_INFO_TOPICS[0],
+                                                    lambda m: self._on_info(2, m))
+        self.sub_info_right = self.make_subscription(CameraInfo, RECT_INFO_TOPICS[1],
+                                                     lambda m: self._on_info(3, m))
+        self.camera = None  # (f, t, doffs) of the latest camera_info pair, for the log
         c = self.config
-        self.get_logger().info(f"matcher {c['matcher']}, disparities [{c['disp_min']}, {c['disp_max']}], "
-                               f"f {self.f:.2f} px, t {self.t:.5f} m")
+        rng = ("from the cameras" if c["disp_min"] is None or c["disp_max"] is None
+               else f"[{c['disp_min']}, {c['disp_max']}]")
+        self.get_logger().info(f"matcher {c['matcher']}, disparities {rng}")
 
     # ------------------------------------------------------------------ parameters
     def _build_config(self, changes: dict) -> dict:
@@ -135,8 +139,9 @@ class DisparityNode(CanopyNode):
         matcher = value("matcher")
         get_matcher(matcher)  # raises for unknown/unavailable matchers
         dmin, dmax = int(value("disp_min")), int(value("disp_max"))
-        dmin, dmax = disparity_range_for(self.rig, self.rect, None if dmin < 0 else dmin,
-                                         None if dmax < 0 else dmax)
+        dmin, dmax = (None if dmin < 0 else dmin), (None if dmax < 0 else dmax)
+        if dmin is not None and dmax is not None and dmax <= dmin:
+            raise CanopyStereoError(f"disp_max ({dmax}) must be greater than disp_min ({dmin})")
         params = {}
         for key, default in self._defaults.items():
             prefix, name = key.split(".", 1)
@@ -150,7 +155,10 @@ class DisparityNode(CanopyNode):
             from canopy_stereo.elas.params import make_params
 
             params["preset"] = value("preset")
-            make_params(params["preset"], disp_min=dmin, disp_max=dmax,
+            # validate with the given range, or a typical one where it comes from the cameras
+            lo = 0 if dmin is None else dmin
+            hi = dmax if dmax is not None else lo + 64
+            make_params(params["preset"], disp_min=lo, disp_max=hi,
                         **{k: v for k, v in params.items() if k != "preset"})
             subpixel = params.get("subpixel", False)
             delta_d = 1.0 / 16.0 if subpixel else 1.0
@@ -178,24 +186,77 @@ class DisparityNode(CanopyNode):
         except CanopyStereoError as exc:
             self.drop(str(exc), f"{name} rectified image")
             return
-        items, dropped = self.sync.push(side, stamp_to_ns(msg.header.stamp), (img, msg.header.frame_id))
-        for d in dropped:
-            self.drop(d.reason, f"{('left', 'right')[d.stream]} rectified image")
-        if items is not None:
-            (left, frame_id), (right, _) = items
-            self._match(stamp_to_ns(msg.header.stamp), frame_id, left, right)
+        self._push(side, msg, (img, msg.header.frame_id))
 
-    def _match(self, stamp_ns: int, frame_id: str, left, right) -> None:
+    def _on_info(self, stream: int, msg: CameraInfo) -> None:
+        self.count(f"{('left', 'right')[stream - 2]}_camera_info_received")
+        self._push(stream, msg, msg)
+
+    def _push(self, stream: int, msg, item) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        items, dropped = self.sync.push(stream, stamp, item)
+        for d in dropped:
+            self.drop(d.reason, _STREAMS[d.stream])
+        if items is not None:
+            (left, frame_id), (right, _), info_l, info_r = items
+            self._match(stamp, frame_id, left, right, info_l, info_r)
+
+    def _match(self, stamp_ns: int, frame_id: str, left, right, info_l, info_r) -> None:
         with self._config_lock:
             c = self.config
         if left.shape != right.shape:
             self.drop(f"rectified pair sizes differ: {left.shape[::-1]} vs {right.shape[::-1]}", "pair")
             return
-        disp = compute_disparity(left, right, matcher=c["matcher"], disp_min=c["disp_min"],
-                                 disp_max=c["disp_max"], **c["params"])
-        self.pub.publish(disparity_to_msg(disp, self.f, self.t, c["disp_min"], c["disp_max"],
-                                          c["delta_d"], stamp_ns, frame_id, self.rect.doffs))
+        try:
+            f, t, doffs = stereo_parameters(info_l, info_r)
+        except CanopyStereoError as exc:
+            self.drop(str(exc), "camera_info pair")
+            return
+        if self.camera != (f, t, doffs):
+            self.camera = (f, t, doffs)
+            self.get_logger().info(f"rectified cameras: f {f:.2f} px, t {t:.5f} m, "
+                                   f"cx_left - cx_right {doffs:.2f} px")
+        dmin, dmax = resolve_disparity_range(c["disp_min"], c["disp_max"], f, doffs)
+        disp = compute_disparity(left, right, matcher=c["matcher"], disp_min=dmin,
+                                 disp_max=dmax, **c["params"])
+        self.pub.publish(disparity_to_msg(disp, f, t, dmin, dmax, c["delta_d"], stamp_ns, frame_id, doffs))
         self.count("disparities_published")
+
+
+_STREAMS = ("left rectified image", "right rectified image", "left camera_info", "right camera_info")
+
+
+def stereo_parameters(info_left, info_right) -> tuple[float, float, float]:
+    """``(f, t, doffs)`` of a rectified ``CameraInfo`` pair: focal length (pixels), baseline
+    (metres), ``cx_left - cx_right`` (pixels); ``(0, 0, 0)`` for an uncalibrated pair."""
+    if not (is_calibrated(info_left) and is_calibrated(info_right)):
+        return 0.0, 0.0, 0.0
+    Pl, Pr = camera_info_matrices(info_left)[3], camera_info_matrices(info_right)[3]
+    f = float(Pr[0, 0])
+    t = -float(Pr[0, 3]) / f
+    if not t > 0:
+        raise CanopyStereoError(f"right camera_info has no baseline (P[0, 3] = {Pr[0, 3]:g}, "
+                                "must be -f * baseline < 0)")
+    if abs(Pl[0, 0] - f) > 1e-6 * f or abs(Pl[1, 2] - Pr[1, 2]) > 1e-3:
+        raise CanopyStereoError("the camera_info pair is not rectified (focal lengths or principal "
+                                "rows differ)")
+    return f, t, float(Pl[0, 2] - Pr[0, 2])
+
+
+def resolve_disparity_range(disp_min, disp_max, f: float, doffs: float = 0.0) -> tuple[int, int]:
+    """Search range (rectified pixels): the given values, else from the cameras: from
+    ``doffs`` (infinity) to the disparity of a point 8 baselines away (``f / 8 + doffs``);
+    0 to 128 for an uncalibrated pair (``f = 0``)."""
+    if f > 0:
+        lo = max(0, int(np.floor(doffs)) - 1)
+        hi = int(np.ceil(f / 8.0 + doffs)) + 1
+    else:
+        lo, hi = 0, 128
+    lo = lo if disp_min is None else int(disp_min)
+    hi = hi if disp_max is None else int(disp_max)
+    if hi <= lo:
+        raise CanopyStereoError(f"disp_max ({hi}) must be greater than disp_min ({lo})")
+    return lo, hi
 
 
 def main(args=None) -> int:

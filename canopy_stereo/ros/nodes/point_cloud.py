@@ -1,40 +1,64 @@
-"""``point_cloud_node``: the paper's triangulation of a rectified disparity into a metric cloud.
+"""``point_cloud_node``: a rectified disparity -> metric cloud ``points2`` and depth ``left/depth``.
 
 Subscribes ``disparity`` (``stereo_msgs/DisparityImage``), ``left/image_rect_color``
-(bgr8) and, with ``use_mask``, ``left/mask`` (mono8, 0 = background), pairs them
-by exact stamp, and publishes ``points2`` (``sensor_msgs/PointCloud2``).
+(bgr8), ``left/image_rect/camera_info`` (the rectified left camera) and, with
+``use_mask``, ``left/mask`` (mono8, 0 = background), pairs them by exact stamp, and
+publishes ``points2`` (``sensor_msgs/PointCloud2``: float32 ``x y z`` in metres and
+packed float32 ``rgb`` from the rectified left colour image) and, for a calibrated
+rectification, the REP 118 depth image ``left/depth`` (32FC1, metres along the
+rectified left optical axis, NaN = no depth; the same pixels as ``points2``) with its
+camera ``left/depth/camera_info`` (the rectified left camera), so depth_image_proc and
+RGB-D consumers work.
 
-Every valid rectified match ``(u, v) <-> (u - d, v)`` is mapped back to the
-original images through the inverse rectifying homographies and triangulated
-with the world-frame projection matrices of the rig
-(:func:`canopy_stereo.geometry.triangulation.triangulate_disparity_points`), so x, y, z
-are in the rig's world frame, converted to metres. Fields: float32 ``x y z`` and
-packed float32 ``rgb`` from the rectified left colour image.
+This node holds no rig: the geometry comes from the messages, as in image_pipeline.
 
-Parameters: the rig, ``method``, ``H_left``/``H_right`` (as for ``rectify_node``),
-``frame_id`` (default ``canopy_world``), ``organized`` (true: one point per
-rectified pixel, NaN where invalid; false: valid points only), ``use_mask``,
-``queue_size``, ``reliability``.
+* Calibrated (Fusiello) rectification: each valid pixel ``(u, v)`` with disparity ``d``
+  is reprojected with image_geometry's 4x4 ``Q`` built from the left ``CameraInfo`` and
+  the ``DisparityImage``'s ``f``, ``t`` (``Z = f t / d``, ``X = (u - cx) Z / fx``,
+  ``Y = (v - cy) Z / fy``) into the rectified left optical frame (the ``CameraInfo``'s
+  ``frame_id``); for the world frame it is then moved by ``T_world_optical`` from
+  rectify_node's latched ``stereo_geometry`` (the transforms it also publishes on
+  ``/tf_static``). The same points, to float rounding, as back-mapping the matches to
+  the raw images and triangulating them with the rig's ``P``.
+* Hartley (projective) rectification (uncalibrated ``CameraInfo``): the paper's exact
+  path, back-mapping through the homographies and DLT triangulation with the world-frame
+  ``P`` matrices, both from ``stereo_geometry``. No depth image.
+
+Parameters: ``cloud_frame`` (``world``, the default: the rig's world frame, the paper's
+metric frame; ``world_z_up``: the same turned so that z points up, for RViz; ``optical``:
+the rectified left optical frame, needs no ``stereo_geometry``), ``frame_id`` (the name
+written for the world frame; default "": rectify_node's ``world_frame``,
+``canopy_world``), ``organized`` (true: one point per rectified pixel, NaN where
+invalid; false: valid points only), ``use_mask``, ``queue_size``, ``reliability``.
 """
 from __future__ import annotations
 
 import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor
-from sensor_msgs.msg import Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from std_msgs.msg import String
 from stereo_msgs.msg import DisparityImage
 
 from canopy_stereo.errors import CanopyStereoError, ImageError
+from canopy_stereo.geometry.frames import apply_transform, reproject_disparity, reproject_disparity_points
 from canopy_stereo.geometry.triangulation import triangulate_disparity_points
-from canopy_stereo.ros.convert import (msg_to_bgr, msg_to_disparity, msg_to_image, pack_bgr_image,
-                                       points_to_cloud2, stamp_to_ns)
+from canopy_stereo.ros.convert import (camera_info_matrices, depth_to_msg, is_calibrated, msg_to_bgr,
+                                       msg_to_disparity, msg_to_image, pack_bgr_image, points_to_cloud2,
+                                       stamp_to_ns)
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
-from canopy_stereo.ros.params import declare_rig_parameters, rectification_from_node, rig_from_node
+from canopy_stereo.ros.nodes.rectify import RECT_INFO_TOPICS
+from canopy_stereo.ros.stereo_geometry import STEREO_GEOMETRY_TOPIC, parse_stereo_geometry
 from canopy_stereo.ros.sync import ExactTimeSynchronizer
+from canopy_stereo.ros.tf import latched_qos
+
+#: Values of the ``cloud_frame`` parameter.
+CLOUD_FRAMES = ("world", "world_z_up", "optical")
 
 
 def cloud_from_disparity(disp: np.ndarray, left_bgr: np.ndarray, rig, rect, mask=None,
                          organized: bool = True):
-    """World points (metres) and packed colours of the valid rectified left pixels.
+    """World points (metres) and packed colours of the valid rectified left pixels, by
+    back-mapping + DLT with the rig's ``P`` (the reference path; any rectification).
 
     Args:
         disp: float32 (Hr, Wr) rectified disparity ``u_left - u_right``, invalid < 0.
@@ -48,17 +72,24 @@ def cloud_from_disparity(disp: np.ndarray, left_bgr: np.ndarray, rig, rect, mask
     PointCloud2 (:func:`~canopy_stereo.ros.convert.pack_rgb`), (Hr, Wr, 3) and
     (Hr, Wr) when ``organized``, else (N, 3) and (N,).
     """
-    w, h = rect.size
-    if disp.shape != (h, w):
-        raise ImageError(f"disparity is {disp.shape[1]}x{disp.shape[0]} but the rig's rectified "
-                         f"images are {w}x{h}")
+    return _cloud_by_triangulation(disp, left_bgr, rect, rig.P_left, rig.P_right, rig.metres_per_unit,
+                                   mask, organized)
+
+
+def _check_shapes(disp, left_bgr, mask, size=None):
+    h, w = disp.shape
+    if size is not None and (w, h) != tuple(size):
+        raise ImageError(f"disparity is {w}x{h} but the rectified images are {size[0]}x{size[1]}")
     if left_bgr.shape[:2] != disp.shape:
-        raise ImageError(f"colour image is {left_bgr.shape[1]}x{left_bgr.shape[0]}, "
-                         f"disparity {w}x{h}")
+        raise ImageError(f"colour image is {left_bgr.shape[1]}x{left_bgr.shape[0]}, disparity {w}x{h}")
     if mask is not None and mask.shape != disp.shape:
         raise ImageError(f"mask is {mask.shape[1]}x{mask.shape[0]}, disparity {w}x{h}")
-    points, index = triangulate_disparity_points(disp, rect, rig.P_left, rig.P_right,
-                                                 scale=rig.metres_per_unit, mask=mask,
+
+
+def _cloud_by_triangulation(disp, left_bgr, rect, P_left, P_right, scale, mask, organized):
+    _check_shapes(disp, left_bgr, mask, rect.size)
+    h, w = disp.shape
+    points, index = triangulate_disparity_points(disp, rect, P_left, P_right, scale=scale, mask=mask,
                                                  organized=organized)
     rgb = pack_bgr_image(left_bgr).reshape(-1)
     if organized:
@@ -66,42 +97,85 @@ def cloud_from_disparity(disp: np.ndarray, left_bgr: np.ndarray, rig, rect, mask
     return points, rgb[index]
 
 
+def reprojection_from_messages(disparity_f: float, disparity_t: float, info_left: CameraInfo) -> np.ndarray:
+    """image_geometry's ``Q`` (4x4) from a ``DisparityImage``'s ``f``, ``t`` and the left
+    rectified ``CameraInfo`` (``cx``, ``cy``, ``fy`` of its ``P``). The disparities are
+    already reduced by ``cx_left - cx_right``, so ``Q[3, 3] = 0``."""
+    P = camera_info_matrices(info_left)[3]
+    fx, fy, cx, cy = P[0, 0], P[1, 1], P[0, 2], P[1, 2]
+    if not (disparity_f > 0 and disparity_t > 0 and fx > 0 and fy > 0):
+        raise CanopyStereoError("the disparity or camera_info has no focal length/baseline")
+    Tx = -float(disparity_t)
+    Q = np.zeros((4, 4))
+    Q[0, 0], Q[0, 3] = fy * Tx, -fy * cx * Tx
+    Q[1, 1], Q[1, 3] = fx * Tx, -fx * cy * Tx
+    Q[2, 3] = fx * fy * Tx
+    Q[3, 2] = -fy
+    return Q
+
+
+def optical_cloud_from_messages(disparity: np.ndarray, f: float, t: float, info_left: CameraInfo,
+                                mask=None) -> np.ndarray:
+    """Organized points (H, W, 3), float64 metres, in the rectified left optical frame, from
+    message-convention disparities (NaN = invalid) and the left rectified ``CameraInfo``."""
+    Q = reprojection_from_messages(f, t, info_left)
+    pts = reproject_disparity(disparity, Q)
+    if mask is not None:
+        pts[np.asarray(mask) == 0] = np.nan
+    return pts
+
+
 class PointCloudNode(CanopyNode):
-    """Exact-time pairing of disparity, colour (and mask) + triangulation."""
+    """Exact-time pairing of disparity, colour, camera_info (and mask) + reprojection."""
 
     def __init__(self, node_name: str = "point_cloud_node", **kwargs):
         super().__init__(node_name, **kwargs)
-        declare_rig_parameters(self)
-        self.declare_parameter("frame_id", "canopy_world", ParameterDescriptor(
-            description="frame of the cloud: the rig's world frame"))
+        self.declare_parameter("frame_id", "", ParameterDescriptor(
+            description="name written for the world frame ('' = rectify_node's world_frame)"))
+        self.declare_parameter("cloud_frame", "world", ParameterDescriptor(
+            description="frame of points2: world (the rig's metric frame), world_z_up (z up, for "
+                        "RViz) or optical (the rectified left optical frame)"))
         self.declare_parameter("organized", False, ParameterDescriptor(
             description="true: organized cloud on the rectified grid with NaN; false: valid points"))
         self.declare_parameter("use_mask", False, ParameterDescriptor(
             description="keep only pixels of left/mask (255 = plant)", read_only=True))
         self.declare_parameter("queue_size", 5, ParameterDescriptor(read_only=True))
-        self.rig = rig_from_node(self)
-        self.rect = rectification_from_node(self, self.rig)
         self.use_mask = bool(self.get_parameter("use_mask").value)
-        n = 3 if self.use_mask else 2
+        self.geometry = None
+        # streams: 0 disparity, 1 colour, 2 left camera_info, 3 mask
+        n = 4 if self.use_mask else 3
         self.sync = ExactTimeSynchronizer(n, int(self.get_parameter("queue_size").value))
         self.pub = self.make_publisher(PointCloud2, "points2")
+        self.pub_depth = self.make_publisher(Image, "left/depth")
+        self.pub_depth_info = self.make_publisher(CameraInfo, "left/depth/camera_info")
+        self.sub_geometry = self.create_subscription(String, STEREO_GEOMETRY_TOPIC,
+                                                     self.guarded(self._on_geometry), latched_qos())
         self.sub_disp = self.make_subscription(DisparityImage, "disparity", lambda m: self._on(0, m))
         self.sub_color = self.make_subscription(Image, "left/image_rect_color", lambda m: self._on(1, m))
+        self.sub_info = self.make_subscription(CameraInfo, RECT_INFO_TOPICS[0], lambda m: self._on(2, m))
         if self.use_mask:
-            self.sub_mask = self.make_subscription(Image, "left/mask", lambda m: self._on(2, m))
-        self.get_logger().info(f"triangulating in frame {self.get_parameter('frame_id').value} "
+            self.sub_mask = self.make_subscription(Image, "left/mask", lambda m: self._on(3, m))
+        self.get_logger().info(f"points2 in the {self.get_parameter('cloud_frame').value} frame "
                                f"({'masked' if self.use_mask else 'unmasked'})")
 
+    def _on_geometry(self, msg: String) -> None:
+        try:
+            self.geometry = parse_stereo_geometry(msg)
+        except CanopyStereoError as exc:
+            self.drop(str(exc), "stereo_geometry")
+            return
+        self.count("geometry_received")
+
     def _on(self, stream: int, msg) -> None:
-        what = ("disparity", "colour image", "mask")[stream]
+        what = _STREAMS[stream]
         self.count(f"{what}_received")
         try:
             if stream == 0:
-                # message convention d - doffs, NaN invalid -> rectified u_left - u_right, -1 invalid
-                d = msg_to_disparity(msg).disparity + np.float32(self.rect.doffs)
-                item = np.where(np.isfinite(d), d, np.float32(-1))
+                item = msg_to_disparity(msg)
             elif stream == 1:
                 item = msg_to_bgr(msg)
+            elif stream == 2:
+                item = msg
             else:
                 item = msg_to_image(msg, ("mono8", "8UC1"))
         except CanopyStereoError as exc:
@@ -110,20 +184,79 @@ class PointCloudNode(CanopyNode):
         stamp = stamp_to_ns(msg.header.stamp)
         items, dropped = self.sync.push(stream, stamp, item)
         for d in dropped:
-            self.drop(d.reason, ("disparity", "colour image", "mask")[d.stream])
+            self.drop(d.reason, _STREAMS[d.stream])
         if items is not None:
-            self._publish(stamp, *items)
+            try:
+                self._publish(stamp, *items)
+            except CanopyStereoError as exc:
+                self.drop(str(exc), "frame")
 
-    def _publish(self, stamp_ns: int, disp, bgr, mask=None) -> None:
+    def _world_frame(self) -> str:
+        return self.get_parameter("frame_id").value or (
+            self.geometry.world_frame if self.geometry is not None else "canopy_world")
+
+    def _publish(self, stamp_ns: int, frame, bgr, info: CameraInfo, mask=None) -> None:
         organized = bool(self.get_parameter("organized").value)
-        points, rgb = cloud_from_disparity(disp, bgr, self.rig, self.rect, mask, organized)
-        self.pub.publish(points_to_cloud2(points, None, stamp_ns, self.get_parameter("frame_id").value,
-                                          organized=organized, rgb=rgb))
+        cloud_frame = self.get_parameter("cloud_frame").value
+        if cloud_frame not in CLOUD_FRAMES:
+            raise CanopyStereoError(f"cloud_frame must be one of {', '.join(CLOUD_FRAMES)}, "
+                                    f"got {cloud_frame!r}")
+        if cloud_frame != "optical" or not is_calibrated(info):
+            if self.geometry is None:
+                raise CanopyStereoError(f"no {STEREO_GEOMETRY_TOPIC} from rectify_node yet (needed for "
+                                        f"the {cloud_frame} frame)")
+        h, w = frame.disparity.shape
+        _check_shapes(frame.disparity, bgr, mask)
+        if (info.width, info.height) != (w, h):
+            raise ImageError(f"camera_info is {info.width}x{info.height}, disparity {w}x{h}")
+        optical = info.header.frame_id
+        if is_calibrated(info):
+            Q = reprojection_from_messages(frame.f, frame.t, info)
+            if cloud_frame == "optical":
+                T, frame_id = None, optical
+            else:
+                target = self._target_frame(cloud_frame)
+                T = self.geometry.lookup(target, optical)
+                frame_id = self._world_frame() if cloud_frame == "world" else target
+            points, index, depth = reproject_disparity_points(frame.disparity, Q, T, mask=mask,
+                                                               organized=organized)
+            self.pub_depth_info.publish(info)
+            self.pub_depth.publish(depth_to_msg(depth, stamp_ns, optical))
+            rgb = pack_bgr_image(bgr)
+            colours = rgb if organized else rgb.reshape(-1)[index]
+            if organized:
+                points = points.reshape(h, w, 3)
+        else:  # projective rectification: back-mapping + DLT with the world-frame P
+            g = self.geometry
+            disp = np.where(np.isfinite(frame.disparity), frame.disparity, np.float32(-1))
+            points, colours = _cloud_by_triangulation(disp, bgr, g.rectification(), g.P_left, g.P_right,
+                                                      g.metres_per_unit, mask, organized)
+            if cloud_frame == "world":
+                frame_id = self._world_frame()
+            else:
+                target = (self._target_frame(cloud_frame) if cloud_frame == "world_z_up"
+                          else g.frames.get("raw_left", ""))
+                points = apply_transform(g.lookup(target, g.world_frame), points).astype(np.float32)
+                frame_id = target
+        self.pub.publish(points_to_cloud2(points, None, stamp_ns, frame_id, organized=organized, rgb=colours))
         self.count("clouds_published")
+
+    def _target_frame(self, cloud_frame: str) -> str:
+        g = self.geometry
+        if cloud_frame == "world":
+            return g.world_frame
+        z_up = g.frames.get("world_z_up", "")
+        if not z_up:
+            raise CanopyStereoError("cloud_frame world_z_up: rectify_node publishes no z-up frame "
+                                    "(its world_z_up_frame is empty)")
+        return z_up
+
+
+_STREAMS = ("disparity", "colour image", "camera_info", "mask")
 
 
 def main(args=None) -> int:
-    """``ros2 run canopy_stereo point_cloud_node --ros-args --params-file RIG.yaml``."""
+    """``ros2 run canopy_stereo point_cloud_node`` (no rig: the geometry comes from rectify_node)."""
     return run_node(PointCloudNode, args)
 
 

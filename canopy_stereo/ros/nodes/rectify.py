@@ -1,30 +1,59 @@
 """``rectify_node``: pair raw left/right frames by approximate time, undistort and rectify.
 
+The one node that holds the rig (camera matrices as parameters: the rig file).
 Subscribes ``left/image_raw`` and ``right/image_raw`` (``sensor_msgs/Image``,
 bgr8/rgb8/mono8/bgra8/rgba8 of the rig's image size). Publishes, with the left
 frame's stamp:
 
 * ``left/image_rect``, ``right/image_rect``: mono8 rectified images;
 * ``left/image_rect_color``: bgr8 rectified left image;
-* ``left/camera_info``, ``right/camera_info``: the rectified cameras in ROS
-  conventions (Fusiello only: a Hartley rectification is projective and has no
-  metric rectified camera).
+* ``left/image_rect/camera_info``, ``right/image_rect/camera_info``: the rectified
+  cameras (REP 104: ``D = 0``, ``R = I``, ``P = [K | (Tx, 0, 0)]``, ``Tx = -f B`` for the
+  right one, one principal point for both) in the rectified optical frames. They sit
+  beside their images, away from ``left/camera_info``, which is the *raw* camera's
+  (a camera driver's, e.g. ``camera_node``). A Hartley rectification is projective
+  and has no metric camera: its infos are the uncalibrated ones (size only, zero
+  matrices);
+* ``stereo_geometry`` (latched): what a ``CameraInfo`` cannot carry
+  (:mod:`canopy_stereo.ros.stereo_geometry`);
+* ``/tf_static`` (latched, when tf2_msgs is importable): ``canopy_world_z_up ->
+  canopy_world -> {left,right}_camera_optical_frame, {left,right}_camera_rect_optical_frame``.
 
 Parameters: the rig (:mod:`canopy_stereo.ros.params`), ``method``,
-``H_left``/``H_right``, ``sync_slop`` (s), ``queue_size``, ``frame_id`` of the
-rectified images, ``reliability``.
+``H_left``/``H_right``, ``sync_slop`` (s), ``queue_size``, ``frame_id`` (rectified
+left optical frame) and ``right_frame_id``, ``world_frame``, ``world_z_up_frame``
+("" = none), ``left_camera_frame``/``right_camera_frame`` (raw optical frames in the
+transforms), ``reliability``.
 """
 from __future__ import annotations
 
 from rcl_interfaces.msg import ParameterDescriptor
 from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import String
 
+from canopy_stereo.geometry.frames import DEFAULT_FRAMES, WORLD_FRAME, WORLD_Z_UP_FRAME, FrameNames, stereo_transforms
 from canopy_stereo.geometry.rectification import StereoRectifier
 from canopy_stereo.io.images import to_gray
-from canopy_stereo.ros.convert import image_to_msg, msg_to_bgr, rectified_camera_info, stamp_to_ns
+from canopy_stereo.ros.convert import (image_to_msg, msg_to_bgr, rectified_camera_info, stamp_to_ns,
+                                       uncalibrated_camera_info)
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.params import declare_rig_parameters, rectification_from_node, rig_from_node
+from canopy_stereo.ros.stereo_geometry import STEREO_GEOMETRY_TOPIC, stereo_geometry_msg
 from canopy_stereo.ros.sync import ApproximateTimePairer
+from canopy_stereo.ros.tf import StaticTransformPublisher, latched_qos
+
+#: Rectified CameraInfo topics (beside their images; ``<side>/camera_info`` is the raw camera's).
+RECT_INFO_TOPICS = ("left/image_rect/camera_info", "right/image_rect/camera_info")
+
+_FRAME_PARAMETERS = {
+    "frame_id": (DEFAULT_FRAMES[("rect", "left")], "optical frame of the rectified left camera "
+                 "(rectified images, disparity, depth)"),
+    "right_frame_id": (DEFAULT_FRAMES[("rect", "right")], "optical frame of the rectified right camera"),
+    "world_frame": (WORLD_FRAME, "the rig's world frame (the frame of the rig file's P, in metres)"),
+    "world_z_up_frame": (WORLD_Z_UP_FRAME, "z-up view of the world frame for RViz ('' = none)"),
+    "left_camera_frame": (DEFAULT_FRAMES[("raw", "left")], "optical frame of the raw left camera"),
+    "right_camera_frame": (DEFAULT_FRAMES[("raw", "right")], "optical frame of the raw right camera"),
+}
 
 
 class RectifyNode(CanopyNode):
@@ -33,28 +62,40 @@ class RectifyNode(CanopyNode):
     def __init__(self, node_name: str = "rectify_node", **kwargs):
         super().__init__(node_name, **kwargs)
         declare_rig_parameters(self)
-        ro = ParameterDescriptor(read_only=True)
         self.declare_parameter("sync_slop", 0.015, ParameterDescriptor(
             description="largest stamp difference of a left/right pair, seconds", read_only=True))
         self.declare_parameter("queue_size", 5, ParameterDescriptor(
             description="frames per camera kept while waiting for a partner", read_only=True))
-        self.declare_parameter("frame_id", "stereo_rect_left", ro)
+        for name, (default, desc) in _FRAME_PARAMETERS.items():
+            self.declare_parameter(name, default, ParameterDescriptor(description=desc, read_only=True))
         self.rig = rig_from_node(self)
         self.rect = rectification_from_node(self, self.rig)
         self.rectifier = StereoRectifier(self.rig, self.rect)
-        self.frame_id = self.get_parameter("frame_id").value
+        p = {name: str(self.get_parameter(name).value) for name in _FRAME_PARAMETERS}
+        self.frames = FrameNames(world=p["world_frame"], world_z_up=p["world_z_up_frame"],
+                                 raw_left=p["left_camera_frame"], raw_right=p["right_camera_frame"],
+                                 rect_left=p["frame_id"], rect_right=p["right_frame_id"])
+        self.frame_id = self.frames.rect_left
         self.pairer = ApproximateTimePairer(float(self.get_parameter("sync_slop").value),
                                             int(self.get_parameter("queue_size").value))
         self.pub_left = self.make_publisher(Image, "left/image_rect")
         self.pub_right = self.make_publisher(Image, "right/image_rect")
         self.pub_color = self.make_publisher(Image, "left/image_rect_color")
-        self.pub_info_left = self.make_publisher(CameraInfo, "left/camera_info")
-        self.pub_info_right = self.make_publisher(CameraInfo, "right/camera_info")
+        self.pub_info_left = self.make_publisher(CameraInfo, RECT_INFO_TOPICS[0])
+        self.pub_info_right = self.make_publisher(CameraInfo, RECT_INFO_TOPICS[1])
+        # geometry for the nodes downstream and the static transforms, once, latched
+        self.pub_geometry = self.create_publisher(String, STEREO_GEOMETRY_TOPIC, latched_qos())
+        self.pub_geometry.publish(stereo_geometry_msg(self.rig, self.rect, self.frames))
+        self.transforms = stereo_transforms(self.rig, self.rect, self.frames)
+        self.tf_static = StaticTransformPublisher(self, self.transforms)
         self.sub_left = self.make_subscription(Image, "left/image_raw", lambda m: self._on_image(0, m))
         self.sub_right = self.make_subscription(Image, "right/image_raw", lambda m: self._on_image(1, m))
         if self.rect.method != "fusiello":
-            self.get_logger().info("hartley rectification: no camera_info is published "
+            self.get_logger().info("hartley rectification: the rectified camera_info is uncalibrated "
                                    "(a projective rectification has no metric camera)")
+        if not self.tf_static.available:
+            self.get_logger().info("tf2_msgs is not installed: no /tf_static (the transforms are on "
+                                   f"{STEREO_GEOMETRY_TOPIC} and in recorded bags)")
         w, h = self.rig.image_size
         self.get_logger().info(f"rectifying {w}x{h} pairs ({self.rect.method}), "
                                f"sync slop {self.pairer.slop_ns / 1e9:g} s")
@@ -73,18 +114,26 @@ class RectifyNode(CanopyNode):
         if pair is not None:
             self._publish(pair.stamps_ns[0], *pair.items)
 
+    def camera_infos(self, stamp_ns: int) -> tuple[CameraInfo, CameraInfo]:
+        """The rectified ``CameraInfo`` pair stamped ``stamp_ns``."""
+        fl, fr = self.frames.rect_left, self.frames.rect_right
+        if self.rect.K_rect_left is None:
+            return (uncalibrated_camera_info(self.rect.size, stamp_ns, fl),
+                    uncalibrated_camera_info(self.rect.size, stamp_ns, fr))
+        baseline_m = self.rect.baseline * self.rig.metres_per_unit
+        return (rectified_camera_info(self.rect.K_rect_left, self.rect.size, baseline_m, "left", stamp_ns, fl),
+                rectified_camera_info(self.rect.K_rect_right, self.rect.size, baseline_m, "right",
+                                      stamp_ns, fr))
+
     def _publish(self, stamp_ns: int, left_bgr, right_bgr) -> None:
         left_r, right_r = self.rectifier.rectify(left_bgr, right_bgr)
-        fid = self.frame_id
-        self.pub_color.publish(image_to_msg(left_r, "bgr8", stamp_ns, fid))
-        self.pub_left.publish(image_to_msg(to_gray(left_r), "mono8", stamp_ns, fid))
-        self.pub_right.publish(image_to_msg(to_gray(right_r), "mono8", stamp_ns, fid))
-        if self.rect.K_rect_left is not None:
-            baseline_m = self.rect.baseline * self.rig.metres_per_unit
-            self.pub_info_left.publish(rectified_camera_info(
-                self.rect.K_rect_left, self.rect.size, baseline_m, "left", stamp_ns, fid))
-            self.pub_info_right.publish(rectified_camera_info(
-                self.rect.K_rect_right, self.rect.size, baseline_m, "right", stamp_ns, fid))
+        info_l, info_r = self.camera_infos(stamp_ns)
+        self.pub_info_left.publish(info_l)
+        self.pub_info_right.publish(info_r)
+        fl, fr = self.frames.rect_left, self.frames.rect_right
+        self.pub_color.publish(image_to_msg(left_r, "bgr8", stamp_ns, fl))
+        self.pub_left.publish(image_to_msg(to_gray(left_r), "mono8", stamp_ns, fl))
+        self.pub_right.publish(image_to_msg(to_gray(right_r), "mono8", stamp_ns, fr))
         self.count("pairs_published")
 
 

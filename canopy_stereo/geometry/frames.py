@@ -1,0 +1,359 @@
+"""Coordinate frames of a stereo rig (REP 103 / REP 105) and its cameras' calibration (REP 104).
+
+Pure numpy: what the ROS nodes publish as ``sensor_msgs/CameraInfo`` and ``/tf_static``.
+
+Frames (names follow REP 103: a camera's optical frame is ``<camera>_optical_frame``,
+z forward, x right, y down):
+
+* :data:`WORLD_FRAME` ``canopy_world``: the rig's world frame, the metric frame the rig
+  file's ``P`` matrices map from (the paper's frame), in metres on the ROS side;
+* ``left_camera_optical_frame``, ``right_camera_optical_frame``: the raw cameras;
+* ``left_camera_rect_optical_frame``, ``right_camera_rect_optical_frame``: the rectified
+  cameras of the Fusiello rectification (same centres, one shared orientation); the
+  rectified images, disparities, depth images and (by parameter) the cloud are here;
+* :data:`WORLD_Z_UP_FRAME` ``canopy_world_z_up``: the world turned so that z points up
+  and x along the cameras' horizontal viewing direction (REP 103 body axes: x forward,
+  y left, z up), so RViz (z up) shows the plant upright.
+
+A transform ``T_a_b`` is a 4x4 matrix taking coordinates in frame ``b`` to frame ``a``
+(``x_a = T_a_b @ x_b``), which is what a TF message ``header.frame_id = a``,
+``child_frame_id = b`` carries. Translations are in metres.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from canopy_stereo.errors import RigError
+from canopy_stereo.geometry.camera import decompose_projection
+
+#: The rig's world frame (metres).
+WORLD_FRAME = "canopy_world"
+#: The z-up view of the world frame for RViz.
+WORLD_Z_UP_FRAME = "canopy_world_z_up"
+#: Camera names of the raw and rectified cameras.
+CAMERA_NAMES = {("raw", "left"): "left_camera", ("raw", "right"): "right_camera",
+                ("rect", "left"): "left_camera_rect", ("rect", "right"): "right_camera_rect"}
+
+
+def optical_frame(camera: str) -> str:
+    """REP 103 optical frame of a camera: ``left_camera`` -> ``left_camera_optical_frame``."""
+    return camera if camera.endswith("_optical_frame") else f"{camera}_optical_frame"
+
+
+#: Default frame ids: ("raw" | "rect", "left" | "right") -> optical frame name.
+DEFAULT_FRAMES = {key: optical_frame(name) for key, name in CAMERA_NAMES.items()}
+
+
+def transform_from_pose(R_cam_world, C_world, scale: float = 1.0) -> np.ndarray:
+    """``T_world_cam`` (4x4): camera coordinates (metres) -> world coordinates (metres).
+
+    Args:
+        R_cam_world: (3, 3) world-to-camera rotation (rows = camera axes in world coordinates).
+        C_world: (3,) camera centre in world units.
+        scale: metres per world unit.
+    """
+    R = np.asarray(R_cam_world, np.float64)
+    T = np.eye(4)
+    T[:3, :3] = R.T
+    T[:3, 3] = np.asarray(C_world, np.float64).reshape(3) * float(scale)
+    return T
+
+
+def invert_transform(T) -> np.ndarray:
+    """Inverse of a rigid 4x4 transform."""
+    T = np.asarray(T, np.float64)
+    out = np.eye(4)
+    out[:3, :3] = T[:3, :3].T
+    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return out
+
+
+def apply_transform(T, points) -> np.ndarray:
+    """Apply a 4x4 transform to points (..., 3); NaN points stay NaN. Returns float64."""
+    T = np.asarray(T, np.float64)
+    p = np.asarray(points, np.float64)
+    return p @ T[:3, :3].T + T[:3, 3]
+
+
+def rotation_to_quaternion(R) -> np.ndarray:
+    """Unit quaternion ``(x, y, z, w)`` (ROS order, ``w >= 0``) of a 3x3 rotation matrix."""
+    R = np.asarray(R, np.float64)
+    tr = np.trace(R)
+    if tr > 0:
+        s = 2.0 * np.sqrt(tr + 1.0)
+        q = [(R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s, 0.25 * s]
+    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
+        q = [0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s, (R[2, 1] - R[1, 2]) / s]
+    elif R[1, 1] > R[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
+        q = [(R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s, (R[0, 2] - R[2, 0]) / s]
+    else:
+        s = 2.0 * np.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
+        q = [(R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s, (R[1, 0] - R[0, 1]) / s]
+    q = np.asarray(q, np.float64)
+    q /= np.linalg.norm(q)
+    return -q if q[3] < 0 else q
+
+
+def quaternion_to_rotation(q) -> np.ndarray:
+    """3x3 rotation matrix of a quaternion ``(x, y, z, w)``."""
+    x, y, z, w = np.asarray(q, np.float64) / np.linalg.norm(q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def z_up_rotation(up_world, forward_world) -> np.ndarray:
+    """``R_zup_world`` (3x3): world -> z-up frame with z = ``up_world`` and x = the part of
+    ``forward_world`` orthogonal to it (REP 103 body axes: x forward, y left, z up)."""
+    up = np.asarray(up_world, np.float64).reshape(3)
+    n = np.linalg.norm(up)
+    if not np.isfinite(n) or n == 0:
+        raise RigError("world_up must be a non-zero 3-vector")
+    up = up / n
+    fwd = np.asarray(forward_world, np.float64).reshape(3)
+    fwd = fwd - (fwd @ up) * up
+    nf = np.linalg.norm(fwd)
+    if nf < 1e-6:
+        raise RigError("world_up is parallel to the cameras' viewing direction: no forward axis")
+    x = fwd / nf
+    y = np.cross(up, x)
+    return np.vstack([x, y, up])
+
+
+@dataclass(frozen=True)
+class CameraCalibration:
+    """One camera's ``sensor_msgs/CameraInfo`` matrices (REP 104).
+
+    Attributes:
+        width, height: image size (pixels).
+        K: (3, 3) intrinsics of the raw image (pixels).
+        D: distortion coefficients (OpenCV order), ``distortion_model`` names their model.
+        R: (3, 3) rotation from this camera's optical frame to the rectified camera's.
+        P: (3, 4) ``[K' | (Tx, 0, 0)]`` of the rectified camera, ``Tx = -fx' B`` (metres)
+           for the right camera, 0 for the left.
+    """
+
+    width: int
+    height: int
+    K: np.ndarray
+    D: np.ndarray
+    R: np.ndarray
+    P: np.ndarray
+    distortion_model: str = "plumb_bob"
+
+
+def distortion_model_for(D) -> str:
+    """``plumb_bob`` for up to 5 OpenCV coefficients, ``rational_polynomial`` for 8 (REP 104)."""
+    n = len(np.asarray(D).ravel())
+    return "plumb_bob" if n <= 5 else "rational_polynomial"
+
+
+def stereo_extrinsics(rig, rect=None) -> dict:
+    """World transforms of the rig's cameras: ``{(kind, side): T_world_cam}`` (4x4, metres).
+
+    ``kind`` is ``"raw"`` (the original cameras, from the rig's ``P``) or ``"rect"`` (the
+    rectified cameras; only when ``rect`` is a calibrated (Fusiello) rectification).
+    """
+    m = rig.metres_per_unit
+    out = {}
+    cams = {"left": decompose_projection(rig.P_left), "right": decompose_projection(rig.P_right)}
+    for side, cam in cams.items():
+        out[("raw", side)] = transform_from_pose(cam.R, cam.C, m)
+        if rect is not None and rect.R_rect is not None:
+            out[("rect", side)] = transform_from_pose(rect.R_rect, cam.C, m)
+    return out
+
+
+def world_z_up_transform(rig) -> np.ndarray:
+    """``T_zup_world`` (4x4): a pure rotation making z point up.
+
+    "Up" is the rig file's ``world_up`` (3 numbers, world coordinates) when it has one,
+    else the left camera's image-up direction (minus its y axis: the camera is assumed
+    held with its rows level). x is the left camera's viewing direction made horizontal.
+    """
+    cam = decompose_projection(rig.P_left)
+    up = rig.extra.get("world_up")
+    up = -cam.R[1] if up is None or len(up) == 0 else np.asarray(up, np.float64)
+    T = np.eye(4)
+    T[:3, :3] = z_up_rotation(up, cam.R[2])
+    return T
+
+
+def raw_camera_calibration(rig, side: str, rect=None) -> CameraCalibration:
+    """REP 104 calibration of the raw ``side`` camera of ``rig``.
+
+    ``K`` and ``D`` are the camera's own; ``R`` and ``P`` describe the rig's Fusiello
+    rectification (``rect``, computed when None), so that image_geometry and image_proc,
+    given only this ``CameraInfo``, rectify exactly as :class:`StereoRectifier` does.
+    """
+    from canopy_stereo.geometry.rectification import fusiello_rectify
+
+    if side not in ("left", "right"):
+        raise ValueError(f"side must be 'left' or 'right', got {side!r}")
+    if rect is None or rect.R_rect is None:
+        rect = fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
+    P_world = rig.P_left if side == "left" else rig.P_right
+    D = rig.D_left if side == "left" else rig.D_right
+    cam = decompose_projection(P_world)
+    K_rect = rect.K_rect_left if side == "left" else rect.K_rect_right
+    P = rectified_projection(K_rect, rect.baseline * rig.metres_per_unit, side)
+    w, h = rig.image_size
+    return CameraCalibration(width=w, height=h, K=cam.K, D=np.asarray(D, np.float64),
+                             R=rect.R_rect @ cam.R.T, P=P, distortion_model=distortion_model_for(D))
+
+
+def rectified_projection(K_rect, baseline_m: float, side: str) -> np.ndarray:
+    """REP 104 ``P = [K | (Tx, 0, 0)]`` of a rectified camera: ``Tx = 0`` (left) or
+    ``-fx * baseline`` in metres (right)."""
+    K = np.asarray(K_rect, np.float64)
+    P = np.hstack([K, np.zeros((3, 1))])
+    if side == "right":
+        P[0, 3] = -K[0, 0] * float(baseline_m)
+    return P
+
+
+def reprojection_matrix(P_left, P_right) -> np.ndarray:
+    """image_geometry's ``Q`` (4x4) of a rectified pair from the two REP 104 ``P`` matrices:
+    ``[X Y Z W]^T = Q [u v d 1]^T`` with ``d`` a DisparityImage value, point ``(X, Y, Z) / W``
+    in the left rectified optical frame (metres)."""
+    Pl, Pr = np.asarray(P_left, np.float64), np.asarray(P_right, np.float64)
+    fx, fy, cx, cy = Pl[0, 0], Pl[1, 1], Pl[0, 2], Pl[1, 2]
+    if not (fx > 0 and fy > 0 and Pr[0, 0] > 0):
+        raise RigError("the rectified camera has no focal length (uncalibrated CameraInfo)")
+    Tx = Pr[0, 3] / Pr[0, 0]  # = -baseline
+    if not Tx < 0:
+        raise RigError("the right rectified camera has no baseline (P[0, 3] must be < 0)")
+    Q = np.zeros((4, 4))
+    Q[0, 0] = fy * Tx
+    Q[0, 3] = -fy * cx * Tx
+    Q[1, 1] = fx * Tx
+    Q[1, 3] = -fx * cy * Tx
+    Q[2, 3] = fx * fy * Tx
+    Q[3, 2] = -fy
+    Q[3, 3] = fy * (cx - Pr[0, 2])
+    return Q
+
+
+def reproject_disparity(disp, Q) -> np.ndarray:
+    """Points (H, W, 3) float64 in the left rectified optical frame (metres) from
+    message-convention disparities (H, W) through ``Q`` (NaN or ``<= 0`` = invalid -> NaN
+    point): ``[X Y Z W]^T = Q [u v d 1]^T`` as image_geometry's ``projectDisparityTo3d``."""
+    d = np.asarray(disp, np.float64)
+    h, w = d.shape
+    Q = np.asarray(Q, np.float64)
+    u = np.arange(w, dtype=np.float64)[None, :]
+    v = np.arange(h, dtype=np.float64)[:, None]
+    valid = d > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv_w = 1.0 / np.where(valid, Q[3, 2] * d + Q[3, 3], np.nan)
+    out = np.empty((h, w, 3))
+    np.multiply(Q[0, 0] * u + Q[0, 3], inv_w, out=out[..., 0])
+    np.multiply(Q[1, 1] * v + Q[1, 3], inv_w, out=out[..., 1])
+    np.multiply(Q[2, 3], inv_w, out=out[..., 2])
+    out[~(out[..., 2] > 0)] = np.nan
+    return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _reproject_kernel(disp, mask, Q, T, organized):  # pragma: no cover - compiled
+    h, w = disp.shape
+    pts = np.empty((h * w, 3), np.float32)
+    index = np.empty(h * w, np.int32)
+    depth = np.full((h, w), np.nan, np.float32)
+    use_mask = mask.shape[0] == h
+    n = 0
+    for v in range(h):
+        for u in range(w):
+            d = disp[v, u]
+            ok = d > 0 and (not use_mask or mask[v, u] != 0)
+            x = y = z = 0.0
+            if ok:
+                iw = 1.0 / (Q[3, 2] * d + Q[3, 3])
+                x = (Q[0, 0] * u + Q[0, 3]) * iw
+                y = (Q[1, 1] * v + Q[1, 3]) * iw
+                z = Q[2, 3] * iw
+                ok = z > 0 and np.isfinite(z)
+            if ok:
+                depth[v, u] = z
+                pts[n, 0] = T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3]
+                pts[n, 1] = T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3]
+                pts[n, 2] = T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3]
+            elif organized:
+                pts[n, 0] = pts[n, 1] = pts[n, 2] = np.nan
+            else:
+                continue
+            index[n] = v * w + u
+            n += 1
+    return pts[:n], index[:n], depth
+
+
+def reproject_disparity_points(disp, Q, T=None, *, mask=None, organized: bool = False):
+    """One compiled pass of :func:`reproject_disparity` + a rigid transform, for a live node.
+
+    Args:
+        disp: (H, W) message-convention disparities (NaN or ``<= 0`` = invalid).
+        Q: image_geometry's 4x4 reprojection matrix (:func:`reprojection_matrix`).
+        T: 4x4 transform applied to the optical-frame points (None: identity).
+        mask: optional (H, W); pixels where it is 0 get no point and no depth.
+        organized: keep every pixel (NaN where none) instead of only valid ones.
+
+    Returns ``(points, index, depth)``: float32 (N, 3) transformed points (metres), int32
+    (N,) flat pixel indices ``v * W + u``, and float32 (H, W) depth ``Z`` in the optical
+    frame (NaN where no point: the REP 118 depth image of the same pixels).
+    """
+    d = np.ascontiguousarray(disp, np.float32)
+    if d.ndim != 2:
+        raise ValueError(f"disparity must be (H, W), got shape {d.shape}")
+    if mask is None:
+        m = np.zeros((0, 0), np.uint8)
+    else:
+        m = np.ascontiguousarray(mask)
+        if m.shape != d.shape:
+            raise ValueError(f"mask {m.shape} does not match disparity {d.shape}")
+        if m.dtype != np.uint8:
+            m = (m != 0).astype(np.uint8)
+    T = np.eye(4) if T is None else np.asarray(T, np.float64)
+    return _reproject_kernel(d, m, np.asarray(Q, np.float64), T, bool(organized))
+
+
+@dataclass(frozen=True)
+class FrameNames:
+    """Frame ids of one rig's frames (defaults: :data:`DEFAULT_FRAMES`).
+
+    Attributes:
+        world: the rig's world frame; world_z_up: its z-up view ("" = none);
+        raw_left, raw_right: the raw cameras' optical frames;
+        rect_left, rect_right: the rectified cameras' optical frames.
+    """
+
+    world: str = WORLD_FRAME
+    world_z_up: str = WORLD_Z_UP_FRAME
+    raw_left: str = DEFAULT_FRAMES[("raw", "left")]
+    raw_right: str = DEFAULT_FRAMES[("raw", "right")]
+    rect_left: str = DEFAULT_FRAMES[("rect", "left")]
+    rect_right: str = DEFAULT_FRAMES[("rect", "right")]
+
+
+def stereo_transforms(rig, rect=None, names: FrameNames | None = None) -> list[tuple[str, str, np.ndarray]]:
+    """The static transforms of a rig as ``(parent, child, T_parent_child)`` (4x4, metres).
+
+    One tree: ``world_z_up -> world -> {raw_left, raw_right, rect_left, rect_right}``
+    (the rectified frames only for a calibrated rectification ``rect``; ``world_z_up``
+    only when named).
+    """
+    names = names or FrameNames()
+    out = []
+    if names.world_z_up:
+        out.append((names.world_z_up, names.world, world_z_up_transform(rig)))
+    ext = stereo_extrinsics(rig, rect)
+    for (kind, side), T in ext.items():
+        child = getattr(names, f"{kind}_{side}")
+        if child:
+            out.append((names.world, child, T))
+    return out
