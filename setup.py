@@ -52,7 +52,8 @@ setup(
     ],
     extras_require={
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-common-interfaces"],
-        "test": ["pytest>=7", "rosbags>=0.9", "matplotlib>=3.6"],
+        # catkin_pkg: rosidl_adapter (.msg -> .idl) for the test that builds tf2_msgs from its .msg
+        "test": ["pytest>=7", "rosbags>=0.9", "matplotlib>=3.6", "catkin_pkg"],
         "plot": ["matplotlib>=3.6"],
     },
     zip_safe=True,
