@@ -335,3 +335,36 @@ def test_camera_node_publishes_a_drivers_camera_info(harness, paper_rig, tmp_pat
     P_w = paper_rig.P_right
     np.testing.assert_allclose(uv, (P_w @ np.append(X[0], 1))[:2] / (P_w @ np.append(X[0], 1))[2], atol=1e-6)
     assert point_depth(paper_rig.P_right, X)[0] > 0
+
+
+def test_bag_recorder_writes_tf_static_from_rectify_node(harness, paper_rig, tmp_path):
+    """bag_record / canopy_graph --record without tf2_msgs: the transforms of rectify_node's
+    stereo_geometry go into the bag as /tf_static; bag_play then leaves that topic out
+    (type not installed here) instead of failing."""
+    from canopy_stereo.ros.bag import BagReader, BagWriter
+    from canopy_stereo.ros.nodes.rectify import RectifyNode
+    from canopy_stereo.ros.player import BagPlayer
+    from canopy_stereo.ros.recorder import BagRecorder
+    from canopy_stereo.ros.tf import tf_message_class
+
+    if tf_message_class() is not None:
+        pytest.skip("tf2_msgs is installed: /tf_static is recorded as a topic")
+    rectify = harness.add(RectifyNode(**node_kwargs(harness, paper_rig)))
+    recorder = harness.add(BagRecorder(BagWriter(tmp_path / "rec.mcap"), ["/stereo/points2"],
+                                       context=harness.ctx))
+    assert pytest_wait(lambda: recorder._tf_written)
+    harness.executor.remove_node(recorder)
+    harness.nodes.remove(recorder)
+    recorder.close()
+    recorder.destroy_node()
+    bag = BagReader(tmp_path / "rec.mcap")
+    assert bag.topics["/tf_static"].type_name == "tf2_msgs/msg/TFMessage"
+    assert "transient_local" in bag.topics["/tf_static"].qos_yaml
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([tmp_path / "rec.mcap"]) as reader:
+        msgs = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages()]
+    got = {(t.header.frame_id, t.child_frame_id) for t in msgs[0].transforms}
+    assert got == {(p, c) for p, c, _ in rectify.transforms}
+    player = BagPlayer(harness.helper, bag)
+    assert "/tf_static" not in player.topics

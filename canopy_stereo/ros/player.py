@@ -92,11 +92,22 @@ class BagPlayer:
         if unknown:
             raise CanopyStereoError(f"topic(s) {', '.join(unknown)} not in {bag.path}; it has "
                                     f"{', '.join(sorted(bag.topics)) or 'none'}")
+        if topics is None:  # all: leave out types not installed here (tf2_msgs without a ROS install)
+            for topic in sorted(wanted):
+                try:
+                    message_class(bag.topics[topic].type_name)
+                except CanopyStereoError as exc:
+                    node.get_logger().warning(f"not playing {topic}: {exc}")
+                    wanted.discard(topic)
         self.topics = sorted(wanted)
         self.publishers = {}
         for topic in self.topics:
             info = bag.topics[topic]
             qos = publisher_qos(recorded_reliability(info.qos_yaml), depth)
+            if "transient_local" in info.qos_yaml:  # /tf_static: latched again, as recorded
+                from rclpy.qos import DurabilityPolicy
+
+                qos.durability = DurabilityPolicy.TRANSIENT_LOCAL
             self.publishers[topic] = node.create_publisher(
                 message_class(info.type_name), self.remap.get(topic, topic), qos)
 
