@@ -368,3 +368,17 @@ def test_bag_recorder_writes_tf_static_from_rectify_node(harness, paper_rig, tmp
     assert got == {(p, c) for p, c, _ in rectify.transforms}
     player = BagPlayer(harness.helper, bag)
     assert "/tf_static" not in player.topics
+
+
+def test_point_cloud_node_refuses_an_unknown_cloud_frame(harness):
+    from rclpy.parameter import Parameter
+
+    from canopy_stereo.errors import CanopyStereoError
+    from canopy_stereo.ros.nodes.point_cloud import PointCloudNode
+
+    with pytest.raises(CanopyStereoError, match="cloud_frame must be one of"):
+        PointCloudNode(**node_kwargs(harness, cloud_frame="map"))
+    node = harness.add(PointCloudNode(**node_kwargs(harness)))
+    res = node.set_parameters([Parameter("cloud_frame", value="base_link")])[0]
+    assert not res.successful and "world, world_z_up, optical" in res.reason
+    assert node.set_parameters([Parameter("cloud_frame", value="optical")])[0].successful

@@ -16,6 +16,10 @@ the rest of :mod:`canopy_stereo` never does. Modules:
 * :mod:`~canopy_stereo.ros.params`, :mod:`~canopy_stereo.ros.qos`,
   :mod:`~canopy_stereo.ros.context`: rig parameters, QoS profiles, private contexts.
 * :mod:`~canopy_stereo.ros.bundled`: the bundled bags and rig files (and how they are made).
+* :mod:`~canopy_stereo.ros.tf`, :mod:`~canopy_stereo.ros.stereo_geometry`,
+  :mod:`~canopy_stereo.ros.camera_info`: ``/tf_static`` (live and in bags), the rig's
+  geometry for the nodes after rectification, a driver's ``camera_info``
+  (frames: :mod:`canopy_stereo.geometry.frames`).
 
 Units: ROS messages carry metres and seconds; stamps are handled internally as
 integer nanoseconds.

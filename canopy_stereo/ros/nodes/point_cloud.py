@@ -34,7 +34,7 @@ invalid; false: valid points only), ``use_mask``, ``queue_size``, ``reliability`
 from __future__ import annotations
 
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import String
 from stereo_msgs.msg import DisparityImage
@@ -141,6 +141,10 @@ class PointCloudNode(CanopyNode):
             description="keep only pixels of left/mask (255 = plant)", read_only=True))
         self.declare_parameter("queue_size", 5, ParameterDescriptor(read_only=True))
         self.use_mask = bool(self.get_parameter("use_mask").value)
+        if self.get_parameter("cloud_frame").value not in CLOUD_FRAMES:
+            raise CanopyStereoError(f"cloud_frame must be one of {', '.join(CLOUD_FRAMES)}, got "
+                                    f"{self.get_parameter('cloud_frame').value!r}")
+        self.add_on_set_parameters_callback(self._check_parameters)
         self.geometry = None
         # streams: 0 disparity, 1 colour, 2 left camera_info, 3 mask
         n = 4 if self.use_mask else 3
@@ -157,6 +161,14 @@ class PointCloudNode(CanopyNode):
             self.sub_mask = self.make_subscription(Image, "left/mask", lambda m: self._on(3, m))
         self.get_logger().info(f"points2 in the {self.get_parameter('cloud_frame').value} frame "
                                f"({'masked' if self.use_mask else 'unmasked'})")
+
+    @staticmethod
+    def _check_parameters(parameters) -> SetParametersResult:
+        for p in parameters:
+            if p.name == "cloud_frame" and p.value not in CLOUD_FRAMES:
+                return SetParametersResult(successful=False, reason=f"cloud_frame must be one of "
+                                           f"{', '.join(CLOUD_FRAMES)}, got {p.value!r}")
+        return SetParametersResult(successful=True)
 
     def _on_geometry(self, msg: String) -> None:
         try:
