@@ -44,8 +44,8 @@ def generate_launch_description():
     cameras = [
         Node(package=PACKAGE, executable="camera_node", name=f"{side}_camera", namespace=ns,
              condition=UnlessCondition(use_bag),
-             parameters=[{"camera_name": side, "device": LaunchConfiguration(f"{side}_device"),
-                          "fps": LaunchConfiguration("fps")}])
+             parameters=[rig, {"camera_name": side, "device": LaunchConfiguration(f"{side}_device"),
+                               "fps": LaunchConfiguration("fps")}])  # rig: <side>/camera_info
         for side in ("left", "right")
     ]
     loop = PythonExpression(["'", LaunchConfiguration("loop"), "'.lower() == 'true'"])
