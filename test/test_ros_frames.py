@@ -382,3 +382,20 @@ def test_point_cloud_node_refuses_an_unknown_cloud_frame(harness):
     res = node.set_parameters([Parameter("cloud_frame", value="base_link")])[0]
     assert not res.successful and "world, world_z_up, optical" in res.reason
     assert node.set_parameters([Parameter("cloud_frame", value="optical")])[0].successful
+
+
+def test_disparity_node_default_range_is_the_pipelines(paper_rig):
+    """One default search range: disparity_node's (from the CameraInfo pair) = the CLI's."""
+    from canopy_stereo.geometry.rectification import default_disparity_range
+    from canopy_stereo.ros.nodes.disparity import resolve_disparity_range, stereo_parameters
+
+    for rig in (paper_rig, verged_rig()):
+        rect = fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
+        t = rect.baseline * rig.metres_per_unit
+        infos = [convert.rectified_camera_info(K, rect.size, t, side)
+                 for K, side in ((rect.K_rect_left, "left"), (rect.K_rect_right, "right"))]
+        f, t_info, doffs = stereo_parameters(*infos)
+        assert (f, doffs) == (pytest.approx(rect.focal_length), 0.0) and t_info == pytest.approx(t)
+        assert resolve_disparity_range(None, None, f, t_info, doffs) == default_disparity_range(rect)
+    assert resolve_disparity_range(None, None, 0.0) == (0, 128)  # uncalibrated (Hartley)
+    assert resolve_disparity_range(5, None, 0.0) == (5, 128)

@@ -136,18 +136,36 @@ def default_disparity_range(rect: Rectification, near_depth: float | None = None
                             far_depth: float | None = None) -> tuple[int, int]:
     """Disparity search range (pixels) for depths in ``[near_depth, far_depth]``.
 
-    Fusiello: ``d = f * B / Z + doffs``; depths in world units, default near
-    depth 8 baselines (about 240 mm for the paper's 29.6 mm baseline) and far
-    depth infinity. Hartley: the range suggested by the matches.
+    Fusiello: :func:`metric_disparity_range` of its focal length, baseline and ``doffs``;
+    depths in world units, default near depth 8 baselines (about 240 mm for the
+    paper's 29.6 mm baseline) and far depth infinity. Hartley: the range suggested
+    by the matches.
     """
     if rect.method != "fusiello":
         if rect.disparity_range is None:
             return 0, 128
         return rect.disparity_range
-    f, B = rect.focal_length, rect.baseline
-    near = near_depth if near_depth else 8.0 * B
-    dmax = f * B / near + rect.doffs
-    dmin = rect.doffs + (f * B / far_depth if far_depth else 0.0)
+    return metric_disparity_range(rect.focal_length, rect.baseline, rect.doffs,
+                                  near_depth=near_depth, far_depth=far_depth)
+
+
+def metric_disparity_range(f: float, baseline: float, doffs: float = 0.0, *,
+                           near_depth: float | None = None,
+                           far_depth: float | None = None) -> tuple[int, int]:
+    """``(disp_min, disp_max)`` (pixels) of a rectified pair for depths in
+    ``[near_depth, far_depth]``: ``d = f B / Z + doffs``, one pixel of margin each side.
+
+    Args:
+        f: rectified focal length (pixels); baseline: camera distance (any unit);
+        doffs: ``cx_left - cx_right`` (0 for this package's rectification);
+        near_depth, far_depth: in the baseline's unit (default 8 baselines and infinity).
+
+    The one default for the CLI pipeline and ``disparity_node`` (which knows ``f``
+    and the baseline from the CameraInfo pair).
+    """
+    near = near_depth if near_depth else 8.0 * baseline
+    dmax = f * baseline / near + doffs
+    dmin = doffs + (f * baseline / far_depth if far_depth else 0.0)
     return max(0, int(np.floor(dmin)) - 1), int(np.ceil(dmax)) + 1
 
 

@@ -32,7 +32,6 @@ from __future__ import annotations
 import inspect
 import threading
 
-import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
@@ -216,7 +215,7 @@ class DisparityNode(CanopyNode):
             self.camera = (f, t, doffs)
             self.get_logger().info(f"rectified cameras: f {f:.2f} px, t {t:.5f} m, "
                                    f"cx_left - cx_right {doffs:.2f} px")
-        dmin, dmax = resolve_disparity_range(c["disp_min"], c["disp_max"], f, doffs)
+        dmin, dmax = resolve_disparity_range(c["disp_min"], c["disp_max"], f, t, doffs)
         disp = compute_disparity(left, right, matcher=c["matcher"], disp_min=dmin,
                                  disp_max=dmax, **c["params"])
         self.pub.publish(disparity_to_msg(disp, f, t, dmin, dmax, c["delta_d"], stamp_ns, frame_id, doffs))
@@ -243,15 +242,14 @@ def stereo_parameters(info_left, info_right) -> tuple[float, float, float]:
     return f, t, float(Pl[0, 2] - Pr[0, 2])
 
 
-def resolve_disparity_range(disp_min, disp_max, f: float, doffs: float = 0.0) -> tuple[int, int]:
-    """Search range (rectified pixels): the given values, else from the cameras: from
-    ``doffs`` (infinity) to the disparity of a point 8 baselines away (``f / 8 + doffs``);
-    0 to 128 for an uncalibrated pair (``f = 0``)."""
-    if f > 0:
-        lo = max(0, int(np.floor(doffs)) - 1)
-        hi = int(np.ceil(f / 8.0 + doffs)) + 1
-    else:
-        lo, hi = 0, 128
+def resolve_disparity_range(disp_min, disp_max, f: float, t: float = 0.0,
+                            doffs: float = 0.0) -> tuple[int, int]:
+    """Search range (rectified pixels): the given values, else from the cameras
+    (:func:`~canopy_stereo.geometry.rectification.metric_disparity_range`: infinity to
+    8 baselines away, ``f / 8`` for ``doffs = 0``); 0 to 128 for an uncalibrated pair."""
+    from canopy_stereo.geometry.rectification import metric_disparity_range
+
+    lo, hi = metric_disparity_range(f, t, doffs) if f > 0 and t > 0 else (0, 128)
     lo = lo if disp_min is None else int(disp_min)
     hi = hi if disp_max is None else int(disp_max)
     if hi <= lo:
