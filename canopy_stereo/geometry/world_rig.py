@@ -889,7 +889,8 @@ def calibrate_world_rig(left_images, right_images, placements: Placements, *, pa
     if leave_one_out:
         errs = np.empty_like(X)
         for i, k in enumerate(used):
-            say(f"leave-one-placement-out: pair {k} ({i + 1}/{len(used)})")
+            if i % 10 == 0 or i == len(used) - 1:
+                say(f"leave-one-placement-out: pair {k} ({i + 1}/{len(used)})")
             keep = point_pair != k
             Pl_i, _ = gold_standard_projection(X[keep], xl[keep], initial=P_l)
             Pr_i, _ = gold_standard_projection(X[keep], xr[keep], initial=P_r)
