@@ -315,10 +315,10 @@ def write_placements(placements: Placements, path, *, comment: str | None = None
     if comment:
         lines += [f"# {c}".rstrip() for c in comment.splitlines()]
     cols, rows = placements.pattern
-    lines += [f"pattern: {cols}x{rows}          # inner corners, columns x rows",
-              f"square: {_fmt(placements.square):g}             # world units",
+    lines += [f"{f'pattern: {cols}x{rows}':<22}# inner corners, columns x rows",
+              f"{f'square: {_fmt(placements.square):g}':<22}# world units",
               f"unit: {placements.unit}",
-              "placements:           # one per image pair, in the sorted order of the globs"]
+              f"{'placements:':<22}# one per image pair, in the sorted order of the globs"]
     for p in placements:
         vec = lambda v: "[" + ", ".join(f"{_fmt(x):.6g}" for x in v) + "]"  # noqa: E731
         lines.append(f"  - pair: {p.pair}")
@@ -774,8 +774,8 @@ def _load(item):
 
 def calibrate_world_rig(left_images, right_images, placements: Placements, *, pattern=None,
                         square: float | None = None, max_rms_px: float = 3.0,
-                        leave_one_out: bool = True, detections=None, progress=None
-                        ) -> WorldRigCalibration:
+                        leave_one_out: bool = True, detections=None, image_size=None,
+                        progress=None) -> WorldRigCalibration:
     """Calibrate both cameras in the placements' world frame from chessboard photographs.
 
     Corners are detected with sub-pixel refinement in both images of every pair
@@ -794,7 +794,10 @@ def calibrate_world_rig(left_images, right_images, placements: Placements, *, pa
         max_rms_px: reprojection tolerance (pixels) above which a pair contradicts its placement.
         leave_one_out: compute Table 1 leave-one-placement-out (else ``table1`` is the fit check).
         detections: optional precomputed ``{pair: (left (M, 2) | None, right (M, 2) | None)}``
-            corners in OpenCV's (any) order, instead of detecting them in the images.
+            corners in OpenCV's (any) order, instead of detecting them in the images
+            (the images may then be None).
+        image_size: ``(width, height)`` written to the rig when no image is read
+            (default: the images' size).
         progress: optional callable ``progress(message)``.
 
     Returns:
@@ -853,16 +856,22 @@ def calibrate_world_rig(left_images, right_images, placements: Placements, *, pa
             continue
         det_l[k], det_r[k] = np.asarray(cl, np.float64), np.asarray(cr, np.float64)
         used.append(k)
+    if image_size is not None:
+        image_size = (int(image_size[0]), int(image_size[1]))
+        if size is not None and size != image_size:
+            raise CalibrationError(f"the images are {size[0]}x{size[1]}, not {image_size[0]}x{image_size[1]}")
+        size = image_size
     if size is None:
-        size = (640, 480)
-        for item in list(lefts):
-            if not isinstance(item, Path):
-                a = np.asarray(item)
-                size = (a.shape[1], a.shape[0])
+        for item in lefts:
+            if isinstance(item, Path):
+                gl, _ = _load(item)
+                size = (gl.shape[1], gl.shape[0])
                 break
-            gl, _ = _load(item)
-            size = (gl.shape[1], gl.shape[0])
-            break
+            if item is not None and np.ndim(item) >= 2:
+                size = (np.shape(item)[1], np.shape(item)[0])
+                break
+    if size is None:
+        raise CalibrationError("image_size is needed when no image is given")
     if len(used) < 3:
         raise CalibrationError(
             f"the {pat[0]}x{pat[1]} board was found in both images of only {len(used)} pair(s); need at "
