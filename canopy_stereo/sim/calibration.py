@@ -28,6 +28,7 @@ import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.geometry.world_rig import (
+    PAPER_LAYOUT,
     BoardPlacement,
     Placements,
     paper_layout_placements,
@@ -51,22 +52,11 @@ def _coprime_generator(count: int) -> int:
     return g
 
 
-def calibration_placements(rig=None, **layout) -> Placements:
-    """The paper's layout (:func:`~canopy_stereo.geometry.world_rig.paper_layout_placements`,
-    keyword options ``layout`` in millimetres) placed in front of ``rig``.
-
-    Args:
-        rig: a :class:`~canopy_stereo.io.rig.Rig`, a rig path, or None (the paper's rig).
-
-    Returns:
-        :class:`~canopy_stereo.geometry.world_rig.Placements` in ``rig``'s world frame
-        and unit: identical to the paper's layout for the paper's rig.
-    """
-    rig = resolve_rig(rig)
+def _layout_in_front_of(rig, paper, **layout) -> Placements:
+    """The paper layout (mm, paper frame) moved from the paper rig's anchor frame to ``rig``'s."""
     base = paper_layout_placements(**layout)
     if base.unit != "mm":
         raise CanopyStereoError("calibration_placements builds the layout in millimetres; leave unit at mm")
-    paper = resolve_rig(None)
     o_p, A_p = rig_anchor(paper)
     o_r, A_r = rig_anchor(rig)
     s = 0.001 / rig.metres_per_unit                     # mm -> rig unit
@@ -80,6 +70,88 @@ def calibration_placements(rig=None, **layout) -> Placements:
         origin = o_r + s * (Q @ (p.origin - o_p))
         out.append(BoardPlacement(p.pair, origin, Q @ p.x_axis, Q @ p.y_axis, p.label))
     return Placements(base.pattern, base.square * s, rig.world_unit, tuple(out))
+
+
+def boards_in_view(rig, placements: Placements, *, margin_px: float = 2.0) -> np.ndarray:
+    """(N,) bool: the whole board of each placement (its squares, one square beyond the
+    outer inner corners) lies in front of both cameras and at least ``margin_px`` inside
+    both images."""
+    from canopy_stereo.geometry.camera import project
+    from canopy_stereo.geometry.world_rig import board_world_points
+
+    cols, rows = placements.pattern
+    w, h = rig.image_size
+    out = np.zeros(len(placements), bool)
+    for k, p in enumerate(placements):
+        ext = BoardPlacement(0, p.origin - placements.square * (p.x_axis + p.y_axis), p.x_axis, p.y_axis)
+        box = board_world_points(ext, (cols + 2, rows + 2), placements.square)
+        ok = True
+        for P in (rig.P_left, rig.P_right):
+            w_h = (np.column_stack([box, np.ones(len(box))]) @ P[2]) * np.sign(np.linalg.det(P[:, :3]))
+            if np.any(w_h <= 0):
+                ok = False
+                break
+            uv = project(P, box)
+            if (uv[:, 0].min() < margin_px or uv[:, 1].min() < margin_px
+                    or uv[:, 0].max() > w - 1 - margin_px or uv[:, 1].max() > h - 1 - margin_px):
+                ok = False
+                break
+        out[k] = ok
+    return out
+
+
+def calibration_placements(rig=None, *, fit_to_view: bool = True, **layout) -> Placements:
+    """The paper's layout (:func:`~canopy_stereo.geometry.world_rig.paper_layout_placements`,
+    keyword options ``layout`` in millimetres) placed in front of ``rig``.
+
+    The layout is moved from the paper rig's anchor frame to ``rig``'s
+    (:func:`~canopy_stereo.sim.scene.rig_anchor`). With ``fit_to_view`` and no
+    ``first_mark`` given, the first mark is the nearest multiple of 50 mm (from
+    200 mm) at which every board is whole inside both views (:func:`boards_in_view`):
+    1000 mm for the paper's rig, whose placements are then exactly the paper layout.
+    A camera too narrow to see lines 10 degrees off the middle at any distance gets
+    the side lines turned less (the labels say by how much).
+
+    Args:
+        rig: a :class:`~canopy_stereo.io.rig.Rig`, a rig path, or None (the paper's rig).
+
+    Returns:
+        :class:`~canopy_stereo.geometry.world_rig.Placements` in ``rig``'s world frame and unit.
+
+    Raises:
+        CanopyStereoError: no first mark up to 50 m puts every board in both views.
+    """
+    rig = resolve_rig(rig)
+    paper = resolve_rig(None)
+    if "first_mark" in layout or not fit_to_view:
+        return _layout_in_front_of(rig, paper, **layout)
+    angles = tuple(layout.pop("angles_deg", PAPER_LAYOUT["angles_deg"]))
+    widest = max(abs(a) for a in angles) or 1.0
+    # the paper's angles first; a narrow camera that cannot see them gets the lines closer together
+    for shrink in (1.0, 0.8, 0.6, 0.5, 0.4, 0.3, 0.2, 0.1, 0.0):
+        ang = tuple(a * shrink for a in angles)
+
+        def fits(first, ang=ang):
+            placed = _layout_in_front_of(rig, paper, first_mark=float(first), angles_deg=ang, **layout)
+            return placed if np.all(boards_in_view(rig, placed)) else None
+
+        lo, hi = None, None
+        first = 200.0
+        while first <= 50000.0:          # coarse: 10 % steps
+            if fits(first) is not None:
+                hi = first
+                break
+            lo = first
+            first *= 1.1
+        if hi is None:
+            continue
+        start = 200.0 if lo is None else 50.0 * math.floor(lo / 50.0)
+        for first in np.arange(start, hi + 50.0, 50.0):   # fine: the first 50 mm step that fits
+            placed = fits(first)
+            if placed is not None:
+                return placed
+    raise CanopyStereoError("the paper layout does not fit in both views of this rig at any distance up to "
+                            "50 m: pass first_mark and angles_deg and check the rig")
 
 
 def _board(placement: BoardPlacement, pattern, square: float, mm: float) -> Rectangle:
