@@ -399,3 +399,14 @@ def test_calibration_placements_follow_any_rig(repo_root):
     assert pl.unit == other.world_unit and len(pl) == 45
     assert boards_in_view(other, pl).all()
     assert not boards_in_view(other, ref).all()
+
+
+def test_placements_for_missing_pairs_and_unequal_image_counts_are_rejected():
+    pl = paper_layout_placements(marks_per_line=2)          # pairs 0..5
+    blank = [np.zeros((480, 640), np.uint8)] * 4
+    with pytest.raises(CalibrationError, match="place pair 4 but there are only 4 image pairs"):
+        calibrate_world_rig(blank, blank, pl)
+    with pytest.raises(CalibrationError, match="4 left images but 3 right images"):
+        calibrate_world_rig(blank, blank[:3], pl)
+    with pytest.raises(CalibrationError, match="no left images match"):
+        calibrate_world_rig("/nonexistent/left_*.png", "/nonexistent/right_*.png", pl)

@@ -326,7 +326,7 @@ def write_placements(placements: Placements, path, *, comment: str | None = None
         lines.append(f"    x_axis: {vec(p.x_axis)}")
         lines.append(f"    y_axis: {vec(p.y_axis)}")
         if p.label:
-            lines.append(f"    label: {yaml.safe_dump(p.label, default_style=None).strip().splitlines()[0]}")
+            lines.append(f"    label: {yaml.safe_dump(p.label, width=1 << 30).splitlines()[0]}")
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path
 
