@@ -67,7 +67,8 @@ def test_queue_overflow_drops_oldest():
 def test_late_and_duplicate_frames_are_dropped_with_reason():
     p = ApproximateTimePairer(0.01, 5)
     _run(p, [(0, 100), (1, 101)])
-    pair, dropped = p.push(0, 50 * MS, "late")
+    # late by less than the tolerance: dropped (further back is a time jump, tested below)
+    pair, dropped = p.push(0, 95 * MS, "late")
     assert pair is None and "older than the last pair" in dropped[0].reason
     p.push(1, 200 * MS, "a")
     pair, dropped = p.push(1, 200 * MS, "b")
@@ -139,3 +140,46 @@ def test_exact_synchronizer_queue_limit():
     for t in (1, 2, 3, 4):
         drops += s.push(0, t, t)[1]
     assert [d.stamp_ns for d in drops] == [1, 2] and s.pending() == 2
+
+
+def test_stamps_jumping_back_reset_the_pairer_once_and_pairing_goes_on():
+    jumps = []
+    p = ApproximateTimePairer(0.05, 5, on_jump=jumps.append)
+    before = [(s, 100_000 + 100 * k + 4 * s) for k in range(5) for s in (0, 1)]
+    pairs, drops = _run(p, before)
+    assert len(pairs) == 5 and not drops
+    # both cameras restart 100 s earlier; an old right frame is still in flight
+    after = [(0, 1000), (1, 100_504), (1, 1004)] + [(s, 1000 + 100 * k + 4 * s) for k in range(1, 6) for s in (0, 1)]
+    pairs, drops = _run(p, after)
+    assert pairs == [(1000 + 100 * k, 1004 + 100 * k) for k in range(6)]
+    assert len(jumps) == 1 and jumps[0].stream == 0 and jumps[0].back_s == pytest.approx(99.4)
+    assert drops == [(1, 100_504)]  # the stale frame queued before the right camera followed
+
+
+def test_a_looping_one_frame_source_pairs_every_pass():
+    jumps = []
+    p = ApproximateTimePairer(0.01, 5, on_jump=jumps.append)
+    pairs, _ = _run(p, [(0, 10), (1, 12)] * 3)
+    assert pairs == [(10, 12)] * 3 and len(jumps) == 2
+
+
+def test_exact_synchronizer_resets_on_a_jump_back():
+    jumps = []
+    s = ExactTimeSynchronizer(2, queue_size=4, jump_tolerance_s=0, on_jump=jumps.append)
+    for t in (100, 200, 300):
+        s.push(0, t, t)
+        assert s.push(1, t, t)[0] == [t, t]
+    s.push(0, 400, "stale")                       # its partner is lost in the restart
+    assert s.push(0, 10, "a")[0] is None            # left restarts
+    assert s.push(1, 10, "b")[0] == ["a", "b"]      # right follows: paired, no second report
+    assert s.push(0, 20, "c")[0] is None and s.push(1, 20, "d")[0] == ["c", "d"]
+    assert len(jumps) == 1 and jumps[0].from_ns == 400 and jumps[0].to_ns == 10
+    assert s.pending() == 0
+
+
+def test_slop_for_rate_is_half_a_period():
+    from canopy_stereo.ros.sync import slop_for_rate
+
+    assert slop_for_rate(15) == pytest.approx(1 / 30)
+    with pytest.raises(ValueError):
+        slop_for_rate(0)

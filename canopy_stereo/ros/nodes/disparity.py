@@ -17,7 +17,12 @@ Parameters (changeable at run time unless marked read-only):
   unset = the preset's value; ``sgbm.<name>``: the SGBM matcher's parameters;
 * ``disp_min``, ``disp_max``: search range in pixels, -1 = from the rig file
   (``disp_min``/``disp_max`` extras) or from the rectification;
-* read-only: the rig, ``method``, ``H_left``/``H_right``, ``queue_size``, ``reliability``.
+* read-only: the rig, ``method``, ``H_left``/``H_right``, ``queue_size``, ``reliability``,
+  ``diagnostic_period``.
+
+The inputs keep only the newest :data:`~canopy_stereo.ros.qos.BOTTLENECK_INPUT_DEPTH`
+pairs (this is the slowest stage: when the cameras are faster than the matcher, the
+newest pairs win and latency stays bounded); stamps that go back reset the pairing.
 
 New values are validated before they are accepted (an invalid ELAS combination
 is refused with the reason); they apply from the next frame.
@@ -37,6 +42,7 @@ from canopy_stereo.pipeline.reconstruct import disparity_range_for
 from canopy_stereo.ros.convert import disparity_to_msg, msg_to_mono, stamp_to_ns
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.params import declare_rig_parameters, rectification_from_node, rig_from_node
+from canopy_stereo.ros.qos import BOTTLENECK_INPUT_DEPTH
 from canopy_stereo.ros.sync import ExactTimeSynchronizer
 
 _RANGE = ("disp_min", "disp_max")
@@ -81,21 +87,56 @@ def _coerce(value, like):
     return type(like)(value)
 
 
+def _elas_presets() -> list:
+    try:
+        from canopy_stereo.elas.params import PRESETS
+    except ImportError:  # pragma: no cover - numba missing: SGBM only
+        return ["robotics", "middlebury"]
+    return sorted(PRESETS)
+
+
+#: Ranges of the numeric matcher parameters (inclusive); the matchers validate combinations.
+_MATCHER_RANGES = {
+    "disp_min": (0, 4096), "disp_max": (0, 4096), "support_threshold": (0.0, 1.0),
+    "support_texture": (0, 255), "candidate_stepsize": (1, 64), "incon_window_size": (1, 64),
+    "incon_threshold": (0, 255), "incon_min_support": (0, 64), "grid_size": (1, 256),
+    "beta": (0.0, 100.0), "gamma": (0.0, 100.0), "sigma": (0.0, 100.0), "sradius": (0.0, 100.0),
+    "match_texture": (0, 255), "lr_threshold": (0, 64), "speckle_sim_threshold": (0.0, 255.0),
+    "speckle_size": (0, 100000), "ipol_gap_width": (0, 10000),
+    "block_size": (1, 51), "p1": (0, 10_000_000), "p2": (0, 10_000_000), "disp12_max_diff": (-1, 4096),
+    "uniqueness": (0, 100), "speckle_window": (0, 100000), "speckle_range": (0, 1000),
+}
+
+
+def _matcher_parameter_descriptor(matcher: str, name: str, default):
+    """Descriptor of ``<matcher>.<name>``: unset = the preset's value; numbers with a range."""
+    from canopy_stereo.ros.params import number_descriptor
+
+    description = f"{matcher} parameter {name} (unset: the preset's/matcher's {default!r})"
+    numeric = isinstance(default, (int, float)) and not isinstance(default, bool)
+    if numeric or (default is None and name in _MATCHER_RANGES):
+        lo, hi = _MATCHER_RANGES.get(name, (0, 1_000_000) if isinstance(default, int) else (0.0, 1e6))
+        integer = isinstance(default, int) if numeric else isinstance(lo, int)
+        return number_descriptor(description, minimum=lo, maximum=hi, integer=integer, dynamic=True)
+    return ParameterDescriptor(description=description, dynamic_typing=True)
+
+
 class DisparityNode(CanopyNode):
     """Exact-time pairing + matcher (see module docstring)."""
 
     def __init__(self, node_name: str = "disparity_node", **kwargs):
         super().__init__(node_name, **kwargs)
         declare_rig_parameters(self)
-        self.declare_parameter("queue_size", 5, ParameterDescriptor(read_only=True))
-        self.declare_parameter("matcher", default_matcher(), ParameterDescriptor(
-            description="disparity matcher: elas or sgbm"))
-        self.declare_parameter("preset", "robotics", ParameterDescriptor(
-            description="ELAS preset: robotics or middlebury"))
-        self.declare_parameter("disp_min", -1, ParameterDescriptor(
-            description="smallest disparity searched (pixels); -1: from the rig/rectification"))
-        self.declare_parameter("disp_max", -1, ParameterDescriptor(
-            description="largest disparity searched (pixels); -1: from the rig/rectification"))
+        self.declare_number("queue_size", 5, "rectified images kept per side while waiting for "
+                            "the other side's image with the same stamp",
+                            minimum=1, maximum=100, read_only=True)
+        self.declare_text("matcher", default_matcher(), "disparity matcher", choices=("elas", "sgbm"))
+        self.declare_text("preset", "robotics", "ELAS preset (defaults of the elas.* parameters)",
+                          choices=tuple(_elas_presets()))
+        self.declare_number("disp_min", -1, "smallest disparity searched (pixels); "
+                            "-1 = from the rig file or the rectification", minimum=-1, maximum=4096)
+        self.declare_number("disp_max", -1, "largest disparity searched (pixels); "
+                            "-1 = from the rig file or the rectification", minimum=-1, maximum=4096)
         self._defaults = {}
         for matcher in ("elas", "sgbm"):
             try:
@@ -104,9 +145,8 @@ class DisparityNode(CanopyNode):
                 continue
             for name, default in defaults.items():
                 self._defaults[f"{matcher}.{name}"] = default
-                self.declare_parameter(f"{matcher}.{name}", None, ParameterDescriptor(
-                    dynamic_typing=True,
-                    description=f"{matcher} parameter {name} (unset: preset/default {default!r})"))
+                self.declare_parameter(f"{matcher}.{name}", None,
+                                       _matcher_parameter_descriptor(matcher, name, default))
         self.rig = rig_from_node(self)
         self.rect = rectification_from_node(self, self.rig)
         if self.rect.method == "fusiello":
@@ -118,10 +158,13 @@ class DisparityNode(CanopyNode):
         self._config_lock = threading.Lock()
         self.config = self._build_config({})
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.sync = ExactTimeSynchronizer(2, int(self.get_parameter("queue_size").value))
+        self.sync = ExactTimeSynchronizer(2, int(self.get_parameter("queue_size").value),
+                                          on_jump=self.time_jump_handler(("left", "right")))
         self.pub = self.make_publisher(DisparityImage, "disparity")
-        self.sub_left = self.make_subscription(Image, "left/image_rect", lambda m: self._on_image(0, m))
-        self.sub_right = self.make_subscription(Image, "right/image_rect", lambda m: self._on_image(1, m))
+        self.sub_left = self.make_subscription(Image, "left/image_rect", lambda m: self._on_image(0, m),
+                                               depth=BOTTLENECK_INPUT_DEPTH)
+        self.sub_right = self.make_subscription(Image, "right/image_rect", lambda m: self._on_image(1, m),
+                                                depth=BOTTLENECK_INPUT_DEPTH)
         c = self.config
         self.get_logger().info(f"matcher {c['matcher']}, disparities [{c['disp_min']}, {c['disp_max']}], "
                                f"f {self.f:.2f} px, t {self.t:.5f} m")
@@ -180,7 +223,8 @@ class DisparityNode(CanopyNode):
             return
         items, dropped = self.sync.push(side, stamp_to_ns(msg.header.stamp), (img, msg.header.frame_id))
         for d in dropped:
-            self.drop(d.reason, f"{('left', 'right')[d.stream]} rectified image")
+            self.drop(d.reason, f"{('left', 'right')[d.stream]} rectified image",
+                      log=not d.reason.startswith("time jumped back"))
         if items is not None:
             (left, frame_id), (right, _) = items
             self._match(stamp_to_ns(msg.header.stamp), frame_id, left, right)

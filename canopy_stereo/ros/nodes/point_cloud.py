@@ -19,7 +19,6 @@ rectified pixel, NaN where invalid; false: valid points only), ``use_mask``,
 from __future__ import annotations
 
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor
 from sensor_msgs.msg import Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
@@ -72,18 +71,20 @@ class PointCloudNode(CanopyNode):
     def __init__(self, node_name: str = "point_cloud_node", **kwargs):
         super().__init__(node_name, **kwargs)
         declare_rig_parameters(self)
-        self.declare_parameter("frame_id", "canopy_world", ParameterDescriptor(
-            description="frame of the cloud: the rig's world frame"))
-        self.declare_parameter("organized", False, ParameterDescriptor(
-            description="true: organized cloud on the rectified grid with NaN; false: valid points"))
-        self.declare_parameter("use_mask", False, ParameterDescriptor(
-            description="keep only pixels of left/mask (255 = plant)", read_only=True))
-        self.declare_parameter("queue_size", 5, ParameterDescriptor(read_only=True))
+        self.declare_text("frame_id", "canopy_world", "frame_id of points2: the rig's world frame")
+        self.declare_flag("organized", False, "true: organized cloud on the rectified grid, NaN where "
+                          "invalid; false: valid points only")
+        self.declare_flag("use_mask", False, "keep only the pixels of left/mask (255 = plant)",
+                          read_only=True)
+        self.declare_number("queue_size", 15, "stamps kept while waiting for the other inputs with "
+                            "the same stamp (colour images arrive a disparity computation earlier)",
+                            minimum=1, maximum=100, read_only=True)
         self.rig = rig_from_node(self)
         self.rect = rectification_from_node(self, self.rig)
         self.use_mask = bool(self.get_parameter("use_mask").value)
         n = 3 if self.use_mask else 2
-        self.sync = ExactTimeSynchronizer(n, int(self.get_parameter("queue_size").value))
+        self.sync = ExactTimeSynchronizer(n, int(self.get_parameter("queue_size").value),
+                                          on_jump=self.time_jump_handler(("disparity", "colour image", "mask")))
         self.pub = self.make_publisher(PointCloud2, "points2")
         self.sub_disp = self.make_subscription(DisparityImage, "disparity", lambda m: self._on(0, m))
         self.sub_color = self.make_subscription(Image, "left/image_rect_color", lambda m: self._on(1, m))
@@ -110,7 +111,8 @@ class PointCloudNode(CanopyNode):
         stamp = stamp_to_ns(msg.header.stamp)
         items, dropped = self.sync.push(stream, stamp, item)
         for d in dropped:
-            self.drop(d.reason, ("disparity", "colour image", "mask")[d.stream])
+            self.drop(d.reason, ("disparity", "colour image", "mask")[d.stream],
+                      log=not d.reason.startswith("time jumped back"))
         if items is not None:
             self._publish(stamp, *items)
 

@@ -11,12 +11,15 @@ frame's stamp:
   metric rectified camera).
 
 Parameters: the rig (:mod:`canopy_stereo.ros.params`), ``method``,
-``H_left``/``H_right``, ``sync_slop`` (s), ``queue_size``, ``frame_id`` of the
-rectified images, ``reliability``.
+``H_left``/``H_right``, ``fps`` (the cameras' frame rate, 0 = measured from the
+stamps), ``sync_slop`` (s; -1 = half a frame period at ``fps``), ``queue_size``,
+``frame_id`` of the rectified images, ``reliability``, ``diagnostic_period``.
+
+Stamps that go back further than the pairing tolerance (a looping bag, a
+restarted driver) reset the pairing with one log line; pairing goes on.
 """
 from __future__ import annotations
 
-from rcl_interfaces.msg import ParameterDescriptor
 from sensor_msgs.msg import CameraInfo, Image
 
 from canopy_stereo.geometry.rectification import StereoRectifier
@@ -24,7 +27,11 @@ from canopy_stereo.io.images import to_gray
 from canopy_stereo.ros.convert import image_to_msg, msg_to_bgr, rectified_camera_info, stamp_to_ns
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.params import declare_rig_parameters, rectification_from_node, rig_from_node
-from canopy_stereo.ros.sync import ApproximateTimePairer
+from canopy_stereo.ros.sync import ApproximateTimePairer, FramePeriodEstimator, slop_for_rate
+
+#: Pairing tolerance (s) while the frame rate is neither given nor measured yet: half a
+#: period at 30 frames/s, the fastest common webcam rate.
+INITIAL_SLOP_S = slop_for_rate(30.0)
 
 
 class RectifyNode(CanopyNode):
@@ -33,18 +40,28 @@ class RectifyNode(CanopyNode):
     def __init__(self, node_name: str = "rectify_node", **kwargs):
         super().__init__(node_name, **kwargs)
         declare_rig_parameters(self)
-        ro = ParameterDescriptor(read_only=True)
-        self.declare_parameter("sync_slop", 0.015, ParameterDescriptor(
-            description="largest stamp difference of a left/right pair, seconds", read_only=True))
-        self.declare_parameter("queue_size", 5, ParameterDescriptor(
-            description="frames per camera kept while waiting for a partner", read_only=True))
-        self.declare_parameter("frame_id", "stereo_rect_left", ro)
+        self.declare_number("fps", 0.0, "frame rate of the cameras (frames/s); sets the pairing "
+                            "tolerance when sync_slop is -1; 0 = measured from the stamps",
+                            minimum=0.0, maximum=1000.0, read_only=True)
+        self.declare_number("sync_slop", -1.0, "largest stamp difference of a left/right pair (s); "
+                            "-1 = half a frame period (from fps, or measured)",
+                            minimum=-1.0, maximum=10.0, read_only=True)
+        self.declare_number("queue_size", 5, "frames per camera kept while waiting for a partner",
+                            minimum=1, maximum=100, read_only=True)
+        self.declare_text("frame_id", "stereo_rect_left", "frame_id of the rectified images",
+                          read_only=True)
         self.rig = rig_from_node(self)
         self.rect = rectification_from_node(self, self.rig)
         self.rectifier = StereoRectifier(self.rig, self.rect)
         self.frame_id = self.get_parameter("frame_id").value
-        self.pairer = ApproximateTimePairer(float(self.get_parameter("sync_slop").value),
-                                            int(self.get_parameter("queue_size").value))
+        slop = float(self.get_parameter("sync_slop").value)
+        fps = float(self.get_parameter("fps").value)
+        # sync_slop >= 0 is fixed; otherwise half a frame period, measured unless fps is given
+        self.period_estimator = FramePeriodEstimator() if slop < 0 and fps <= 0 else None
+        if slop < 0:
+            slop = slop_for_rate(fps) if fps > 0 else INITIAL_SLOP_S
+        self.pairer = ApproximateTimePairer(slop, int(self.get_parameter("queue_size").value),
+                                            on_jump=self.time_jump_handler(("left", "right")))
         self.pub_left = self.make_publisher(Image, "left/image_rect")
         self.pub_right = self.make_publisher(Image, "right/image_rect")
         self.pub_color = self.make_publisher(Image, "left/image_rect_color")
@@ -57,7 +74,8 @@ class RectifyNode(CanopyNode):
                                    "(a projective rectification has no metric camera)")
         w, h = self.rig.image_size
         self.get_logger().info(f"rectifying {w}x{h} pairs ({self.rect.method}), "
-                               f"sync slop {self.pairer.slop_ns / 1e9:g} s")
+                               f"sync slop {self.pairer.slop_ns / 1e9:g} s"
+                               + (" until the frame period is measured" if self.period_estimator else ""))
 
     def _on_image(self, side: int, msg: Image) -> None:
         name = ("left", "right")[side]
@@ -67,11 +85,27 @@ class RectifyNode(CanopyNode):
         except Exception as exc:
             self.drop(str(exc), f"{name} frame")
             return
-        pair, dropped = self.pairer.push(side, stamp_to_ns(msg.header.stamp), bgr)
+        stamp = stamp_to_ns(msg.header.stamp)
+        if self.period_estimator is not None:
+            self._follow_frame_rate(self.period_estimator.observe(side, stamp))
+        pair, dropped = self.pairer.push(side, stamp, bgr)
         for d in dropped:
-            self.drop(d.reason, f"{('left', 'right')[d.stream]} frame")
+            self.drop(d.reason, f"{('left', 'right')[d.stream]} frame",
+                      log=not d.reason.startswith("time jumped back"))
         if pair is not None:
+            self.diagnostics.sample("pair offset ms", pair.skew_ns / 1e6)
             self._publish(pair.stamps_ns[0], *pair.items)
+
+    def _follow_frame_rate(self, period_s: float | None) -> None:
+        """Pairing tolerance = half the measured frame period (updated when it moves > 10 %)."""
+        if period_s is None:
+            return
+        slop = 0.5 * period_s
+        current = self.pairer.slop_ns / 1e9
+        if abs(slop - current) > 0.1 * current:
+            self.pairer.set_slop(slop)
+            self.get_logger().info(f"frame period {period_s * 1e3:.1f} ms measured from the stamps: "
+                                   f"pairing tolerance {slop * 1e3:.1f} ms")
 
     def _publish(self, stamp_ns: int, left_bgr, right_bgr) -> None:
         left_r, right_r = self.rectifier.rectify(left_bgr, right_bgr)
