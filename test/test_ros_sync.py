@@ -183,3 +183,28 @@ def test_slop_for_rate_is_half_a_period():
     assert slop_for_rate(15) == pytest.approx(1 / 30)
     with pytest.raises(ValueError):
         slop_for_rate(0)
+
+
+def test_exact_synchronizer_lets_the_old_time_line_finish_after_a_jump():
+    """A looping 4-frame bag at the point cloud node: colour images (stream 1) run a disparity
+    computation ahead of the disparities (stream 0); at the wrap the colour stream jumps first,
+    the disparities still in flight complete their sets, then the disparities follow."""
+    jumps = []
+    s = ExactTimeSynchronizer(2, queue_size=15, on_jump=jumps.append)
+    out = []
+    pending_disp = []
+    # disparities of frames 2, 3 of a pass arrive after the next pass's first colours
+    feed = []
+    for p in range(3):
+        feed += [(1, 0, p), (1, 1, p)]
+        feed += pending_disp
+        pending_disp = []
+        feed += [(0, 0, p), (1, 2, p), (0, 1, p), (1, 3, p)]
+        pending_disp = [(0, 2, p), (0, 3, p)]
+    feed += pending_disp
+    for stream, k, p in feed:
+        items, _ = s.push(stream, (1000 + 100 * k) * MS, (p, k))
+        if items is not None:
+            out.append(items[0])
+    assert out == [(p, k) for p in range(3) for k in range(4)]  # nothing lost at the wraps
+    assert len(jumps) == 2 and s.pending() == 0

@@ -22,12 +22,14 @@ partner and the result does not depend on arrival order across the streams
 Time that jumps backwards (a looping bag, a restarted driver, a bag replayed after
 a live run): when a stream's stamp is older than that stream's previous stamp by
 more than the pairing tolerance (``slop``; for exact pairing
-:data:`EXACT_JUMP_TOLERANCE_S`), or
-repeats a stamp that was already paired (a looping one-frame bag), both classes *reset*: everything queued from before the jump
-is dropped (reason ``"time jumped back"``), the "older than the last pair" rule
-starts afresh, and ``on_jump(TimeJump)`` is called once for the jump (the other
-streams following it later are part of the same reset and are not reported
-again). Pairing then continues on the new time line.
+:data:`EXACT_JUMP_TOLERANCE_S`), or repeats a stamp that was already paired (a
+looping one-frame bag), both classes *reset*: the "older than the last pair" rule
+starts afresh on the new time line and ``on_jump(TimeJump)`` is called once for the
+jump (the other streams following it later are part of the same reset and are not
+reported again). The approximate pairer drops what was queued from before the jump
+(its two cameras jump together); the exact synchronizer lets the sets of the old
+time line still complete with the messages in flight (its inputs arrive with a
+stage's delay between them) and drops them once the new time line has produced a set.
 
 :class:`ExactTimeSynchronizer` (N streams): emits the set of messages once every
 stream has delivered one with the same stamp; older incomplete sets are
@@ -292,13 +294,18 @@ class ApproximateTimePairer:
 class ExactTimeSynchronizer:
     """Group messages of ``n_streams`` streams that carry the same stamp.
 
+    Time lines: a backwards jump opens a new *epoch*; a stream belongs to the new epoch
+    from its own first message after the jump (streams follow at their own pace: the
+    slow stream's messages from before the jump still complete their sets). A set
+    completed in the newest epoch drops every set left from older epochs.
+
     Args:
         n_streams: number of inputs (>= 1).
-        queue_size: incomplete stamps kept while waiting (>= 1).
+        queue_size: incomplete stamps kept while waiting (>= 1); the oldest is dropped first.
         jump_tolerance_s: a stream stepping back further than this (s) is a time jump
             (default :data:`EXACT_JUMP_TOLERANCE_S`); smaller steps are late messages.
         on_jump: ``f(TimeJump)`` called once per backwards time jump (or a repeated
-            stamp of a set already emitted), after the reset.
+            stamp of a set already emitted).
     """
 
     def __init__(self, n_streams: int, queue_size: int = 5, *, jump_tolerance_s: float | None = None,
@@ -309,8 +316,10 @@ class ExactTimeSynchronizer:
             raise ValueError(f"queue_size must be >= 1, got {queue_size}")
         self.n_streams = int(n_streams)
         self.queue_size = int(queue_size)
-        self._pending: dict[int, list] = {}
-        self._last_emitted: int | None = None
+        self._pending: dict[tuple[int, int], list] = {}  # (epoch, stamp) -> slots, in creation order
+        self._last_emitted: dict[int, int] = {}           # epoch -> stamp of its last emitted set
+        self._epoch = 0
+        self._stream_epoch = [0] * self.n_streams
         self.on_jump = on_jump
         self.jumps = 0
         tol = EXACT_JUMP_TOLERANCE_S if jump_tolerance_s is None else float(jump_tolerance_s)
@@ -328,36 +337,49 @@ class ExactTimeSynchronizer:
         with self._lock:
             dropped: list[Dropped] = []
             previous = self._guard.last[stream]
-            queued = self._pending.get(stamp_ns)
+            queued = self._pending.get((self._stream_epoch[stream], stamp_ns))
             kind = self._guard.check(stream, stamp_ns, repeat_is_jump=queued is None or queued[stream] is None)
+            if kind == "jump":
+                self._epoch += 1
+                self.jumps += 1
+                if self.on_jump is not None:
+                    stale = sum(1 for (e, _), slots in self._pending.items() if e < self._epoch
+                                and slots[stream] is not None)
+                    self.on_jump(TimeJump(stream, previous, stamp_ns, stale))
             if kind:
-                for old in sorted(s for s in self._pending if s > stamp_ns):
-                    dropped += self._drop_set(old, "time jumped back: queued before the jump")
-                self._last_emitted = None
-                if kind == "jump":
-                    self.jumps += 1
-                    if self.on_jump is not None:
-                        self.on_jump(TimeJump(stream, previous, stamp_ns, len(dropped)))
-            if self._last_emitted is not None and stamp_ns <= self._last_emitted:
-                return None, [Dropped(stream, stamp_ns, "older than the last emitted set")]
-            slots = self._pending.setdefault(stamp_ns, [None] * self.n_streams)
+                self._stream_epoch[stream] = self._epoch
+                # this stream's messages from before the jump can no longer complete a set
+                for key in [k for k, slots in self._pending.items()
+                            if k[0] < self._epoch and slots[stream] is None]:
+                    dropped += self._drop_set(key, "time jumped back: queued before the jump")
+            epoch = self._stream_epoch[stream]
+            last = self._last_emitted.get(epoch)
+            if last is not None and stamp_ns <= last:
+                return None, dropped + [Dropped(stream, stamp_ns, "older than the last emitted set")]
+            key = (epoch, stamp_ns)
+            slots = self._pending.setdefault(key, [None] * self.n_streams)
             if slots[stream] is not None:
                 dropped.append(Dropped(stream, stamp_ns, "duplicate stamp (replaced)"))
             slots[stream] = (item,)
             if all(s is not None for s in slots):
-                del self._pending[stamp_ns]
-                for old in sorted(s for s in self._pending if s < stamp_ns):
-                    dropped += self._drop_set(old, "incomplete when a later set completed")
-                self._last_emitted = stamp_ns
-                self._guard.settled()
+                del self._pending[key]
+                for old in [k for k in self._pending if k[0] < epoch or (k[0] == epoch and k[1] < stamp_ns)]:
+                    reason = ("time jumped back: queued before the jump" if old[0] < epoch
+                              else "incomplete when a later set completed")
+                    dropped += self._drop_set(old, reason)
+                self._last_emitted[epoch] = stamp_ns
+                for e in [e for e in self._last_emitted if e < epoch]:
+                    del self._last_emitted[e]
+                if epoch == self._epoch:
+                    self._guard.settled()
                 return [s[0] for s in slots], dropped
             while len(self._pending) > self.queue_size:
-                dropped += self._drop_set(min(self._pending), f"incomplete (queue of {self.queue_size} full)")
+                dropped += self._drop_set(next(iter(self._pending)), f"incomplete (queue of {self.queue_size} full)")
             return None, dropped
 
-    def _drop_set(self, stamp: int, reason: str) -> list[Dropped]:
-        slots = self._pending.pop(stamp)
-        return [Dropped(i, stamp, reason) for i, s in enumerate(slots) if s is not None]
+    def _drop_set(self, key: tuple[int, int], reason: str) -> list[Dropped]:
+        slots = self._pending.pop(key)
+        return [Dropped(i, key[1], reason) for i, s in enumerate(slots) if s is not None]
 
     def pending(self) -> int:
         """Number of incomplete stamps waiting."""
