@@ -71,7 +71,10 @@ def generate_launch_description():
              parameters=[rig, {"fps": camera_fps}]),
         Node(package=PACKAGE, executable="disparity_node", namespace=ns,
              parameters=[rig, {"matcher": LaunchConfiguration("matcher")}]),
-        Node(package=PACKAGE, executable="segment_node", namespace=ns),
+        # nothing waits for every mask unless use_mask: GrabCut segments the newest image
+        Node(package=PACKAGE, executable="segment_node", namespace=ns,
+             parameters=[{"queue_size": PythonExpression(
+                 ["5 if '", LaunchConfiguration("use_mask"), "'.lower() == 'true' else 1"])}]),
         Node(package=PACKAGE, executable="point_cloud_node", namespace=ns,
              parameters=[rig, {"use_mask": LaunchConfiguration("use_mask")}]),
     ]

@@ -156,10 +156,14 @@ class ProcessGroup:
     def start_graph(self, rig_file, *, nodes=PROCESSING_NODES, params: dict | None = None,
                     common: dict | None = None) -> dict:
         """Start the processing nodes, one process each, with the rig file; ``params``:
-        node -> extra parameters, ``common``: parameters of every node."""
+        node -> extra parameters, ``common``: parameters of every node. As in the launch
+        file and ``canopy_graph``, segment_node segments the newest image (queue_size 1)
+        unless point_cloud_node uses the masks."""
         out = {}
+        use_mask = bool((params or {}).get("point_cloud_node", {}).get("use_mask", False))
+        defaults = {"segment_node": {} if use_mask else {"queue_size": 1}}
         for node in nodes:
-            values = {**(common or {}), **(params or {}).get(node, {})}
+            values = {**(common or {}), **defaults.get(node, {}), **(params or {}).get(node, {})}
             files = [] if node == "segment_node" else [rig_file]
             out[node] = self.start(node, params_files=files, params=values)
         return out

@@ -46,6 +46,7 @@ def test_launch_file_evaluates_to_one_process_per_node():
                                             "segment_node", "point_cloud_node"]
     assert cmds[0].parameters == {"camera_name": "left", "device": 0, "fps": 10}  # integer fps, as launch_ros
     assert cmds[2].parameters == {"fps": 10.0}  # pairing tolerance from the camera rate
+    assert cmds[4].parameters == {"queue_size": 1}  # no mask used: GrabCut takes the newest image
     assert set(declared) >= {"rig", "namespace", "left_device", "right_device", "fps", "matcher", "use_mask",
                              "bag", "rate", "loop"}
 

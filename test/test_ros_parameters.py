@@ -184,3 +184,27 @@ def test_package_xml_declares_every_runtime_dependency():
         assert dep in deps, dep
     readme = (REPO / "README.md").read_text()
     assert "mcap-ros2-support" in readme and "rosdep" in readme
+
+
+def test_qos_is_overridable_per_topic_with_the_standard_parameters(ctx):
+    """Inputs reliable keep-last by default; ``qos_overrides.<topic>.subscription.*`` changes
+    one topic (e.g. for a best-effort driver), outputs likewise."""
+    from rclpy.qos import ReliabilityPolicy
+
+    from canopy_stereo.ros.nodes.rectify import RectifyNode
+    from canopy_stereo.ros.qos import INPUT_DEPTH, OUTPUT_DEPTH
+
+    node = _make(ctx, RectifyNode, True, **{
+        "qos_overrides./stereo/left/image_raw.subscription.reliability": "best_effort",
+        "qos_overrides./stereo/left/image_raw.subscription.depth": 1,
+        "qos_overrides./stereo/left/image_rect.publisher.reliability": "best_effort"})
+    try:
+        assert node.sub_left.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
+        assert node.sub_left.qos_profile.depth == 1
+        assert node.sub_right.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+        assert node.sub_right.qos_profile.depth == INPUT_DEPTH
+        assert node.pub_left.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
+        assert node.pub_right.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+        assert node.pub_right.qos_profile.depth == OUTPUT_DEPTH
+    finally:
+        node.destroy_node()

@@ -77,7 +77,8 @@ class CanopyGraph:
         context: an initialised rclpy context (:func:`canopy_stereo.ros.context.ros_context`).
         options: :class:`GraphOptions`.
         cameras: ``(left_params, right_params)`` for two ``camera_node`` (``device``,
-            ``fps``, ...), or None when frames come from elsewhere (a bag).
+            ``fps``, ...), or None when frames come from elsewhere (a bag). With cameras,
+            ``rectify_node`` gets their ``fps`` and pairs within half a frame period.
     """
 
     def __init__(self, rig: Rig, context, options: GraphOptions | None = None, cameras=None):
@@ -108,6 +109,11 @@ class CanopyGraph:
             "segment_node": {} if o.use_mask else {"queue_size": 1},
             "point_cloud_node": {"use_mask": bool(o.use_mask), "organized": bool(o.organized)},
         }
+        if cameras is not None:
+            # free-running cameras: pair within half a frame period at the cameras' rate
+            rates = [float(c.get("fps", 0) or 0) for c in cameras]
+            if all(r > 0 for r in rates):
+                per_node["rectify_node"]["fps"] = min(rates)
         classes = {"rectify_node": RectifyNode, "disparity_node": DisparityNode,
                    "segment_node": SegmentNode, "point_cloud_node": PointCloudNode}
         try:
@@ -291,7 +297,7 @@ def main(args=None) -> int:
         if not opts.fps > 0:
             print("canopy_graph: error: --fps must be > 0", file=sys.stderr)
             return 2
-        options.node_parameters = {"rectify_node": {"fps": float(opts.fps)}}
+        # (CanopyGraph gives rectify_node the cameras' fps: pairing within half a frame period)
     tune_node_process()
     rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     install_stop_signals()
