@@ -1,15 +1,14 @@
 """Quality-of-service profiles used by the nodes.
 
-* Subscriptions: reliable, keep last :data:`INPUT_DEPTH` (5; the disparity node,
-  the slowest stage, :data:`BOTTLENECK_INPUT_DEPTH` = 2), volatile. REP 2003
+* Subscriptions: reliable, keep last :data:`INPUT_DEPTH` (5), volatile. REP 2003
   asks consumers of sensor data for sensor-data QoS (best effort), but Fast DDS
   (the Jazzy default) between processes loses most samples larger than its 64 kB
   fragment size when the reader is best effort: measured on this machine with a
   reliable 640x480 bgr8 publisher at 15 Hz, a best-effort subscriber in another
   process received 4 of 30 images (0 of 10 at 2 Hz), a reliable one 30 of 30 (see
   ros2/rmw_fastrtps#739). Keep-last makes the newest frames win when a node falls
-  behind, so latency stays bounded (the disparity stage, where frames pile up
-  when the camera is faster than the graph, keeps only 2 pairs); a reliable subscription matches the
+  far behind (the disparity node, the slowest stage, also matches only the newest
+  complete pair: latency stays bounded); a reliable subscription matches the
   system-default (reliable) publishers of camera drivers, and not best-effort
   ones: override it per topic with ``qos_overrides.<topic>.subscription.reliability``.
 * Publishers: reliable, keep last :data:`OUTPUT_DEPTH` (5), volatile, as REP 2003
@@ -33,13 +32,8 @@ from canopy_stereo.errors import CanopyStereoError
 
 RELIABILITY_CHOICES = ("reliable", "best_effort")
 
-#: Keep-last depth of the nodes' subscriptions (the disparity node, the slowest stage, keeps
-#: :data:`BOTTLENECK_INPUT_DEPTH`).
+#: Keep-last depth of the nodes' subscriptions.
 INPUT_DEPTH = 5
-
-#: Keep-last depth of the inputs of the slowest stage (disparity): when it falls behind, the
-#: newest pairs win and latency stays bounded (at most this many pairs wait).
-BOTTLENECK_INPUT_DEPTH = 2
 
 #: Keep-last depth of the nodes' publishers.
 OUTPUT_DEPTH = 5

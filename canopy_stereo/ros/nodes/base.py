@@ -89,6 +89,7 @@ class CanopyNode(Node):
         self.last_active = time.monotonic()  # entry or exit of the latest guarded callback
         self._idle = threading.Condition()
         self._closing = False
+        self._workers: list[LatestOnly] = []
 
     def _hardware_id(self) -> str:
         """``hardware_id`` of the node's diagnostics (subclasses: the device they drive)."""
@@ -103,7 +104,7 @@ class CanopyNode(Node):
             value = entry[1] if len(entry) > 1 else None
             descriptor = entry[2] if len(entry) > 2 else None
             is_double = (isinstance(value, float)
-                         or value == Parameter.Type.DOUBLE
+                         or (isinstance(value, Parameter.Type) and value == Parameter.Type.DOUBLE)
                          or (descriptor is not None and descriptor.type == ParameterType.PARAMETER_DOUBLE))
             override = self._parameter_overrides.get(name)
             if is_double and override is not None and override.type_ == Parameter.Type.INTEGER:
@@ -263,10 +264,19 @@ class CanopyNode(Node):
         with self._idle:
             return 0.0 if self._busy > 0 else time.monotonic() - self.last_active
 
+    def latest_only(self, fn, what: str) -> "LatestOnly":
+        """A worker thread that runs ``fn`` on the newest submitted job (see :class:`LatestOnly`)."""
+        worker = LatestOnly(self, fn, what)
+        self._workers.append(worker)
+        return worker
+
     def destroy_node(self):
         """Refuse new callbacks, wait (up to 30 s) for running ones, then destroy."""
         with self._idle:
             self._closing = True
+        for worker in self._workers:
+            worker.close()
+        with self._idle:
             self._idle.wait_for(lambda: self._busy == 0, timeout=30.0)
         return super().destroy_node()
 
@@ -274,6 +284,62 @@ class CanopyNode(Node):
         """Snapshot ``{"counts": {...}, "drops": {...}, "busy_s": seconds in callbacks}``."""
         with self._stats_lock:
             return {"counts": dict(self.counts), "drops": dict(self.drops), "busy_s": self.busy_s}
+
+
+class LatestOnly:
+    """Latest-frame-wins processing for a node's slow stage.
+
+    The node's callbacks only pair inputs and :meth:`submit` complete jobs; a worker
+    thread runs ``fn(*job)`` (as a :meth:`CanopyNode.guarded` callback: errors are
+    drops, the node counts as busy) on the newest job. A job still waiting when a newer
+    one is submitted is dropped as superseded: when the cameras are faster than the
+    stage, the newest pairs are processed, at most one pair waits (latency stays
+    bounded) and the inputs are always drained (no pair loses one of its images in a
+    full queue).
+    """
+
+    def __init__(self, node: CanopyNode, fn, what: str):
+        self.node, self.what = node, what
+        self._fn = node.guarded(fn)
+        self._cond = threading.Condition()
+        self._job = None
+        self._stop = False
+        self._thread = threading.Thread(target=self._run, name=f"{node.get_name()}:latest", daemon=True)
+        self._thread.start()
+
+    def submit(self, *job) -> None:
+        """Queue ``job`` for ``fn``, replacing (and dropping) one still waiting."""
+        with self._cond:
+            superseded = self._job is not None
+            self._job = job
+            self._cond.notify()
+        if superseded:
+            self.node.drop("superseded by a newer one while the node was busy", self.what)
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._job is not None or self._stop)
+                if self._stop:
+                    return
+                job, self._job = self._job, None
+                # busy from here on, so that the node never looks idle with a job taken
+                with self.node._idle:
+                    self.node._busy += 1
+            try:
+                self._fn(*job)
+            finally:
+                with self.node._idle:
+                    self.node._busy -= 1
+                    self.node._idle.notify_all()
+
+    def close(self, timeout_s: float = 30.0) -> None:
+        """Stop after the running job (a waiting one is discarded)."""
+        with self._cond:
+            self._stop = True
+            self._cond.notify()
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout_s)
 
 
 def _header_stamp_ns(msg) -> int | None:

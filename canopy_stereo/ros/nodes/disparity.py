@@ -20,9 +20,10 @@ Parameters (changeable at run time unless marked read-only):
 * read-only: the rig, ``method``, ``H_left``/``H_right``, ``queue_size``, ``reliability``,
   ``diagnostic_period``.
 
-The inputs keep only the newest :data:`~canopy_stereo.ros.qos.BOTTLENECK_INPUT_DEPTH`
-pairs (this is the slowest stage: when the cameras are faster than the matcher, the
-newest pairs win and latency stays bounded); stamps that go back reset the pairing.
+This is the slowest stage: the matcher runs in a worker thread on the newest complete
+pair (:class:`~canopy_stereo.ros.nodes.base.LatestOnly`); when the cameras are faster
+than the matcher, older waiting pairs are dropped as superseded, so latency stays
+bounded. Stamps that go back reset the pairing.
 
 New values are validated before they are accepted (an invalid ELAS combination
 is refused with the reason); they apply from the next frame.
@@ -42,7 +43,6 @@ from canopy_stereo.pipeline.reconstruct import disparity_range_for
 from canopy_stereo.ros.convert import disparity_to_msg, msg_to_mono, stamp_to_ns
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.params import declare_rig_parameters, rectification_from_node, rig_from_node
-from canopy_stereo.ros.qos import BOTTLENECK_INPUT_DEPTH
 from canopy_stereo.ros.sync import ExactTimeSynchronizer
 
 _RANGE = ("disp_min", "disp_max")
@@ -161,10 +161,9 @@ class DisparityNode(CanopyNode):
         self.sync = ExactTimeSynchronizer(2, int(self.get_parameter("queue_size").value),
                                           on_jump=self.time_jump_handler(("left", "right")))
         self.pub = self.make_publisher(DisparityImage, "disparity")
-        self.sub_left = self.make_subscription(Image, "left/image_rect", lambda m: self._on_image(0, m),
-                                               depth=BOTTLENECK_INPUT_DEPTH)
-        self.sub_right = self.make_subscription(Image, "right/image_rect", lambda m: self._on_image(1, m),
-                                                depth=BOTTLENECK_INPUT_DEPTH)
+        self.matching = self.latest_only(self._match, "rectified pair")
+        self.sub_left = self.make_subscription(Image, "left/image_rect", lambda m: self._on_image(0, m))
+        self.sub_right = self.make_subscription(Image, "right/image_rect", lambda m: self._on_image(1, m))
         c = self.config
         self.get_logger().info(f"matcher {c['matcher']}, disparities [{c['disp_min']}, {c['disp_max']}], "
                                f"f {self.f:.2f} px, t {self.t:.5f} m")
@@ -227,7 +226,7 @@ class DisparityNode(CanopyNode):
                       log=not d.reason.startswith("time jumped back"))
         if items is not None:
             (left, frame_id), (right, _) = items
-            self._match(stamp_to_ns(msg.header.stamp), frame_id, left, right)
+            self.matching.submit(stamp_to_ns(msg.header.stamp), frame_id, left, right)
 
     def _match(self, stamp_ns: int, frame_id: str, left, right) -> None:
         with self._config_lock:
@@ -237,9 +236,10 @@ class DisparityNode(CanopyNode):
             return
         disp = compute_disparity(left, right, matcher=c["matcher"], disp_min=c["disp_min"],
                                  disp_max=c["disp_max"], **c["params"])
-        self.pub.publish(disparity_to_msg(disp, self.f, self.t, c["disp_min"], c["disp_max"],
-                                          c["delta_d"], stamp_ns, frame_id, self.rect.doffs))
+        msg = disparity_to_msg(disp, self.f, self.t, c["disp_min"], c["disp_max"], c["delta_d"], stamp_ns,
+                               frame_id, self.rect.doffs)
         self.count("disparities_published")
+        self.pub.publish(msg)
 
 
 def main(args=None) -> int:
