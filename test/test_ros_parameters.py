@@ -208,3 +208,33 @@ def test_qos_is_overridable_per_topic_with_the_standard_parameters(ctx):
         assert node.pub_right.qos_profile.depth == OUTPUT_DEPTH
     finally:
         node.destroy_node()
+
+
+def test_latest_only_processes_the_newest_job_and_drops_superseded_ones(ctx):
+    import threading
+    import time
+
+    from canopy_stereo.ros.nodes.base import CanopyNode
+
+    node = CanopyNode("latest_test", context=ctx, start_parameter_services=False)
+    done, gate = [], threading.Event()
+
+    def work(k):
+        gate.wait(5.0)
+        done.append(k)
+
+    worker = node.latest_only(work, "pair")
+    try:
+        worker.submit(0)          # taken at once, blocks on the gate
+        time.sleep(0.1)
+        assert node.busy
+        for k in (1, 2, 3):       # 1 and 2 are superseded while 0 runs
+            worker.submit(k)
+        gate.set()
+        deadline = time.monotonic() + 5.0
+        while len(done) < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert done == [0, 3]
+        assert node.stats()["drops"] == {"pair: superseded by a newer one while the node was busy": 2}
+    finally:
+        node.destroy_node()
