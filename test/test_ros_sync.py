@@ -208,3 +208,11 @@ def test_exact_synchronizer_lets_the_old_time_line_finish_after_a_jump():
             out.append(items[0])
     assert out == [(p, k) for p in range(3) for k in range(4)]  # nothing lost at the wraps
     assert len(jumps) == 2 and s.pending() == 0
+
+
+def test_the_camera_that_follows_a_jump_finds_the_other_cameras_new_frames():
+    p = ApproximateTimePairer(0.01, 5)
+    _run(p, [(0, 1000), (1, 1002), (0, 1100), (1, 1102)])
+    # left restarts first and runs 3 frames ahead of the right camera's restart
+    pairs, drops = _run(p, [(0, 10), (0, 110), (0, 210), (1, 12), (1, 112), (1, 212)])
+    assert pairs == [(10, 12), (110, 112), (210, 212)] and drops == []

@@ -209,10 +209,14 @@ class ApproximateTimePairer:
 
     def _reset(self, stream: int, stamp_ns: int, previous: int, kind: str) -> list[Dropped]:
         """Forget the time line before ``stream`` jumped from ``previous`` to ``stamp_ns``:
-        the stream's own queue, and the other stream's frames later than the new stamp."""
+        the stream's own queue and, when it jumps first, the other stream's frames later
+        than the new stamp (a stream that follows finds the other's queue on the new line)."""
         dropped = []
         for i, q in enumerate(self._queues):
-            keep = [i != stream and s <= stamp_ns + self.slop_ns for s in q.stamps]
+            if i != stream and kind != "jump":
+                keep = [True] * len(q.stamps)
+            else:
+                keep = [i != stream and s <= stamp_ns + self.slop_ns for s in q.stamps]
             dropped += [Dropped(i, s, "time jumped back: queued before the jump")
                         for s, k in zip(q.stamps, keep) if not k]
             q.stamps[:] = [s for s, k in zip(q.stamps, keep) if k]
