@@ -210,7 +210,7 @@ def test_qos_is_overridable_per_topic_with_the_standard_parameters(ctx):
         node.destroy_node()
 
 
-def test_latest_only_processes_the_newest_job_and_drops_superseded_ones(ctx):
+def test_latest_only_processes_the_newest_jobs_and_drops_superseded_ones(ctx):
     import threading
     import time
 
@@ -223,18 +223,18 @@ def test_latest_only_processes_the_newest_job_and_drops_superseded_ones(ctx):
         gate.wait(5.0)
         done.append(k)
 
-    worker = node.latest_only(work, "pair")
+    worker = node.latest_only(work, "pair", depth=2)
     try:
         worker.submit(0)          # taken at once, blocks on the gate
         time.sleep(0.1)
         assert node.busy
-        for k in (1, 2, 3):       # 1 and 2 are superseded while 0 runs
+        for k in (1, 2, 3, 4):    # two may wait: 1 and 2 are superseded while 0 runs
             worker.submit(k)
         gate.set()
         deadline = time.monotonic() + 5.0
-        while len(done) < 2 and time.monotonic() < deadline:
+        while len(done) < 3 and time.monotonic() < deadline:
             time.sleep(0.01)
-        assert done == [0, 3]
-        assert node.stats()["drops"] == {"pair: superseded by a newer one while the node was busy": 2}
+        assert done == [0, 3, 4]
+        assert node.stats()["drops"] == {"pair: superseded by newer ones while the node was busy": 2}
     finally:
         node.destroy_node()

@@ -7,8 +7,8 @@
   reliable 640x480 bgr8 publisher at 15 Hz, a best-effort subscriber in another
   process received 4 of 30 images (0 of 10 at 2 Hz), a reliable one 30 of 30 (see
   ros2/rmw_fastrtps#739). Keep-last makes the newest frames win when a node falls
-  far behind (the disparity node, the slowest stage, also matches only the newest
-  complete pair: latency stays bounded); a reliable subscription matches the
+  far behind (the disparity node, the slowest stage, also keeps at most 2 complete
+  pairs waiting for the matcher: latency stays bounded); a reliable subscription matches the
   system-default (reliable) publishers of camera drivers, and not best-effort
   ones: override it per topic with ``qos_overrides.<topic>.subscription.reliability``.
 * Publishers: reliable, keep last :data:`OUTPUT_DEPTH` (5), volatile, as REP 2003

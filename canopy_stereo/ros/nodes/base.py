@@ -34,7 +34,7 @@ import sys
 import threading
 import time
 import traceback
-from collections import Counter
+from collections import Counter, deque
 
 import rclpy
 from rcl_interfaces.msg import ParameterType
@@ -264,9 +264,9 @@ class CanopyNode(Node):
         with self._idle:
             return 0.0 if self._busy > 0 else time.monotonic() - self.last_active
 
-    def latest_only(self, fn, what: str) -> "LatestOnly":
-        """A worker thread that runs ``fn`` on the newest submitted job (see :class:`LatestOnly`)."""
-        worker = LatestOnly(self, fn, what)
+    def latest_only(self, fn, what: str, depth: int = 1) -> "LatestOnly":
+        """A worker thread that runs ``fn`` on the newest submitted jobs (see :class:`LatestOnly`)."""
+        worker = LatestOnly(self, fn, what, depth)
         self._workers.append(worker)
         return worker
 
@@ -287,42 +287,47 @@ class CanopyNode(Node):
 
 
 class LatestOnly:
-    """Latest-frame-wins processing for a node's slow stage.
+    """Newest-frames-win processing for a node's slow stage.
 
     The node's callbacks only pair inputs and :meth:`submit` complete jobs; a worker
     thread runs ``fn(*job)`` (as a :meth:`CanopyNode.guarded` callback: errors are
-    drops, the node counts as busy) on the newest job. A job still waiting when a newer
-    one is submitted is dropped as superseded: when the cameras are faster than the
-    stage, the newest pairs are processed, at most one pair waits (latency stays
-    bounded) and the inputs are always drained (no pair loses one of its images in a
-    full queue).
+    drops, the node counts as busy) on the waiting jobs in order. At most ``depth`` jobs
+    wait: when another arrives the oldest waiting one is dropped as superseded. So a
+    short stall is absorbed, a camera faster than the stage gets its newest pairs
+    processed, latency stays bounded (``depth`` jobs at most wait), and the node's
+    inputs are always drained (no pair loses one of its images in a full queue).
     """
 
-    def __init__(self, node: CanopyNode, fn, what: str):
-        self.node, self.what = node, what
+    def __init__(self, node: CanopyNode, fn, what: str, depth: int = 1):
+        if depth < 1:
+            raise ValueError(f"depth must be >= 1, got {depth}")
+        self.node, self.what, self.depth = node, what, int(depth)
         self._fn = node.guarded(fn)
         self._cond = threading.Condition()
-        self._job = None
+        self._jobs: deque = deque()
         self._stop = False
         self._thread = threading.Thread(target=self._run, name=f"{node.get_name()}:latest", daemon=True)
         self._thread.start()
 
     def submit(self, *job) -> None:
-        """Queue ``job`` for ``fn``, replacing (and dropping) one still waiting."""
+        """Queue ``job`` for ``fn``; drops the oldest waiting job when ``depth`` already wait."""
         with self._cond:
-            superseded = self._job is not None
-            self._job = job
+            self._jobs.append(job)
+            superseded = 0
+            while len(self._jobs) > self.depth:
+                self._jobs.popleft()
+                superseded += 1
             self._cond.notify()
-        if superseded:
-            self.node.drop("superseded by a newer one while the node was busy", self.what)
+        for _ in range(superseded):
+            self.node.drop("superseded by newer ones while the node was busy", self.what)
 
     def _run(self) -> None:
         while True:
             with self._cond:
-                self._cond.wait_for(lambda: self._job is not None or self._stop)
+                self._cond.wait_for(lambda: self._jobs or self._stop)
                 if self._stop:
                     return
-                job, self._job = self._job, None
+                job = self._jobs.popleft()
                 # busy from here on, so that the node never looks idle with a job taken
                 with self.node._idle:
                     self.node._busy += 1
@@ -334,7 +339,7 @@ class LatestOnly:
                     self.node._idle.notify_all()
 
     def close(self, timeout_s: float = 30.0) -> None:
-        """Stop after the running job (a waiting one is discarded)."""
+        """Stop after the running job (waiting ones are discarded)."""
         with self._cond:
             self._stop = True
             self._cond.notify()

@@ -20,10 +20,10 @@ Parameters (changeable at run time unless marked read-only):
 * read-only: the rig, ``method``, ``H_left``/``H_right``, ``queue_size``, ``reliability``,
   ``diagnostic_period``.
 
-This is the slowest stage: the matcher runs in a worker thread on the newest complete
-pair (:class:`~canopy_stereo.ros.nodes.base.LatestOnly`); when the cameras are faster
-than the matcher, older waiting pairs are dropped as superseded, so latency stays
-bounded. Stamps that go back reset the pairing.
+This is the slowest stage: the matcher runs in a worker thread on the complete pairs
+(:class:`~canopy_stereo.ros.nodes.base.LatestOnly`), at most ``waiting_pairs`` (2)
+waiting; when the cameras are faster than the matcher, the oldest waiting pairs are
+dropped as superseded, so latency stays bounded. Stamps that go back reset the pairing.
 
 New values are validated before they are accepted (an invalid ELAS combination
 is refused with the reason); they apply from the next frame.
@@ -130,6 +130,9 @@ class DisparityNode(CanopyNode):
         self.declare_number("queue_size", 5, "rectified images kept per side while waiting for "
                             "the other side's image with the same stamp",
                             minimum=1, maximum=100, read_only=True)
+        self.declare_number("waiting_pairs", 2, "complete pairs kept waiting while the matcher is busy; "
+                            "when more arrive the oldest is dropped (the newest win, latency stays bounded)",
+                            minimum=1, maximum=100, read_only=True)
         self.declare_text("matcher", default_matcher(), "disparity matcher", choices=("elas", "sgbm"))
         self.declare_text("preset", "robotics", "ELAS preset (defaults of the elas.* parameters)",
                           choices=tuple(_elas_presets()))
@@ -161,7 +164,8 @@ class DisparityNode(CanopyNode):
         self.sync = ExactTimeSynchronizer(2, int(self.get_parameter("queue_size").value),
                                           on_jump=self.time_jump_handler(("left", "right")))
         self.pub = self.make_publisher(DisparityImage, "disparity")
-        self.matching = self.latest_only(self._match, "rectified pair")
+        self.matching = self.latest_only(self._match, "rectified pair",
+                                         int(self.get_parameter("waiting_pairs").value))
         self.sub_left = self.make_subscription(Image, "left/image_rect", lambda m: self._on_image(0, m))
         self.sub_right = self.make_subscription(Image, "right/image_rect", lambda m: self._on_image(1, m))
         c = self.config
