@@ -94,6 +94,10 @@ class RunResult:
         return lines
 
 
+#: Frames tracked at most while waiting for their clouds (older ones count as dropped).
+_MAX_TRACKED = 256
+
+
 class _FrameBook:
     """Frames in flight, completion and latency (thread-safe). Frames are ordered by
     publication, not by stamp, so that stamps may jump back (a looping bag)."""
@@ -118,6 +122,9 @@ class _FrameBook:
                     self.dropped += 1  # the same stamp again (a looping bag) before its cloud came
                 self.in_flight[stamp] = t
                 self.frames_in += 1
+                while len(self.in_flight) > _MAX_TRACKED:  # a graph that stopped producing, looped
+                    del self.in_flight[next(iter(self.in_flight))]
+                    self.dropped += 1
             else:
                 self.right_times[stamp] = t
                 if len(self.right_times) > 64:
