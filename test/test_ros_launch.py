@@ -2,8 +2,6 @@
 launch_ros are not on PyPI) and its nodes started as processes: bag mode and camera mode
 (image sequences standing in for webcams) both produce clouds; ``canopy_graph --loop``
 replays a bag through one graph without rebuilding it."""
-import signal
-import subprocess
 import time
 
 import numpy as np
@@ -18,7 +16,7 @@ from sensor_msgs.msg import PointCloud2  # noqa: E402
 from canopy_stereo.ros import convert  # noqa: E402
 from conftest import REPO  # noqa: E402
 from launch_eval import evaluate  # noqa: E402
-from ros_harness import Probe, executable_command, wait_for  # noqa: E402
+from ros_harness import Probe, wait_for  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
