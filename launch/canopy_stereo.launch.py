@@ -1,17 +1,23 @@
-"""Launch the canopy_stereo node graph (ROS 2 Jazzy installs).
+"""Launch the canopy_stereo node graph (ROS 2 Jazzy installs), one process per node.
 
 Live webcams::
 
-    ros2 launch canopy_stereo canopy_stereo.launch.py rig:=/path/rig.yaml left_device:=0 right_device:=2
+    ros2 launch canopy_stereo canopy_stereo.launch.py rig:=/path/rig.yaml left_device:=0 right_device:=2 fps:=15
 
 Bag replay (no cameras; ``bag_play`` publishes the bag's /stereo/*/image_raw)::
 
-    ros2 launch canopy_stereo canopy_stereo.launch.py rig:=.../croton_rig.yaml bag:=.../croton.mcap
+    ros2 launch canopy_stereo canopy_stereo.launch.py rig:=.../croton_rig.yaml bag:=.../croton.mcap loop:=true
 
 Arguments: ``rig`` (default: the paper's rig), ``namespace`` (``/stereo``),
-``left_device``/``right_device``, ``fps``, ``matcher`` (``elas``/``sgbm``),
-``use_mask`` (``false``), ``bag`` (empty = cameras), ``rate`` (bag speed),
-``loop`` (``false``).
+``left_device``/``right_device`` (V4L2 index, /dev path, video file or image-sequence
+pattern), ``fps`` (camera rate; the left/right pairing tolerance is half its period),
+``matcher`` (``elas``/``sgbm``), ``use_mask`` (``false``), ``bag`` (empty = cameras),
+``rate`` (bag speed), ``loop`` (``false``; the nodes follow the stamps jumping back at
+every pass).
+
+In bag mode ``rectify_node`` measures the frame period from the stamps and pairs within
+half of it. The tests evaluate this file with ``test/launch_eval.py`` (launch and
+launch_ros are not on PyPI) and start the commands it describes as processes.
 """
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
@@ -27,25 +33,26 @@ def generate_launch_description():
     rig = LaunchConfiguration("rig")
     ns = LaunchConfiguration("namespace")
     bag = LaunchConfiguration("bag")
+    fps = LaunchConfiguration("fps")
     use_bag = PythonExpression(["'", bag, "' != ''"])
     arguments = [
         DeclareLaunchArgument("rig", default_value=PathJoinSubstitution(
             [FindPackageShare(PACKAGE), "config", "paper_rig.yaml"]), description="rig file"),
-        DeclareLaunchArgument("namespace", default_value="/stereo"),
-        DeclareLaunchArgument("left_device", default_value="0"),
-        DeclareLaunchArgument("right_device", default_value="1"),
-        DeclareLaunchArgument("fps", default_value="15.0"),
-        DeclareLaunchArgument("matcher", default_value="elas"),
-        DeclareLaunchArgument("use_mask", default_value="false"),
+        DeclareLaunchArgument("namespace", default_value="/stereo", description="namespace of the nodes"),
+        DeclareLaunchArgument("left_device", default_value="0", description="left camera device"),
+        DeclareLaunchArgument("right_device", default_value="1", description="right camera device"),
+        DeclareLaunchArgument("fps", default_value="15.0", description="camera frame rate (frames/s)"),
+        DeclareLaunchArgument("matcher", default_value="elas", description="elas or sgbm"),
+        DeclareLaunchArgument("use_mask", default_value="false", description="plant pixels only"),
         DeclareLaunchArgument("bag", default_value="", description="bag to replay instead of cameras"),
-        DeclareLaunchArgument("rate", default_value="1.0"),
-        DeclareLaunchArgument("loop", default_value="false"),
+        DeclareLaunchArgument("rate", default_value="1.0", description="bag playback speed"),
+        DeclareLaunchArgument("loop", default_value="false", description="replay the bag until stopped"),
     ]
     cameras = [
         Node(package=PACKAGE, executable="camera_node", name=f"{side}_camera", namespace=ns,
              condition=UnlessCondition(use_bag),
              parameters=[rig, {"camera_name": side, "device": LaunchConfiguration(f"{side}_device"),
-                               "fps": LaunchConfiguration("fps")}])  # rig: <side>/camera_info
+                               "fps": fps}])  # rig: <side>/camera_info
         for side in ("left", "right")
     ]
     loop = PythonExpression(["'", LaunchConfiguration("loop"), "'.lower() == 'true'"])
@@ -57,11 +64,17 @@ def generate_launch_description():
              arguments=[bag, "--rate", LaunchConfiguration("rate")] + extra + ["--remap"] + remaps)
         for cond, extra in ((loop, ["--loop"]), (PythonExpression(["not ", loop]), []))
     ]
+    # pairing tolerance: half a frame period at the camera rate; from a bag, measured from its stamps
+    camera_fps = PythonExpression(["0.0 if ", use_bag, " else float('", fps, "')"])
     processing = [
-        Node(package=PACKAGE, executable="rectify_node", namespace=ns, parameters=[rig]),
+        Node(package=PACKAGE, executable="rectify_node", namespace=ns,
+             parameters=[rig, {"fps": camera_fps}]),
         Node(package=PACKAGE, executable="disparity_node", namespace=ns,
              parameters=[rig, {"matcher": LaunchConfiguration("matcher")}]),
-        Node(package=PACKAGE, executable="segment_node", namespace=ns),
+        # nothing waits for every mask unless use_mask: GrabCut segments the newest image
+        Node(package=PACKAGE, executable="segment_node", namespace=ns,
+             parameters=[{"queue_size": PythonExpression(
+                 ["5 if '", LaunchConfiguration("use_mask"), "'.lower() == 'true' else 1"])}]),
         Node(package=PACKAGE, executable="point_cloud_node", namespace=ns,
              parameters=[rig, {"use_mask": LaunchConfiguration("use_mask")}]),
     ]

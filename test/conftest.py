@@ -66,3 +66,19 @@ def cli():
         return code, out.getvalue(), err.getvalue()
 
     return _run
+
+
+@pytest.fixture
+def ros_processes(tmp_path):
+    """A :class:`ros_harness.ProcessGroup` on this test process's private DDS domain: start
+    node executables in processes of their own; all are stopped after the test (their
+    logs are in ``tmp_path / "logs"``)."""
+    pytest.importorskip("rclpy")
+    from canopy_stereo.ros.context import private_domain_id
+    from ros_harness import ProcessGroup
+
+    group = ProcessGroup(private_domain_id(), tmp_path / "logs")
+    try:
+        yield group
+    finally:
+        group.stop_all()

@@ -67,7 +67,8 @@ def test_queue_overflow_drops_oldest():
 def test_late_and_duplicate_frames_are_dropped_with_reason():
     p = ApproximateTimePairer(0.01, 5)
     _run(p, [(0, 100), (1, 101)])
-    pair, dropped = p.push(0, 50 * MS, "late")
+    # late by less than the tolerance: dropped (further back is a time jump, tested below)
+    pair, dropped = p.push(0, 95 * MS, "late")
     assert pair is None and "older than the last pair" in dropped[0].reason
     p.push(1, 200 * MS, "a")
     pair, dropped = p.push(1, 200 * MS, "b")
@@ -139,3 +140,79 @@ def test_exact_synchronizer_queue_limit():
     for t in (1, 2, 3, 4):
         drops += s.push(0, t, t)[1]
     assert [d.stamp_ns for d in drops] == [1, 2] and s.pending() == 2
+
+
+def test_stamps_jumping_back_reset_the_pairer_once_and_pairing_goes_on():
+    jumps = []
+    p = ApproximateTimePairer(0.05, 5, on_jump=jumps.append)
+    before = [(s, 100_000 + 100 * k + 4 * s) for k in range(5) for s in (0, 1)]
+    pairs, drops = _run(p, before)
+    assert len(pairs) == 5 and not drops
+    # both cameras restart 100 s earlier; an old right frame is still in flight
+    after = [(0, 1000), (1, 100_504), (1, 1004)] + [(s, 1000 + 100 * k + 4 * s) for k in range(1, 6) for s in (0, 1)]
+    pairs, drops = _run(p, after)
+    assert pairs == [(1000 + 100 * k, 1004 + 100 * k) for k in range(6)]
+    assert len(jumps) == 1 and jumps[0].stream == 0 and jumps[0].back_s == pytest.approx(99.4)
+    assert drops == [(1, 100_504)]  # the stale frame queued before the right camera followed
+
+
+def test_a_looping_one_frame_source_pairs_every_pass():
+    jumps = []
+    p = ApproximateTimePairer(0.01, 5, on_jump=jumps.append)
+    pairs, _ = _run(p, [(0, 10), (1, 12)] * 3)
+    assert pairs == [(10, 12)] * 3 and len(jumps) == 2
+
+
+def test_exact_synchronizer_resets_on_a_jump_back():
+    jumps = []
+    s = ExactTimeSynchronizer(2, queue_size=4, jump_tolerance_s=0, on_jump=jumps.append)
+    for t in (100, 200, 300):
+        s.push(0, t, t)
+        assert s.push(1, t, t)[0] == [t, t]
+    s.push(0, 400, "stale")                       # its partner is lost in the restart
+    assert s.push(0, 10, "a")[0] is None            # left restarts
+    assert s.push(1, 10, "b")[0] == ["a", "b"]      # right follows: paired, no second report
+    assert s.push(0, 20, "c")[0] is None and s.push(1, 20, "d")[0] == ["c", "d"]
+    assert len(jumps) == 1 and jumps[0].from_ns == 400 and jumps[0].to_ns == 10
+    assert s.pending() == 0
+
+
+def test_slop_for_rate_is_half_a_period():
+    from canopy_stereo.ros.sync import slop_for_rate
+
+    assert slop_for_rate(15) == pytest.approx(1 / 30)
+    with pytest.raises(ValueError):
+        slop_for_rate(0)
+
+
+def test_exact_synchronizer_lets_the_old_time_line_finish_after_a_jump():
+    """A looping 4-frame bag at the point cloud node: colour images (stream 1) run a disparity
+    computation ahead of the disparities (stream 0); at the wrap the colour stream jumps first,
+    the disparities still in flight complete their sets, then the disparities follow."""
+    jumps = []
+    s = ExactTimeSynchronizer(2, queue_size=15, on_jump=jumps.append)
+    out = []
+    pending_disp = []
+    # disparities of frames 2, 3 of a pass arrive after the next pass's first colours
+    feed = []
+    for p in range(3):
+        feed += [(1, 0, p), (1, 1, p)]
+        feed += pending_disp
+        pending_disp = []
+        feed += [(0, 0, p), (1, 2, p), (0, 1, p), (1, 3, p)]
+        pending_disp = [(0, 2, p), (0, 3, p)]
+    feed += pending_disp
+    for stream, k, p in feed:
+        items, _ = s.push(stream, (1000 + 100 * k) * MS, (p, k))
+        if items is not None:
+            out.append(items[0])
+    assert out == [(p, k) for p in range(3) for k in range(4)]  # nothing lost at the wraps
+    assert len(jumps) == 2 and s.pending() == 0
+
+
+def test_the_camera_that_follows_a_jump_finds_the_other_cameras_new_frames():
+    p = ApproximateTimePairer(0.01, 5)
+    _run(p, [(0, 1000), (1, 1002), (0, 1100), (1, 1102)])
+    # left restarts first and runs 3 frames ahead of the right camera's restart
+    pairs, drops = _run(p, [(0, 10), (0, 110), (0, 210), (1, 12), (1, 112), (1, 212)])
+    assert pairs == [(10, 12), (110, 112), (210, 212)] and drops == []

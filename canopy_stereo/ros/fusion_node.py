@@ -32,7 +32,6 @@ from collections import deque
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
-from rcl_interfaces.msg import ParameterDescriptor
 from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
 
@@ -79,23 +78,25 @@ class FusionNode(CanopyNode):
 
     def __init__(self, node_name: str = "fusion_node", **kwargs):
         super().__init__(node_name, **kwargs)
-        d = ParameterDescriptor
-        self.declare_parameter("voxel_size", 0.002, d(description="fusion voxel (m)", read_only=True))
-        self.declare_parameter("publish_period", 2.0, d(description="seconds between publications of "
-                                                                     "canopy_points", read_only=True))
-        self.declare_parameter("pose_slop", 0.05, d(description="largest |stamp(pose) - stamp(cloud)| (s)"))
-        self.declare_parameter("pose_wait", 1.0, d(description="seconds a cloud waits for a matching pose"))
-        self.declare_parameter("register_without_pose", True, d(
-            description="register clouds without a pose onto the previous one (ICP)"))
-        self.declare_parameter("min_overlap", 0.5, d(description="least overlap of a registered cloud",
-                                                     read_only=True))
-        self.declare_parameter("max_views", 0, d(description="clouds kept (oldest dropped); 0 = all",
-                                                 read_only=True))
-        self.declare_parameter("min_views", 1, d(description="publish voxels seen by at least this many "
-                                                             "clouds", read_only=True))
-        self.declare_parameter("free_space", True, d(description="drop single-view points other views "
-                                                                 "see through (needs the rig)", read_only=True))
-        self.declare_parameter("frame_id", "canopy_world", d(description="frame of canopy_points"))
+        self.declare_number("voxel_size", 0.002, "fusion voxel edge (m)", minimum=1e-5, maximum=10.0,
+                            read_only=True)
+        self.declare_number("publish_period", 2.0, "seconds between publications of canopy_points",
+                            minimum=0.01, maximum=3600.0, read_only=True)
+        self.declare_number("pose_slop", 0.05, "largest |stamp(pose) - stamp(cloud)| of a match (s)",
+                            minimum=0.0, maximum=10.0)
+        self.declare_number("pose_wait", 1.0, "seconds a cloud waits for a matching pose",
+                            minimum=0.0, maximum=60.0)
+        self.declare_flag("register_without_pose", True,
+                          "register clouds without a pose onto the previous one (ICP)")
+        self.declare_number("min_overlap", 0.5, "least overlap (fraction of points) of a registered cloud",
+                            minimum=0.0, maximum=1.0, read_only=True)
+        self.declare_number("max_views", 0, "clouds kept (oldest dropped); 0 = all",
+                            minimum=0, maximum=100000, read_only=True)
+        self.declare_number("min_views", 1, "publish voxels seen by at least this many clouds",
+                            minimum=1, maximum=100000, read_only=True)
+        self.declare_flag("free_space", True, "drop single-view points other views see through "
+                          "(needs the rig)", read_only=True)
+        self.declare_text("frame_id", "canopy_world", "frame_id of canopy_points")
         declare_rig_parameters(self)
         voxel = float(self.get_parameter("voxel_size").value)
         if not voxel > 0:

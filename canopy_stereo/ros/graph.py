@@ -77,7 +77,8 @@ class CanopyGraph:
         context: an initialised rclpy context (:func:`canopy_stereo.ros.context.ros_context`).
         options: :class:`GraphOptions`.
         cameras: ``(left_params, right_params)`` for two ``camera_node`` (``device``,
-            ``fps``, ...), or None when frames come from elsewhere (a bag).
+            ``fps``, ...), or None when frames come from elsewhere (a bag). With cameras,
+            ``rectify_node`` gets their ``fps`` and pairs within half a frame period.
     """
 
     def __init__(self, rig: Rig, context, options: GraphOptions | None = None, cameras=None):
@@ -108,6 +109,11 @@ class CanopyGraph:
             "segment_node": {} if o.use_mask else {"queue_size": 1},
             "point_cloud_node": {"use_mask": bool(o.use_mask), "organized": bool(o.organized)},
         }
+        if cameras is not None:
+            # free-running cameras: pair within half a frame period at the cameras' rate
+            rates = [float(c.get("fps", 0) or 0) for c in cameras]
+            if all(r > 0 for r in rates):
+                per_node["rectify_node"]["fps"] = min(rates)
         classes = {"rectify_node": RectifyNode, "disparity_node": DisparityNode,
                    "segment_node": SegmentNode, "point_cloud_node": PointCloudNode}
         try:
@@ -217,7 +223,9 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--cameras", nargs=2, metavar=("LEFT", "RIGHT"),
                      help="camera devices (V4L2 index, /dev path, video file or image pattern)")
     p.add_argument("--rate", type=float, default=1.0, help="bag playback speed (0 = as fast as possible)")
-    p.add_argument("--loop", action="store_true", help="replay the bag until Ctrl-C")
+    p.add_argument("--loop", action="store_true",
+                   help="replay the bag until Ctrl-C (the nodes are built once and follow the stamps "
+                        "jumping back at every pass)")
     p.add_argument("--fps", type=float, default=15.0, help="camera frame rate")
     p.add_argument("--width", type=int, default=0, help="camera width (default: the rig's)")
     p.add_argument("--height", type=int, default=0, help="camera height (default: the rig's)")
@@ -233,6 +241,40 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, default=DEFAULT_THREADS,
                    help="threads of the multi-threaded executor")
     return p
+
+
+def _run_bag_until_interrupted(opts, rig, options: GraphOptions, context):
+    """Play ``opts.bag`` (``--loop``: until Ctrl-C) through one graph; the playback runs in a
+    worker thread so that the main thread takes the signal and stops it cleanly."""
+    from canopy_stereo.ros.runner import run_bag
+
+    stop, done = threading.Event(), threading.Event()
+    outcome: dict = {}
+
+    def work():
+        try:
+            outcome["result"] = run_bag(opts.bag, rig, rate=opts.rate, record=opts.record, options=options,
+                                        context=context, loop=opts.loop, stop=stop)
+        except BaseException as exc:  # noqa: BLE001 - re-raised in the main thread
+            outcome["error"] = exc
+        finally:
+            done.set()
+
+    worker = threading.Thread(target=work, name="canopy_graph:bag", daemon=True)
+    worker.start()
+    # poll with sleep: a KeyboardInterrupt inside Thread.join() can leave the thread marked as
+    # finished while it still runs (CPython 3.11)
+    try:
+        while not done.is_set():
+            time.sleep(0.1)
+    except KeyboardInterrupt:
+        stop.set()
+    while not done.is_set():
+        time.sleep(0.1)
+    worker.join()
+    if "error" in outcome:
+        raise outcome["error"]
+    return outcome["result"]
 
 
 def main(args=None) -> int:
@@ -251,8 +293,11 @@ def main(args=None) -> int:
                            organized=opts.organized, threads=opts.threads,
                            executor=opts.executor)
     if opts.cameras:
-        # free-running cameras: any two frames are at most half a period apart from the nearest
-        options.node_parameters = {"rectify_node": {"sync_slop": 0.5 / max(opts.fps, 1e-3)}}
+        # free-running cameras: the pairing tolerance is half a frame period at the camera rate
+        if not opts.fps > 0:
+            print("canopy_graph: error: --fps must be > 0", file=sys.stderr)
+            return 2
+        # (CanopyGraph gives rectify_node the cameras' fps: pairing within half a frame period)
     tune_node_process()
     rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     install_stop_signals()
@@ -261,14 +306,9 @@ def main(args=None) -> int:
     try:
         rig = load_rig(opts.rig)
         if opts.bag:
-            from canopy_stereo.ros.runner import run_bag
-
-            while True:
-                result = run_bag(opts.bag, rig, rate=opts.rate, record=opts.record, options=options,
-                                 context=context)
-                print("\n".join(result.summary_lines()), flush=True)
-                if not opts.loop or not rclpy.ok():
-                    return 0
+            result = _run_bag_until_interrupted(opts, rig, options, context)
+            print("\n".join(result.summary_lines()), flush=True)
+            return 0
         w = opts.width or rig.image_size[0]
         h = opts.height or rig.image_size[1]
         cam = {"width": w, "height": h, "fps": float(opts.fps), "fourcc": opts.fourcc}
@@ -301,3 +341,7 @@ def main(args=None) -> int:
             graph.shutdown()
         if rclpy.ok():
             rclpy.shutdown()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

@@ -11,12 +11,42 @@ the rectification maps are built once at start-up.
 from __future__ import annotations
 
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.parameter import Parameter
 
 from canopy_stereo.errors import RigError
 from canopy_stereo.geometry.rectification import Rectification, fusiello_rectify
 from canopy_stereo.io.rig import Rig, load_rig, rig_from_parameters
+
+def number_descriptor(description: str, *, minimum, maximum, step=0, integer: bool,
+                      read_only: bool = False, dynamic: bool = False) -> ParameterDescriptor:
+    """Descriptor of a numeric parameter with its ``IntegerRange``/``FloatingPointRange``
+    (``ros2 param describe``, rqt_reconfigure and the parameter services enforce it)."""
+    d = ParameterDescriptor(description=description, read_only=read_only, dynamic_typing=dynamic)
+    if integer:
+        if not dynamic:
+            d.type = ParameterType.PARAMETER_INTEGER
+        d.integer_range = [IntegerRange(from_value=int(minimum), to_value=int(maximum), step=int(step))]
+    else:
+        if not dynamic:
+            d.type = ParameterType.PARAMETER_DOUBLE
+        d.floating_point_range = [FloatingPointRange(from_value=float(minimum), to_value=float(maximum),
+                                                     step=float(step))]
+    return d
+
+
+def text_descriptor(description: str, *, choices=None, read_only: bool = False) -> ParameterDescriptor:
+    """Descriptor of a string parameter; ``choices`` are appended to the description."""
+    if choices:
+        description = f"{description} ({' | '.join(choices)})"
+    return ParameterDescriptor(description=description, read_only=read_only,
+                               type=ParameterType.PARAMETER_STRING)
+
+
+def flag_descriptor(description: str, *, read_only: bool = False) -> ParameterDescriptor:
+    """Descriptor of a boolean parameter."""
+    return ParameterDescriptor(description=description, read_only=read_only, type=ParameterType.PARAMETER_BOOL)
+
 
 #: rig parameter name -> description
 RIG_PARAMETERS = {
@@ -41,7 +71,12 @@ def declare_rig_parameters(node) -> None:
     node.declare_parameter("rig_file", "", _read_only("rig file (ROS 2 parameter YAML); "
                                                       "used when P_left/P_right are not set"))
     for name, desc in RIG_PARAMETERS.items():
-        node.declare_parameter(name, None, _read_only(desc))
+        if name in ("image_width", "image_height"):
+            descriptor = number_descriptor(desc, minimum=1, maximum=65535, integer=True, read_only=True,
+                                           dynamic=True)
+        else:
+            descriptor = _read_only(desc)
+        node.declare_parameter(name, None, descriptor)
     node.declare_parameter("method", "fusiello", _read_only(
         "rectification: fusiello (calibrated) or hartley (H_left/H_right from the CLI)"))
     node.declare_parameter("H_left", None, _read_only("hartley: left rectifying homography (9 numbers)"))

@@ -226,3 +226,7 @@ def main(args=None) -> int:
 
 
 __all__ = ["BagMessage", "BagPlayer", "PlayStats", "main", "parse_remaps"]
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

@@ -9,8 +9,10 @@ written to a bag.
 
 Frames and timing: a *frame* is one left image. It is complete when a
 ``points2`` with its stamp arrives (``rectify_node`` stamps pairs with the left
-stamp); frames overtaken by a later cloud, or still missing when the graph has
-been idle for ``idle_s``, count as dropped. With ``rate = 0`` the player keeps
+stamp); frames overtaken by the cloud of a frame published after them, or still
+missing when the graph has been idle for ``idle_s``, count as dropped. With
+``loop`` the bag plays again and again (its stamps jump back at every pass, which
+the nodes handle) until ``stop`` is set; the graph is built once. With ``rate = 0`` the player keeps
 at most ``max_in_flight`` frames in the graph (as fast as the graph goes,
 without overrunning its queues). Latency is measured from the publication of a
 frame's second image to the reception of its cloud.
@@ -92,12 +94,17 @@ class RunResult:
         return lines
 
 
+#: Frames tracked at most while waiting for their clouds (older ones count as dropped).
+_MAX_TRACKED = 256
+
+
 class _FrameBook:
-    """Frames in flight, completion and latency (thread-safe)."""
+    """Frames in flight, completion and latency (thread-safe). Frames are ordered by
+    publication, not by stamp, so that stamps may jump back (a looping bag)."""
 
     def __init__(self):
         self.cond = threading.Condition()
-        self.in_flight: dict[int, float] = {}  # left stamp -> pair publish time
+        self.in_flight: dict[int, float] = {}  # left stamp -> publish time, in publication order
         self.right_times: dict[int, float] = {}
         self.frames_in = self.frames_out = self.dropped = 0
         self.first_pub = None
@@ -111,8 +118,13 @@ class _FrameBook:
             if self.first_pub is None:
                 self.first_pub = t
             if is_left:
+                if self.in_flight.pop(stamp, None) is not None:
+                    self.dropped += 1  # the same stamp again (a looping bag) before its cloud came
                 self.in_flight[stamp] = t
                 self.frames_in += 1
+                while len(self.in_flight) > _MAX_TRACKED:  # a graph that stopped producing, looped
+                    del self.in_flight[next(iter(self.in_flight))]
+                    self.dropped += 1
             else:
                 self.right_times[stamp] = t
                 if len(self.right_times) > 64:
@@ -129,22 +141,23 @@ class _FrameBook:
     def completed(self, stamp: int, t: float) -> None:
         with self.cond:
             self.last_activity = t
-            for s in sorted(self.in_flight):
-                if s > stamp:
-                    break
-                if s == stamp:
-                    self.latencies.append(t - self._pair_time(s))
-                    self.frames_out += 1
-                    self.last_out = t
-                else:
-                    self.dropped += 1
-                del self.in_flight[s]
+            if stamp in self.in_flight:
+                for s in list(self.in_flight):  # publication order: earlier frames were overtaken
+                    if s == stamp:
+                        self.latencies.append(t - self._pair_time(s))
+                        self.frames_out += 1
+                        self.last_out = t
+                    else:
+                        self.dropped += 1
+                    del self.in_flight[s]
+                    if s == stamp:
+                        break
             self.cond.notify_all()
 
     def drop_oldest(self) -> None:
         with self.cond:
             if self.in_flight:
-                del self.in_flight[min(self.in_flight)]
+                del self.in_flight[next(iter(self.in_flight))]
                 self.dropped += 1
             self.cond.notify_all()
 
@@ -153,7 +166,7 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
             domain_id: int | None = None, max_in_flight: int = 2, idle_s: float = 2.0,
             timeout_s: float = 120.0, keep=(), remap: dict | None = None,
             startup_timeout_s: float = 30.0, progress=None, compression: str = "lz4",
-            context=None) -> RunResult:
+            context=None, loop: bool = False, stop: threading.Event | None = None) -> RunResult:
     """Replay ``bag_path`` through the graph for ``rig``; see the module docstring.
 
     Args:
@@ -175,6 +188,8 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
             zstd is smaller but costs about 20 ms per megabyte of output on this machine).
         context: an initialised rclpy context to build the graph in (default: a
             private one on ``domain_id``, shut down at the end).
+        loop: play the bag again at its end, until ``stop`` is set (the graph is built once).
+        stop: event that ends playback early (the frames in flight are still awaited).
     """
     from sensor_msgs.msg import CameraInfo, Image, PointCloud2
     from stereo_msgs.msg import DisparityImage
@@ -206,7 +221,7 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
     writer = BagWriter(record, compression=compression) if record is not None else None
     try:
         _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, remap, startup_timeout_s,
-             progress, context, play_topics, left_topics, ns, outputs, result, book, writer)
+             progress, context, play_topics, left_topics, ns, outputs, result, book, writer, loop, stop)
     finally:
         if writer is not None:
             result.recorded = writer.close()
@@ -219,7 +234,8 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
 
 
 def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, remap, startup_timeout_s,
-         progress, context, play_topics, left_topics, ns, outputs, result, book, writer) -> None:
+         progress, context, play_topics, left_topics, ns, outputs, result, book, writer, loop=False,
+         stop=None) -> None:
     """Build the graph, play, drain and tear down (the body of :func:`run_bag`)."""
     reliability = options.reliability
     with (_given(context) if context is not None else ros_context(domain_id)) as ctx:
@@ -250,7 +266,7 @@ def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, r
                 io_node.create_subscription(cls, f"{ns}/{rel}",
                                             io_node.guarded(lambda d, r=rel: on_output(r, d)),
                                             recording_qos(50, reliability), raw=True)
-            player = BagPlayer(io_node, bag, rate, remap=remap, topics=play_topics, depth=5)
+            player = BagPlayer(io_node, bag, rate, loop=loop, remap=remap, topics=play_topics, depth=5)
             graph.add_node(io_node)
             graph.spin_in_background()
             _wait_connected(graph, io_node, player, startup_timeout_s)
@@ -265,7 +281,7 @@ def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, r
                     return True
                 deadline = time.monotonic() + timeout_s
                 with book.cond:
-                    while len(book.in_flight) >= max_in_flight:
+                    while len(book.in_flight) >= max_in_flight and not (stop is not None and stop.is_set()):
                         book.cond.wait(0.05)
                         if len(book.in_flight) < max_in_flight:
                             break
@@ -279,7 +295,7 @@ def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, r
                 if stamp is not None:
                     book.published(m.topic in left_topics, stamp, t)
 
-            player.play(before_publish=before_publish, on_published=on_published)
+            player.play(stop=stop, before_publish=before_publish, on_published=on_published)
             start_wait = time.monotonic()
             while book.in_flight:
                 if time.monotonic() - start_wait > timeout_s or graph_idle_for(idle_s):

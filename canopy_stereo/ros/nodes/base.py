@@ -1,9 +1,25 @@
-"""What every canopy_stereo node shares: QoS, drop accounting, guarded callbacks, ``main``.
+"""What every canopy_stereo node shares: QoS, drop accounting, diagnostics, parameters,
+guarded callbacks, ``main``.
 
-QoS: inputs use sensor-data QoS, outputs are reliable (``reliability`` parameter);
-both can be changed per topic with ROS 2's ``qos_overrides`` parameters, e.g.
-``qos_overrides./stereo/left/image_raw.subscription.reliability: reliable`` for
-lossless large images between processes.
+QoS (:mod:`canopy_stereo.ros.qos`): inputs are reliable, keep last
+:data:`~canopy_stereo.ros.qos.INPUT_DEPTH` (the newest frames win when a node falls
+behind, so latency stays bounded; Fast DDS loses most ~1 MB best-effort samples
+between processes); outputs are reliable (``reliability`` parameter), keep last
+:data:`~canopy_stereo.ros.qos.OUTPUT_DEPTH`, and serve reliable and best-effort
+(sensor-data) subscribers alike. Every policy can be changed per topic with
+rclpy's standard ``qos_overrides`` parameters, e.g.
+``qos_overrides./stereo/left/image_raw.subscription.reliability: best_effort``
+for a driver that publishes best effort.
+
+Diagnostics (:mod:`canopy_stereo.ros.diagnostics`): every node publishes its input
+and output rates, drops with reasons, latency and statistics on ``/diagnostics``
+every ``diagnostic_period`` seconds.
+
+Parameters: :meth:`CanopyNode.declare_number` and friends declare parameters with a
+description and, for numbers, an integer or floating-point range; an integer given
+for a floating-point parameter (``-p fps:=10``, ``ros2 param set ... 1``) is
+accepted as that number; a value out of range or of the wrong type stops the
+node with one line naming the parameter (exit status 2).
 
 A bad message (wrong encoding, size mismatch against the rig, an unpaired
 frame) is *dropped*: the node logs the reason (the first time, then at most
@@ -18,17 +34,22 @@ import sys
 import threading
 import time
 import traceback
-from collections import Counter
+from collections import Counter, deque
 
 import rclpy
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import ParameterType
+from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterValueException,
+                              ParameterException)
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.ros.qos import RELIABILITY_CHOICES, publisher_qos, subscription_qos
 from canopy_stereo.ros.context import tune_node_process
+from canopy_stereo.ros.diagnostics import DEFAULT_PERIOD_S, NodeDiagnostics
+from canopy_stereo.ros.params import flag_descriptor, number_descriptor, text_descriptor
+from canopy_stereo.ros.qos import OUTPUT_DEPTH, RELIABILITY_CHOICES, publisher_qos, subscription_qos
 
 #: Namespace of the nodes when none is given (``--ros-args -r __ns:=/x`` overrides it).
 DEFAULT_NAMESPACE = "/stereo"
@@ -49,35 +70,114 @@ class CanopyNode(Node):
     def __init__(self, node_name: str, **kwargs):
         kwargs.setdefault("namespace", DEFAULT_NAMESPACE)
         super().__init__(node_name, **kwargs)
-        self.declare_parameter("reliability", "reliable", ParameterDescriptor(
-            description=f"publisher reliability: {' or '.join(RELIABILITY_CHOICES)}", read_only=True))
+        self.add_pre_set_parameters_callback(self._integers_for_doubles)
+        self.declare_text("reliability", "reliable", "reliability of the node's publishers",
+                          choices=RELIABILITY_CHOICES, read_only=True)
+        self.declare_number("diagnostic_period", DEFAULT_PERIOD_S,
+                            "seconds between two reports on /diagnostics (0 = none)",
+                            minimum=0.0, maximum=3600.0, read_only=True)
+        self.diagnostics = NodeDiagnostics(self, float(self.get_parameter("diagnostic_period").value),
+                                           self._hardware_id())
         self.counts: Counter = Counter()
         self.busy_s = 0.0
         self.drops: Counter = Counter()
         self._drop_logged: dict[str, float] = {}
+        self._jump_logged = float("-inf")
+        self._jumps_unlogged = 0
         self._stats_lock = threading.Lock()
         self._busy = 0
         self.last_active = time.monotonic()  # entry or exit of the latest guarded callback
         self._idle = threading.Condition()
         self._closing = False
+        self._workers: list[LatestOnly] = []
+
+    def _hardware_id(self) -> str:
+        """``hardware_id`` of the node's diagnostics (subclasses: the device they drive)."""
+        return self.get_fully_qualified_name()
+
+    # ------------------------------------------------------------------ parameters
+    def declare_parameters(self, namespace, parameters, ignore_override: bool = False):
+        """rclpy's ``declare_parameters``, with an integer override of a floating-point
+        parameter taken as that number and bad values raised as :class:`CanopyStereoError`."""
+        for entry in parameters:
+            name = f"{namespace}.{entry[0]}" if namespace else entry[0]
+            value = entry[1] if len(entry) > 1 else None
+            descriptor = entry[2] if len(entry) > 2 else None
+            is_double = (isinstance(value, float)
+                         or (isinstance(value, Parameter.Type) and value == Parameter.Type.DOUBLE)
+                         or (descriptor is not None and descriptor.type == ParameterType.PARAMETER_DOUBLE))
+            override = self._parameter_overrides.get(name)
+            if is_double and override is not None and override.type_ == Parameter.Type.INTEGER:
+                self._parameter_overrides[name] = Parameter(name, Parameter.Type.DOUBLE, float(override.value))
+        try:
+            return super().declare_parameters(namespace, parameters, ignore_override)
+        except InvalidParameterValueException as exc:
+            text = str(exc)
+            reason = text.split("Reason: ", 1)[-1].rsplit(": ", 1)[0]
+            raise CanopyStereoError(f"node {self.get_name()}: {reason}") from None
+        except InvalidParameterTypeException as exc:
+            raise CanopyStereoError(f"node {self.get_name()}: {str(exc).rsplit(': ', 1)[0]}") from None
+
+    def _integers_for_doubles(self, parameters: list) -> list:
+        """Pre-set callback: ``ros2 param set NODE scale 1`` sets a double parameter to 1.0."""
+        out = []
+        for p in parameters:
+            if p.type_ == Parameter.Type.INTEGER and self.has_parameter(p.name):
+                try:
+                    if self.describe_parameter(p.name).type == ParameterType.PARAMETER_DOUBLE:
+                        p = Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
+                except ParameterException:
+                    pass
+            out.append(p)
+        return out
+
+    def declare_number(self, name: str, default, description: str, *, minimum, maximum, step=0,
+                       read_only: bool = False):
+        """Declare an integer (``default`` an int) or floating-point parameter with its range."""
+        return self.declare_parameter(name, default, number_descriptor(
+            description, minimum=minimum, maximum=maximum, step=step, read_only=read_only,
+            integer=isinstance(default, int) and not isinstance(default, bool)))
+
+    def declare_text(self, name: str, default: str, description: str, *, choices=None,
+                     read_only: bool = False):
+        """Declare a string parameter (``choices`` are listed in the description)."""
+        return self.declare_parameter(name, default, text_descriptor(description, choices=choices,
+                                                                     read_only=read_only))
+
+    def declare_flag(self, name: str, default: bool, description: str, *, read_only: bool = False):
+        """Declare a boolean parameter."""
+        return self.declare_parameter(name, bool(default), flag_descriptor(description, read_only=read_only))
 
     # ------------------------------------------------------------------ pub/sub
     def make_publisher(self, msg_type, topic: str):
-        """Publisher with the node's reliability, keep last 1 (overridable per topic with the
-        standard ``qos_overrides.<topic>.publisher.<policy>`` parameters)."""
-        return self.create_publisher(msg_type, topic,
-                                     publisher_qos(self.get_parameter("reliability").value),
-                                     qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        """Publisher with the node's reliability, keep last :data:`OUTPUT_DEPTH` (overridable
+        per topic with the standard ``qos_overrides.<topic>.publisher.<policy>`` parameters);
+        its messages are counted in the node's diagnostics."""
+        pub = self.create_publisher(msg_type, topic,
+                                    publisher_qos(self.get_parameter("reliability").value, OUTPUT_DEPTH),
+                                    qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        return _CountedPublisher(pub, self.diagnostics)
 
     def make_subscription(self, msg_type, topic: str, callback, depth: int | None = None, **kwargs):
-        """Sensor-data QoS subscription whose callback is :meth:`guarded`.
+        """Reliable keep-last subscription (:func:`~canopy_stereo.ros.qos.subscription_qos`)
+        whose callback is :meth:`guarded` and counted in the node's diagnostics.
 
-        ``qos_overrides.<topic>.subscription.reliability: reliable`` (a node parameter)
-        makes it reliable: large images between processes are then never lost.
+        ``qos_overrides.<topic>.subscription.reliability: best_effort`` (a node parameter)
+        accepts a best-effort publisher (large messages between processes may then be lost).
         """
-        return self.create_subscription(msg_type, topic, self.guarded(callback), subscription_qos(depth),
-                                        qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-                                        **kwargs)
+        diagnostics = self.diagnostics
+        name = topic
+
+        def counted(msg):
+            stamp = _header_stamp_ns(msg)
+            diagnostics.received(name, stamp)
+            return callback(msg)
+
+        sub = self.create_subscription(msg_type, topic, self.guarded(counted), subscription_qos(depth),
+                                       qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+                                       **kwargs)
+        name = sub.topic_name
+        return sub
 
     # ------------------------------------------------------------------ accounting
     def count(self, what: str, n: int = 1) -> None:
@@ -85,13 +185,34 @@ class CanopyNode(Node):
         with self._stats_lock:
             self.counts[what] += n
 
-    def drop(self, reason: str, what: str = "message") -> None:
-        """Count and log a dropped input (rate-limited per reason)."""
+    def time_jump_handler(self, stream_names):
+        """An ``on_jump`` callback for the synchronizers of :mod:`canopy_stereo.ros.sync`:
+        one log line per backwards time jump, counted in the diagnostics."""
+        def on_jump(jump) -> None:
+            self.count("time_jumps")
+            self.diagnostics.time_jump()
+            now = time.monotonic()
+            with self._stats_lock:  # a short looping bag jumps every pass: at most a line per period
+                self._jumps_unlogged += 1
+                if now - self._jump_logged < DROP_LOG_PERIOD_S:
+                    return
+                self._jump_logged, n, self._jumps_unlogged = now, self._jumps_unlogged, 0
+            more = f" ({n} jumps since the last report)" if n > 1 else ""
+            self.get_logger().warning(
+                f"time jumped back {jump.back_s:.3f} s ({stream_names[jump.stream]} stamps): pairing "
+                f"reset, {jump.dropped} queued message(s) from before the jump dropped{more}")
+        return on_jump
+
+    def drop(self, reason: str, what: str = "message", log: bool = True) -> None:
+        """Count and log a dropped input (rate-limited per reason; ``log=False``: count only)."""
         key = f"{what}: {reason}"
         now = time.monotonic()
+        self.diagnostics.dropped(key, internal=reason.startswith("internal error"))
         with self._stats_lock:
             self.drops[key] += 1
             n = self.drops[key]
+            if not log:
+                return
             last = self._drop_logged.get(key)
             if last is not None and now - last < DROP_LOG_PERIOD_S:
                 return
@@ -120,8 +241,10 @@ class CanopyNode(Node):
                 self.drop(f"internal error {type(exc).__name__}: {exc}")
                 self.get_logger().debug(tb)
             finally:
+                dt = time.perf_counter() - t0
+                self.diagnostics.busy(dt)
                 with self._stats_lock:
-                    self.busy_s += time.perf_counter() - t0
+                    self.busy_s += dt
                 with self._idle:
                     self._busy -= 1
                     self.last_active = time.monotonic()
@@ -141,10 +264,19 @@ class CanopyNode(Node):
         with self._idle:
             return 0.0 if self._busy > 0 else time.monotonic() - self.last_active
 
+    def latest_only(self, fn, what: str, depth: int = 1) -> "LatestOnly":
+        """A worker thread that runs ``fn`` on the newest submitted jobs (see :class:`LatestOnly`)."""
+        worker = LatestOnly(self, fn, what, depth)
+        self._workers.append(worker)
+        return worker
+
     def destroy_node(self):
         """Refuse new callbacks, wait (up to 30 s) for running ones, then destroy."""
         with self._idle:
             self._closing = True
+        for worker in self._workers:
+            worker.close()
+        with self._idle:
             self._idle.wait_for(lambda: self._busy == 0, timeout=30.0)
         return super().destroy_node()
 
@@ -152,6 +284,95 @@ class CanopyNode(Node):
         """Snapshot ``{"counts": {...}, "drops": {...}, "busy_s": seconds in callbacks}``."""
         with self._stats_lock:
             return {"counts": dict(self.counts), "drops": dict(self.drops), "busy_s": self.busy_s}
+
+
+class LatestOnly:
+    """Newest-frames-win processing for a node's slow stage.
+
+    The node's callbacks only pair inputs and :meth:`submit` complete jobs; a worker
+    thread runs ``fn(*job)`` (as a :meth:`CanopyNode.guarded` callback: errors are
+    drops, the node counts as busy) on the waiting jobs in order. At most ``depth`` jobs
+    wait: when another arrives the oldest waiting one is dropped as superseded. So a
+    short stall is absorbed, a camera faster than the stage gets its newest pairs
+    processed, latency stays bounded (``depth`` jobs at most wait), and the node's
+    inputs are always drained (no pair loses one of its images in a full queue).
+    """
+
+    def __init__(self, node: CanopyNode, fn, what: str, depth: int = 1):
+        if depth < 1:
+            raise ValueError(f"depth must be >= 1, got {depth}")
+        self.node, self.what, self.depth = node, what, int(depth)
+        self._fn = node.guarded(fn)
+        self._cond = threading.Condition()
+        self._jobs: deque = deque()
+        self._stop = False
+        self._thread = threading.Thread(target=self._run, name=f"{node.get_name()}:latest", daemon=True)
+        self._thread.start()
+
+    def submit(self, *job) -> None:
+        """Queue ``job`` for ``fn``; drops the oldest waiting job when ``depth`` already wait."""
+        with self._cond:
+            self._jobs.append(job)
+            superseded = 0
+            while len(self._jobs) > self.depth:
+                self._jobs.popleft()
+                superseded += 1
+            self._cond.notify()
+        for _ in range(superseded):
+            self.node.drop("superseded by newer ones while the node was busy", self.what)
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._jobs or self._stop)
+                if self._stop:
+                    return
+                job = self._jobs.popleft()
+                # busy from here on, so that the node never looks idle with a job taken
+                with self.node._idle:
+                    self.node._busy += 1
+            try:
+                self._fn(*job)
+            finally:
+                with self.node._idle:
+                    self.node._busy -= 1
+                    self.node._idle.notify_all()
+
+    def close(self, timeout_s: float = 30.0) -> None:
+        """Stop after the running job (waiting ones are discarded)."""
+        with self._cond:
+            self._stop = True
+            self._cond.notify()
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout_s)
+
+
+def _header_stamp_ns(msg) -> int | None:
+    header = getattr(msg, "header", None)
+    if header is None:
+        return None
+    return header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+
+
+class _CountedPublisher:
+    """An rclpy publisher whose ``publish`` also reports to the node's diagnostics
+    (every other attribute is the publisher's own)."""
+
+    def __init__(self, publisher, diagnostics: NodeDiagnostics):
+        self._publisher = publisher
+        self._diagnostics = diagnostics
+
+    def publish(self, msg) -> None:
+        self._publisher.publish(msg)
+        self._diagnostics.published(self._publisher.topic_name, _header_stamp_ns(msg))
+
+    @property
+    def publisher(self):
+        """The rclpy publisher."""
+        return self._publisher
+
+    def __getattr__(self, name):
+        return getattr(self._publisher, name)
 
 
 def _interrupt(signum, frame):

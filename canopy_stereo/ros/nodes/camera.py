@@ -80,17 +80,24 @@ class CameraNode(CanopyNode):
     def __init__(self, node_name: str = "camera_node", **kwargs):
         super().__init__(node_name, **kwargs)
         quiet_opencv_warnings()
-        ro = ParameterDescriptor(read_only=True)
         self.declare_parameter("device", "0", ParameterDescriptor(
-            description="V4L2 index, /dev path, video file or image-sequence pattern",
-            read_only=True, dynamic_typing=True))
-        self.declare_parameter("width", 0, ro)
-        self.declare_parameter("height", 0, ro)
-        self.declare_parameter("fps", 30.0, ro)
-        self.declare_parameter("fourcc", "", ro)
-        self.declare_parameter("camera_name", "left", ro)
-        self.declare_parameter("frame_id", "", ro)
-        self.declare_parameter("loop", True, ro)
+            description="V4L2 index (0), /dev path, video file or image-sequence pattern "
+                        "(frames/left_%03d.png)", read_only=True, dynamic_typing=True))
+        self.declare_number("width", 0, "requested capture width in pixels (0 = the device's default)",
+                            minimum=0, maximum=16384, read_only=True)
+        self.declare_number("height", 0, "requested capture height in pixels (0 = the device's default)",
+                            minimum=0, maximum=16384, read_only=True)
+        self.declare_number("fps", 30.0, "frames per second: requested from a device, and the pace "
+                            "of the capture loop (files and sequences too)",
+                            minimum=0.0, maximum=1000.0, read_only=True)
+        self.declare_text("fourcc", "", "requested pixel format, e.g. MJPG (empty = the device's default)",
+                          read_only=True)
+        self.declare_text("camera_name", "left", "camera name: images go to <camera_name>/image_raw",
+                          read_only=True)
+        self.declare_text("frame_id", "", "frame_id of the images (empty = <camera_name>_camera)",
+                          read_only=True)
+        self.declare_flag("loop", True, "restart a video file or image sequence at its end",
+                          read_only=True)
         self.source = str(self.get_parameter("device").value)
         self.camera_name = self.get_parameter("camera_name").value
         self.frame_id = self.get_parameter("frame_id").value or f"{self.camera_name}_camera_optical_frame"
@@ -109,6 +116,9 @@ class CameraNode(CanopyNode):
         self.finished = False
         fps = self.settings["fps"] if self.settings["fps"] > 0 else 30.0
         self.timer = self.create_timer(1.0 / fps, self.guarded(self._tick))
+
+    def _hardware_id(self) -> str:
+        return str(self.get_parameter("device").value) if self.has_parameter("device") else ""
 
     def _try_open(self) -> bool:
         now = time.monotonic()

@@ -22,7 +22,12 @@ Parameters (changeable at run time unless marked read-only):
 * ``disp_min``, ``disp_max``: search range in pixels (a rig file's ``disp_min``/``disp_max``
   set them); -1 = from the cameras: 0 to the disparity of a point 8 baselines away
   (``f / 8``), or 0 to 128 for an uncalibrated pair;
-* read-only: ``queue_size``, ``reliability``.
+* read-only: ``queue_size``, ``waiting_pairs``, ``reliability``, ``diagnostic_period``.
+
+This is the slowest stage: the matcher runs in a worker thread on the complete pairs
+(:class:`~canopy_stereo.ros.nodes.base.LatestOnly`), at most ``waiting_pairs`` (2)
+waiting; when the cameras are faster than the matcher, the oldest waiting pairs are
+dropped as superseded, so latency stays bounded. Stamps that go back reset the pairing.
 
 New values are validated before they are accepted (an invalid ELAS combination
 is refused with the reason); they apply from the next frame.
@@ -86,20 +91,58 @@ def _coerce(value, like):
     return type(like)(value)
 
 
+def _elas_presets() -> list:
+    try:
+        from canopy_stereo.elas.params import PRESETS
+    except ImportError:  # pragma: no cover - numba missing: SGBM only
+        return ["robotics", "middlebury"]
+    return sorted(PRESETS)
+
+
+#: Ranges of the numeric matcher parameters (inclusive); the matchers validate combinations.
+_MATCHER_RANGES = {
+    "disp_min": (0, 4096), "disp_max": (0, 4096), "support_threshold": (0.0, 1.0),
+    "support_texture": (0, 255), "candidate_stepsize": (1, 64), "incon_window_size": (1, 64),
+    "incon_threshold": (0, 255), "incon_min_support": (0, 64), "grid_size": (1, 256),
+    "beta": (0.0, 100.0), "gamma": (0.0, 100.0), "sigma": (0.0, 100.0), "sradius": (0.0, 100.0),
+    "match_texture": (0, 255), "lr_threshold": (0, 64), "speckle_sim_threshold": (0.0, 255.0),
+    "speckle_size": (0, 100000), "ipol_gap_width": (0, 10000),
+    "block_size": (1, 51), "p1": (0, 10_000_000), "p2": (0, 10_000_000), "disp12_max_diff": (-1, 4096),
+    "uniqueness": (0, 100), "speckle_window": (0, 100000), "speckle_range": (0, 1000),
+}
+
+
+def _matcher_parameter_descriptor(matcher: str, name: str, default):
+    """Descriptor of ``<matcher>.<name>``: unset = the preset's value; numbers with a range."""
+    from canopy_stereo.ros.params import number_descriptor
+
+    description = f"{matcher} parameter {name} (unset: the preset's/matcher's {default!r})"
+    numeric = isinstance(default, (int, float)) and not isinstance(default, bool)
+    if numeric or (default is None and name in _MATCHER_RANGES):
+        lo, hi = _MATCHER_RANGES.get(name, (0, 1_000_000) if isinstance(default, int) else (0.0, 1e6))
+        integer = isinstance(default, int) if numeric else isinstance(lo, int)
+        return number_descriptor(description, minimum=lo, maximum=hi, integer=integer, dynamic=True)
+    return ParameterDescriptor(description=description, dynamic_typing=True)
+
+
 class DisparityNode(CanopyNode):
     """Exact-time pairing + matcher (see module docstring)."""
 
     def __init__(self, node_name: str = "disparity_node", **kwargs):
         super().__init__(node_name, **kwargs)
-        self.declare_parameter("queue_size", 5, ParameterDescriptor(read_only=True))
-        self.declare_parameter("matcher", default_matcher(), ParameterDescriptor(
-            description="disparity matcher: elas or sgbm"))
-        self.declare_parameter("preset", "robotics", ParameterDescriptor(
-            description="ELAS preset: robotics or middlebury"))
-        self.declare_parameter("disp_min", -1, ParameterDescriptor(
-            description="smallest disparity searched (pixels); -1: from the rectified cameras"))
-        self.declare_parameter("disp_max", -1, ParameterDescriptor(
-            description="largest disparity searched (pixels); -1: from the rectified cameras"))
+        self.declare_number("queue_size", 5, "rectified images and camera_infos kept per stream while "
+                            "waiting for the others with the same stamp",
+                            minimum=1, maximum=100, read_only=True)
+        self.declare_number("waiting_pairs", 2, "complete pairs kept waiting while the matcher is busy; "
+                            "when more arrive the oldest is dropped (the newest win, latency stays bounded)",
+                            minimum=1, maximum=100, read_only=True)
+        self.declare_text("matcher", default_matcher(), "disparity matcher", choices=("elas", "sgbm"))
+        self.declare_text("preset", "robotics", "ELAS preset (defaults of the elas.* parameters)",
+                          choices=tuple(_elas_presets()))
+        self.declare_number("disp_min", -1, "smallest disparity searched (pixels); "
+                            "-1 = from the rectified cameras", minimum=-1, maximum=4096)
+        self.declare_number("disp_max", -1, "largest disparity searched (pixels); "
+                            "-1 = from the rectified cameras", minimum=-1, maximum=4096)
         self._defaults = {}
         for matcher in ("elas", "sgbm"):
             try:
@@ -108,15 +151,17 @@ class DisparityNode(CanopyNode):
                 continue
             for name, default in defaults.items():
                 self._defaults[f"{matcher}.{name}"] = default
-                self.declare_parameter(f"{matcher}.{name}", None, ParameterDescriptor(
-                    dynamic_typing=True,
-                    description=f"{matcher} parameter {name} (unset: preset/default {default!r})"))
+                self.declare_parameter(f"{matcher}.{name}", None,
+                                       _matcher_parameter_descriptor(matcher, name, default))
         self._config_lock = threading.Lock()
         self.config = self._build_config({})
         self.add_on_set_parameters_callback(self._on_set_parameters)
         # streams: 0 left image, 1 right image, 2 left camera_info, 3 right camera_info
-        self.sync = ExactTimeSynchronizer(4, int(self.get_parameter("queue_size").value))
+        self.sync = ExactTimeSynchronizer(4, int(self.get_parameter("queue_size").value),
+                                          on_jump=self.time_jump_handler(_STREAMS))
         self.pub = self.make_publisher(DisparityImage, "disparity")
+        self.matching = self.latest_only(self._match, "rectified pair",
+                                         int(self.get_parameter("waiting_pairs").value))
         self.sub_left = self.make_subscription(Image, "left/image_rect", lambda m: self._on_image(0, m))
         self.sub_right = self.make_subscription(Image, "right/image_rect", lambda m: self._on_image(1, m))
         self.sub_info_left = self.make_subscription(CameraInfo, RECT_INFO_TOPICS[0],
@@ -195,10 +240,10 @@ class DisparityNode(CanopyNode):
         stamp = stamp_to_ns(msg.header.stamp)
         items, dropped = self.sync.push(stream, stamp, item)
         for d in dropped:
-            self.drop(d.reason, _STREAMS[d.stream])
+            self.drop(d.reason, _STREAMS[d.stream], log=not d.reason.startswith("time jumped back"))
         if items is not None:
             (left, frame_id), (right, _), info_l, info_r = items
-            self._match(stamp, frame_id, left, right, info_l, info_r)
+            self.matching.submit(stamp, frame_id, left, right, info_l, info_r)
 
     def _match(self, stamp_ns: int, frame_id: str, left, right, info_l, info_r) -> None:
         with self._config_lock:
@@ -218,8 +263,9 @@ class DisparityNode(CanopyNode):
         dmin, dmax = resolve_disparity_range(c["disp_min"], c["disp_max"], f, t, doffs)
         disp = compute_disparity(left, right, matcher=c["matcher"], disp_min=dmin,
                                  disp_max=dmax, **c["params"])
-        self.pub.publish(disparity_to_msg(disp, f, t, dmin, dmax, c["delta_d"], stamp_ns, frame_id, doffs))
+        msg = disparity_to_msg(disp, f, t, dmin, dmax, c["delta_d"], stamp_ns, frame_id, doffs)
         self.count("disparities_published")
+        self.pub.publish(msg)
 
 
 _STREAMS = ("left rectified image", "right rectified image", "left camera_info", "right camera_info")

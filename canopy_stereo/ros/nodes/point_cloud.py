@@ -34,7 +34,7 @@ invalid; false: valid points only), ``use_mask``, ``queue_size``, ``reliability`
 from __future__ import annotations
 
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import String
 from stereo_msgs.msg import DisparityImage
@@ -130,16 +130,18 @@ class PointCloudNode(CanopyNode):
 
     def __init__(self, node_name: str = "point_cloud_node", **kwargs):
         super().__init__(node_name, **kwargs)
-        self.declare_parameter("frame_id", "", ParameterDescriptor(
-            description="name written for the world frame ('' = rectify_node's world_frame)"))
-        self.declare_parameter("cloud_frame", "world", ParameterDescriptor(
-            description="frame of points2: world (the rig's metric frame), world_z_up (z up, for "
-                        "RViz) or optical (the rectified left optical frame)"))
-        self.declare_parameter("organized", False, ParameterDescriptor(
-            description="true: organized cloud on the rectified grid with NaN; false: valid points"))
-        self.declare_parameter("use_mask", False, ParameterDescriptor(
-            description="keep only pixels of left/mask (255 = plant)", read_only=True))
-        self.declare_parameter("queue_size", 5, ParameterDescriptor(read_only=True))
+        self.declare_text("frame_id", "", "name written for the world frame ('' = rectify_node's "
+                          "world_frame)")
+        self.declare_text("cloud_frame", "world", "frame of points2: world (the rig's metric frame), "
+                          "world_z_up (z up, for RViz) or optical (the rectified left optical frame)",
+                          choices=CLOUD_FRAMES)
+        self.declare_flag("organized", False, "true: organized cloud on the rectified grid, NaN where "
+                          "invalid; false: valid points only")
+        self.declare_flag("use_mask", False, "keep only the pixels of left/mask (255 = plant)",
+                          read_only=True)
+        self.declare_number("queue_size", 15, "stamps kept while waiting for the other inputs with "
+                            "the same stamp (colour images arrive a disparity computation earlier)",
+                            minimum=1, maximum=100, read_only=True)
         self.use_mask = bool(self.get_parameter("use_mask").value)
         if self.get_parameter("cloud_frame").value not in CLOUD_FRAMES:
             raise CanopyStereoError(f"cloud_frame must be one of {', '.join(CLOUD_FRAMES)}, got "
@@ -148,7 +150,8 @@ class PointCloudNode(CanopyNode):
         self.geometry = None
         # streams: 0 disparity, 1 colour, 2 left camera_info, 3 mask
         n = 4 if self.use_mask else 3
-        self.sync = ExactTimeSynchronizer(n, int(self.get_parameter("queue_size").value))
+        self.sync = ExactTimeSynchronizer(n, int(self.get_parameter("queue_size").value),
+                                          on_jump=self.time_jump_handler(_STREAMS))
         self.pub = self.make_publisher(PointCloud2, "points2")
         self.pub_depth = self.make_publisher(Image, "left/depth")
         self.pub_depth_info = self.make_publisher(CameraInfo, "left/depth/camera_info")
@@ -196,7 +199,7 @@ class PointCloudNode(CanopyNode):
         stamp = stamp_to_ns(msg.header.stamp)
         items, dropped = self.sync.push(stream, stamp, item)
         for d in dropped:
-            self.drop(d.reason, _STREAMS[d.stream])
+            self.drop(d.reason, _STREAMS[d.stream], log=not d.reason.startswith("time jumped back"))
         if items is not None:
             try:
                 self._publish(stamp, *items)

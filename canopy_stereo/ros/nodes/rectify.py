@@ -20,14 +20,17 @@ frame's stamp:
   canopy_world -> {left,right}_camera_optical_frame, {left,right}_camera_rect_optical_frame``.
 
 Parameters: the rig (:mod:`canopy_stereo.ros.params`), ``method``,
-``H_left``/``H_right``, ``sync_slop`` (s), ``queue_size``, ``frame_id`` (rectified
-left optical frame) and ``right_frame_id``, ``world_frame``, ``world_z_up_frame``
-("" = none), ``left_camera_frame``/``right_camera_frame`` (raw optical frames in the
-transforms), ``reliability``.
+``H_left``/``H_right``, ``fps`` (the cameras' frame rate, 0 = measured from the
+stamps), ``sync_slop`` (s; -1 = half a frame period at ``fps``), ``queue_size``,
+``frame_id`` (rectified left optical frame) and ``right_frame_id``, ``world_frame``,
+``world_z_up_frame`` ("" = none), ``left_camera_frame``/``right_camera_frame`` (raw
+optical frames in the transforms), ``reliability``, ``diagnostic_period``.
+
+Stamps that go back further than the pairing tolerance (a looping bag, a
+restarted driver) reset the pairing with one log line; pairing goes on.
 """
 from __future__ import annotations
 
-from rcl_interfaces.msg import ParameterDescriptor
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import String
 
@@ -39,7 +42,7 @@ from canopy_stereo.ros.convert import (image_to_msg, msg_to_bgr, rectified_camer
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.params import declare_rig_parameters, rectification_from_node, rig_from_node
 from canopy_stereo.ros.stereo_geometry import STEREO_GEOMETRY_TOPIC, stereo_geometry_msg
-from canopy_stereo.ros.sync import ApproximateTimePairer
+from canopy_stereo.ros.sync import ApproximateTimePairer, FramePeriodEstimator, slop_for_rate
 from canopy_stereo.ros.tf import StaticTransformPublisher, latched_qos
 
 #: Rectified CameraInfo topics (beside their images; ``<side>/camera_info`` is the raw camera's).
@@ -55,6 +58,10 @@ _FRAME_PARAMETERS = {
     "right_camera_frame": (DEFAULT_FRAMES[("raw", "right")], "optical frame of the raw right camera"),
 }
 
+#: Pairing tolerance (s) while the frame rate is neither given nor measured yet: half a
+#: period at 30 frames/s, the fastest common webcam rate.
+INITIAL_SLOP_S = slop_for_rate(30.0)
+
 
 class RectifyNode(CanopyNode):
     """Approximate-time pairing + rectification (see module docstring)."""
@@ -62,12 +69,16 @@ class RectifyNode(CanopyNode):
     def __init__(self, node_name: str = "rectify_node", **kwargs):
         super().__init__(node_name, **kwargs)
         declare_rig_parameters(self)
-        self.declare_parameter("sync_slop", 0.015, ParameterDescriptor(
-            description="largest stamp difference of a left/right pair, seconds", read_only=True))
-        self.declare_parameter("queue_size", 5, ParameterDescriptor(
-            description="frames per camera kept while waiting for a partner", read_only=True))
+        self.declare_number("fps", 0.0, "frame rate of the cameras (frames/s); sets the pairing "
+                            "tolerance when sync_slop is -1; 0 = measured from the stamps",
+                            minimum=0.0, maximum=1000.0, read_only=True)
+        self.declare_number("sync_slop", -1.0, "largest stamp difference of a left/right pair (s); "
+                            "-1 = half a frame period (from fps, or measured)",
+                            minimum=-1.0, maximum=10.0, read_only=True)
+        self.declare_number("queue_size", 5, "frames per camera kept while waiting for a partner",
+                            minimum=1, maximum=100, read_only=True)
         for name, (default, desc) in _FRAME_PARAMETERS.items():
-            self.declare_parameter(name, default, ParameterDescriptor(description=desc, read_only=True))
+            self.declare_text(name, default, desc, read_only=True)
         self.rig = rig_from_node(self)
         self.rect = rectification_from_node(self, self.rig)
         self.rectifier = StereoRectifier(self.rig, self.rect)
@@ -76,8 +87,14 @@ class RectifyNode(CanopyNode):
                                  raw_left=p["left_camera_frame"], raw_right=p["right_camera_frame"],
                                  rect_left=p["frame_id"], rect_right=p["right_frame_id"])
         self.frame_id = self.frames.rect_left
-        self.pairer = ApproximateTimePairer(float(self.get_parameter("sync_slop").value),
-                                            int(self.get_parameter("queue_size").value))
+        slop = float(self.get_parameter("sync_slop").value)
+        fps = float(self.get_parameter("fps").value)
+        # sync_slop >= 0 is fixed; otherwise half a frame period, measured unless fps is given
+        self.period_estimator = FramePeriodEstimator() if slop < 0 and fps <= 0 else None
+        if slop < 0:
+            slop = slop_for_rate(fps) if fps > 0 else INITIAL_SLOP_S
+        self.pairer = ApproximateTimePairer(slop, int(self.get_parameter("queue_size").value),
+                                            on_jump=self.time_jump_handler(("left", "right")))
         self.pub_left = self.make_publisher(Image, "left/image_rect")
         self.pub_right = self.make_publisher(Image, "right/image_rect")
         self.pub_color = self.make_publisher(Image, "left/image_rect_color")
@@ -98,7 +115,8 @@ class RectifyNode(CanopyNode):
                                    f"{STEREO_GEOMETRY_TOPIC} and in recorded bags)")
         w, h = self.rig.image_size
         self.get_logger().info(f"rectifying {w}x{h} pairs ({self.rect.method}), "
-                               f"sync slop {self.pairer.slop_ns / 1e9:g} s")
+                               f"sync slop {self.pairer.slop_ns / 1e9:g} s"
+                               + (" until the frame period is measured" if self.period_estimator else ""))
 
     def _on_image(self, side: int, msg: Image) -> None:
         name = ("left", "right")[side]
@@ -108,10 +126,15 @@ class RectifyNode(CanopyNode):
         except Exception as exc:
             self.drop(str(exc), f"{name} frame")
             return
-        pair, dropped = self.pairer.push(side, stamp_to_ns(msg.header.stamp), bgr)
+        stamp = stamp_to_ns(msg.header.stamp)
+        if self.period_estimator is not None:
+            self._follow_frame_rate(self.period_estimator.observe(side, stamp))
+        pair, dropped = self.pairer.push(side, stamp, bgr)
         for d in dropped:
-            self.drop(d.reason, f"{('left', 'right')[d.stream]} frame")
+            self.drop(d.reason, f"{('left', 'right')[d.stream]} frame",
+                      log=not d.reason.startswith("time jumped back"))
         if pair is not None:
+            self.diagnostics.sample("pair offset ms", pair.skew_ns / 1e6)
             self._publish(pair.stamps_ns[0], *pair.items)
 
     def camera_infos(self, stamp_ns: int) -> tuple[CameraInfo, CameraInfo]:
@@ -124,6 +147,17 @@ class RectifyNode(CanopyNode):
         return (rectified_camera_info(self.rect.K_rect_left, self.rect.size, baseline_m, "left", stamp_ns, fl),
                 rectified_camera_info(self.rect.K_rect_right, self.rect.size, baseline_m, "right",
                                       stamp_ns, fr))
+
+    def _follow_frame_rate(self, period_s: float | None) -> None:
+        """Pairing tolerance = half the measured frame period (updated when it moves > 10 %)."""
+        if period_s is None:
+            return
+        slop = 0.5 * period_s
+        current = self.pairer.slop_ns / 1e9
+        if abs(slop - current) > 0.1 * current:
+            self.pairer.set_slop(slop)
+            self.get_logger().info(f"frame period {period_s * 1e3:.1f} ms measured from the stamps: "
+                                   f"pairing tolerance {slop * 1e3:.1f} ms")
 
     def _publish(self, stamp_ns: int, left_bgr, right_bgr) -> None:
         left_r, right_r = self.rectifier.rectify(left_bgr, right_bgr)

@@ -40,15 +40,14 @@ class SegmentNode(CanopyNode):
         self.declare_parameter("rect", [0, 0, 0, 0], ParameterDescriptor(
             description="initial rectangle [x, y, width, height] in rectified pixels; "
                         "zero size = automatic initialisation", dynamic_typing=True))
-        self.declare_parameter("iterations", 3, ParameterDescriptor(description="GrabCut iterations"))
-        self.declare_parameter("auto_init", "saturation", ParameterDescriptor(
-            description=f"automatic initialisation: {' or '.join(AUTO_INITS)}"))
-        self.declare_parameter("scale", 0.25, ParameterDescriptor(
-            description="processing scale in (0, 1]"))
-        self.declare_parameter("queue_size", 5, ParameterDescriptor(
-            description="input queue depth; 1 = always segment the latest image and skip the "
-                        "ones that arrived meanwhile (when nothing waits for every mask)",
-            read_only=True))
+        self.declare_number("iterations", 3, "GrabCut iterations", minimum=1, maximum=100)
+        self.declare_text("auto_init", "saturation", "automatic initialisation when rect is empty",
+                          choices=AUTO_INITS)
+        self.declare_number("scale", 0.25, "processing scale: images are segmented at this fraction "
+                            "of their size and the mask resized back", minimum=0.01, maximum=1.0)
+        self.declare_number("queue_size", 5, "input queue depth; 1 = always segment the latest image "
+                            "and skip the ones that arrived meanwhile (when nothing waits for every mask)",
+                            minimum=1, maximum=100, read_only=True)
         self.settings = self._settings({})
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.pub = self.make_publisher(Image, "left/mask")
