@@ -623,13 +623,17 @@ class BagCheck:
     def lines(self) -> list[str]:
         """Human-readable report (integrity, topics, counts, what is recoverable)."""
         total = sum(self.messages_recovered.values())
-        state = "OK" if self.ok else ("DAMAGED" if self.damage else "INCOMPLETE")
+        cut = any("cut short" in d.problem for d in self.damage) or (not self.complete and
+                                                                      self.summary == "absent")
+        state = "OK" if self.ok else ("TRUNCATED (cut short or never closed: no summary/footer)"
+                                      if cut and self.chunks_damaged == 0 else "DAMAGED")
         out = [f"bag: {self.path}", f"integrity: {state}",
                f"summary: {self.summary}; data-section CRC: {self.data_crc}; "
                f"chunks: {self.chunks} ({self.chunks_damaged} damaged)"]
         for d in self.damage:
             out.append("  damage: " + d.describe(self.path).split(": ", 1)[1])
-        lost = f"{self.messages_lost}{' or more' if self.lost_unknown else ''}"
+        lost = (f"{self.messages_lost} counted + an unknown number in unreadable parts"
+                if self.lost_unknown else str(self.messages_lost))
         out.append(f"messages readable intact: {total}; lost: {lost}")
         for topic, n in sorted(self.messages_recovered.items()):
             out.append(f"  {topic}  {n} msgs")
@@ -1403,3 +1407,35 @@ def repair_bag(src, dst, *, compression: str | None = None, overwrite: bool = Fa
     finally:
         writer.close()
     return reader.verify()
+
+
+_SIZE_UNITS = {"": 1, "B": 1, "K": 1 << 10, "KB": 1 << 10, "KIB": 1 << 10, "M": 1 << 20, "MB": 1 << 20,
+               "MIB": 1 << 20, "G": 1 << 30, "GB": 1 << 30, "GIB": 1 << 30}
+
+
+def parse_size(text) -> int:
+    """Bytes from ``"1048576"``, ``"500M"``, ``"2G"``, ``"64KiB"`` (binary units)."""
+    m = re.fullmatch(r"\s*([0-9]+(?:\.[0-9]*)?)\s*([A-Za-z]*)\s*", str(text))
+    if not m or m.group(2).upper() not in _SIZE_UNITS:
+        raise CanopyStereoError(f"size {text!r} is not a number of bytes (e.g. 500M, 2G)")
+    return int(float(m.group(1)) * _SIZE_UNITS[m.group(2).upper()])
+
+
+def add_split_arguments(parser) -> None:
+    """``--split-size`` and ``--split-duration`` (rosbag2-style bag splitting) for a recorder."""
+    parser.add_argument("--split-size", default="0", metavar="BYTES",
+                        help="start a new file <name>_N.mcap when the current one reaches this "
+                             "size (e.g. 500M, 2G; default 0 = never)")
+    parser.add_argument("--split-duration", type=float, default=0.0, metavar="S",
+                        help="start a new file <name>_N.mcap every S seconds of recording "
+                             "(default 0 = never)")
+
+
+def split_options(args) -> dict:
+    """``{"split_size": ..., "split_duration_s": ...}`` from :func:`add_split_arguments` options
+    (:class:`~canopy_stereo.errors.CanopyStereoError` for bad values)."""
+    size = parse_size(args.split_size)
+    duration = float(args.split_duration)
+    if not duration >= 0 or duration == float("inf"):
+        raise CanopyStereoError(f"--split-duration must be a finite number >= 0, got {args.split_duration}")
+    return {"split_size": size, "split_duration_s": duration}

@@ -14,7 +14,10 @@ dispatcher rebuilds and re-polls the wait set in Python while holding the GIL.
 
 ``canopy_graph`` (``ros2 run canopy_stereo canopy_graph --rig RIG.yaml``) runs
 it from live cameras (``--left-device``/``--right-device``) or from a bag
-(``--bag``), optionally recording the outputs (``--record``).
+(``--bag``), optionally recording the outputs (``--record``; with ``--loop``
+every pass appends to the same recording, which ``--split-size`` and
+``--split-duration`` split into ``<name>_0.mcap``, ... as rosbag2 does).
+SIGINT, SIGTERM and SIGHUP close the recording validly.
 """
 from __future__ import annotations
 
@@ -223,6 +226,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--height", type=int, default=0, help="camera height (default: the rig's)")
     p.add_argument("--fourcc", default="", help="camera pixel format, e.g. MJPG")
     p.add_argument("--record", metavar="OUT.mcap", help="record the outputs")
+    from canopy_stereo.ros.bag import add_split_arguments
+
+    add_split_arguments(p)
     p.add_argument("--matcher", choices=("elas", "sgbm"), default=None)
     p.add_argument("--use-mask", action="store_true", help="keep only plant pixels in the clouds")
     p.add_argument("--no-segment", action="store_true", help="do not run segment_node")
@@ -257,14 +263,19 @@ def main(args=None) -> int:
     rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     install_stop_signals()
     context = rclpy.get_default_context()
-    graph = recorder = None
+    graph = recorder = writer = None
     try:
         rig = load_rig(opts.rig)
+        if opts.record:
+            from canopy_stereo.ros.bag import BagWriter, split_options
+
+            # one writer for every pass of --loop: passes append (or split), never overwrite
+            writer = BagWriter(opts.record, compression="lz4", **split_options(opts))
         if opts.bag:
             from canopy_stereo.ros.runner import run_bag
 
             while True:
-                result = run_bag(opts.bag, rig, rate=opts.rate, record=opts.record, options=options,
+                result = run_bag(opts.bag, rig, rate=opts.rate, record=writer, options=options,
                                  context=context)
                 print("\n".join(result.summary_lines()), flush=True)
                 if not opts.loop or not rclpy.ok():
@@ -275,13 +286,12 @@ def main(args=None) -> int:
         graph = CanopyGraph(rig, context, options, cameras=(
             {**cam, "device": str(opts.cameras[0])}, {**cam, "device": str(opts.cameras[1])}))
         if opts.record:
-            from canopy_stereo.ros.bag import BagWriter
             from canopy_stereo.ros.recorder import BagRecorder
 
             ns = "/" + options.namespace.strip("/")
             topics = [f"{ns}/{t}" for t in ("points2", "disparity", "left/mask", "left/camera_info",
                                              "right/camera_info", "left/image_raw", "right/image_raw")]
-            recorder = BagRecorder(BagWriter(opts.record, compression="lz4"), topics, context=context)
+            recorder = BagRecorder(writer, topics, context=context)
             graph.add_node(recorder)
         graph.spin_until_interrupted()
         return 0
@@ -296,5 +306,8 @@ def main(args=None) -> int:
             recorder.destroy_node()
         if graph is not None:
             graph.shutdown()
+        if writer is not None:
+            writer.close()
+            print(f"canopy_graph: recorded {', '.join(str(p) for p in writer.paths)}", flush=True)
         if rclpy.ok():
             rclpy.shutdown()
