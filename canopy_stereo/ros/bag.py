@@ -623,10 +623,9 @@ class BagCheck:
     def lines(self) -> list[str]:
         """Human-readable report (integrity, topics, counts, what is recoverable)."""
         total = sum(self.messages_recovered.values())
-        cut = any("cut short" in d.problem for d in self.damage) or (not self.complete and
-                                                                      self.summary == "absent")
-        state = "OK" if self.ok else ("TRUNCATED (cut short or never closed: no summary/footer)"
-                                      if cut and self.chunks_damaged == 0 else "DAMAGED")
+        other = [d for d in self.damage if "cut short" not in d.problem]
+        state = ("OK" if self.ok else "DAMAGED" if other else
+                 "TRUNCATED (cut short or never closed: no summary/footer)")
         out = [f"bag: {self.path}", f"integrity: {state}",
                f"summary: {self.summary}; data-section CRC: {self.data_crc}; "
                f"chunks: {self.chunks} ({self.chunks_damaged} damaged)"]
@@ -638,7 +637,8 @@ class BagCheck:
         for topic, n in sorted(self.messages_recovered.items()):
             out.append(f"  {topic}  {n} msgs")
         if not self.ok:
-            out.append("recoverable: every message listed above (canopy-stereo bag repair FILE -o OUT)")
+            out.append("recoverable: every message listed above (canopy-stereo bag repair FILE -o OUT)"
+                       if total else "recoverable: nothing")
         return out
 
 
@@ -747,6 +747,10 @@ class BagReader:
 
     def _open(self) -> None:
         self._fd = None
+        if self.path.is_dir():
+            mcaps = sorted(p.name for p in self.path.glob("*.mcap"))
+            raise BagError(f"{self.path} is a folder; pass one of its bag files"
+                           + (f" ({', '.join(mcaps[:4])})" if mcaps else " (it holds no .mcap)"))
         if not self.path.is_file():
             raise BagError(f"bag not found: {self.path}")
         try:
@@ -754,6 +758,8 @@ class BagReader:
             self.size = os.fstat(self._fd).st_size
         except OSError as exc:
             raise BagError(f"cannot read bag {self.path}: {exc.strerror or exc}") from None
+        if self.size == 0:
+            raise BagError(f"{self.path}: offset 0: the file is empty (0 bytes)")
         if self._read(0, 8) != _MAGIC:
             raise BagError(f"{self.path} is not an MCAP file (bad magic)")
         self._schemas: dict[int, SchemaRecord] = {}
@@ -767,8 +773,9 @@ class BagReader:
         self._summary_state = "absent"
         self._summary_verified = False
         footer = self._read_footer()
-        data_end = footer[0] if footer and footer[0] else (footer[3] if footer else self.size)
-        self._scan(8, data_end)
+        # up to the footer, not to where it says the summary starts: that field is only
+        # checked by the summary CRC (the scan stops at the data-end record anyway)
+        self._scan(8, footer[3] if footer else self.size)
         summary = self._read_summary(footer) if footer else None
         if summary is not None and not self._believe(summary):
             summary = None
@@ -835,22 +842,29 @@ class BagReader:
         resynced = False
         while p < end:
             rec = self._record_at(p, end)
+            if rec is not None and p == 8 and rec[0] != _HEADER:
+                rec = None  # an MCAP file starts with its header record
             if rec is None:
                 q = self._resync(p + 1, end)
+                head = self._read(p, 9)
+                op = head[0] if head else None
+                cut = (end == self.size and op is not None and not (op == 0 or 0x10 <= op < 0x80)
+                       and (p != 8 or op == _HEADER)
+                       and (len(head) < 9 or p + 9 + struct.unpack_from("<Q", head, 1)[0] > end))
                 if q is None:
-                    if end == self.size:  # no footer: the file was cut here
+                    if cut:  # no footer and a record that runs past the end: cut short here
                         self.truncated = True
-                        lost = None if p + 9 > end or self._read(p, 1) == bytes([_CHUNK]) else 0
                         self._report(BagDamage(p, end - p, f"the file is cut short: the record at "
                                                f"offset {p} ends past the end of the file "
-                                               f"({self.size} bytes)", lost))
+                                               f"({self.size} bytes)", None if op == _CHUNK else 0))
                     else:
-                        self._report(BagDamage(p, end - p, "damaged record framing; no intact "
+                        self._report(BagDamage(p, end - p, "unreadable record (opcode "
+                                               f"{'none' if op is None else hex(op)}); no intact "
                                                "chunk follows", None))
                     return
-                self._report(BagDamage(p, q - p, "damaged record framing "
-                                       f"(unreadable record header); skipped to the intact chunk at {q}",
-                                       None))
+                self._report(BagDamage(p, q - p, "unreadable record (opcode "
+                                       f"{'none' if op is None else hex(op)}); skipped to the intact "
+                                       f"chunk at {q}", None))
                 p, resynced = q, True
                 continue
             op, length = rec
