@@ -14,7 +14,7 @@ import pytest
 pytest.importorskip("rclpy")
 rosbags = pytest.importorskip("rosbags.highlevel")
 
-from canopy_stereo.ros.bag import BagReader, BagWriter, repair_bag, split_file_path  # noqa: E402
+from canopy_stereo.ros.bag import BagError, BagReader, BagWriter, repair_bag, split_file_path  # noqa: E402
 from canopy_stereo.ros.bundled import bundled_bag, bundled_rig  # noqa: E402
 from canopy_stereo.ros.context import private_domain_id  # noqa: E402
 
@@ -241,3 +241,39 @@ def test_split_size_names_files_like_rosbag2(tmp_path):
         total += _complete(p).message_count
         _rosbags_reads_whole(p)
     assert total == 30
+
+
+def test_graph_cameras_record_closes_on_sigterm(tmp_path):
+    """`canopy_graph --cameras ... --record` (live capture, image sequences standing in for
+    webcams): SIGTERM leaves a complete bag that rosbags reads whole."""
+    import cv2
+
+    reader = BagReader(bundled_bag("croton"))
+    from canopy_stereo.ros.convert import msg_to_image
+
+    for side in ("left", "right"):
+        for k, (_, m) in enumerate(reader.read(f"/stereo/{side}/image_raw")):
+            cv2.imwrite(str(tmp_path / f"{side}_{k:03d}.png"), msg_to_image(m))
+    out = tmp_path / "live.mcap"
+    proc = _graph(["--cameras", tmp_path / "left_%03d.png", tmp_path / "right_%03d.png", "--fps", "5",
+                   "--record", out], private_domain_id())
+    try:
+        _wait_for_file(out, proc)
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.5)
+            try:  # the periodic flush makes the recording readable while it runs
+                if "/stereo/points2" in BagReader(out).topics:
+                    break
+            except BagError:  # the reader's only error type, e.g. for a file not yet flushed
+                pass
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    bag = _complete(out)
+    assert bag.topics["/stereo/left/image_raw"].message_count > 0, bag.summary_text()
+    assert _rosbags_reads_whole(out) == bag.message_count

@@ -904,7 +904,7 @@ class BagReader:
                     self._profile = c.string()
                 except _Malformed:
                     self._report(BagDamage(p, 9 + length, "damaged MCAP header record", 0))
-            elif op in (_SCHEMA, _CHANNEL) and length <= 1 << 26:
+            elif op in (_SCHEMA, _CHANNEL) and length <= 1 << 26 and not resynced:
                 try:
                     body = self._read(body_at, length)
                     if op == _SCHEMA:

@@ -301,13 +301,15 @@ def main(args=None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0
     finally:
-        if recorder is not None:
-            recorder.close()
-            recorder.destroy_node()
-        if graph is not None:
-            graph.shutdown()
-        if writer is not None:
-            writer.close()
-            print(f"canopy_graph: recorded {', '.join(str(p) for p in writer.paths)}", flush=True)
-        if rclpy.ok():
-            rclpy.shutdown()
+        try:
+            if graph is not None:  # stops every executor, the recorder's too
+                graph.shutdown()
+        finally:  # the recording is closed even if a second signal cut the shutdown short
+            if recorder is not None:
+                recorder.close()
+                recorder.destroy_node()
+            if writer is not None:
+                writer.close()
+                print(f"canopy_graph: recorded {', '.join(str(p) for p in writer.paths)}", flush=True)
+            if rclpy.ok():
+                rclpy.shutdown()
