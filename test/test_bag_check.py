@@ -113,22 +113,37 @@ def test_repair_of_an_unclosed_recording(tmp_path):
     w.close()
 
 
+def _statistics_at(data) -> int:
+    footer_at = len(data) - 8 - 29
+    p = struct.unpack_from("<Q", data, footer_at + 9)[0]
+    while data[p] != 0x0B:  # the statistics record
+        p += 9 + struct.unpack_from("<Q", data, p + 1)[0]
+    return p
+
+
 def test_summary_fields_are_checked_before_they_are_believed(tmp_path):
-    """A summary whose CRC was cleared and whose counts were altered is not believed: the
-    counts come from the data (the issue's 1125899906842636 messages)."""
+    """The issue's 1125899906842636 messages: a summary that does not add up is not believed
+    even when its CRC matches (a lying writer); one without CRC is not used at all. The
+    counts then come from the data."""
     data = bytearray(Path(bundled_bag("plants")).read_bytes())
     footer_at = len(data) - 8 - 29
     summary_start = struct.unpack_from("<Q", data, footer_at + 9)[0]
-    struct.pack_into("<I", data, footer_at + 25, 0)  # no summary CRC
-    p = summary_start
-    while data[p] != 0x0B:  # the statistics record
-        p += 9 + struct.unpack_from("<Q", data, p + 1)[0]
-    struct.pack_into("<Q", data, p + 9, 1125899906842636)
+    struct.pack_into("<Q", data, _statistics_at(data) + 9, 1125899906842636)
+    import zlib
+
+    crc = zlib.crc32(bytes(data[footer_at:footer_at + 25]), zlib.crc32(bytes(data[summary_start:footer_at])))
+    struct.pack_into("<I", data, footer_at + 25, crc)  # a CRC that matches the lie
     path = tmp_path / "lying.mcap"
     path.write_bytes(bytes(data))
     bag = BagReader(path)
     assert bag.message_count == 2 and any("not believed" in d.problem for d in bag.damage)
     assert len(list(bag.messages())) == 2
+    struct.pack_into("<I", data, footer_at + 25, 0)  # no CRC: not used, not damage
+    path.write_bytes(bytes(data))
+    bag = BagReader(path)
+    assert bag.message_count == 2 and not bag.damage
+    check = bag.verify()
+    assert check.ok and check.summary == "no CRC"
 
 
 def test_parse_size():

@@ -600,6 +600,7 @@ class BagCheck:
         messages_recovered: topic -> messages that read intact.
         messages_lost: messages known lost; ``lost_unknown``: some losses cannot be counted.
         damage: every damaged place (:class:`BagDamage`).
+        chunks_unverifiable: chunks stored without a CRC (their messages cannot be checked).
         data_crc: ``"ok"``, ``"mismatch"`` or ``"absent"`` (the writer stored none).
         summary: ``"ok"``, ``"damaged"`` or ``"absent"``.
     """
@@ -614,6 +615,7 @@ class BagCheck:
     damage: list
     data_crc: str
     summary: str
+    chunks_unverifiable: int = 0
 
     @property
     def ok(self) -> bool:
@@ -628,7 +630,9 @@ class BagCheck:
                  "TRUNCATED (cut short or never closed: no summary/footer)")
         out = [f"bag: {self.path}", f"integrity: {state}",
                f"summary: {self.summary}; data-section CRC: {self.data_crc}; "
-               f"chunks: {self.chunks} ({self.chunks_damaged} damaged)"]
+               f"chunks: {self.chunks} ({self.chunks_damaged} damaged"
+               + (f", {self.chunks_unverifiable} without CRC: not verifiable" if self.chunks_unverifiable
+                  else "") + ")"]
         for d in self.damage:
             out.append("  damage: " + d.describe(self.path).split(": ", 1)[1])
         lost = (f"{self.messages_lost} counted + an unknown number in unreadable parts"
@@ -761,7 +765,7 @@ class BagReader:
         if self.size == 0:
             raise BagError(f"{self.path}: offset 0: the file is empty (0 bytes)")
         if self._read(0, 8) != _MAGIC:
-            raise BagError(f"{self.path} is not an MCAP file (bad magic)")
+            raise BagError(f"{self.path}: offset 0: not an MCAP file (bad magic)")
         self._schemas: dict[int, SchemaRecord] = {}
         self._channels: dict[int, ChannelRecord] = {}
         self._chunks: list[_Chunk] = []
@@ -982,9 +986,12 @@ class BagReader:
             return None
         raw = self._read(s_start, at - s_start)
         tail = struct.pack("<BQQQ", _FOOTER, 20, s_start, s_off)
-        if crc and zlib.crc32(tail, zlib.crc32(raw)) != crc:
+        if not crc:  # nothing vouches for it: the topics and counts are read from the data
+            self._summary_state = "no CRC"
+            return None
+        if zlib.crc32(tail, zlib.crc32(raw)) != crc:
             return self._summary_damaged(s_start, at, "summary section CRC mismatch")
-        self._summary_verified = bool(crc)
+        self._summary_verified = True
         out = {"schemas": {}, "channels": {}, "statistics": None, "chunk_indexes": []}
         c = _Cursor(raw)
         try:
@@ -1023,14 +1030,13 @@ class BagReader:
         return None
 
     def _believe(self, summary) -> bool:
-        """Sanity checks of a summary against itself and against the data found by the scan.
+        """Sanity checks of a summary (whose CRC matched) against itself and the data.
 
         A summary that contradicts itself (counts that do not add up, invalid topic names,
-        missing schemas) is never believed. Where a summary whose CRC matched disagrees
-        with the data records (which no CRC protects), the data records are the damaged
-        ones: chunk headers are corrected from the chunk indexes, and chunks the scan
-        could not reach are added from them (every chunk is CRC-checked before use). A
-        summary without CRC that disagrees with the data is not believed."""
+        missing schemas, offsets outside the file) is not believed. Where it disagrees with
+        the data records (which no CRC protects), the data records are the damaged ones:
+        chunk headers are corrected from the chunk indexes, and chunks the scan could not
+        reach are added from them (every chunk is CRC-checked before use)."""
         own, cross = [], []
         st = summary["statistics"]
         schemas, channels = summary["schemas"], summary["channels"]
@@ -1084,8 +1090,6 @@ class BagReader:
                 fixes.append(ci)
         if not cross:
             return True
-        if not self._summary_verified:
-            return self._reject_summary(cross)
         for ci in fixes:  # the CRC-checked index is right; the record header is not
             c = found.get(ci["offset"])
             clen = len(ci["compression"])
@@ -1375,9 +1379,9 @@ class BagReader:
         for topic in self.topics:
             recovered.setdefault(topic, 0)
         damaged = sum(1 for c in self._chunks if self._chunk_problem.get(c.offset))
-        return BagCheck(self.path, not self.truncated and self._summary_state == "ok", len(self._chunks),
+        return BagCheck(self.path, not self.truncated and self._summary_state != "damaged", len(self._chunks),
                         damaged, recovered, lost, unknown, list(self.damage), data_crc,
-                        self._summary_state)
+                        self._summary_state, sum(1 for c in self._chunks if not c.crc))
 
     def summary_text(self) -> str:
         """A short human-readable description (like ``ros2 bag info``)."""
