@@ -364,10 +364,11 @@ class BagWriter:
             self._io(self._writer.flush)
             self._pending = 0
             self._dirty = False
-            try:
-                os.fsync(self._file.fileno())
-            except OSError:
-                pass
+            fd = self._file.fileno()
+        try:  # outside the lock: writers go on while the disk catches up
+            os.fsync(fd)
+        except OSError:
+            pass
 
     def _flush_loop(self, period: float) -> None:
         while not self._flush_stop.wait(period):
