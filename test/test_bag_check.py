@@ -168,3 +168,39 @@ def test_cli_run_says_truncated_and_rejects_garbage_cdr(cli, tmp_path):
                          "--matcher", "sgbm", "--no-segment")
     assert code == 2, out + err
     assert "not valid sensor_msgs/msg/Image CDR" in err and "frames in: 0" not in out
+
+
+def test_bag_play_skips_a_damaged_chunk_with_a_warning(damaged):
+    import subprocess
+    import sys
+
+    pytest.importorskip("rclpy")
+    from canopy_stereo.ros.context import private_domain_id
+
+    path, offset = damaged
+    env = dict(os.environ, ROS_DOMAIN_ID=str(private_domain_id()), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    code = "import sys; from canopy_stereo.ros.player import main; sys.exit(main())"
+    res = subprocess.run([sys.executable, "-c", code, str(path), "--rate", "0", "--delay", "0"],
+                         env=env, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert "published 10 messages" in res.stdout and "2 messages lost" in res.stdout
+    assert f"offset {offset}" in res.stderr and "Traceback" not in res.stderr
+    junk = path.with_name("junk.mcap")
+    junk.write_bytes(b"\x89MCAP0\r\n")
+    res = subprocess.run([sys.executable, "-c", code, str(junk), "--delay", "0"],
+                         env=env, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+
+
+def test_run_plays_the_intact_frames_of_a_damaged_bag(damaged):
+    pytest.importorskip("rclpy")
+    from canopy_stereo.io.rig import load_rig
+    from canopy_stereo.ros.graph import GraphOptions
+    from canopy_stereo.ros.runner import run_bag
+
+    path, offset = damaged
+    result = run_bag(path, load_rig(bundled_rig("croton")), rate=0,
+                     options=GraphOptions(matcher="sgbm", segment=False, parameter_services=False))
+    assert result.frames_in == 3 and result.frames_out == 3  # one left image was in the damaged chunk
+    text = "\n".join(result.summary_lines())
+    assert f"input bag damaged: offset {offset}" in text and "messages lost" in text

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import yaml
 
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.ros.bag import BagMessage, BagReader
+from canopy_stereo.ros.bag import BagError, BagMessage, BagReader
 from canopy_stereo.ros.msgdefs import message_class
 from canopy_stereo.ros.qos import publisher_qos
 
@@ -193,6 +193,8 @@ def main(args=None) -> int:
 
     try:
         bag = BagReader(opts.bag, on_damage=damaged)
+        if bag.message_count == 0 and (bag.truncated or bag.damage):
+            raise BagError(f"{bag.path}: nothing to play: {bag.problem}")
         if bag.truncated:
             print(f"bag_play: warning: {bag.path} is truncated ({bag.problem}); "
                   "playing the readable part", file=sys.stderr)
