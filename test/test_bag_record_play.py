@@ -53,7 +53,7 @@ def _spin_in_thread(ctx, node):
     return close
 
 
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP])
 def test_bag_record_survives_signals_with_a_valid_file(tmp_path, sig):
     out = tmp_path / "rec.mcap"
     domain = private_domain_id()

@@ -29,6 +29,9 @@ def run(args) -> int:
     from canopy_stereo.ros import require_ros
 
     require_ros("canopy-stereo demo")
+    from canopy_stereo.ros.nodes.base import install_stop_signals
+
+    install_stop_signals()  # SIGTERM/SIGHUP stop like Ctrl-C (no half-written outputs left open)
     from canopy_stereo.ros.demo import run_scene
 
     out_dir = Path(args.out)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from canopy_stereo.cli.common import add_rig_argument
+from canopy_stereo.ros.bag import add_split_arguments, split_options
 from canopy_stereo.errors import CanopyStereoError
 
 COMMAND = "run"
@@ -32,12 +33,16 @@ def add_arguments(p):
                    help="DDS domain of the graph (default: a private one from the process id)")
     p.add_argument("--compression", choices=("lz4", "zstd", "none"), default="lz4",
                    help="chunk compression of the recorded bag (default lz4)")
+    add_split_arguments(p)
 
 
 def run(args) -> int:
     from canopy_stereo.ros import require_ros
 
     require_ros("canopy-stereo run")
+    from canopy_stereo.ros.nodes.base import install_stop_signals
+
+    install_stop_signals()  # SIGTERM/SIGHUP stop like Ctrl-C: the recording is closed validly
     from canopy_stereo.io.rig import load_rig
     from canopy_stereo.ros.graph import GraphOptions
     from canopy_stereo.ros.player import parse_remaps
@@ -51,7 +56,8 @@ def run(args) -> int:
                            parameter_services=False)
     result = run_bag(args.bag, rig, rate=args.rate, record=args.record, options=options,
                      domain_id=args.domain_id, max_in_flight=args.max_in_flight,
-                     remap=parse_remaps(args.remap), compression=args.compression)
+                     remap=parse_remaps(args.remap), compression=args.compression,
+                     **split_options(args))
     for line in result.summary_lines():
         print(line)
     return 0 if result.frames_out > 0 or result.frames_in == 0 else 1

@@ -14,7 +14,10 @@ dispatcher rebuilds and re-polls the wait set in Python while holding the GIL.
 
 ``canopy_graph`` (``ros2 run canopy_stereo canopy_graph --rig RIG.yaml``) runs
 it from live cameras (``--left-device``/``--right-device``) or from a bag
-(``--bag``), optionally recording the outputs (``--record``).
+(``--bag``), optionally recording the outputs (``--record``; with ``--loop``
+every pass appends to the same recording, which ``--split-size`` and
+``--split-duration`` split into ``<name>_0.mcap``, ... as rosbag2 does).
+SIGINT, SIGTERM and SIGHUP close the recording validly.
 """
 from __future__ import annotations
 
@@ -231,6 +234,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--height", type=int, default=0, help="camera height (default: the rig's)")
     p.add_argument("--fourcc", default="", help="camera pixel format, e.g. MJPG")
     p.add_argument("--record", metavar="OUT.mcap", help="record the outputs")
+    from canopy_stereo.ros.bag import add_split_arguments
+
+    add_split_arguments(p)
     p.add_argument("--matcher", choices=("elas", "sgbm"), default=None)
     p.add_argument("--use-mask", action="store_true", help="keep only plant pixels in the clouds")
     p.add_argument("--no-segment", action="store_true", help="do not run segment_node")
@@ -243,7 +249,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _run_bag_until_interrupted(opts, rig, options: GraphOptions, context):
+def _run_bag_until_interrupted(opts, rig, options: GraphOptions, context, record=None):
     """Play ``opts.bag`` (``--loop``: until Ctrl-C) through one graph; the playback runs in a
     worker thread so that the main thread takes the signal and stops it cleanly."""
     from canopy_stereo.ros.runner import run_bag
@@ -253,7 +259,7 @@ def _run_bag_until_interrupted(opts, rig, options: GraphOptions, context):
 
     def work():
         try:
-            outcome["result"] = run_bag(opts.bag, rig, rate=opts.rate, record=opts.record, options=options,
+            outcome["result"] = run_bag(opts.bag, rig, rate=opts.rate, record=record, options=options,
                                         context=context, loop=opts.loop, stop=stop)
         except BaseException as exc:  # noqa: BLE001 - re-raised in the main thread
             outcome["error"] = exc
@@ -302,11 +308,16 @@ def main(args=None) -> int:
     rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     install_stop_signals()
     context = rclpy.get_default_context()
-    graph = recorder = None
+    graph = recorder = writer = None
     try:
         rig = load_rig(opts.rig)
+        if opts.record:
+            from canopy_stereo.ros.bag import BagWriter, split_options
+
+            # one writer for every pass of --loop: passes append (or split), never overwrite
+            writer = BagWriter(opts.record, compression="lz4", **split_options(opts))
         if opts.bag:
-            result = _run_bag_until_interrupted(opts, rig, options, context)
+            result = _run_bag_until_interrupted(opts, rig, options, context, record=writer)
             print("\n".join(result.summary_lines()), flush=True)
             return 0
         w = opts.width or rig.image_size[0]
@@ -315,7 +326,6 @@ def main(args=None) -> int:
         graph = CanopyGraph(rig, context, options, cameras=(
             {**cam, "device": str(opts.cameras[0])}, {**cam, "device": str(opts.cameras[1])}))
         if opts.record:
-            from canopy_stereo.ros.bag import BagWriter
             from canopy_stereo.ros.recorder import BagRecorder
 
             ns = "/" + options.namespace.strip("/")
@@ -323,7 +333,7 @@ def main(args=None) -> int:
                                              "left/depth/camera_info", "left/image_rect/camera_info",
                                              "right/image_rect/camera_info", "left/camera_info",
                                              "right/camera_info", "left/image_raw", "right/image_raw")]
-            recorder = BagRecorder(BagWriter(opts.record, compression="lz4"), topics, context=context,
+            recorder = BagRecorder(writer, topics, context=context,
                                    static_transforms=graph.nodes["rectify_node"].transforms)
             graph.add_node(recorder)
         graph.spin_until_interrupted()
@@ -334,13 +344,18 @@ def main(args=None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0
     finally:
-        if recorder is not None:
-            recorder.close()
-            recorder.destroy_node()
-        if graph is not None:
-            graph.shutdown()
-        if rclpy.ok():
-            rclpy.shutdown()
+        try:
+            if graph is not None:  # stops every executor, the recorder's too
+                graph.shutdown()
+        finally:  # the recording is closed even if a second signal cut the shutdown short
+            if recorder is not None:
+                recorder.close()
+                recorder.destroy_node()
+            if writer is not None:
+                writer.close()
+                print(f"canopy_graph: recorded {', '.join(str(p) for p in writer.paths)}", flush=True)
+            if rclpy.ok():
+                rclpy.shutdown()
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import yaml
 
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.ros.bag import BagMessage, BagReader
+from canopy_stereo.ros.bag import BagError, BagMessage, BagReader
 from canopy_stereo.ros.msgdefs import message_class
 from canopy_stereo.ros.qos import publisher_qos
 
@@ -199,8 +199,13 @@ def main(args=None) -> int:
     rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     install_stop_signals()
     node = None
+    def damaged(d) -> None:  # each damaged place once, as it is found; the rest still plays
+        print(f"bag_play: warning: {d.describe(opts.bag)}; skipped", file=sys.stderr, flush=True)
+
     try:
-        bag = BagReader(opts.bag)
+        bag = BagReader(opts.bag, on_damage=damaged)
+        if bag.message_count == 0 and (bag.truncated or bag.damage):
+            raise BagError(f"{bag.path}: nothing to play: {bag.problem}")
         if bag.truncated:
             print(f"bag_play: warning: {bag.path} is truncated ({bag.problem}); "
                   "playing the readable part", file=sys.stderr)
@@ -211,7 +216,9 @@ def main(args=None) -> int:
             time.sleep(0.2)  # let the matched readers finish their handshake
         stats = player.play()
         player.wait_until_delivered(5.0)
-        print(f"bag_play: published {stats.total} messages in {stats.wall_s:.2f} s")
+        lost = (f"; {bag.messages_lost}{' or more' if bag.lost_unknown else ''} messages lost to "
+                f"damage" if bag.damage else "")
+        print(f"bag_play: published {stats.total} messages in {stats.wall_s:.2f} s{lost}")
         return 0
     except CanopyStereoError as exc:
         print(f"bag_play: error: {exc}", file=sys.stderr)

@@ -7,11 +7,13 @@ as they appear. Its subscription QoS follows the publishers (best effort if
 any publisher of the topic is), keep last ``depth``.
 
 The bag stays valid whatever ends the recording: ``bag_record`` closes it on
-Ctrl-C (SIGINT) and SIGTERM, and the chunks are flushed every second, so
-even a killed recorder leaves a file that :class:`~canopy_stereo.ros.bag.BagReader`
-reads up to the last second.
+Ctrl-C (SIGINT), SIGTERM and SIGHUP, and the chunks are flushed and fsynced
+every second, so even a killed recorder (SIGKILL, power loss) leaves a file
+that :class:`~canopy_stereo.ros.bag.BagReader` reads up to the last second
+(and ``canopy-stereo bag repair`` completes).
 
-``bag_record -o OUT.mcap TOPIC ... | --all [--namespace NS]``.
+``bag_record -o OUT.mcap TOPIC ... | --all [--split-size BYTES] [--split-duration S]``:
+with splitting the files are ``OUT_0.mcap``, ``OUT_1.mcap``, ... (rosbag2's naming).
 """
 from __future__ import annotations
 
@@ -25,7 +27,7 @@ from rclpy.node import Node
 from rclpy.qos import ReliabilityPolicy
 
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.ros.bag import BagWriter, qos_profiles_yaml
+from canopy_stereo.ros.bag import BagWriter, add_split_arguments, qos_profiles_yaml, split_options
 from canopy_stereo.ros.msgdefs import message_class, type_name
 from canopy_stereo.ros.qos import recording_qos
 
@@ -181,12 +183,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-a", "--all", action="store_true", help="record every topic that appears")
     p.add_argument("--compression", default="zstd", choices=("zstd", "lz4", "none"))
     p.add_argument("--max-duration", type=float, default=0.0, metavar="S",
-                   help="stop after S seconds (0 = until Ctrl-C/SIGTERM)")
+                   help="stop after S seconds (0 = until Ctrl-C/SIGTERM/SIGHUP)")
+    add_split_arguments(p)
     return p
 
 
 def main(args=None) -> int:
-    """``bag_record`` executable; SIGINT/SIGTERM end the recording with a valid file."""
+    """``bag_record`` executable; SIGINT/SIGTERM/SIGHUP end the recording with a valid file."""
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.utilities import remove_ros_args
@@ -198,11 +201,11 @@ def main(args=None) -> int:
         return 2
     stop = threading.Event()
     rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-    for sig in (signal.SIGINT, signal.SIGTERM):  # finish the file, then exit
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # finish the file, then exit
         signal.signal(sig, lambda *_: stop.set())
     recorder = None
     try:
-        writer = BagWriter(opts.output, compression=opts.compression)
+        writer = BagWriter(opts.output, compression=opts.compression, **split_options(opts))
         recorder = BagRecorder(writer, opts.topics, all_topics=opts.all)
         executor = SingleThreadedExecutor()
         executor.add_node(recorder)
@@ -220,9 +223,10 @@ def main(args=None) -> int:
         return 0
     finally:
         if recorder is not None:
-            path = recorder.close()
+            recorder.close()
             counts = ", ".join(f"{t}: {n}" for t, n in recorder.received.items())
-            print(f"bag_record: wrote {path} ({counts or 'no messages'})", file=sys.stderr)
+            files = ", ".join(str(p) for p in recorder.writer.paths)
+            print(f"bag_record: wrote {files} ({counts or 'no messages'})", file=sys.stderr)
             recorder.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()

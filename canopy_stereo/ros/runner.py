@@ -29,7 +29,7 @@ import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.rig import Rig
-from canopy_stereo.ros.bag import BagReader, BagWriter, qos_profiles_yaml
+from canopy_stereo.ros.bag import BagError, BagReader, BagWriter, qos_profiles_yaml
 from canopy_stereo.ros.context import ros_context, wait_for, wait_for_subscribers
 from canopy_stereo.ros.graph import CanopyGraph, GraphOptions
 from canopy_stereo.ros.msgdefs import type_name
@@ -49,10 +49,13 @@ class RunResult:
         frames_dropped: frames that produced no cloud.
         wall_s: seconds from the first published frame to the last cloud.
         latencies_s: per completed frame, second raw image published -> cloud received.
-        recorded: the output bag, or None.
+        recorded: the output bag (the last file of a split recording), or None.
+        recorded_files: every file of the recording.
         outputs: topic -> list of ``(stamp_ns, CDR bytes)`` for the topics asked to keep.
         graph_stats: node -> counters and drop reasons.
         truncated, problem: the input bag was cut short (and why).
+        damage: damaged places of the input bag (one line each: offset, problem, messages lost).
+        invalid_messages: input messages skipped because they are not valid CDR (one line each).
     """
 
     frames_in: int = 0
@@ -61,10 +64,13 @@ class RunResult:
     wall_s: float = 0.0
     latencies_s: list = field(default_factory=list)
     recorded: Path | None = None
+    recorded_files: list = field(default_factory=list)
     outputs: dict = field(default_factory=dict)
     graph_stats: dict = field(default_factory=dict)
     truncated: bool = False
     problem: str = ""
+    damage: list = field(default_factory=list)
+    invalid_messages: list = field(default_factory=list)
 
     @property
     def fps(self) -> float:
@@ -86,11 +92,17 @@ class RunResult:
                          f"max {lat.max():.0f} ms")
         if self.truncated:
             lines.append(f"input bag truncated: {self.problem}")
+        for line in self.damage:
+            lines.append(f"input bag damaged: {line}")
+        if self.invalid_messages:
+            lines.append(f"input messages skipped (not valid CDR): {len(self.invalid_messages)}; "
+                         f"first: {self.invalid_messages[0]}")
         for node, st in sorted(self.graph_stats.items()):
             for reason, n in sorted(st.get("drops", {}).items()):
                 lines.append(f"{node} dropped {n}x {reason}")
         if self.recorded is not None:
-            lines.append(f"recorded: {self.recorded}")
+            files = self.recorded_files or [self.recorded]
+            lines.append(f"recorded: {', '.join(str(f) for f in files)}")
         return lines
 
 
@@ -166,7 +178,8 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
             domain_id: int | None = None, max_in_flight: int = 2, idle_s: float = 2.0,
             timeout_s: float = 120.0, keep=(), remap: dict | None = None,
             startup_timeout_s: float = 30.0, progress=None, compression: str = "lz4",
-            context=None, loop: bool = False, stop: threading.Event | None = None) -> RunResult:
+            context=None, loop: bool = False, stop: threading.Event | None = None,
+            split_size: int = 0, split_duration_s: float = 0.0) -> RunResult:
     """Replay ``bag_path`` through the graph for ``rig``; see the module docstring.
 
     Args:
@@ -174,7 +187,8 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
             (after ``remap``).
         rig: the rig of the cameras that recorded it.
         rate: playback speed (1 = recorded timing, 0 = as fast as the graph goes).
-        record: output bag path for the graph's outputs, or None.
+        record: output bag path for the graph's outputs, an open
+            :class:`~canopy_stereo.ros.bag.BagWriter` to append to (left open), or None.
         options: graph options (namespace, matcher, segmentation, ...).
         domain_id: DDS domain (default: a private one derived from the pid).
         max_in_flight: frames inside the graph at once when ``rate == 0``.
@@ -190,6 +204,8 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
             private one on ``domain_id``, shut down at the end).
         loop: play the bag again at its end, until ``stop`` is set (the graph is built once).
         stop: event that ends playback early (the frames in flight are still awaited).
+        split_size, split_duration_s: split the recording into ``<name>_0.mcap``, ... by
+            size (bytes) or log-time span (s), as rosbag2 does (0 = never).
     """
     from sensor_msgs.msg import CameraInfo, Image, PointCloud2
     from stereo_msgs.msg import DisparityImage
@@ -201,10 +217,15 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
         raise CanopyStereoError(f"max_in_flight must be >= 1, got {max_in_flight}")
     bag = BagReader(bag_path)
     remap = dict(remap or {})
+    damaged = bag.truncated or bool(bag.damage)
     ns = "/" + options.namespace.strip("/") if options.namespace.strip("/") else ""
     in_left, in_right = f"{ns}/left/image_raw", f"{ns}/right/image_raw"
     play_topics = [t for t in bag.topics if remap.get(t, t) in (in_left, in_right)]
     sides = {remap.get(t, t) for t in play_topics}
+    if sides != {in_left, in_right} and damaged:
+        raise BagError(f"{bag.path} is {'truncated' if bag.truncated else 'damaged'} ({bag.problem}): "
+                       f"no intact {in_left} and {in_right} messages before the damage (topics "
+                       f"read: {', '.join(sorted(bag.topics)) or 'none'})")
     if sides != {in_left, in_right}:
         raise CanopyStereoError(
             f"{bag.path} has no {in_left} and {in_right} to play (topics: "
@@ -218,13 +239,26 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
     result = RunResult(truncated=bag.truncated, problem=bag.problem,
                        outputs={k: [] for k in keep})
     book = _FrameBook()
-    writer = BagWriter(record, compression=compression) if record is not None else None
+    own_writer = record is not None and not isinstance(record, BagWriter)
+    writer = (BagWriter(record, compression=compression, split_size=split_size,
+                        split_duration_s=split_duration_s) if own_writer else record)
     try:
         _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, remap, startup_timeout_s,
              progress, context, play_topics, left_topics, ns, outputs, result, book, writer, loop, stop)
     finally:
-        if writer is not None:
+        if own_writer:
             result.recorded = writer.close()
+        elif writer is not None:
+            result.recorded = writer.path
+        if writer is not None:
+            result.recorded_files = list(writer.paths)
+    result.truncated, result.problem = bag.truncated, bag.problem
+    result.damage = [d.describe(bag.path).split(": ", 1)[1] for d in bag.damage]
+    if book.frames_in == 0 and (result.invalid_messages or damaged or bag.damage):
+        why = (f"{len(result.invalid_messages)} input messages are not valid CDR (first: "
+               f"{result.invalid_messages[0]})" if result.invalid_messages else
+               f"the bag is {'truncated' if bag.truncated else 'damaged'} ({bag.problem})")
+        raise BagError(f"{bag.path}: no frame could be played: {why}")
     result.frames_in, result.frames_out = book.frames_in, book.frames_out
     result.frames_dropped = book.dropped + len(book.in_flight)
     result.latencies_s = list(book.latencies)
@@ -277,6 +311,11 @@ def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, r
                         and time.monotonic() - book.last_activity >= seconds)
 
             def before_publish(m) -> bool:
+                try:
+                    m.decode()  # a message that is not valid CDR never reaches the nodes
+                except BagError as exc:
+                    result.invalid_messages.append(str(exc))
+                    return False
                 if m.topic not in left_topics or rate > 0:
                     return True
                 deadline = time.monotonic() + timeout_s

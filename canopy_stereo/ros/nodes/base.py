@@ -380,7 +380,7 @@ def _interrupt(signum, frame):
 
 
 def install_stop_signals() -> None:
-    """Make SIGINT and SIGTERM raise :class:`KeyboardInterrupt` in the main thread.
+    """Make SIGINT, SIGTERM and SIGHUP raise :class:`KeyboardInterrupt` in the main thread.
 
     Executables handle it by stopping their executor, letting running callbacks
     finish, destroying the nodes and only then shutting ROS down (rclpy's own
@@ -388,8 +388,8 @@ def install_stop_signals() -> None:
     """
     import signal
 
-    signal.signal(signal.SIGINT, _interrupt)
-    signal.signal(signal.SIGTERM, _interrupt)
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, _interrupt)
 
 
 def spin_until_interrupted(executor, context=None) -> None:
