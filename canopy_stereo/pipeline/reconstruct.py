@@ -89,12 +89,23 @@ def rectify_rig(rig, method: str = "fusiello", left=None, right=None,
     raise CanopyStereoError(f"unknown rectification method {method!r}; choose fusiello or hartley")
 
 
+def _whole_pixels(value, name: str) -> int:
+    """``value`` as an int number of pixels, or :class:`CanopyStereoError` naming ``name``."""
+    try:
+        f = float(value)
+    except (TypeError, ValueError):
+        raise CanopyStereoError(f"{name} must be a whole number of pixels, got {value!r}") from None
+    if not np.isfinite(f) or f != int(f):
+        raise CanopyStereoError(f"{name} must be a whole number of pixels, got {value!r}")
+    return int(f)
+
+
 def disparity_range_for(rig, rect: Rectification, disp_min=None, disp_max=None) -> tuple[int, int]:
     """Search range: explicit values win, then ``disp_min``/``disp_max`` in the rig
     file's extra parameters, then :func:`default_disparity_range`."""
     dmin, dmax = default_disparity_range(rect)
-    dmin = int(rig.extra.get("disp_min", dmin)) if disp_min is None else int(disp_min)
-    dmax = int(rig.extra.get("disp_max", dmax)) if disp_max is None else int(disp_max)
+    dmin = _whole_pixels(rig.extra.get("disp_min", dmin) if disp_min is None else disp_min, "disp_min")
+    dmax = _whole_pixels(rig.extra.get("disp_max", dmax) if disp_max is None else disp_max, "disp_max")
     if dmax <= dmin:
         raise CanopyStereoError(f"disp_max ({dmax}) must be greater than disp_min ({dmin})")
     return dmin, dmax

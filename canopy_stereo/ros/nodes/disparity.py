@@ -135,6 +135,9 @@ class DisparityNode(CanopyNode):
         matcher = value("matcher")
         get_matcher(matcher)  # raises for unknown/unavailable matchers
         dmin, dmax = int(value("disp_min")), int(value("disp_max"))
+        for name, v in (("disp_min", dmin), ("disp_max", dmax)):
+            if v < -1:
+                raise CanopyStereoError(f"{name} must be >= 0 pixels, or -1 for the rig's range; got {v}")
         dmin, dmax = disparity_range_for(self.rig, self.rect, None if dmin < 0 else dmin,
                                          None if dmax < 0 else dmax)
         params = {}

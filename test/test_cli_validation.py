@@ -1,0 +1,93 @@
+"""Bad options of calibrate, measure, simulate and run: one readable line, exit status 2.
+
+Each case is a value a user can type that the commands used to accept silently (or turn
+into "internal error"); the command must refuse it before doing any work.
+"""
+import numpy as np
+import pytest
+
+from conftest import REPO, run_cli_subprocess
+
+
+def _rig_with(tmp_path, name, **extra):
+    text = (REPO / "config" / "croton_rig.yaml").read_text()
+    lines = [ln for ln in text.splitlines() if ln.split(":")[0].strip() not in extra]
+    lines += [f"    {k}: {v}" for k, v in extra.items()]
+    path = tmp_path / name
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.fixture
+def files(tmp_path):
+    import cv2
+
+    png = tmp_path / "left.png"
+    cv2.imwrite(str(png), np.zeros((48, 64, 3), np.uint8))
+    org = tmp_path / "org.npy"
+    np.save(org, np.zeros((6, 8, 3), np.float32))
+    csv = tmp_path / "nan.csv"
+    csv.write_text("X,Y,Z,u_left,v_left,u_right,v_right\n" + "1,2,3,4,5,6,7\n" * 6 + "1,2,nan,4,5,6,7\n")
+    return {"png": png, "org": org, "csv": csv, "tmp": tmp_path}
+
+
+CASES = {
+    # calibrate
+    "calibrate-points-png": (["calibrate", "--points", "{png}", "-o", "{tmp}/r.yaml"], "not a text CSV"),
+    "calibrate-points-nan": (["calibrate", "--points", "{csv}", "-o", "{tmp}/r.yaml"], "non-finite"),
+    "calibrate-unit": (["calibrate", "--points", "{csv}", "--unit", "furlong", "-o", "{tmp}/r.yaml"],
+                       "--unit must be one of m, cm, mm"),
+    "calibrate-square": (["calibrate", "--chessboard", "a*.png", "b*.png", "--square", "nan", "-o",
+                          "{tmp}/r.yaml"], "--square"),
+    "calibrate-pattern": (["calibrate", "--chessboard", "a*.png", "b*.png", "--pattern", "1x6", "-o",
+                           "{tmp}/r.yaml"], "--pattern"),
+    "calibrate-image-size": (["calibrate", "--points", "{csv}", "--image-size", "0x480", "-o",
+                              "{tmp}/r.yaml"], "--image-size"),
+    # measure
+    "measure-unit": (["measure", "{org}", "--unit", "furlong", "-o", "{tmp}/r.json"], "--unit must be one of"),
+    "measure-voxel": (["measure", "{org}", "--voxel", "inf", "-o", "{tmp}/r.json"], "--voxel"),
+    "measure-ground": (["measure", "{org}", "--ground", "0,0,0,1", "-o", "{tmp}/r.json"], "non-zero normal"),
+    "measure-min-leaf": (["measure", "{org}", "--min-leaf-pixels", "0", "-o", "{tmp}/r.json"],
+                         "--min-leaf-pixels"),
+    # simulate
+    "simulate-views-0": (["simulate", "croton", "-o", "{tmp}/s", "--views", "0"], "--views must be at least 1"),
+    "simulate-views-neg": (["simulate", "croton", "-o", "{tmp}/s", "--views", "-2"], "--views"),
+    "simulate-supersample": (["simulate", "croton", "-o", "{tmp}/s", "--supersample", "0"], "--supersample"),
+    "simulate-elevation": (["simulate", "croton", "-o", "{tmp}/s", "--views", "3", "--orbit", "--elevation",
+                            "95"], "--elevation"),
+    # run (nothing is started: the options and the rig are checked first)
+    "run-disp-max": (["run", "--bag", str(REPO / "bags/croton.mcap"), "--rig", "{rig_neg}"],
+                     "disp_max (-5) must be greater than disp_min (28)"),
+    "run-disp-text": (["run", "--bag", str(REPO / "bags/croton.mcap"), "--rig", "{rig_text}"],
+                      "disp_min must be a whole number"),
+    "run-rate": (["run", "--bag", str(REPO / "bags/croton.mcap"), "--rig", str(REPO / "config/croton_rig.yaml"),
+                  "--rate", "nan"], "--rate"),
+    "run-in-flight": (["run", "--bag", str(REPO / "bags/croton.mcap"), "--rig",
+                       str(REPO / "config/croton_rig.yaml"), "--max-in-flight", "0"], "--max-in-flight"),
+    "run-domain": (["run", "--bag", str(REPO / "bags/croton.mcap"), "--rig", str(REPO / "config/croton_rig.yaml"),
+                    "--domain-id", "500"], "--domain-id"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_bad_option_is_one_line_exit_2(cli, files, tmp_path, case):
+    argv, message = CASES[case]
+    names = {k: str(v) for k, v in files.items()}
+    if case.startswith("run-disp"):
+        names["rig_neg"] = str(_rig_with(tmp_path, "neg.yaml", disp_max=-5))
+        names["rig_text"] = str(_rig_with(tmp_path, "text.yaml", disp_min="near"))
+    argv = [a.format(**names) for a in argv]
+    code, out, err = cli(*argv)
+    assert code == 2, (out, err)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1, err
+    assert message in lines[0] and "internal error" not in err and "Traceback" not in err
+    assert not (tmp_path / "s").exists()  # simulate refused before writing anything
+
+
+def test_calibrate_png_as_points_in_a_fresh_process(files):
+    """The reported case end to end: the console script's process, not only main()."""
+    res = run_cli_subprocess("calibrate", "--points", files["png"], "-o", files["tmp"] / "r.yaml")
+    assert res.returncode == 2
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "not a text CSV" in lines[0] and str(files["png"]) in lines[0]
