@@ -7,10 +7,12 @@ not see each other's topics.
 """
 from __future__ import annotations
 
+import functools
 import os
 import sys
 import time
 from contextlib import contextmanager
+from pathlib import Path
 
 import rclpy
 from rclpy.context import Context
@@ -51,25 +53,48 @@ def tune_thread_switching(interval_s: float = PIPELINE_SWITCH_INTERVAL_S) -> Non
 
 
 #: glibc malloc settings for node processes (bytes): see :func:`tune_memory_allocator`.
-PIPELINE_MALLOC_OPTIONS = {"mmap_threshold": 256 << 20, "trim_threshold": 1 << 30, "top_pad": 256 << 20}
+PIPELINE_MALLOC_OPTIONS = {"mmap_threshold": 32 << 20, "trim_threshold": 64 << 20, "top_pad": 16 << 20}
 
 _M_TRIM_THRESHOLD, _M_TOP_PAD, _M_MMAP_THRESHOLD = -1, -2, -3  # glibc <malloc.h>
 _malloc_tuned = False
 
 
+@functools.lru_cache(maxsize=1)
+def _libc():
+    """The C library as a ``ctypes.CDLL`` when it is glibc (has ``mallopt`` and ``malloc_trim``), else None."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None)
+        libc.mallopt.argtypes, libc.mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+        libc.malloc_trim.argtypes, libc.malloc_trim.restype = [ctypes.c_size_t], ctypes.c_int
+        return libc
+    except (OSError, AttributeError):  # not glibc
+        return None
+
+
 def tune_memory_allocator(mmap_threshold: int = PIPELINE_MALLOC_OPTIONS["mmap_threshold"],
                           trim_threshold: int = PIPELINE_MALLOC_OPTIONS["trim_threshold"],
                           top_pad: int = PIPELINE_MALLOC_OPTIONS["top_pad"]) -> bool:
-    """Keep the frame-sized buffers of a node process on the heap (glibc only).
+    """Keep the frame-sized buffers of a node process on the heap, and nothing more (glibc only).
 
     Every frame allocates and frees images, disparity maps, serialized messages
-    and point clouds of 0.3 to 5 MB. glibc serves blocks above its mmap
+    and point clouds of 0.3 to 20 MB. glibc serves blocks above its mmap
     threshold (128 kB at start, raised adaptively only after the first frees)
     with fresh ``mmap`` calls, so each frame pays thousands of page faults and
-    zeroed pages in the kernel, and returns the memory with ``munmap``. Raising
-    the thresholds lets freed frame buffers be reused. Measured with
-    ``canopy-stereo run --rate 0`` on the croton bag (2 cores, ELAS, GrabCut,
-    recording): system time 41 -> 20-24 ms per frame, 10.8 -> 12.4-13.8 frames/s.
+    zeroed pages in the kernel, and returns the memory with ``munmap``. A 32 MiB
+    mmap threshold lets freed frame buffers be reused from the heap; a 64 MiB
+    trim threshold (with 16 MiB of top pad) keeps the heap from shrinking and
+    growing every frame. Anything larger than a frame -- a hostile 8000x8000
+    image, a burst -- is mapped separately and returned to the system when
+    freed, and :func:`release_free_memory` (called by the nodes after refusing
+    an oversize message, :mod:`canopy_stereo.ros.limits`) hands back what
+    fragmentation would keep. The previous settings (256 MiB mmap threshold,
+    1 GiB trim threshold) were as fast but kept up to 1 GiB after one
+    oversize message.
+
+    Measured with ``benchmarks/bench_allocator.py`` (croton bag, 2 shared cores,
+    ELAS, GrabCut): see the figures printed there and in the README.
     The same effect as the ``MALLOC_MMAP_THRESHOLD_``, ``MALLOC_TRIM_THRESHOLD_``
     and ``MALLOC_TOP_PAD_`` environment variables; those, when set, win.
 
@@ -81,26 +106,76 @@ def tune_memory_allocator(mmap_threshold: int = PIPELINE_MALLOC_OPTIONS["mmap_th
         return True
     if any(os.environ.get(k) for k in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_TOP_PAD_")):
         return False
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None)
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):  # not glibc
+    libc = _libc()
+    if libc is None:
         return False
-    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
-    ok = (mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold)) == 1
-          and mallopt(_M_TRIM_THRESHOLD, int(trim_threshold)) == 1
-          and mallopt(_M_TOP_PAD, int(top_pad)) == 1)
+    ok = (libc.mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold)) == 1
+          and libc.mallopt(_M_TRIM_THRESHOLD, int(trim_threshold)) == 1
+          and libc.mallopt(_M_TOP_PAD, int(top_pad)) == 1)
     _malloc_tuned = ok
     return ok
 
 
+def malloc_trim_available() -> bool:
+    """True when :func:`release_free_memory` can return memory (glibc)."""
+    return _libc() is not None
+
+
+def release_free_memory() -> bool:
+    """Return the free pages of every malloc arena to the system (glibc ``malloc_trim(0)``).
+
+    Costs a few milliseconds for a large heap; the nodes call it after refusing an
+    oversize message (:func:`canopy_stereo.ros.limits.release_memory_soon`), not per frame.
+    Returns True when memory was released.
+    """
+    libc = _libc()
+    return bool(libc is not None and libc.malloc_trim(0))
+
+
+#: Fast DDS profiles of node processes (see :func:`use_bounded_dds_memory`).
+FASTDDS_PROFILES = Path(__file__).resolve().parents[1] / "data" / "fastdds_profiles.xml"
+
+#: Environment that already configures Fast DDS (then :func:`use_bounded_dds_memory` does nothing).
+_FASTDDS_USER_SETTINGS = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE",
+                          "RMW_FASTRTPS_USE_QOS_FROM_XML", "SKIP_DEFAULT_XML")
+_FASTDDS_CWD_FILES = ("DEFAULT_FASTRTPS_PROFILES.xml", "DEFAULT_FASTDDS_PROFILES.xml")
+
+
+def use_bounded_dds_memory() -> bool:
+    """Make Fast DDS readers free each received sample instead of keeping the largest one.
+
+    rmw_fastrtps gives every data reader a sample pool that grows to the largest
+    message ever received and never shrinks (``PREALLOCATED_WITH_REALLOC``): one
+    hostile 8000x8000 image leaves 190 MB in each reader that saw it. The
+    package's profile (:data:`FASTDDS_PROFILES`: rmw_fastrtps's settings with
+    ``DYNAMIC`` reader memory) is selected through ``FASTRTPS_DEFAULT_PROFILES_FILE``
+    and ``RMW_FASTRTPS_USE_QOS_FROM_XML=1``; the QoS set in code and by
+    ``qos_overrides`` parameters still applies over it. Must run before the first
+    ``rclpy.init`` of the process (:func:`tune_node_process` is called before it).
+
+    Does nothing (returns False) when another middleware is selected
+    (``RMW_IMPLEMENTATION``) or the user configures Fast DDS already (one of
+    ``FASTRTPS_DEFAULT_PROFILES_FILE``, ``FASTDDS_DEFAULT_PROFILES_FILE``,
+    ``RMW_FASTRTPS_USE_QOS_FROM_XML``, ``SKIP_DEFAULT_XML`` set, or a
+    ``DEFAULT_FASTRTPS_PROFILES.xml`` in the working directory).
+    """
+    if os.environ.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp") not in ("rmw_fastrtps_cpp", ""):
+        return False
+    if any(k in os.environ for k in _FASTDDS_USER_SETTINGS) or any(os.path.exists(f) for f in _FASTDDS_CWD_FILES):
+        return os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE") == str(FASTDDS_PROFILES)
+    if not FASTDDS_PROFILES.is_file():
+        return False
+    os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(FASTDDS_PROFILES)
+    os.environ["RMW_FASTRTPS_USE_QOS_FROM_XML"] = "1"
+    return True
+
+
 def tune_node_process() -> None:
-    """Process settings for running pipeline nodes: :func:`tune_thread_switching` and
-    :func:`tune_memory_allocator`."""
+    """Process settings for running pipeline nodes: :func:`tune_thread_switching`,
+    :func:`tune_memory_allocator` and :func:`use_bounded_dds_memory`."""
     tune_thread_switching()
     tune_memory_allocator()
+    use_bounded_dds_memory()
 
 
 @contextmanager

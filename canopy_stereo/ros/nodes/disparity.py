@@ -34,7 +34,8 @@ from stereo_msgs.msg import DisparityImage
 from canopy_stereo.disparity import available_matchers, compute_disparity, get_matcher
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.pipeline.reconstruct import disparity_range_for
-from canopy_stereo.ros.convert import disparity_to_msg, msg_to_mono, stamp_to_ns
+from canopy_stereo.ros.convert import COLOUR_ENCODINGS, disparity_to_msg, msg_to_mono, stamp_to_ns
+from canopy_stereo.ros.limits import check_image_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.params import declare_rig_parameters, rectification_from_node, rig_from_node
 from canopy_stereo.ros.sync import ExactTimeSynchronizer
@@ -177,6 +178,7 @@ class DisparityNode(CanopyNode):
         name = ("left", "right")[side]
         self.count(f"{name}_received")
         try:
+            check_image_msg(msg, expected_size=self.rect.size, encodings=COLOUR_ENCODINGS)
             img = msg_to_mono(msg)
         except CanopyStereoError as exc:
             self.drop(str(exc), f"{name} rectified image")

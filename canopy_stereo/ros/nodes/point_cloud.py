@@ -25,8 +25,9 @@ from stereo_msgs.msg import DisparityImage
 
 from canopy_stereo.errors import CanopyStereoError, ImageError
 from canopy_stereo.geometry.triangulation import triangulate_disparity_points
-from canopy_stereo.ros.convert import (msg_to_bgr, msg_to_disparity, msg_to_image, pack_bgr_image,
+from canopy_stereo.ros.convert import (COLOUR_ENCODINGS, msg_to_bgr, msg_to_disparity, msg_to_image, pack_bgr_image,
                                        points_to_cloud2, stamp_to_ns)
+from canopy_stereo.ros.limits import check_disparity_msg, check_image_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.params import declare_rig_parameters, rectification_from_node, rig_from_node
 from canopy_stereo.ros.sync import ExactTimeSynchronizer
@@ -97,12 +98,15 @@ class PointCloudNode(CanopyNode):
         self.count(f"{what}_received")
         try:
             if stream == 0:
+                check_disparity_msg(msg, expected_size=self.rect.size)
                 # message convention d - doffs, NaN invalid -> rectified u_left - u_right, -1 invalid
                 d = msg_to_disparity(msg).disparity + np.float32(self.rect.doffs)
                 item = np.where(np.isfinite(d), d, np.float32(-1))
             elif stream == 1:
+                check_image_msg(msg, expected_size=self.rect.size, encodings=COLOUR_ENCODINGS)
                 item = msg_to_bgr(msg)
             else:
+                check_image_msg(msg, expected_size=self.rect.size, encodings=("mono8", "8UC1"))
                 item = msg_to_image(msg, ("mono8", "8UC1"))
         except CanopyStereoError as exc:
             self.drop(str(exc), what)

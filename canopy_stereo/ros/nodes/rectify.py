@@ -21,7 +21,9 @@ from sensor_msgs.msg import CameraInfo, Image
 
 from canopy_stereo.geometry.rectification import StereoRectifier
 from canopy_stereo.io.images import to_gray
-from canopy_stereo.ros.convert import image_to_msg, msg_to_bgr, rectified_camera_info, stamp_to_ns
+from canopy_stereo.ros.convert import (COLOUR_ENCODINGS, image_to_msg, msg_to_bgr, rectified_camera_info,
+                                       stamp_to_ns)
+from canopy_stereo.ros.limits import check_image_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.params import declare_rig_parameters, rectification_from_node, rig_from_node
 from canopy_stereo.ros.sync import ApproximateTimePairer
@@ -63,6 +65,7 @@ class RectifyNode(CanopyNode):
         name = ("left", "right")[side]
         self.count(f"{name}_received")
         try:
+            check_image_msg(msg, expected_size=self.rig.image_size, encodings=COLOUR_ENCODINGS)
             bgr = msg_to_bgr(msg, expected_size=self.rig.image_size)
         except Exception as exc:
             self.drop(str(exc), f"{name} frame")
