@@ -114,18 +114,18 @@ def test_check_cloud_msg():
 
 def test_refusing_an_oversize_message_schedules_one_release(monkeypatch):
     calls = []
-    monkeypatch.setattr("canopy_stereo.ros.context.release_free_memory", lambda: calls.append(1) or True)
+    monkeypatch.setattr("canopy_stereo.ros.context.release_free_memory", lambda hold_s=0.0: calls.append(hold_s) or True)
     big = _image(4000, 3000)  # 36 MB of payload
     for _ in range(3):
         with pytest.raises(ImageError):
             limits.check_image_msg(big, expected_size=(640, 480))
     assert wait_for(lambda: calls, 5.0)
     time.sleep(limits.RELEASE_DELAY_S + 0.3)
-    assert calls == [1]  # merged into one malloc_trim
+    assert calls == [limits.RELEASE_HOLD_S]  # merged into one release
     with pytest.raises(ImageError):
         limits.check_image_msg(_image(1, 1), expected_size=(640, 480))  # small: no release
     time.sleep(limits.RELEASE_DELAY_S + 0.3)
-    assert calls == [1]
+    assert calls == [limits.RELEASE_HOLD_S]
 
 
 # --------------------------------------------------------------------------- nodes as processes

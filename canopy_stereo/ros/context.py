@@ -10,6 +10,7 @@ from __future__ import annotations
 import functools
 import os
 import sys
+import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -57,6 +58,7 @@ PIPELINE_MALLOC_OPTIONS = {"mmap_threshold": 32 << 20, "trim_threshold": 64 << 2
 
 _M_TRIM_THRESHOLD, _M_TOP_PAD, _M_MMAP_THRESHOLD = -1, -2, -3  # glibc <malloc.h>
 _malloc_tuned = False
+_malloc_settings: dict = {}
 
 
 @functools.lru_cache(maxsize=1)
@@ -82,19 +84,21 @@ def tune_memory_allocator(mmap_threshold: int = PIPELINE_MALLOC_OPTIONS["mmap_th
     and point clouds of 0.3 to 20 MB. glibc serves blocks above its mmap
     threshold (128 kB at start, raised adaptively only after the first frees)
     with fresh ``mmap`` calls, so each frame pays thousands of page faults and
-    zeroed pages in the kernel, and returns the memory with ``munmap``. A 32 MiB
-    mmap threshold lets freed frame buffers be reused from the heap; a 64 MiB
-    trim threshold (with 16 MiB of top pad) keeps the heap from shrinking and
-    growing every frame. Anything larger than a frame -- a hostile 8000x8000
-    image, a burst -- is mapped separately and returned to the system when
-    freed, and :func:`release_free_memory` (called by the nodes after refusing
-    an oversize message, :mod:`canopy_stereo.ros.limits`) hands back what
-    fragmentation would keep. The previous settings (256 MiB mmap threshold,
-    1 GiB trim threshold) were as fast but kept up to 1 GiB after one
-    oversize message.
+    zeroed pages in the kernel, and returns the memory with ``munmap``. Settings:
 
-    Measured with ``benchmarks/bench_allocator.py`` (croton bag, 2 shared cores,
-    ELAS, GrabCut): see the figures printed there and in the README.
+    * ``mmap_threshold`` 32 MiB: freed frame buffers are reused from the heap;
+      anything larger than a frame (a hostile 8000x8000 image) is mapped on its
+      own and returned to the system when freed;
+    * ``trim_threshold`` 64 MiB with ``top_pad`` 16 MiB: the heap does not shrink
+      and grow back every frame (smaller values cost 2-4x the system time);
+    * after a refused large message, :func:`release_free_memory` returns what was freed,
+      including the tops of the middleware threads' own arenas (glibc keeps those
+      below the trim threshold otherwise).
+
+    The previous settings (256 MiB mmap threshold, 1 GiB trim threshold, 256 MiB
+    top pad) were as fast but kept up to 1 GiB after one
+    oversize message. ``benchmarks/bench_allocator.py`` measures system and user
+    time per frame and RSS for glibc's defaults, the previous and these settings.
     The same effect as the ``MALLOC_MMAP_THRESHOLD_``, ``MALLOC_TRIM_THRESHOLD_``
     and ``MALLOC_TOP_PAD_`` environment variables; those, when set, win.
 
@@ -113,6 +117,8 @@ def tune_memory_allocator(mmap_threshold: int = PIPELINE_MALLOC_OPTIONS["mmap_th
           and libc.mallopt(_M_TRIM_THRESHOLD, int(trim_threshold)) == 1
           and libc.mallopt(_M_TOP_PAD, int(top_pad)) == 1)
     _malloc_tuned = ok
+    if ok:
+        _malloc_settings.update(trim_threshold=int(trim_threshold), top_pad=int(top_pad))
     return ok
 
 
@@ -121,15 +127,59 @@ def malloc_trim_available() -> bool:
     return _libc() is not None
 
 
-def release_free_memory() -> bool:
-    """Return the free pages of every malloc arena to the system (glibc ``malloc_trim(0)``).
+#: Trim threshold and top pad (bytes) while :func:`release_free_memory` holds memory low.
+RELEASE_TRIM_THRESHOLD = 1 << 20
 
-    Costs a few milliseconds for a large heap; the nodes call it after refusing an
-    oversize message (:func:`canopy_stereo.ros.limits.release_memory_soon`), not per frame.
-    Returns True when memory was released.
+_release_lock = threading.Lock()
+_release_until = 0.0
+_restore_timer: threading.Timer | None = None
+
+
+def release_free_memory(hold_s: float = 0.0) -> bool:
+    """Return free heap memory to the system (glibc), now and for ``hold_s`` seconds.
+
+    Now: ``malloc_trim(0)`` (the main heap's top and the free pages of every arena).
+    glibc never trims the *top* of a thread's own arena from ``malloc_trim``, only when
+    a block there is freed and the top exceeds the trim threshold -- 64 MiB with
+    :func:`tune_memory_allocator` -- so a burst received by a middleware thread would
+    stay. With ``hold_s > 0`` (and the allocator tuned by :func:`tune_memory_allocator`)
+    the trim threshold and top pad drop to :data:`RELEASE_TRIM_THRESHOLD` for that long,
+    so every arena shrinks at its next free (the next messages received); then the
+    tuned values, and their speed, come back. Costs a few milliseconds; the nodes call
+    it after refusing a large message (:func:`canopy_stereo.ros.limits.release_memory_soon`),
+    never per frame. Returns True when memory was released now.
     """
+    global _release_until, _restore_timer
     libc = _libc()
-    return bool(libc is not None and libc.malloc_trim(0))
+    if libc is None:
+        return False
+    if hold_s > 0 and _malloc_tuned:
+        with _release_lock:
+            _release_until = max(_release_until, time.monotonic() + hold_s)
+            if _restore_timer is None:
+                libc.mallopt(_M_TOP_PAD, RELEASE_TRIM_THRESHOLD)
+                libc.mallopt(_M_TRIM_THRESHOLD, RELEASE_TRIM_THRESHOLD)
+                _restore_timer = threading.Timer(hold_s, _restore_allocator)
+                _restore_timer.daemon = True
+                _restore_timer.start()
+    return bool(libc.malloc_trim(0))
+
+
+def _restore_allocator() -> None:
+    """End of a :func:`release_free_memory` hold: trim once more, restore the tuned values."""
+    global _restore_timer
+    libc = _libc()
+    with _release_lock:
+        left = _release_until - time.monotonic()
+        if left > 0:  # extended meanwhile
+            _restore_timer = threading.Timer(left, _restore_allocator)
+            _restore_timer.daemon = True
+            _restore_timer.start()
+            return
+        libc.malloc_trim(0)
+        libc.mallopt(_M_TRIM_THRESHOLD, _malloc_settings["trim_threshold"])
+        libc.mallopt(_M_TOP_PAD, _malloc_settings["top_pad"])
+        _restore_timer = None
 
 
 #: Fast DDS profiles of node processes (see :func:`use_bounded_dds_memory`).

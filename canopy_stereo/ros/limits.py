@@ -9,10 +9,12 @@ so a hostile message costs no more than the bytes the middleware already
 delivered. A refused message raises :class:`~canopy_stereo.errors.ImageError`
 with the reason; the node's ``drop()`` logs it (rate-limited) and counts it.
 
-After an oversize message has been refused, :func:`release_memory_soon` hands
-the freed pages back to the operating system (``malloc_trim``) once the
-callback has returned, so one hostile burst does not leave the process large
-(see :func:`canopy_stereo.ros.context.tune_memory_allocator`).
+After a large message has been refused, :func:`release_memory_soon` hands the
+freed memory back to the operating system once the callback has returned (and
+for a few seconds after, as the middleware's threads free their buffers), so
+one hostile burst does not leave the process large (see
+:func:`canopy_stereo.ros.context.tune_memory_allocator` and
+:func:`~canopy_stereo.ros.context.release_free_memory`).
 
 Limits (all checked on the header, in this order):
 
@@ -183,7 +185,8 @@ _release_pending = False
 
 
 def release_memory_soon(delay_s: float = RELEASE_DELAY_S) -> bool:
-    """Return free heap pages to the system ``delay_s`` from now, once (glibc ``malloc_trim``).
+    """Return free heap memory to the system ``delay_s`` from now, and keep returning it for
+    :data:`RELEASE_HOLD_S` (:func:`canopy_stereo.ros.context.release_free_memory`).
 
     Calls while one release is pending are merged. Returns False off glibc.
     """
@@ -202,10 +205,15 @@ def release_memory_soon(delay_s: float = RELEASE_DELAY_S) -> bool:
     return True
 
 
+#: Seconds the allocator keeps trimming every arena after a refused large message
+#: (:func:`canopy_stereo.ros.context.release_free_memory`).
+RELEASE_HOLD_S = 10.0
+
+
 def _release() -> None:
     global _release_pending
     from canopy_stereo.ros.context import release_free_memory
 
     with _release_lock:
         _release_pending = False
-    release_free_memory()
+    release_free_memory(hold_s=RELEASE_HOLD_S)
