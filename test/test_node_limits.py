@@ -27,6 +27,7 @@ from canopy_stereo.ros.context import private_domain_id, ros_context, wait_for  
 from canopy_stereo.ros.qos import publisher_qos, recording_qos  # noqa: E402
 
 from conftest import REPO  # noqa: E402
+from test_fusion_node import harness as fusion_harness  # noqa: E402,F401  (a fixture)
 
 T0 = 1_700_000_000_000_000_000
 
@@ -286,3 +287,26 @@ def test_hostile_burst_into_node_processes_is_dropped_logged_and_memory_returns(
 
 def _tails(logs) -> str:
     return " | ".join(f"{n}: {p.read_text()[-600:]}" for n, p in logs.items())
+
+
+# --------------------------------------------------------------------------- fusion_node
+
+
+@pytest.mark.ros
+def test_fusion_node_drops_hostile_clouds_and_keeps_fusing(fusion_harness):
+    from test_fusion_node import _latest_model, _send, patch_cloud_m
+
+    node, clouds, poses, reset, models = fusion_harness
+    huge = convert.points_to_cloud2(np.zeros((4, 3), np.float32), None, T0, "canopy_world")
+    huge.width, huge.height, huge.row_step = 5000, 4000, 5000 * huge.point_step  # claims 20 Mpx, carries 48 B
+    short = convert.points_to_cloud2(np.zeros((100, 3), np.float32), None, T0 + 1, "canopy_world")
+    short.data = bytes(12)
+    for msg in (huge, short):
+        clouds.publish(msg)
+    assert wait_for(lambda: sum(node.stats()["drops"].values()) >= 2, 30.0)
+    text = " | ".join(node.stats()["drops"])
+    assert "20000000 points (5000x4000), over the limit" in text and "12 bytes, 1200 expected" in text
+    pts, cols = patch_cloud_m()
+    _send(clouds, pts, cols, 5)
+    model, _ = _latest_model(models, 0)
+    assert len(model) > 1000
