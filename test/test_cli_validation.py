@@ -58,6 +58,8 @@ CASES = {
     # run (nothing is started: the options and the rig are checked first)
     "run-disp-max": (["run", "--bag", str(REPO / "bags/croton.mcap"), "--rig", "{rig_neg}"],
                      "disp_max (-5) must be greater than disp_min (28)"),
+    "run-disp-min-neg": (["run", "--bag", str(REPO / "bags/croton.mcap"), "--rig", "{rig_min_neg}"],
+                         "disp_min must be >= 0 pixels, got -3"),
     "run-disp-text": (["run", "--bag", str(REPO / "bags/croton.mcap"), "--rig", "{rig_text}"],
                       "disp_min must be a whole number"),
     "run-rate": (["run", "--bag", str(REPO / "bags/croton.mcap"), "--rig", str(REPO / "config/croton_rig.yaml"),
@@ -76,6 +78,7 @@ def test_bad_option_is_one_line_exit_2(cli, files, tmp_path, case):
     if case.startswith("run-disp"):
         names["rig_neg"] = str(_rig_with(tmp_path, "neg.yaml", disp_max=-5))
         names["rig_text"] = str(_rig_with(tmp_path, "text.yaml", disp_min="near"))
+        names["rig_min_neg"] = str(_rig_with(tmp_path, "minneg.yaml", disp_min=-3))
     argv = [a.format(**names) for a in argv]
     code, out, err = cli(*argv)
     assert code == 2, (out, err)
@@ -91,3 +94,28 @@ def test_calibrate_png_as_points_in_a_fresh_process(files):
     assert res.returncode == 2
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "not a text CSV" in lines[0] and str(files["png"]) in lines[0]
+
+
+def test_reconstruct_and_disparity_node_share_the_range_check(cli, tmp_path, files):
+    """One owner (disparity_range_for): reconstruct refuses the rig run refuses, and so does
+    disparity_node given the same rig file's values as parameters."""
+    import cv2
+
+    rig = _rig_with(tmp_path, "neg.yaml", disp_max=-5)
+    img = tmp_path / "full.png"
+    cv2.imwrite(str(img), np.zeros((480, 640, 3), np.uint8))
+    code, _, err = cli("reconstruct", img, img, "--rig", rig, "-o", tmp_path / "c.ply")
+    assert code == 2 and "disp_max (-5) must be greater than disp_min (28)" in err
+    pytest.importorskip("rclpy")
+    from rclpy.parameter import Parameter
+
+    from canopy_stereo.errors import CanopyStereoError
+    from canopy_stereo.io.rig import load_rig
+    from canopy_stereo.ros.context import ros_context
+    from canopy_stereo.ros.nodes.disparity import DisparityNode
+    from canopy_stereo.ros.params import rig_parameter_overrides
+
+    with ros_context() as ctx:
+        overrides = rig_parameter_overrides(load_rig(rig)) + [Parameter("matcher", value="sgbm")]
+        with pytest.raises(CanopyStereoError, match="disp_max must be >= 0 pixels, or -1"):
+            DisparityNode(context=ctx, parameter_overrides=overrides, start_parameter_services=False)

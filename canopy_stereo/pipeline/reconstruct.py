@@ -102,10 +102,17 @@ def _whole_pixels(value, name: str) -> int:
 
 def disparity_range_for(rig, rect: Rectification, disp_min=None, disp_max=None) -> tuple[int, int]:
     """Search range: explicit values win, then ``disp_min``/``disp_max`` in the rig
-    file's extra parameters, then :func:`default_disparity_range`."""
+    file's extra parameters, then :func:`default_disparity_range`.
+
+    The one check of a disparity range (``reconstruct``, ``run`` and ``disparity_node``):
+    whole pixels, ``0 <= disp_min < disp_max``; else :class:`CanopyStereoError`.
+    """
     dmin, dmax = default_disparity_range(rect)
     dmin = _whole_pixels(rig.extra.get("disp_min", dmin) if disp_min is None else disp_min, "disp_min")
     dmax = _whole_pixels(rig.extra.get("disp_max", dmax) if disp_max is None else disp_max, "disp_max")
+    if dmin < 0:
+        raise CanopyStereoError(f"disp_min must be >= 0 pixels, got {dmin} (a negative disparity "
+                                "puts the point behind the cameras)")
     if dmax <= dmin:
         raise CanopyStereoError(f"disp_max ({dmax}) must be greater than disp_min ({dmin})")
     return dmin, dmax
