@@ -28,6 +28,7 @@ from canopy_stereo.ros.qos import publisher_qos, recording_qos  # noqa: E402
 
 from conftest import REPO  # noqa: E402
 from test_fusion_node import harness as fusion_harness  # noqa: E402,F401  (a fixture)
+from test_ros_nodes import harness  # noqa: E402,F401  (a fixture)
 
 T0 = 1_700_000_000_000_000_000
 
@@ -310,3 +311,16 @@ def test_fusion_node_drops_hostile_clouds_and_keeps_fusing(fusion_harness):
     _send(clouds, pts, cols, 5)
     model, _ = _latest_model(models, 0)
     assert len(model) > 1000
+
+
+def test_drop_counters_stay_bounded_under_varying_hostile_sizes(harness):
+    from canopy_stereo.ros.nodes import base
+    from canopy_stereo.ros.nodes.segment import SegmentNode
+    from test_ros_nodes import node_kwargs
+
+    node = harness.add(SegmentNode(**node_kwargs(harness, image_width=64, image_height=48)))
+    for k in range(base.MAX_DROP_REASONS + 50):
+        node.drop(f"image is {k + 1}x1 but 64x48 is expected", "message")
+    drops = node.stats()["drops"]
+    assert len(drops) == base.MAX_DROP_REASONS + 1
+    assert drops["message: other reasons"] == 50 and sum(drops.values()) == base.MAX_DROP_REASONS + 50
