@@ -26,9 +26,11 @@ def files(tmp_path):
     cv2.imwrite(str(png), np.zeros((48, 64, 3), np.uint8))
     org = tmp_path / "org.npy"
     np.save(org, np.zeros((6, 8, 3), np.float32))
+    cplx = tmp_path / "complex.npy"
+    np.save(cplx, np.zeros((6, 8, 3), complex))
     csv = tmp_path / "nan.csv"
     csv.write_text("X,Y,Z,u_left,v_left,u_right,v_right\n" + "1,2,3,4,5,6,7\n" * 6 + "1,2,nan,4,5,6,7\n")
-    return {"png": png, "org": org, "csv": csv, "tmp": tmp_path}
+    return {"png": png, "org": org, "csv": csv, "cplx": cplx, "tmp": tmp_path}
 
 
 CASES = {
@@ -47,6 +49,7 @@ CASES = {
     "measure-unit": (["measure", "{org}", "--unit", "furlong", "-o", "{tmp}/r.json"], "--unit must be one of"),
     "measure-voxel": (["measure", "{org}", "--voxel", "inf", "-o", "{tmp}/r.json"], "--voxel"),
     "measure-ground": (["measure", "{org}", "--ground", "0,0,0,1", "-o", "{tmp}/r.json"], "non-zero normal"),
+    "measure-complex": (["measure", "{cplx}", "-o", "{tmp}/r.json"], "must hold real coordinates"),
     "measure-min-leaf": (["measure", "{org}", "--min-leaf-pixels", "0", "-o", "{tmp}/r.json"],
                          "--min-leaf-pixels"),
     # simulate
