@@ -3,6 +3,8 @@
 Each case is a value a user can type that the commands used to accept silently (or turn
 into "internal error"); the command must refuse it before doing any work.
 """
+import sys
+
 import numpy as np
 import pytest
 
@@ -122,3 +124,23 @@ def test_reconstruct_and_disparity_node_share_the_range_check(cli, tmp_path, fil
         overrides = rig_parameter_overrides(load_rig(rig)) + [Parameter("matcher", value="sgbm")]
         with pytest.raises(CanopyStereoError, match="disp_max must be >= 0 pixels, or -1"):
             DisparityNode(context=ctx, parameter_overrides=overrides, start_parameter_services=False)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="address-space limit via setrlimit")
+def test_a_rig_too_large_for_memory_is_one_line_not_an_internal_error(tmp_path):
+    import resource
+    import subprocess
+
+    rig = tmp_path / "huge.yaml"
+    rig.write_text((REPO / "config" / "paper_rig.yaml").read_text()
+                   .replace("image_width: 640", "image_width: 40000").replace("image_height: 480", "image_height: 30000"))
+
+    def limit():  # 8 GB of address space: the 40000x30000 render cannot fit
+        resource.setrlimit(resource.RLIMIT_AS, (8 << 30, 8 << 30))
+
+    res = subprocess.run([sys.executable, "-m", "canopy_stereo.cli", "simulate", "croton", "--rig", str(rig),
+                          "-o", str(tmp_path / "s")], capture_output=True, text=True, timeout=300,
+                         preexec_fn=limit, cwd=REPO)
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert res.returncode == 2 and len(lines) == 1, res.stderr
+    assert "error: not enough memory" in lines[0] and "internal error" not in lines[0]
