@@ -200,8 +200,10 @@ def use_bounded_dds_memory() -> bool:
     package's profile (:data:`FASTDDS_PROFILES`: rmw_fastrtps's settings with
     ``DYNAMIC`` reader memory) is selected through ``FASTRTPS_DEFAULT_PROFILES_FILE``
     and ``RMW_FASTRTPS_USE_QOS_FROM_XML=1``; the QoS set in code and by
-    ``qos_overrides`` parameters still applies over it. Must run before the first
-    ``rclpy.init`` of the process (:func:`tune_node_process` is called before it).
+    ``qos_overrides`` parameters still applies over it. Takes effect when it runs before
+    the process's first ``rclpy.init`` (:func:`tune_node_process` is called before it):
+    Fast DDS reads its profiles once; a process that created a participant earlier keeps
+    Fast DDS's defaults, which for memory are rmw_fastrtps's.
 
     Does nothing (returns False) when another middleware is selected
     (``RMW_IMPLEMENTATION``) or the user configures Fast DDS already (one of
