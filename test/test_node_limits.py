@@ -324,3 +324,43 @@ def test_drop_counters_stay_bounded_under_varying_hostile_sizes(harness):
     drops = node.stats()["drops"]
     assert len(drops) == base.MAX_DROP_REASONS + 1
     assert drops["message: other reasons"] == 50 and sum(drops.values()) == base.MAX_DROP_REASONS + 50
+
+
+# --------------------------------------------------------------------------- middleware profile
+
+
+@pytest.mark.parametrize("user_env, applied", [
+    ({}, True),
+    ({"FASTRTPS_DEFAULT_PROFILES_FILE": "/etc/mine.xml"}, False),
+    ({"RMW_FASTRTPS_USE_QOS_FROM_XML": "0"}, False),
+])
+def test_bounded_dds_memory_profile_unless_the_user_configures_fast_dds(tmp_path, user_env, applied):
+    code = ("import os, rclpy; from canopy_stereo.ros.context import use_bounded_dds_memory as u; "
+            "print(u(), os.environ.get('FASTRTPS_DEFAULT_PROFILES_FILE'), "
+            "os.environ.get('RMW_FASTRTPS_USE_QOS_FROM_XML'))\n"
+            "if os.environ.get('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp') == 'rmw_fastrtps_cpp':\n"
+            "    rclpy.init(); n = rclpy.create_node('profile_check'); n.destroy_node(); rclpy.shutdown()")
+    env = {k: v for k, v in os.environ.items()
+           if not k.startswith(("FASTRTPS_", "FASTDDS_", "RMW_FASTRTPS_", "RMW_IMPLEMENTATION"))}
+    env.update(user_env, ROS_DOMAIN_ID=str(private_domain_id()), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120,
+                         cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    first = out.stdout.split()
+    from canopy_stereo.ros.context import FASTDDS_PROFILES
+
+    if applied:
+        assert first == ["True", str(FASTDDS_PROFILES), "1"]
+    else:
+        assert first[0] == "False" and str(FASTDDS_PROFILES) not in out.stdout
+    assert "XMLPARSER" not in out.stderr and "Error" not in out.stderr, out.stderr  # the profile parses
+
+
+def test_no_fast_dds_profile_for_another_middleware(monkeypatch):
+    from canopy_stereo.ros import context
+
+    for k in ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE", "RMW_FASTRTPS_USE_QOS_FROM_XML"):
+        monkeypatch.delenv(k, raising=False)
+    monkeypatch.setenv("RMW_IMPLEMENTATION", "rmw_cyclonedds_cpp")
+    assert context.use_bounded_dds_memory() is False
+    assert "FASTRTPS_DEFAULT_PROFILES_FILE" not in os.environ
