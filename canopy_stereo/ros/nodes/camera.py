@@ -116,13 +116,6 @@ class CaptureSession(threading.Thread):
         self.result: str | None = None         # "cannot open", "no frame", "end", "stopped"
         self.error = ""
 
-    @property
-    def blocked_in(self) -> str | None:
-        """``"open"`` or ``"read"`` while the thread waits inside OpenCV, else None."""
-        if not self.is_alive() or self.result is not None:
-            return None
-        return "open" if self.opened_at is None else "read"
-
     def run(self) -> None:
         try:
             cap = open_capture(self.source, **self.settings)
@@ -279,7 +272,8 @@ class CameraNode(CanopyNode):
 
     def _abandon(self, s: CaptureSession) -> None:
         s.stop_event.set()
-        self.session = None
+        with self._publish_lock:  # no frame of an abandoned session is published after this
+            self.session = None
         self.abandoned.append(s)
         self.count("stalls")
 
