@@ -51,7 +51,7 @@ SUPERVISE_PERIOD_S = 0.05
 #: Sessions still blocked inside OpenCV after which no new attempt is started.
 MAX_BLOCKED_SESSIONS = 2
 #: Seconds ``destroy_node`` waits for capture threads to return.
-STOP_WAIT_S = 0.5
+STOP_WAIT_S = 0.2
 
 
 def is_device(source: str) -> bool:
