@@ -62,6 +62,14 @@ def test_check_image_msg_reads_only_the_header(msg, kwargs, words):
         limits.check_image_msg(msg, **kwargs)
 
 
+def test_a_megabyte_encoding_name_is_not_repeated_in_the_log():
+    msg = _image(4, 4)
+    msg.encoding = "x" * 1_000_000
+    with pytest.raises(ImageError) as info:
+        limits.check_image_msg(msg)
+    assert len(str(info.value)) < 120 and "1000000 characters" in str(info.value)
+
+
 def test_hard_maxima_apply_without_a_rig():
     # 8000x8000 bgr8 claimed with an empty payload: refused on the pixel count, nothing decoded
     msg = Image(width=8000, height=8000, encoding="bgr8", step=24000, data=b"")

@@ -60,6 +60,11 @@ def image_msg_bytes(msg) -> int:
     return len(msg.data)
 
 
+def _short(text: str, limit: int = 40) -> str:
+    """``text`` cut to ``limit`` characters for a log line (a hostile field can be megabytes)."""
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
 def check_image_msg(msg, *, expected_size=None, encodings=None, min_size=(1, 1),
                     max_pixels: int = MAX_IMAGE_PIXELS, max_bytes: int = MAX_IMAGE_BYTES) -> None:
     """Refuse a ``sensor_msgs/Image`` from its header alone (nothing is decoded or copied).
@@ -86,7 +91,7 @@ def check_image_msg(msg, *, expected_size=None, encodings=None, min_size=(1, 1),
 def _check_image(msg, expected_size, encodings, min_size, max_pixels, max_bytes) -> None:
     enc = msg.encoding
     if enc not in ENCODINGS:
-        raise ImageError(f"unsupported image encoding {enc!r}")
+        raise ImageError(f"unsupported image encoding {_short(enc)!r}")
     if encodings is not None and enc not in encodings:
         raise ImageError(f"image encoding {enc!r} not accepted here; expected one of {', '.join(encodings)}")
     w, h, step, n = int(msg.width), int(msg.height), int(msg.step), image_msg_bytes(msg)
@@ -164,7 +169,7 @@ def _check_cloud(msg, max_points: int, max_bytes: int) -> None:
     for f in msg.fields:
         size = _POINT_FIELD_BYTES.get(int(f.datatype), 0) * max(1, int(f.count))
         if int(f.offset) + size > step:
-            raise ImageError(f"PointCloud2 field {f.name!r} (offset {f.offset}) does not fit a "
+            raise ImageError(f"PointCloud2 field {_short(f.name)!r} (offset {f.offset}) does not fit a "
                              f"point of {step} bytes")
     if n != row_step * h:
         raise ImageError(f"PointCloud2 data has {n} bytes, {row_step * h} expected ({h} rows of {row_step})")
