@@ -79,6 +79,9 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
+    except MemoryError as exc:  # e.g. a rig or image far larger than this machine can hold
+        print(f"{prog}: error: not enough memory: {exc or 'allocation failed'}", file=sys.stderr)
+        return 2
     except Exception as exc:  # noqa: BLE001 - last line of defence for users
         if os.environ.get("CANOPY_STEREO_DEBUG"):
             raise

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from canopy_stereo.cli.common import parse_int_list
+from canopy_stereo.cli.common import check_at_least, check_positive, check_world_unit, parse_int_list
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.rig import Rig, save_rig
 
@@ -68,6 +68,22 @@ def add_arguments(p):
     p.set_defaults(pattern=None, square=None)
 
 
+def _check_arguments(args) -> None:
+    """Every option checked before any file is read (one line, exit 2 when wrong)."""
+    check_world_unit(args.unit)
+    check_positive(args.square, "--square")
+    if args.image_size:
+        for v in parse_int_list(args.image_size, 2, "--image-size"):
+            check_at_least(v, 1, "each of --image-size")
+    if args.chessboard:
+        for v in parse_int_list(args.pattern, 2, "--pattern"):
+            check_at_least(v, 2, "each inner-corner count of --pattern")
+        if args.world_board is not None:
+            check_at_least(args.world_board, 0, "--world-board")
+    elif args.world_board is not None:
+        raise CanopyStereoError("--world-board needs --chessboard")
+
+
 def run(args) -> int:
     if args.paper_layout:
         return _run_paper_layout(args)
@@ -77,6 +93,7 @@ def run(args) -> int:
         args.pattern = "9x6"
     if args.square is None:
         args.square = 25.0
+    _check_arguments(args)
     if args.points:
         from canopy_stereo.geometry.calibration import calibrate_stereo_points, read_correspondences_csv
 
@@ -89,8 +106,6 @@ def run(args) -> int:
         from canopy_stereo.io.images import read_image
 
         pattern = tuple(parse_int_list(args.pattern, 2, "--pattern"))
-        if args.square <= 0:
-            raise CanopyStereoError("--square must be positive")
         cal = calibrate_stereo_chessboard(args.chessboard[0], args.chessboard[1], pattern, args.square,
                                           world_board=args.world_board)
         first = read_image(expand_image_list(args.chessboard[0])[0], color=False)

@@ -1,6 +1,7 @@
 """``canopy-stereo measure``: leaf and canopy sizes of a saved reconstruction."""
 from __future__ import annotations
 
+from canopy_stereo.cli.common import check_at_least, check_positive, check_world_unit
 from canopy_stereo.errors import CanopyStereoError
 
 COMMAND = "measure"
@@ -25,6 +26,11 @@ def _parse_ground(text: str):
         vals = []
     if len(vals) != 4:
         raise CanopyStereoError(f"--ground must be auto, camera, view or a plane a,b,c,d; got {text!r}")
+    import math
+
+    if not all(math.isfinite(v) for v in vals) or not any(vals[:3]):
+        raise CanopyStereoError(f"--ground plane a,b,c,d needs finite numbers and a non-zero normal "
+                                f"(a,b,c); got {text!r}")
     return vals
 
 
@@ -80,11 +86,17 @@ def run(args) -> int:
     from canopy_stereo.segmentation import read_leaf_ids, read_mask
 
     ground = _parse_ground(args.ground)
+    if args.unit is not None:
+        check_world_unit(args.unit)
+    if args.voxel is not None:
+        check_positive(args.voxel, "--voxel")
+    check_at_least(args.min_leaf_pixels, 1, "--min-leaf-pixels")
     cloud, ply_unit = load_cloud(args.cloud)
     rig = load_rig(args.rig) if args.rig else None
+    if rig is not None and args.unit is not None and args.unit != rig.world_unit:
+        raise CanopyStereoError(f"--unit {args.unit} contradicts the rig's world_unit {rig.world_unit} "
+                                "(the rig's unit is used; drop --unit)")
     unit = rig.world_unit if rig is not None else (args.unit or ply_unit or "mm")
-    if args.voxel is not None and not args.voxel > 0:
-        raise CanopyStereoError(f"--voxel must be positive, got {args.voxel}")
     if cloud.ndim == 2:  # PLY points
         if args.leaf_ids or args.mask:
             raise CanopyStereoError("--leaf-ids and --mask need an organized cloud (ORG.npy from "

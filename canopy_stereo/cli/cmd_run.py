@@ -1,7 +1,7 @@
 """``canopy-stereo run``: replay a bag through the ROS 2 node graph and record the outputs."""
 from __future__ import annotations
 
-from canopy_stereo.cli.common import add_rig_argument
+from canopy_stereo.cli.common import add_rig_argument, check_at_least
 from canopy_stereo.ros.bag import add_split_arguments, split_options
 from canopy_stereo.errors import CanopyStereoError
 
@@ -12,6 +12,10 @@ real nodes (rectify, disparity, segment, point cloud), built in this process on 
 DDS domain, and record /stereo/disparity, /stereo/points2, /stereo/left/mask and the camera
 infos to OUT.mcap. --rate 0 plays as fast as the graph goes. Prints frames in/out, frames
 per second and the latency from a raw pair to its point cloud. Needs ROS 2 Jazzy's rclpy."""
+
+
+#: Largest DDS domain id every vendor accepts.
+MAX_DOMAIN_ID = 232
 
 
 def add_arguments(p):
@@ -48,9 +52,24 @@ def run(args) -> int:
     from canopy_stereo.ros.player import parse_remaps
     from canopy_stereo.ros.runner import run_bag
 
-    if args.rate < 0:
-        raise CanopyStereoError(f"--rate must be >= 0, got {args.rate}")
+    import math
+
+    from canopy_stereo.pipeline.reconstruct import disparity_range_for
+    from canopy_stereo.ros.params import rectification_for
+
+    if not (math.isfinite(args.rate) and args.rate >= 0):
+        raise CanopyStereoError(f"--rate must be a finite number >= 0, got {args.rate}")
+    check_at_least(args.max_in_flight, 1, "--max-in-flight")
+    if args.domain_id is not None and not 0 <= args.domain_id <= MAX_DOMAIN_ID:
+        raise CanopyStereoError(f"--domain-id must be in 0..{MAX_DOMAIN_ID}, got {args.domain_id}")
     rig = load_rig(args.rig)
+    # the nodes read the rig's method and disparity range: check them here with the same
+    # code as 'reconstruct' (one line and exit 2 instead of a graph that silently ignores them)
+    try:
+        disparity_range_for(rig, rectification_for(rig, str(rig.extra.get("method") or "fusiello"),
+                                                   rig.extra.get("H_left"), rig.extra.get("H_right")))
+    except CanopyStereoError as exc:
+        raise CanopyStereoError(f"rig {args.rig}: {exc}") from None
     options = GraphOptions(matcher=args.matcher, segment=not args.no_segment or args.use_mask,
                            use_mask=args.use_mask, organized=args.organized,
                            parameter_services=False)

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from canopy_stereo.cli.common import check_at_least
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.images import write_image
 from canopy_stereo.io.rig import load_rig
@@ -35,6 +36,9 @@ from canopy_stereo.io.rig import load_rig
 COMMAND = "simulate"
 HELP = "render a synthetic plant scene through a rig, with exact ground truth"
 DESCRIPTION = __doc__.split("\n\n", 1)[1].strip()
+
+#: Largest --supersample (n x n samples per pixel): 8 already renders 64 samples per pixel.
+MAX_SUPERSAMPLE = 8
 
 
 def add_arguments(parser) -> None:
@@ -103,6 +107,13 @@ def run(args) -> int:
         raise CanopyStereoError(f"--frames must be at least 1, got {args.frames}")
     if args.seed < 0:
         raise CanopyStereoError(f"--seed must be >= 0, got {args.seed}")
+    check_at_least(args.views, 1, "--views")
+    check_at_least(args.supersample, 1, "--supersample")
+    if args.supersample > MAX_SUPERSAMPLE:
+        raise CanopyStereoError(f"--supersample must be at most {MAX_SUPERSAMPLE} "
+                                f"({MAX_SUPERSAMPLE}x{MAX_SUPERSAMPLE} samples per pixel), got {args.supersample}")
+    if args.elevation is not None and not -90.0 < args.elevation < 90.0:
+        raise CanopyStereoError(f"--elevation must be between -90 and 90 degrees, got {args.elevation}")
     rig_path = Path(args.rig) if args.rig else default_rig_path()
     rig = load_rig(rig_path)
     out = Path(args.output)

@@ -219,7 +219,13 @@ def read_correspondences_csv(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise CalibrationError(f"cannot read {path}: {exc.strerror or exc}") from None
-    rows = [r for r in csv.reader(text.splitlines()) if r and not r[0].lstrip().startswith("#")]
+    except UnicodeDecodeError as exc:
+        raise CalibrationError(f"{path} is not a text CSV (byte {exc.start} is not UTF-8); "
+                               "expected columns X,Y,Z,u_left,v_left,u_right,v_right") from None
+    try:
+        rows = [r for r in csv.reader(text.splitlines()) if r and not r[0].lstrip().startswith("#")]
+    except csv.Error as exc:
+        raise CalibrationError(f"{path} is not a readable CSV: {exc}") from None
     if not rows:
         raise CalibrationError(f"{path} is empty")
     header = [h.strip() for h in rows[0]]
@@ -231,8 +237,11 @@ def read_correspondences_csv(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     data = []
     for lineno, r in enumerate(rows[1:], start=2):
         try:
-            data.append([float(r[i]) for i in idx])
+            values = [float(r[i]) for i in idx]
         except (ValueError, IndexError):
             raise CalibrationError(f"{path}: line {lineno} is not 7 numbers") from None
+        if not all(np.isfinite(values)):
+            raise CalibrationError(f"{path}: line {lineno} has a non-finite value (nan or inf)")
+        data.append(values)
     data = np.array(data, dtype=np.float64).reshape(-1, 7)
     return data[:, :3], data[:, 3:5], data[:, 5:7]

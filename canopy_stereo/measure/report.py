@@ -477,6 +477,8 @@ def load_cloud(path):
         if arr.ndim != 3 or arr.shape[2] != 3:
             raise CanopyStereoError(
                 f"{path} must hold an organized cloud of shape (H, W, 3), got {arr.shape}")
+        if arr.dtype.kind not in "fiu":
+            raise CanopyStereoError(f"{path} must hold real coordinates (float), got dtype {arr.dtype}")
         return check_organized(arr), None
     if suffix == ".ply":
         cloud = read_ply(path)

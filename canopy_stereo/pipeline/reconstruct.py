@@ -89,9 +89,23 @@ def rectify_rig(rig, method: str = "fusiello", left=None, right=None,
     raise CanopyStereoError(f"unknown rectification method {method!r}; choose fusiello or hartley")
 
 
+def _whole_pixels(value, name: str) -> int:
+    """``value`` as an int number of pixels, or :class:`CanopyStereoError` naming ``name``."""
+    try:
+        f = float(value)
+    except (TypeError, ValueError):
+        raise CanopyStereoError(f"{name} must be a whole number of pixels, got {value!r}") from None
+    if not np.isfinite(f) or f != int(f):
+        raise CanopyStereoError(f"{name} must be a whole number of pixels, got {value!r}")
+    return int(f)
+
+
 def disparity_range_for(rig, rect: Rectification, disp_min=None, disp_max=None) -> tuple[int, int]:
     """Search range: explicit values win, then ``disp_min``/``disp_max`` in the rig
     file's extra parameters, then :func:`default_disparity_range`.
+
+    The one check of a disparity range (``reconstruct``, ``run`` and ``disparity_node``):
+    whole pixels, ``0 <= disp_min < disp_max``; else :class:`CanopyStereoError`.
 
     This is the one place where a rig file's range meets a rectification. The values
     are disparities ``u_left - u_right`` of the rectified pair; with the package's
@@ -102,8 +116,11 @@ def disparity_range_for(rig, rect: Rectification, disp_min=None, disp_max=None) 
     lowered by that ``doffs``; the bundled ``config/croton_rig.yaml`` was.)
     """
     dmin, dmax = default_disparity_range(rect)
-    dmin = int(rig.extra.get("disp_min", dmin)) if disp_min is None else int(disp_min)
-    dmax = int(rig.extra.get("disp_max", dmax)) if disp_max is None else int(disp_max)
+    dmin = _whole_pixels(rig.extra.get("disp_min", dmin) if disp_min is None else disp_min, "disp_min")
+    dmax = _whole_pixels(rig.extra.get("disp_max", dmax) if disp_max is None else disp_max, "disp_max")
+    if dmin < 0:
+        raise CanopyStereoError(f"disp_min must be >= 0 pixels, got {dmin} (a negative disparity "
+                                "puts the point behind the cameras)")
     if dmax <= dmin:
         raise CanopyStereoError(f"disp_max ({dmax}) must be greater than disp_min ({dmin})")
     return dmin, dmax

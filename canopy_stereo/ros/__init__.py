@@ -14,7 +14,10 @@ the rest of :mod:`canopy_stereo` never does. Modules:
 * :mod:`~canopy_stereo.ros.graph`: all nodes in one process (``canopy_graph``);
   :mod:`~canopy_stereo.ros.runner` replays a bag through them (``canopy-stereo run`` / ``demo``).
 * :mod:`~canopy_stereo.ros.params`, :mod:`~canopy_stereo.ros.qos`,
-  :mod:`~canopy_stereo.ros.context`: rig parameters, QoS profiles, private contexts.
+  :mod:`~canopy_stereo.ros.context`: rig parameters, QoS profiles, private contexts
+  (and the node processes' allocator and middleware memory settings).
+* :mod:`~canopy_stereo.ros.limits`: what an incoming message may be, checked on its
+  header before anything is decoded.
 * :mod:`~canopy_stereo.ros.bundled`: the bundled bags and rig files (and how they are made).
 * :mod:`~canopy_stereo.ros.tf`, :mod:`~canopy_stereo.ros.stereo_geometry`,
   :mod:`~canopy_stereo.ros.camera_info`: ``/tf_static`` (live and in bags), the rig's

@@ -7,10 +7,13 @@ not see each other's topics.
 """
 from __future__ import annotations
 
+import functools
 import os
 import sys
+import threading
 import time
 from contextlib import contextmanager
+from pathlib import Path
 
 import rclpy
 from rclpy.context import Context
@@ -51,25 +54,53 @@ def tune_thread_switching(interval_s: float = PIPELINE_SWITCH_INTERVAL_S) -> Non
 
 
 #: glibc malloc settings for node processes (bytes): see :func:`tune_memory_allocator`.
-PIPELINE_MALLOC_OPTIONS = {"mmap_threshold": 256 << 20, "trim_threshold": 1 << 30, "top_pad": 256 << 20}
+PIPELINE_MALLOC_OPTIONS = {"mmap_threshold": 32 << 20, "trim_threshold": 64 << 20, "top_pad": 16 << 20}
 
 _M_TRIM_THRESHOLD, _M_TOP_PAD, _M_MMAP_THRESHOLD = -1, -2, -3  # glibc <malloc.h>
 _malloc_tuned = False
+_malloc_settings: dict = {}
+
+
+@functools.lru_cache(maxsize=1)
+def _libc():
+    """The C library as a ``ctypes.CDLL`` when it is glibc (has ``mallopt`` and ``malloc_trim``), else None."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None)
+        libc.mallopt.argtypes, libc.mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+        libc.malloc_trim.argtypes, libc.malloc_trim.restype = [ctypes.c_size_t], ctypes.c_int
+        return libc
+    except (OSError, AttributeError):  # not glibc
+        return None
 
 
 def tune_memory_allocator(mmap_threshold: int = PIPELINE_MALLOC_OPTIONS["mmap_threshold"],
                           trim_threshold: int = PIPELINE_MALLOC_OPTIONS["trim_threshold"],
                           top_pad: int = PIPELINE_MALLOC_OPTIONS["top_pad"]) -> bool:
-    """Keep the frame-sized buffers of a node process on the heap (glibc only).
+    """Keep the frame-sized buffers of a node process on the heap, and nothing more (glibc only).
 
     Every frame allocates and frees images, disparity maps, serialized messages
-    and point clouds of 0.3 to 5 MB. glibc serves blocks above its mmap
+    and point clouds of 0.3 to 20 MB. glibc serves blocks above its mmap
     threshold (128 kB at start, raised adaptively only after the first frees)
     with fresh ``mmap`` calls, so each frame pays thousands of page faults and
-    zeroed pages in the kernel, and returns the memory with ``munmap``. Raising
-    the thresholds lets freed frame buffers be reused. Measured with
-    ``canopy-stereo run --rate 0`` on the croton bag (2 cores, ELAS, GrabCut,
-    recording): system time 41 -> 20-24 ms per frame, 10.8 -> 12.4-13.8 frames/s.
+    zeroed pages in the kernel, and returns the memory with ``munmap``. Settings:
+
+    * ``mmap_threshold`` 32 MiB: freed frame buffers are reused from the heap;
+      anything larger than a frame (a hostile 8000x8000 image) is mapped on its
+      own and returned to the system when freed;
+    * ``trim_threshold`` 64 MiB with ``top_pad`` 16 MiB: the heap does not shrink
+      and grow back every frame (smaller values cost 2-4x the system time);
+    * after a refused large message, :func:`release_free_memory` returns what was freed,
+      including the tops of the middleware threads' own arenas (glibc keeps those
+      below the trim threshold otherwise).
+
+    The previous settings (256 MiB mmap threshold, 1 GiB trim threshold, 256 MiB
+    top pad) were as fast but kept up to 1 GiB after one
+    oversize message. ``benchmarks/bench_allocator.py`` measures system and user
+    time per frame and RSS for glibc's defaults, the previous and these settings
+    (croton bag, ELAS, GrabCut, recording, on 2 shared and loaded cores: system
+    time 27-32 ms per frame with glibc's defaults, 6-12 ms previous, 6-13 ms now).
     The same effect as the ``MALLOC_MMAP_THRESHOLD_``, ``MALLOC_TRIM_THRESHOLD_``
     and ``MALLOC_TOP_PAD_`` environment variables; those, when set, win.
 
@@ -81,26 +112,124 @@ def tune_memory_allocator(mmap_threshold: int = PIPELINE_MALLOC_OPTIONS["mmap_th
         return True
     if any(os.environ.get(k) for k in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_TOP_PAD_")):
         return False
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None)
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):  # not glibc
+    libc = _libc()
+    if libc is None:
         return False
-    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
-    ok = (mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold)) == 1
-          and mallopt(_M_TRIM_THRESHOLD, int(trim_threshold)) == 1
-          and mallopt(_M_TOP_PAD, int(top_pad)) == 1)
+    ok = (libc.mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold)) == 1
+          and libc.mallopt(_M_TRIM_THRESHOLD, int(trim_threshold)) == 1
+          and libc.mallopt(_M_TOP_PAD, int(top_pad)) == 1)
     _malloc_tuned = ok
+    if ok:
+        _malloc_settings.update(trim_threshold=int(trim_threshold), top_pad=int(top_pad))
     return ok
 
 
+def malloc_trim_available() -> bool:
+    """True when :func:`release_free_memory` can return memory (glibc)."""
+    return _libc() is not None
+
+
+#: Trim threshold and top pad (bytes) while :func:`release_free_memory` holds memory low.
+RELEASE_TRIM_THRESHOLD = 1 << 20
+
+_release_lock = threading.Lock()
+_release_until = 0.0
+_restore_timer: threading.Timer | None = None
+
+
+def release_free_memory(hold_s: float = 0.0) -> bool:
+    """Return free heap memory to the system (glibc), now and for ``hold_s`` seconds.
+
+    Now: ``malloc_trim(0)`` (the main heap's top and the free pages of every arena).
+    glibc never trims the *top* of a thread's own arena from ``malloc_trim``, only when
+    a block there is freed and the top exceeds the trim threshold -- 64 MiB with
+    :func:`tune_memory_allocator` -- so a burst received by a middleware thread would
+    stay. With ``hold_s > 0`` (and the allocator tuned by :func:`tune_memory_allocator`)
+    the trim threshold and top pad drop to :data:`RELEASE_TRIM_THRESHOLD` for that long,
+    so every arena shrinks at its next free (the next messages received); then the
+    tuned values, and their speed, come back. Costs a few milliseconds; the nodes call
+    it after refusing a large message (:func:`canopy_stereo.ros.limits.release_memory_soon`),
+    never per frame. Returns True when memory was released now.
+    """
+    global _release_until, _restore_timer
+    libc = _libc()
+    if libc is None:
+        return False
+    if hold_s > 0 and _malloc_tuned:
+        with _release_lock:
+            _release_until = max(_release_until, time.monotonic() + hold_s)
+            if _restore_timer is None:
+                libc.mallopt(_M_TOP_PAD, RELEASE_TRIM_THRESHOLD)
+                libc.mallopt(_M_TRIM_THRESHOLD, RELEASE_TRIM_THRESHOLD)
+                _restore_timer = threading.Timer(hold_s, _restore_allocator)
+                _restore_timer.daemon = True
+                _restore_timer.start()
+    return bool(libc.malloc_trim(0))
+
+
+def _restore_allocator() -> None:
+    """End of a :func:`release_free_memory` hold: trim once more, restore the tuned values."""
+    global _restore_timer
+    libc = _libc()
+    with _release_lock:
+        left = _release_until - time.monotonic()
+        if left > 0:  # extended meanwhile
+            _restore_timer = threading.Timer(left, _restore_allocator)
+            _restore_timer.daemon = True
+            _restore_timer.start()
+            return
+        libc.malloc_trim(0)
+        libc.mallopt(_M_TRIM_THRESHOLD, _malloc_settings["trim_threshold"])
+        libc.mallopt(_M_TOP_PAD, _malloc_settings["top_pad"])
+        _restore_timer = None
+
+
+#: Fast DDS profiles of node processes (see :func:`use_bounded_dds_memory`).
+FASTDDS_PROFILES = Path(__file__).resolve().parents[1] / "data" / "fastdds_profiles.xml"
+
+#: Environment that already configures Fast DDS (then :func:`use_bounded_dds_memory` does nothing).
+_FASTDDS_USER_SETTINGS = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE",
+                          "RMW_FASTRTPS_USE_QOS_FROM_XML", "SKIP_DEFAULT_XML")
+_FASTDDS_CWD_FILES = ("DEFAULT_FASTRTPS_PROFILES.xml", "DEFAULT_FASTDDS_PROFILES.xml")
+
+
+def use_bounded_dds_memory() -> bool:
+    """Make Fast DDS readers free each received sample instead of keeping the largest one.
+
+    rmw_fastrtps gives every data reader a sample pool that grows to the largest
+    message ever received and never shrinks (``PREALLOCATED_WITH_REALLOC``): one
+    hostile 8000x8000 image leaves 190 MB in each reader that saw it. The
+    package's profile (:data:`FASTDDS_PROFILES`: rmw_fastrtps's settings with
+    ``DYNAMIC`` reader memory) is selected through ``FASTRTPS_DEFAULT_PROFILES_FILE``
+    and ``RMW_FASTRTPS_USE_QOS_FROM_XML=1``; the QoS set in code and by
+    ``qos_overrides`` parameters still applies over it. Takes effect when it runs before
+    the process's first ``rclpy.init`` (:func:`tune_node_process` is called before it):
+    Fast DDS reads its profiles once; a process that created a participant earlier keeps
+    Fast DDS's defaults, which for memory are rmw_fastrtps's.
+
+    Does nothing (returns False) when another middleware is selected
+    (``RMW_IMPLEMENTATION``) or the user configures Fast DDS already (one of
+    ``FASTRTPS_DEFAULT_PROFILES_FILE``, ``FASTDDS_DEFAULT_PROFILES_FILE``,
+    ``RMW_FASTRTPS_USE_QOS_FROM_XML``, ``SKIP_DEFAULT_XML`` set, or a
+    ``DEFAULT_FASTRTPS_PROFILES.xml`` in the working directory).
+    """
+    if os.environ.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp") not in ("rmw_fastrtps_cpp", ""):
+        return False
+    if any(k in os.environ for k in _FASTDDS_USER_SETTINGS) or any(os.path.exists(f) for f in _FASTDDS_CWD_FILES):
+        return os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE") == str(FASTDDS_PROFILES)
+    if not FASTDDS_PROFILES.is_file():
+        return False
+    os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(FASTDDS_PROFILES)
+    os.environ["RMW_FASTRTPS_USE_QOS_FROM_XML"] = "1"
+    return True
+
+
 def tune_node_process() -> None:
-    """Process settings for running pipeline nodes: :func:`tune_thread_switching` and
-    :func:`tune_memory_allocator`."""
+    """Process settings for running pipeline nodes: :func:`tune_thread_switching`,
+    :func:`tune_memory_allocator` and :func:`use_bounded_dds_memory`."""
     tune_thread_switching()
     tune_memory_allocator()
+    use_bounded_dds_memory()
 
 
 @contextmanager

@@ -41,6 +41,7 @@ from canopy_stereo.fusion.incremental import IncrementalFusion
 from canopy_stereo.fusion.registration import RegistrationSettings
 from canopy_stereo.fusion.transforms import check_transform, make_transform
 from canopy_stereo.ros.convert import cloud2_to_points, points_to_cloud2, stamp_to_ns
+from canopy_stereo.ros.limits import MAX_IMAGE_PIXELS, check_cloud_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.params import declare_rig_parameters, rig_from_node
 
@@ -145,6 +146,8 @@ class FusionNode(CanopyNode):
 
     def _on_cloud(self, msg: PointCloud2) -> None:
         self.count("clouds_received")
+        check_cloud_msg(msg, max_points=MAX_IMAGE_PIXELS if self.image_size is None
+                        else self.image_size[0] * self.image_size[1])
         points, colors = cloud2_to_points(msg)
         stamp = stamp_to_ns(msg.header.stamp)
         with self._lock:

@@ -57,6 +57,10 @@ DEFAULT_NAMESPACE = "/stereo"
 #: Seconds between repeated log lines for the same drop reason.
 DROP_LOG_PERIOD_S = 5.0
 
+#: Distinct drop reasons counted one by one; later ones count as "other reasons" (a sender
+#: varying its image sizes must not grow the counters without bound).
+MAX_DROP_REASONS = 64
+
 
 class CanopyNode(Node):
     """Base node: ``reliability`` parameter, publishers/subscriptions with the
@@ -209,6 +213,8 @@ class CanopyNode(Node):
         now = time.monotonic()
         self.diagnostics.dropped(key, internal=reason.startswith("internal error"))
         with self._stats_lock:
+            if key not in self.drops and len(self.drops) >= MAX_DROP_REASONS:
+                key = f"{what}: other reasons"  # hostile input varying its sizes: bounded counters
             self.drops[key] += 1
             n = self.drops[key]
             if not log:
@@ -218,7 +224,8 @@ class CanopyNode(Node):
                 return
             self._drop_logged[key] = now
         suffix = f" ({n} so far)" if n > 1 else ""
-        self.get_logger().warning(f"dropped {key}{suffix}")
+        detail = f" (last: {reason})" if key.endswith(": other reasons") else ""
+        self.get_logger().warning(f"dropped {key}{detail}{suffix}")
 
     def guarded(self, fn):
         """Wrap a callback: user-fixable errors drop the message, anything else is

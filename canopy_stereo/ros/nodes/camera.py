@@ -15,12 +15,21 @@ Parameters:
   is published with each frame (REP 104, :mod:`canopy_stereo.ros.camera_info`);
 * ``loop``: restart a file or sequence at its end (otherwise stop there).
 
-When the device disappears (unplugged, read failure) the node logs once,
-retries to open it with exponential back-off (0.25 s doubling up to 8 s) and
-resumes publishing when it is back; it never exits because of the device.
+* ``open_timeout`` (s, default 5), ``read_timeout`` (s, default 0 = ten frame periods,
+  at least 3 s): how long an open or a read may block.
+
+Capture runs on a worker thread (:class:`CaptureSession`), never on the executor:
+OpenCV's open and read have no timeout and block indefinitely on a FIFO without a
+writer or a stalled device. The executor only supervises, so the node keeps
+answering and Ctrl-C/SIGTERM stop it within a second whatever OpenCV does.
+When the device disappears (unplugged, read failure), cannot be opened within
+``open_timeout`` or stalls for ``read_timeout``, the node logs once, retries to
+open it with exponential back-off (0.25 s doubling up to 8 s) and resumes
+publishing when it is back; it never exits because of the device.
 """
 from __future__ import annotations
 
+import threading
 import time
 
 import cv2
@@ -29,11 +38,23 @@ from rcl_interfaces.msg import ParameterDescriptor
 from sensor_msgs.msg import Image
 
 from canopy_stereo.ros.camera_info import RawCameraInfoPublisher
+from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.ros.convert import image_to_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 
 BACKOFF_START_S = 0.25
 BACKOFF_MAX_S = 8.0
+#: Seconds an open may take before the source counts as missing (``open_timeout``).
+OPEN_TIMEOUT_S = 5.0
+#: Default ``read_timeout``: this many frame periods without a frame, at least this many seconds.
+READ_TIMEOUT_FRAMES = 10
+READ_TIMEOUT_MIN_S = 3.0
+#: Period of the supervising timer on the executor (s).
+SUPERVISE_PERIOD_S = 0.05
+#: Sessions still blocked inside OpenCV after which no new attempt is started.
+MAX_BLOCKED_SESSIONS = 2
+#: Seconds ``destroy_node`` waits for capture threads to return.
+STOP_WAIT_S = 0.2
 
 
 def is_device(source: str) -> bool:
@@ -74,8 +95,65 @@ def open_capture(source: str, width: int = 0, height: int = 0, fps: float = 0.0,
     return cap
 
 
+class CaptureSession(threading.Thread):
+    """One attempt to use a source: open it, then read frames until told to stop or the
+    source ends or fails. Runs on its own daemon thread and is the only code that touches
+    its ``cv2.VideoCapture``, so a call that blocks (a FIFO without a writer, a stalled
+    V4L2 device: OpenCV has no timeout for either) blocks this thread alone; the node
+    abandons the session and the capture is released whenever the call returns.
+
+    ``on_frame(session, frame, stamp_ns) -> bool`` is called for every frame (False: stop);
+    the session paces reads at ``period_s`` for files and image sequences.
+    """
+
+    def __init__(self, source: str, settings: dict, on_frame, period_s: float, stamp_now):
+        super().__init__(name=f"capture {source}", daemon=True)
+        self.source, self.settings, self.on_frame = source, settings, on_frame
+        self.period_s = period_s
+        self.stamp_now = stamp_now
+        self.stop_event = threading.Event()
+        self.started_at = time.monotonic()
+        self.opened_at: float | None = None    # monotonic time the open returned a capture
+        self.last_frame_at: float | None = None
+        self.frames = 0
+        self.result: str | None = None         # "cannot open", "no frame", "end", "stopped"
+        self.error = ""
+
+    def run(self) -> None:
+        try:
+            cap = open_capture(self.source, **self.settings)
+        except Exception as exc:  # noqa: BLE001 - OpenCV raises for some malformed sources
+            cap, self.error = None, f"{type(exc).__name__}: {exc}"
+        if cap is None:
+            self.result = "cannot open"
+            return
+        self.opened_at = time.monotonic()
+        try:
+            next_t = time.monotonic()
+            while not self.stop_event.is_set():
+                ok, frame = cap.read()
+                stamp_ns = self.stamp_now()
+                if self.stop_event.is_set():
+                    break
+                if not ok or frame is None:
+                    self.result = "end" if self.frames > 0 and not is_device(self.source) else "no frame"
+                    return
+                self.frames += 1
+                self.last_frame_at = time.monotonic()
+                if not self.on_frame(self, frame, stamp_ns):
+                    break
+                if not is_device(self.source) and self.period_s > 0:  # files: pace at fps
+                    next_t = max(next_t + self.period_s, time.monotonic() - self.period_s)
+                    self.stop_event.wait(max(0.0, next_t - time.monotonic()))
+            self.result = "stopped"
+        except Exception as exc:  # noqa: BLE001 - a failing backend is a lost source
+            self.result, self.error = "no frame", f"{type(exc).__name__}: {exc}"
+        finally:
+            cap.release()
+
+
 class CameraNode(CanopyNode):
-    """Capture loop driven by a timer at ``fps`` (see module docstring)."""
+    """Capture on a worker thread, supervised from the executor (see module docstring)."""
 
     def __init__(self, node_name: str = "camera_node", **kwargs):
         super().__init__(node_name, **kwargs)
@@ -98,6 +176,11 @@ class CameraNode(CanopyNode):
                           read_only=True)
         self.declare_flag("loop", True, "restart a video file or image sequence at its end",
                           read_only=True)
+        self.declare_number("open_timeout", OPEN_TIMEOUT_S, "seconds an open may take before the "
+                            "source counts as missing", minimum=0.1, maximum=600.0, read_only=True)
+        self.declare_number("read_timeout", 0.0, "seconds without a frame before an open source counts "
+                            f"as stalled; 0 = max({READ_TIMEOUT_MIN_S:g} s, {READ_TIMEOUT_FRAMES} frame periods)",
+                            minimum=0.0, maximum=600.0, read_only=True)
         self.source = str(self.get_parameter("device").value)
         self.camera_name = self.get_parameter("camera_name").value
         self.frame_id = self.get_parameter("frame_id").value or f"{self.camera_name}_camera_optical_frame"
@@ -106,28 +189,78 @@ class CameraNode(CanopyNode):
                              fps=float(self.get_parameter("fps").value),
                              fourcc=str(self.get_parameter("fourcc").value))
         self.loop = bool(self.get_parameter("loop").value)
+        fps = self.settings["fps"] if self.settings["fps"] > 0 else 30.0
+        self.period_s = 1.0 / fps
+        self.open_timeout_s = float(self.get_parameter("open_timeout").value)
+        read_timeout = float(self.get_parameter("read_timeout").value)
+        self.read_timeout_s = read_timeout if read_timeout > 0 else max(READ_TIMEOUT_MIN_S,
+                                                                        READ_TIMEOUT_FRAMES * self.period_s)
+        if not self.open_timeout_s > 0:
+            raise CanopyStereoError(f"open_timeout must be > 0 s, got {self.open_timeout_s}")
         self.pub = self.make_publisher(Image, f"{self.camera_name}/image_raw")
         self.info = RawCameraInfoPublisher(self, self.camera_name)  # <name>/camera_info with a rig
-        self.cap = None
+        self.session: CaptureSession | None = None
+        self.abandoned: list[CaptureSession] = []  # sessions still blocked inside OpenCV
         self.backoff = BACKOFF_START_S
         self.next_attempt = 0.0
         self.lost_logged = False
-        self.frames_since_open = 0
+        self.reported_open = False
         self.finished = False
-        fps = self.settings["fps"] if self.settings["fps"] > 0 else 30.0
-        self.timer = self.create_timer(1.0 / fps, self.guarded(self._tick))
+        self._publish_lock = threading.Lock()
+        self._stopping = False
+        self.timer = self.create_timer(SUPERVISE_PERIOD_S, self.guarded(self._supervise))
 
     def _hardware_id(self) -> str:
         return str(self.get_parameter("device").value) if self.has_parameter("device") else ""
 
-    def _try_open(self) -> bool:
-        now = time.monotonic()
-        if now < self.next_attempt:
-            return False
-        self.cap = open_capture(self.source, **self.settings)
-        if self.cap is None:
-            self._lost(f"cannot open {self.source}")
-            return False
+    # ------------------------------------------------------------------ worker side
+    def _on_frame(self, session: CaptureSession, frame, stamp_ns: int) -> bool:
+        """Publish one captured frame (called on the session's thread); False stops the session."""
+        if frame.ndim == 2:
+            frame = cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
+        msg = image_to_msg(np.ascontiguousarray(frame[..., :3]), "bgr8", stamp_ns, self.frame_id)
+        with self._publish_lock:
+            if self._stopping or session is not self.session:
+                return False
+            self.pub.publish(msg)
+            self.info.publish(stamp_ns, self.frame_id, frame.shape)
+        self.count("frames_published")
+        return True
+
+    def _stamp_now(self) -> int:
+        return self.get_clock().now().nanoseconds
+
+    # ------------------------------------------------------------------ executor side
+    def _supervise(self) -> None:
+        """Start, watch and replace capture sessions; never blocks."""
+        self.abandoned = [s for s in self.abandoned if s.is_alive()]
+        s = self.session
+        if s is not None:
+            now = time.monotonic()
+            if s.result is None and s.opened_at is None and now - s.started_at > self.open_timeout_s:
+                self._abandon(s)
+                self._lost(f"opening {self.source} did not finish within {self.open_timeout_s:g} s")
+            elif s.result is None and s.opened_at is not None and \
+                    now - (s.last_frame_at or s.opened_at) > self.read_timeout_s:
+                self._abandon(s)
+                self._lost(f"{self.source} stalled: no frame for {self.read_timeout_s:g} s")
+            elif s.result is not None:
+                self._session_ended(s)
+            elif s.frames > 0 and s.opened_at is not None:
+                self._opened(s)
+            return
+        if self.finished or time.monotonic() < self.next_attempt:
+            return
+        if len(self.abandoned) >= MAX_BLOCKED_SESSIONS:
+            return  # earlier attempts still hang inside OpenCV: do not pile up threads
+        self.session = CaptureSession(self.source, self.settings, self._on_frame, self.period_s, self._stamp_now)
+        self.reported_open = False
+        self.session.start()
+
+    def _opened(self, s: CaptureSession) -> None:
+        if self.reported_open:
+            return
+        self.reported_open = True
         if self.lost_logged:
             self.get_logger().info(f"camera {self.camera_name}: {self.source} is back")
         elif self.counts["opened"] == 0:
@@ -135,8 +268,28 @@ class CameraNode(CanopyNode):
         self.count("opened")
         self.lost_logged = False
         self.backoff = BACKOFF_START_S
-        self.frames_since_open = 0
-        return True
+
+    def _session_ended(self, s: CaptureSession) -> None:
+        self.session = None
+        if s.frames > 0:
+            self._opened(s)
+        if s.result == "end":
+            if self.loop:
+                self.next_attempt = 0.0  # end of file: start again at once
+                return
+            self.get_logger().info(f"camera {self.camera_name}: end of {self.source}")
+            self.finished = True
+        elif s.result == "cannot open":
+            self._lost(f"cannot open {self.source}" + (f" ({s.error})" if s.error else ""))
+        elif s.result == "no frame":
+            self._lost(f"no frame from {self.source}" + (f" ({s.error})" if s.error else ""))
+
+    def _abandon(self, s: CaptureSession) -> None:
+        s.stop_event.set()
+        with self._publish_lock:  # no frame of an abandoned session is published after this
+            self.session = None
+        self.abandoned.append(s)
+        self.count("stalls")
 
     def _lost(self, reason: str) -> None:
         if not self.lost_logged:
@@ -146,34 +299,18 @@ class CameraNode(CanopyNode):
         self.next_attempt = time.monotonic() + self.backoff
         self.backoff = min(BACKOFF_MAX_S, self.backoff * 2)
 
-    def _tick(self) -> None:
-        if self.finished or (self.cap is None and not self._try_open()):
-            return
-        ok, frame = self.cap.read()
-        stamp_ns = self.get_clock().now().nanoseconds
-        if not ok or frame is None:
-            self.cap.release()
-            self.cap = None
-            if not is_device(self.source) and self.frames_since_open > 0:
-                if self.loop:
-                    self.next_attempt = 0.0  # end of file: start again at once
-                    return
-                self.get_logger().info(f"camera {self.camera_name}: end of {self.source}")
-                self.finished = True
-                return
-            self._lost(f"no frame from {self.source}")
-            return
-        self.frames_since_open += 1
-        if frame.ndim == 2:
-            frame = cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
-        self.pub.publish(image_to_msg(np.ascontiguousarray(frame[..., :3]), "bgr8", stamp_ns, self.frame_id))
-        self.info.publish(stamp_ns, self.frame_id, frame.shape)
-        self.count("frames_published")
-
     def destroy_node(self):
-        if self.cap is not None:
-            self.cap.release()
-            self.cap = None
+        """Stop publishing at once; a session blocked inside OpenCV is left to its daemon
+        thread (it releases its capture when the call returns, or dies with the process)."""
+        with self._publish_lock:
+            self._stopping = True
+        sessions = [s for s in [self.session, *self.abandoned] if s is not None]
+        for s in sessions:
+            s.stop_event.set()
+        deadline = time.monotonic() + STOP_WAIT_S
+        for s in sessions:
+            s.join(timeout=max(0.0, deadline - time.monotonic()))
+        self.session = None
         return super().destroy_node()
 
 

@@ -43,8 +43,9 @@ from stereo_msgs.msg import DisparityImage
 
 from canopy_stereo.disparity import available_matchers, compute_disparity, get_matcher
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.ros.convert import (camera_info_matrices, disparity_to_msg, is_calibrated, msg_to_mono,
-                                       stamp_to_ns)
+from canopy_stereo.ros.convert import (COLOUR_ENCODINGS, camera_info_matrices, disparity_to_msg, is_calibrated,
+                                       msg_to_mono, stamp_to_ns)
+from canopy_stereo.ros.limits import check_image_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.nodes.rectify import RECT_INFO_TOPICS
 from canopy_stereo.ros.sync import ExactTimeSynchronizer
@@ -169,6 +170,7 @@ class DisparityNode(CanopyNode):
         self.sub_info_right = self.make_subscription(CameraInfo, RECT_INFO_TOPICS[1],
                                                      lambda m: self._on_info(3, m))
         self.camera = None  # (f, t, doffs) of the latest camera_info pair, for the log
+        self.expected_size = None  # (width, height) of the latest rectified camera_info
         c = self.config
         rng = ("from the cameras" if c["disp_min"] is None or c["disp_max"] is None
                else f"[{c['disp_min']}, {c['disp_max']}]")
@@ -226,6 +228,7 @@ class DisparityNode(CanopyNode):
         name = ("left", "right")[side]
         self.count(f"{name}_received")
         try:
+            check_image_msg(msg, expected_size=self.expected_size, encodings=COLOUR_ENCODINGS)
             img = msg_to_mono(msg)
         except CanopyStereoError as exc:
             self.drop(str(exc), f"{name} rectified image")
@@ -234,6 +237,8 @@ class DisparityNode(CanopyNode):
 
     def _on_info(self, stream: int, msg: CameraInfo) -> None:
         self.count(f"{('left', 'right')[stream - 2]}_camera_info_received")
+        if msg.width > 0 and msg.height > 0:  # images must have the rectified cameras' size
+            self.expected_size = (int(msg.width), int(msg.height))
         self._push(stream, msg, msg)
 
     def _push(self, stream: int, msg, item) -> None:

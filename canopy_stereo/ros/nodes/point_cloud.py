@@ -42,9 +42,10 @@ from stereo_msgs.msg import DisparityImage
 from canopy_stereo.errors import CanopyStereoError, ImageError
 from canopy_stereo.geometry.frames import apply_transform, reproject_disparity, reproject_disparity_points
 from canopy_stereo.geometry.triangulation import triangulate_disparity_points
-from canopy_stereo.ros.convert import (camera_info_matrices, depth_to_msg, is_calibrated, msg_to_bgr,
-                                       msg_to_disparity, msg_to_image, pack_bgr_image, points_to_cloud2,
-                                       stamp_to_ns)
+from canopy_stereo.ros.convert import (COLOUR_ENCODINGS, camera_info_matrices, depth_to_msg, is_calibrated,
+                                       msg_to_bgr, msg_to_disparity, msg_to_image, pack_bgr_image,
+                                       points_to_cloud2, stamp_to_ns)
+from canopy_stereo.ros.limits import check_disparity_msg, check_image_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.nodes.rectify import RECT_INFO_TOPICS
 from canopy_stereo.ros.stereo_geometry import STEREO_GEOMETRY_TOPIC, parse_stereo_geometry
@@ -148,6 +149,7 @@ class PointCloudNode(CanopyNode):
                                     f"{self.get_parameter('cloud_frame').value!r}")
         self.add_on_set_parameters_callback(self._check_parameters)
         self.geometry = None
+        self.expected_size = None  # (width, height) of the latest rectified camera_info
         # streams: 0 disparity, 1 colour, 2 left camera_info, 3 mask
         n = 4 if self.use_mask else 3
         self.sync = ExactTimeSynchronizer(n, int(self.get_parameter("queue_size").value),
@@ -186,12 +188,17 @@ class PointCloudNode(CanopyNode):
         self.count(f"{what}_received")
         try:
             if stream == 0:
+                check_disparity_msg(msg, expected_size=self.expected_size)
                 item = msg_to_disparity(msg)
             elif stream == 1:
+                check_image_msg(msg, expected_size=self.expected_size, encodings=COLOUR_ENCODINGS)
                 item = msg_to_bgr(msg)
             elif stream == 2:
+                if msg.width > 0 and msg.height > 0:  # inputs must have the rectified camera's size
+                    self.expected_size = (int(msg.width), int(msg.height))
                 item = msg
             else:
+                check_image_msg(msg, expected_size=self.expected_size, encodings=("mono8", "8UC1"))
                 item = msg_to_image(msg, ("mono8", "8UC1"))
         except CanopyStereoError as exc:
             self.drop(str(exc), what)

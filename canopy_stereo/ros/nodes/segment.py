@@ -17,7 +17,11 @@ Parameters (changeable at run time):
   mask resized back;
 * ``queue_size`` (read-only): input queue depth; 1 makes the node segment the
   newest image and skip those that arrived while it was busy (used when no
-  point cloud waits for the masks).
+  point cloud waits for the masks);
+* ``image_width``, ``image_height`` (read-only, 0 = any): the size every image must
+  have -- the rig file's, so ``--params-file RIG.yaml`` sets them; other sizes are
+  dropped before decoding. Without them only the hard limits of
+  :mod:`canopy_stereo.ros.limits` apply.
 
 The computation itself is
 :func:`canopy_stereo.segmentation.video.segment_plant`.
@@ -28,7 +32,8 @@ from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from sensor_msgs.msg import Image
 
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.ros.convert import image_to_msg, msg_to_bgr, stamp_to_ns
+from canopy_stereo.ros.convert import COLOUR_ENCODINGS, image_to_msg, msg_to_bgr, stamp_to_ns
+from canopy_stereo.ros.limits import SEGMENT_MIN_SIZE, check_image_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.segmentation.video import AUTO_INITS, segment_plant
 
@@ -48,6 +53,12 @@ class SegmentNode(CanopyNode):
         self.declare_number("queue_size", 5, "input queue depth; 1 = always segment the latest image "
                             "and skip the ones that arrived meanwhile (when nothing waits for every mask)",
                             minimum=1, maximum=100, read_only=True)
+        self.declare_number("image_width", 0, "width every image must have (the rig's); 0 = any",
+                            minimum=0, maximum=16384, read_only=True)
+        self.declare_number("image_height", 0, "height every image must have (the rig's); 0 = any",
+                            minimum=0, maximum=16384, read_only=True)
+        size = (int(self.get_parameter("image_width").value), int(self.get_parameter("image_height").value))
+        self.expected_size = size if min(size) > 0 else None
         self.settings = self._settings({})
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.pub = self.make_publisher(Image, "left/mask")
@@ -83,6 +94,7 @@ class SegmentNode(CanopyNode):
 
     def _on_image(self, msg: Image) -> None:
         self.count("received")
+        check_image_msg(msg, expected_size=self.expected_size, encodings=COLOUR_ENCODINGS, min_size=SEGMENT_MIN_SIZE)
         bgr = msg_to_bgr(msg)
         s = self.settings
         mask = segment_plant(bgr, s["rect"], s["iterations"], s["auto_init"], s["scale"])
