@@ -52,8 +52,11 @@ setup(
     ],
     extras_require={
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-common-interfaces"],
-        "test": ["pytest>=7", "rosbags>=0.9", "matplotlib>=3.6"],
+        "test": ["pytest>=7", "rosbags>=0.9", "matplotlib>=3.6", "dask[distributed]>=2023.1", "pyarrow>=12"],
         "plot": ["matplotlib>=3.6"],
+        # canopy-stereo batch: Dask distributed (LocalCluster or a cluster); Parquet with pyarrow
+        "batch": ["dask[distributed]>=2023.1", "matplotlib>=3.6"],
+        "parquet": ["pyarrow>=12"],
     },
     zip_safe=True,
     tests_require=["pytest"],

@@ -10,7 +10,10 @@ Files follow what rosbag2's MCAP storage plugin writes, so ``ros2 bag play``,
 * messages serialized by ``rclpy.serialization`` (CDR with encapsulation header),
   ``log_time`` = reception time, ``publish_time`` = header stamp (or log time);
 * chunked, zstd-compressed by default, with message indexes, statistics and
-  summary offsets; a ``rosbag2`` metadata record holding the bag information.
+  summary offsets; a ``rosbag2`` metadata record holding the bag information;
+* optional further metadata records (``metadata=`` / :meth:`BagWriter.add_metadata`),
+  written as soon as they are given so that a recording cut short keeps them
+  (canopy_stereo's own: :mod:`canopy_stereo.io.bag_metadata`).
 
 :class:`BagReader` reads such files, and also ones cut short (a recorder killed
 before it could finish): it then scans the file linearly, yields every message
@@ -26,7 +29,7 @@ from typing import Iterator, NamedTuple
 import yaml
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Message, Schema
+from mcap.records import Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
@@ -107,10 +110,12 @@ class BagWriter:
         compression: ``"zstd"`` (default), ``"lz4"`` or ``"none"`` chunk compression.
         chunk_size: uncompressed bytes per chunk.
         overwrite: replace an existing file (otherwise :class:`BagError`).
+        metadata: optional ``{record name: {key: value}}`` MCAP metadata records
+            (strings) written at once (see :meth:`add_metadata`).
     """
 
     def __init__(self, path, compression: str = "zstd", chunk_size: int = 1 << 20,
-                 overwrite: bool = True):
+                 overwrite: bool = True, metadata: dict | None = None):
         self.path = Path(path)
         comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                 "none": CompressionType.NONE, "": CompressionType.NONE}
@@ -133,6 +138,20 @@ class BagWriter:
         self._end_ns = 0
         self.message_count = 0
         self.closed = False
+        for name, data in (metadata or {}).items():
+            self.add_metadata(name, data)
+
+    def add_metadata(self, name: str, data: dict) -> None:
+        """Write an MCAP metadata record ``name`` holding ``data`` (str -> str; other
+        values are converted with ``str``). It goes into the file at once, so a
+        recording cut short keeps it. ``rosbag2`` is reserved for the bag information."""
+        if not name or name == "rosbag2":
+            raise BagError(f"metadata record name {name!r} is reserved or empty")
+        record = {str(k): str(v) for k, v in dict(data).items()}
+        with self._lock:
+            if self.closed:
+                raise BagError(f"bag {self.path} is closed")
+            self._writer.add_metadata(name, record)
 
     def add_topic(self, topic: str, msg_type: str, qos_yaml: str | None = None) -> None:
         """Declare ``topic`` with type ``msg_type`` (``"sensor_msgs/msg/Image"``)."""
@@ -267,6 +286,7 @@ class BagReader:
         self.truncated = False
         self.problem = ""
         self._summary = None
+        self._scanned_metadata: list = []
         try:
             with open(self.path, "rb") as f:
                 summary = SeekingReader(f).get_summary()
@@ -328,6 +348,8 @@ class BagReader:
                 idx.schemas[rec.id] = rec
             elif isinstance(rec, Channel):
                 idx.channels[rec.id] = rec
+            elif isinstance(rec, Metadata):
+                self._scanned_metadata.append((rec.name, dict(rec.metadata)))
             elif isinstance(rec, Message):
                 idx.counts[rec.channel_id] = idx.counts.get(rec.channel_id, 0) + 1
                 idx.start_ns = rec.log_time if idx.start_ns is None else min(idx.start_ns, rec.log_time)
@@ -366,6 +388,18 @@ class BagReader:
                 if keep(ch.topic, rec.log_time):
                     yield BagMessage(ch.topic, self._channel_types[rec.channel_id], rec.log_time,
                                      rec.publish_time, bytes(rec.data))
+
+    def metadata(self) -> dict[str, dict[str, str]]:
+        """The file's MCAP metadata records, ``{name: {key: value}}`` (the ``rosbag2``
+        record included when the file has one; a later record of the same name wins).
+        A truncated file yields the records found before the damage."""
+        if self._summary is None:
+            return {name: dict(data) for name, data in self._scanned_metadata}
+        out = {}
+        with open(self.path, "rb") as f:
+            for rec in SeekingReader(f).iter_metadata():
+                out[rec.name] = dict(rec.metadata)
+        return out
 
     def read(self, topics=None, start_ns=None, end_ns=None):
         """``(BagMessage, decoded message)`` pairs in log-time order."""
