@@ -1,7 +1,7 @@
 """``canopy-stereo batch``: a season of small bags on Dask, embedded and as a real cluster.
 
 Six bags are made here: five of the synthetic croton (canopy_stereo.sim) seen at
-quarter resolution (320x240) through the paper's rig, two frames each, with
+240x180 through the paper's rig, two frames each, with
 ``canopy_stereo`` metadata (plant, plot, treatment, date) and the rig as
 metadata records; and a copy of one of them cut short (a recorder killed). The
 batch runs as the user runs it: the ``canopy-stereo`` command in its own
@@ -38,11 +38,15 @@ TRUNCATED = "c_w1_cut"
 FRAMES = 2
 
 
+SCALE = 0.375  # 240x180 images
+DISP_RANGE = (4, 28)  # the scene's rectified disparities (6..26 px) with a margin
+
+
 def _small_rig():
     paper = load_rig(REPO / "config" / "paper_rig.yaml")
-    s = np.diag([0.5, 0.5, 1.0])
-    return type(paper)(P_left=s @ paper.P_left, P_right=s @ paper.P_right, image_size=(320, 240),
-                       world_unit="mm")
+    s = np.diag([SCALE, SCALE, 1.0])
+    return type(paper)(P_left=s @ paper.P_left, P_right=s @ paper.P_right,
+                       image_size=(round(640 * SCALE), round(480 * SCALE)), world_unit="mm")
 
 
 @pytest.fixture(scope="module")
@@ -54,7 +58,7 @@ def season(tmp_path_factory):
     from canopy_stereo.sim import render_scene
 
     folder = tmp_path_factory.mktemp("season")
-    rig = _small_rig().with_extra(disp_min=6, disp_max=36)
+    rig = _small_rig().with_extra(disp_min=DISP_RANGE[0], disp_max=DISP_RANGE[1])
     truth = {}
     for name, plant, plot, treatment, date, seed in BAGS:
         frames, heights = [], []
@@ -96,7 +100,7 @@ def _check_outputs(out: Path, folder: Path, truth: dict) -> list[dict]:
     for r in rows:
         assert (r["plant_id"], r["plot"], r["treatment"], r["date"]) == expected[r["source"]]
         assert int(r["frames"]) == FRAMES and r["rig"] == "bag"
-        # the whole chain (ELAS at 320x240, automatic mask, measurement) against the exact scene
+        # the whole chain (ELAS at 240x180, automatic mask, measurement) against the exact scene
         assert float(r["canopy_height_mm"]) == pytest.approx(truth[r["source"]], rel=0.08)
         assert 0 < float(r["voxel_volume_cm3"]) < float(r["hull_volume_cm3"])
         assert float(r["leaf_count"]) >= 3 and float(r["leaf_area_cm2"]) > 100
@@ -113,7 +117,7 @@ def test_metadata_and_rig_travel_in_the_bag(season):
     folder, _ = season
     meta, rig = canopy_metadata(BagReader(folder / "b_w2.mcap").metadata())
     assert meta == {"plant_id": "B", "plot": "row2", "treatment": "drought", "date": "2026-05-08"}
-    assert rig.image_size == (320, 240) and rig.extra["disp_max"] == 36
+    assert rig.image_size == (240, 180) and rig.extra["disp_max"] == DISP_RANGE[1]
     np.testing.assert_allclose(rig.P_left, _small_rig().P_left)
     cut = BagReader(folder / f"{TRUNCATED}.mcap")  # written first: kept by a file cut short
     assert cut.truncated and canopy_metadata(cut.metadata())[0]["plant_id"] == "A"
@@ -236,26 +240,27 @@ def test_resume_after_an_interrupted_run_processes_only_what_is_missing(season, 
             assert r == before[r["source"]]
     assert len(done_before) < len(BAGS) + 1
 
-    third = _cli("batch", folder, "-o", out, "--resume", "--workers", 1, "--no-plots")
-    assert f"{len(BAGS)} already in the table, 1 processed" in third.stdout  # only the failed bag again
     again_without_resume = _cli("batch", folder, "-o", out, "--workers", 1)
     assert again_without_resume.returncode == 2 and "--resume" in again_without_resume.stderr
 
 
 def test_select_on_metadata_and_explicit_rig(season, tmp_path):
-    from canopy_stereo.batch import BatchOptions, run_batch
+    """The task itself (as a worker runs it): --select filters on the metadata, --rig wins."""
+    from canopy_stereo.batch.work import BatchOptions, run_bag_task
     from canopy_stereo.io.bag_metadata import parse_selection
     from canopy_stereo.io.rig import save_rig
 
     folder, truth = season
-    rig_path = save_rig(_small_rig().with_extra(disp_min=6, disp_max=36), tmp_path / "rig.yaml")
-    opts = BatchOptions(rig=load_rig(rig_path), rig_source=str(rig_path),
+    rig_path = save_rig(_small_rig().with_extra(disp_min=DISP_RANGE[0], disp_max=DISP_RANGE[1]),
+                        tmp_path / "rig.yaml")
+    opts = BatchOptions(rig=load_rig(rig_path), rig_source=str(rig_path), max_frames=1,
                         select=parse_selection(["plot=row2", "date=2026-05-08", "date=2026-05-01"]))
-    summary = run_batch([folder / "a_w1.mcap", folder / "b_w1.mcap", folder / "b_w2.mcap"], tmp_path / "sel",
-                        options=opts, workers=1, plots=False, progress=False)
-    assert (summary.succeeded, summary.skipped, summary.failed) == (2, 1, 0)
-    rows = _table(tmp_path / "sel" / "plants.csv")
-    assert [r["plant_id"] for r in rows] == ["B", "B"] and all(r["rig"] == str(rig_path) for r in rows)
+    assert run_bag_task(str(folder / "a_w1.mcap"), opts) == ("skipped", None)
+    status, row = run_bag_task(str(folder / "b_w1.mcap"), opts)
+    assert status == "ok" and row["rig"] == str(rig_path) and row["frames"] == 1
+    assert row["metadata"]["plant_id"] == "B"
+    assert row["canopy_height_mm"] == pytest.approx(truth[str(folder / "b_w1.mcap")], rel=0.08)
+    assert run_bag_task(str(folder / f"{TRUNCATED}.mcap"), opts)[0] == "error"
 
 
 def test_usage_errors_are_one_line(tmp_path, season):

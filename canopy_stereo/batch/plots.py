@@ -70,6 +70,7 @@ def plot_traits(table, folder) -> list[Path]:
                 ax.annotate(f"n={n}", (x, y), textcoords="offset points", xytext=(0, 5),
                             ha="center", fontsize=7, color="0.4")
             ax.set_title(trait, fontsize=9)
+            ax.xaxis.set_major_locator(mdates.AutoDateLocator(minticks=2, maxticks=5))
             ax.xaxis.set_major_formatter(mdates.DateFormatter("%Y-%m-%d"))
             ax.tick_params(axis="x", labelrotation=30, labelsize=7)
             ax.tick_params(axis="y", labelsize=7)

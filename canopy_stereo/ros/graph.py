@@ -223,6 +223,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--height", type=int, default=0, help="camera height (default: the rig's)")
     p.add_argument("--fourcc", default="", help="camera pixel format, e.g. MJPG")
     p.add_argument("--record", metavar="OUT.mcap", help="record the outputs")
+    p.add_argument("--metadata", nargs="+", action="extend", default=[], metavar="KEY=VALUE",
+                   help="with --cameras --record: describe the recording (plant_id=A12 plot=row1 ...); "
+                        "stored with the rig file as the bag's metadata records")
     p.add_argument("--matcher", choices=("elas", "sgbm"), default=None)
     p.add_argument("--use-mask", action="store_true", help="keep only plant pixels in the clouds")
     p.add_argument("--no-segment", action="store_true", help="do not run segment_node")
@@ -281,7 +284,11 @@ def main(args=None) -> int:
             ns = "/" + options.namespace.strip("/")
             topics = [f"{ns}/{t}" for t in ("points2", "disparity", "left/mask", "left/camera_info",
                                              "right/camera_info", "left/image_raw", "right/image_raw")]
-            recorder = BagRecorder(BagWriter(opts.record, compression="lz4"), topics, context=context)
+            from canopy_stereo.io.bag_metadata import parse_key_values, recording_metadata
+
+            records = recording_metadata(parse_key_values(opts.metadata), rig)
+            recorder = BagRecorder(BagWriter(opts.record, compression="lz4", metadata=records), topics,
+                                   context=context)
             graph.add_node(recorder)
         graph.spin_until_interrupted()
         return 0
