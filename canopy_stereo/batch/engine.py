@@ -147,17 +147,19 @@ def run_batch(inputs, out, *, options: BatchOptions | None = None, workers: int 
     options = options or BatchOptions()
     t0 = time.monotonic()
     out = Path(out)
-    if not resume and (out / "plants.csv").exists():
-        raise CanopyStereoError(f"{out / 'plants.csv'} exists: add --resume to continue that batch, "
+    if not resume and ResultTable(out, resume=True, create=False).rows:
+        raise CanopyStereoError(f"{out / 'plants.csv'} has rows: add --resume to continue that batch, "
                                 "or choose another output folder")
     paths = expand_inputs(inputs)
-    table = ResultTable(out, resume=resume)
+    table = ResultTable(out, resume=resume, create=False)
     todo = [p for p in paths if p not in table.done]
     summary = BatchSummary(inputs=len(paths), already_done=len(paths) - len(todo))
+    client = cluster = None
+    if todo:
+        client, cluster = _client(scheduler, workers)  # fails before anything is written
     table.write()
     bar = _Progress(len(todo), progress)
     if todo:
-        client, cluster = _client(scheduler, workers)
         try:
             _run(client, todo, options, table, summary, bar)
         except KeyboardInterrupt:

@@ -86,11 +86,13 @@ class ResultTable:
         out: output folder (created).
         resume: load the rows already in ``out`` (else start empty; the files are
             replaced at the first write).
+        create: create ``out`` now (else at the first write).
     """
 
-    def __init__(self, out, resume: bool = False):
+    def __init__(self, out, resume: bool = False, create: bool = True):
         self.out = Path(out)
-        self.out.mkdir(parents=True, exist_ok=True)
+        if create:
+            self.out.mkdir(parents=True, exist_ok=True)
         self.rows: dict[str, dict[str, str]] = {}
         self.errors: dict[str, str] = {}
         self.metadata_keys: list[str] = []
@@ -137,6 +139,7 @@ class ResultTable:
 
     def write(self) -> None:
         """Rewrite ``plants.csv`` and ``errors.csv`` atomically."""
+        self.out.mkdir(parents=True, exist_ok=True)
         cols = self.columns()
 
         def plants(f):
