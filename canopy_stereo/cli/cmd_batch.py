@@ -23,7 +23,7 @@ def add_arguments(p):
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
     p.add_argument("--rig", metavar="RIG.yaml",
                    help="rig file for every bag (default: each bag's own canopy_stereo_rig record)")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1, metavar="N",
                    help="worker processes of the embedded LocalCluster, one thread each (default: the "
                         "number of CPUs; ignored with --scheduler)")
     p.add_argument("--scheduler", metavar="ADDRESS",
@@ -38,8 +38,10 @@ def add_arguments(p):
     p.add_argument("--matcher", choices=matcher_names(), default="elas", help="dense matcher (default elas)")
     p.add_argument("--max-frames", type=int, default=0, metavar="N",
                    help="measure at most N stereo pairs per bag, evenly spread (default 0 = all)")
-    p.add_argument("--left-topic", default="/stereo/left/image_raw")
-    p.add_argument("--right-topic", default="/stereo/right/image_raw")
+    p.add_argument("--left-topic", default="/stereo/left/image_raw",
+                   help="left raw image topic (default %(default)s)")
+    p.add_argument("--right-topic", default="/stereo/right/image_raw",
+                   help="right raw image topic (default %(default)s)")
     p.add_argument("--no-plots", action="store_true", help="do not draw the per-plant plots")
     p.add_argument("--no-progress", action="store_true", help="no progress line even on a terminal")
 
