@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.bag_metadata import (
@@ -58,6 +59,15 @@ def test_writer_records_survive_truncation_and_rosbags_reads_the_bag(tmp_path):
     assert meta == {"plant_id": "A", "n": "3"}
     np.testing.assert_array_equal(got_rig.P_right, rig.P_right)
     assert got_rig.extra == rig.extra
+    # rosbag2's own custom_data (ros2 bag record --custom-data) holds the same pairs ...
+    info = yaml.safe_load(records["rosbag2"]["serialized_metadata"])
+    assert info["custom_data"] == {"plant_id": "A", "n": "3"}
+    # ... and a bag that has only custom_data (recorded by ros2 bag record) is read too
+    only = tmp_path / "ros2.mcap"
+    with BagWriter(only) as bag:
+        bag.custom_data.update({"plant_id": "Z9", "date": "2026-06-01"})
+        bag.write("/stereo/left/image_raw", convert.image_to_msg(np.zeros((4, 4, 3), np.uint8)), T0)
+    assert canopy_metadata(BagReader(only).metadata()) == ({"plant_id": "Z9", "date": "2026-06-01"}, None)
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
     part = BagReader(cut)

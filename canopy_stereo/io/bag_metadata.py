@@ -7,6 +7,9 @@ string maps, beside rosbag2's own ``rosbag2`` record, ignored by ``ros2 bag``):
   at recording time (``bag_record --metadata plant_id=A12 plot=row1
   treatment=drought date=2026-05-04``). Keys are letters, digits, ``_``, ``-``
   and ``.``; ``date`` is best given as ISO 8601 (``YYYY-MM-DD``), which sorts.
+  The same pairs go into rosbag2's own ``custom_data`` (in the ``rosbag2``
+  record, written when the bag is closed); a bag recorded by ``ros2 bag record
+  --custom-data KEY=VALUE`` has only that, and it is read as well.
 * ``canopy_stereo_rig`` (:data:`RIG_RECORD`): the rig file the cameras were
   recorded with, its full text under the key ``yaml`` (a ROS 2 parameter file,
   :func:`~canopy_stereo.io.rig.rig_to_yaml`), so that a bag is measured without
@@ -83,14 +86,32 @@ def recording_metadata(metadata: dict | None = None, rig=None) -> dict[str, dict
     return records
 
 
+def rosbag2_custom_data(record: dict) -> dict[str, str]:
+    """The ``custom_data`` pairs of a ``rosbag2`` metadata record ({} when none or unreadable)."""
+    import yaml
+
+    try:
+        info = yaml.safe_load(record.get("serialized_metadata", "")) or {}
+    except yaml.YAMLError:
+        return {}
+    if isinstance(info, dict) and "rosbag2_bagfile_information" in info:
+        info = info["rosbag2_bagfile_information"]
+    custom = info.get("custom_data") if isinstance(info, dict) else None
+    return {str(k): str(v) for k, v in custom.items()} if isinstance(custom, dict) else {}
+
+
 def canopy_metadata(records: dict, source: str = "bag"):
     """``(metadata, rig)`` from a bag's metadata records (``BagReader.metadata()``):
-    the :data:`METADATA_RECORD` pairs (``{}`` when absent) and the
+    the :data:`METADATA_RECORD` pairs (else rosbag2's ``custom_data``; ``{}`` when
+    neither) and the
     :class:`~canopy_stereo.io.rig.Rig` of :data:`RIG_RECORD` (None when absent).
     A rig record that does not parse raises :class:`~canopy_stereo.errors.RigError`."""
     from canopy_stereo.io.rig import rig_from_yaml
 
-    meta = dict(records.get(METADATA_RECORD, {}))
+    if METADATA_RECORD in records:
+        meta = dict(records[METADATA_RECORD])
+    else:
+        meta = rosbag2_custom_data(records.get("rosbag2", {}))
     rig = None
     if RIG_RECORD in records:
         text = records[RIG_RECORD].get(RIG_KEY)

@@ -13,7 +13,9 @@ Files follow what rosbag2's MCAP storage plugin writes, so ``ros2 bag play``,
   summary offsets; a ``rosbag2`` metadata record holding the bag information;
 * optional further metadata records (``metadata=`` / :meth:`BagWriter.add_metadata`),
   written as soon as they are given so that a recording cut short keeps them
-  (canopy_stereo's own: :mod:`canopy_stereo.io.bag_metadata`).
+  (canopy_stereo's own: :mod:`canopy_stereo.io.bag_metadata`); the pairs of the
+  ``canopy_stereo`` record are also rosbag2's ``custom_data`` (what ``ros2 bag
+  record --custom-data`` writes), for tools that know only rosbag2.
 
 :class:`BagReader` reads such files, and also ones cut short (a recorder killed
 before it could finish): it then scans the file linearly, yields every message
@@ -138,6 +140,7 @@ class BagWriter:
         self._end_ns = 0
         self.message_count = 0
         self.closed = False
+        self.custom_data: dict[str, str] = {}
         for name, data in (metadata or {}).items():
             self.add_metadata(name, data)
 
@@ -152,6 +155,10 @@ class BagWriter:
             if self.closed:
                 raise BagError(f"bag {self.path} is closed")
             self._writer.add_metadata(name, record)
+            from canopy_stereo.io.bag_metadata import METADATA_RECORD
+
+            if name == METADATA_RECORD:
+                self.custom_data.update(record)
 
     def add_topic(self, topic: str, msg_type: str, qos_yaml: str | None = None) -> None:
         """Declare ``topic`` with type ``msg_type`` (``"sensor_msgs/msg/Image"``)."""
@@ -224,7 +231,7 @@ class BagWriter:
             "relative_file_paths": [self.path.name],
             "files": [{"path": self.path.name, "starting_time": {"nanoseconds_since_epoch": start},
                        "duration": {"nanoseconds": duration}, "message_count": self.message_count}],
-            "custom_data": {},
+            "custom_data": dict(self.custom_data),
             "ros_distro": "jazzy",
         }
         return yaml.safe_dump(info, sort_keys=False)
