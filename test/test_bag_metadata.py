@@ -126,3 +126,49 @@ def test_bag_record_writes_metadata_and_rig(tmp_path):
     bad = subprocess.run([sys.executable, "-c", code, "-o", str(tmp_path / "x.mcap"), "/t",
                           "--metadata", "plant_id"], env=env, capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "KEY=VALUE" in bad.stderr
+
+
+@pytest.mark.ros
+def test_graph_recording_from_cameras_is_measured_without_a_rig(tmp_path):
+    """canopy_graph --cameras ... --record --metadata (its own process) -> a self-describing bag
+    -> one batch row with the recording's metadata, no --rig."""
+    pytest.importorskip("rclpy")
+    import cv2
+
+    from canopy_stereo.batch.work import BatchOptions, process_bag
+    from canopy_stereo.ros.bag import BagReader
+    from canopy_stereo.ros.bundled import bundled_bag, bundled_rig
+    from canopy_stereo.ros.context import private_domain_id
+    from canopy_stereo.ros.convert import msg_to_image
+
+    src = BagReader(bundled_bag("croton"))
+    for side in ("left", "right"):
+        for k, (_, m) in enumerate(src.read(f"/stereo/{side}/image_raw")):
+            cv2.imwrite(str(tmp_path / f"{side}_{k:03d}.png"), msg_to_image(m))
+    out = tmp_path / "rec.mcap"
+    env = dict(os.environ, ROS_DOMAIN_ID=str(private_domain_id()), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    code = "import sys; from canopy_stereo.ros.graph import main; sys.exit(main())"
+    fps = 4.0
+    proc = subprocess.Popen([sys.executable, "-c", code, "--rig", str(bundled_rig("croton")),
+                             "--cameras", str(tmp_path / "left_%03d.png"), str(tmp_path / "right_%03d.png"),
+                             "--fps", str(fps), "--matcher", "sgbm", "--no-segment", "--record", str(out),
+                             "--metadata", "plant_id=C1", "treatment=control", "date=2026-05-04"],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 90
+        while time.monotonic() < deadline and proc.poll() is None:
+            if out.is_file() and out.stat().st_size > 3_000_000:  # a few raw pairs flushed
+                break
+            time.sleep(0.25)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    row = process_bag(out, BatchOptions(max_frames=1, sync_slop_s=0.5 / fps, matcher="sgbm"))
+    assert row["metadata"] == {"plant_id": "C1", "treatment": "control", "date": "2026-05-04"}
+    assert row["rig"] == "bag" and row["frames"] == 1
+    # the croton stands about 45 cm tall (bundled bag's scene)
+    assert 300 < row["canopy_height_mm"] < 600

@@ -124,12 +124,13 @@ def image_to_bgr(img: RawImage) -> np.ndarray:
     return cv2.cvtColor(arr, code) if code is not None else arr
 
 
-def stereo_pairs(bag, left_topic: str = LEFT_TOPIC, right_topic: str = RIGHT_TOPIC,
-                 slop_s: float = 0.015) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
-    """``(stamp_ns, left_bgr, right_bgr)`` for each left/right pair of ``bag`` (a
+def raw_stereo_pairs(bag, left_topic: str = LEFT_TOPIC, right_topic: str = RIGHT_TOPIC,
+                     slop_s: float = 0.015) -> Iterator[tuple[int, RawImage, RawImage]]:
+    """``(stamp_ns, left, right)`` :class:`RawImage` pairs of ``bag`` (a
     :class:`~canopy_stereo.ros.bag.BagReader`), paired by nearest header stamp within
-    ``slop_s`` seconds; the pair's stamp is the left image's. Images are decoded only
-    once paired. Raises :class:`ImageError` when a topic is missing or not an image."""
+    ``slop_s`` seconds (:class:`~canopy_stereo.ros.sync.ApproximateTimePairer`); the
+    pair's stamp is the left image's. Raises :class:`ImageError` when a topic is
+    missing or not an image."""
     for topic in (left_topic, right_topic):
         info = bag.topics.get(topic)
         if info is None:
@@ -144,4 +145,11 @@ def stereo_pairs(bag, left_topic: str = LEFT_TOPIC, right_topic: str = RIGHT_TOP
         pair, _ = pairer.push(0 if m.topic == left_topic else 1, img.stamp_ns, img)
         if pair is not None:
             left, right = pair.items
-            yield left.stamp_ns, image_to_bgr(left), image_to_bgr(right)
+            yield left.stamp_ns, left, right
+
+
+def stereo_pairs(bag, left_topic: str = LEFT_TOPIC, right_topic: str = RIGHT_TOPIC,
+                 slop_s: float = 0.015) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """``(stamp_ns, left_bgr, right_bgr)`` for each pair of :func:`raw_stereo_pairs`."""
+    for stamp, left, right in raw_stereo_pairs(bag, left_topic, right_topic, slop_s):
+        yield stamp, image_to_bgr(left), image_to_bgr(right)

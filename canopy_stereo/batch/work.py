@@ -131,8 +131,9 @@ def _iso_utc(ns: int) -> str:
 
 
 def _spread(n_total: int, n_keep: int) -> set[int]:
+    """Indices of ``n_keep`` of ``n_total`` items, evenly spread (all when ``n_keep`` is 0)."""
     if n_keep <= 0 or n_keep >= n_total:
-        return set(range(n_total))
+        return set(range(max(n_total, 1)))
     return set(np.unique(np.linspace(0, n_total - 1, n_keep).round().astype(int)).tolist())
 
 
@@ -146,7 +147,7 @@ def process_bag(path, options: BatchOptions | None = None) -> dict:
     stereo pair, or no frame could be measured.
     """
     from canopy_stereo import __version__
-    from canopy_stereo.batch.frames import stereo_pairs
+    from canopy_stereo.batch.frames import image_to_bgr, raw_stereo_pairs
     from canopy_stereo.io.bag_metadata import canopy_metadata, matches_selection
     from canopy_stereo.ros.bag import BagReader
 
@@ -161,17 +162,22 @@ def process_bag(path, options: BatchOptions | None = None) -> dict:
     if rig is None:
         raise CanopyStereoError("no rig: the bag has no canopy_stereo_rig metadata record; give --rig RIG.yaml")
     rig_source = (options.rig_source or "given") if options.rig is not None else "bag"
-    left_info = bag.topics.get(options.left_topic)
-    n_left = left_info.message_count if left_info is not None else 0
-    keep = _spread(n_left, options.max_frames)
+    # at most max_frames pairs, spread over the pairs the bag can hold (its smaller stream)
+    n_pairs = min((bag.topics[t].message_count if t in bag.topics else 0)
+                  for t in (options.left_topic, options.right_topic))
+    keep = _spread(n_pairs, options.max_frames)
+    last = max(keep, default=0)
     measured, failures, first_stamp = [], [], None
-    for k, (stamp, left, right) in enumerate(stereo_pairs(bag, options.left_topic, options.right_topic,
-                                                          options.sync_slop_s)):
+    for k, (stamp, left, right) in enumerate(raw_stereo_pairs(bag, options.left_topic, options.right_topic,
+                                                              options.sync_slop_s)):
+        if k > last:
+            break  # the frames to measure are done: read no further
         if k not in keep:
             continue
         first_stamp = stamp if first_stamp is None else first_stamp
         try:
-            measured.append(measure_frame(left, right, rig, index=options.index, matcher=options.matcher))
+            measured.append(measure_frame(image_to_bgr(left), image_to_bgr(right), rig,
+                                          index=options.index, matcher=options.matcher))
         except CanopyStereoError as exc:
             failures.append(f"frame {k}: {exc}")
     if first_stamp is None:

@@ -42,6 +42,9 @@ def add_arguments(p):
                    help="left raw image topic (default %(default)s)")
     p.add_argument("--right-topic", default="/stereo/right/image_raw",
                    help="right raw image topic (default %(default)s)")
+    p.add_argument("--sync-slop", type=float, default=0.015, metavar="S",
+                   help="largest left/right stamp difference of a stereo pair, seconds (default 0.015, "
+                        "as rectify_node; free-running webcams: half a frame period)")
     p.add_argument("--no-plots", action="store_true", help="do not draw the per-plant plots")
     p.add_argument("--no-progress", action="store_true", help="no progress line even on a terminal")
 
@@ -54,6 +57,8 @@ def run(args) -> int:
 
     if args.max_frames < 0:
         raise CanopyStereoError(f"--max-frames must be >= 0, got {args.max_frames}")
+    if not args.sync_slop >= 0:
+        raise CanopyStereoError(f"--sync-slop must be >= 0 s, got {args.sync_slop}")
     rig = None
     if args.rig:
         from canopy_stereo.io.rig import load_rig
@@ -61,7 +66,8 @@ def run(args) -> int:
         rig = load_rig(args.rig)
     options = BatchOptions(rig=rig, rig_source=args.rig or "", select=parse_selection(args.select),
                            index=args.index, matcher=args.matcher, max_frames=args.max_frames,
-                           left_topic=args.left_topic, right_topic=args.right_topic)
+                           left_topic=args.left_topic, right_topic=args.right_topic,
+                           sync_slop_s=args.sync_slop)
     _sigterm_interrupts()
     summary = run_batch(args.inputs, args.output, options=options, workers=args.workers,
                         scheduler=args.scheduler, resume=args.resume,
