@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -68,6 +69,12 @@ def make_bags(folder: Path, n: int, width: int, frames: int) -> list[Path]:
     return out
 
 
+def _cpu_s() -> float:
+    """CPU seconds (user + system) of this process and its reaped children so far."""
+    a, b = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
+
+
 def serial_loop(paths) -> float:
     """Seconds of a plain loop over ``paths`` in a fresh Python (imports included)."""
     code = ("import sys, time; t = time.perf_counter()\n"
@@ -88,6 +95,16 @@ def dask_run(paths, workers: int, out: Path) -> float:
     dt = time.perf_counter() - t
     assert summary.succeeded == len(paths), summary.lines()
     return dt
+
+
+def timed(fn, *args) -> tuple[float, float]:
+    """``(wall s, CPU s)`` of ``fn(*args)`` (CPU: this process and the children it reaped:
+    the serial loop's Python, the LocalCluster's worker processes)."""
+    time.sleep(0.5)  # let the previous run's processes be reaped
+    c = _cpu_s()
+    wall = fn(*args)
+    time.sleep(0.5)
+    return wall, _cpu_s() - c
 
 
 def _rss_mb(pid: int) -> float:
@@ -176,19 +193,21 @@ def main() -> None:
             paths = make_bags(folder / f"bags_{a.size}_{a.frames}", a.bags, a.size, a.frames)
             n = len(paths)
             print(f"{n} bags of {a.frames} stereo pairs at {a.size}x{round(a.size * 0.75)}")
-            t_serial = serial_loop(paths)
-            rows = [("serial loop (fresh process)", t_serial, None)]
-            times = {}
+            t_serial, c_serial = timed(serial_loop, paths)
+            rows = [("serial loop (fresh process)", t_serial, c_serial)]
+            times, cpus = {}, {}
             for w in (int(v) for v in a.workers.split(",")):
-                times[w] = dask_run(paths, w, folder / f"out_{w}")
-                rows.append((f"dask LocalCluster, {w} worker(s)", times[w], w))
-            print(f"{'run':34s} {'seconds':>8s} {'bags/min':>9s}")
-            for name, t, _ in rows:
-                print(f"{name:34s} {t:8.1f} {n / (t / 60):9.1f}")
+                times[w], cpus[w] = timed(dask_run, paths, w, folder / f"out_{w}")
+                rows.append((f"dask LocalCluster, {w} worker(s)", times[w], cpus[w]))
+            print(f"{'run':34s} {'wall s':>7s} {'bags/min':>9s} {'CPU s':>7s} {'CPU s/bag':>10s}")
+            for name, t, c in rows:
+                print(f"{name:34s} {t:7.1f} {n / (t / 60):9.1f} {c:7.1f} {c / n:10.2f}")
             if 1 in times:
-                print(f"overhead of dask (1 worker) vs the serial loop: {100 * (times[1] - t_serial) / t_serial:+.0f} %")
+                print(f"overhead of dask (1 worker) vs the serial loop: wall {100 * (times[1] - t_serial) / t_serial:+.0f} %, "
+                      f"CPU {100 * (cpus[1] - c_serial) / c_serial:+.0f} % (CPU is the figure a shared machine keeps)")
             if 1 in times and 2 in times:
-                print(f"scaling efficiency 1 -> 2 workers: {100 * times[1] / (2 * times[2]):.0f} %")
+                print(f"scaling efficiency 1 -> 2 workers: {100 * times[1] / (2 * times[2]):.0f} % (wall; needs "
+                      "two idle cores)")
         if a.queued:
             r = queued_memory(folder, a.queued, a.drain)
             print(f"{r['queued']} tiny bags queued in {r['submit_s']:.1f} s: scheduler RSS "

@@ -250,8 +250,6 @@ def test_resume_after_an_interrupted_run_processes_only_what_is_missing(season, 
             assert r == before[r["source"]]
     assert len(done_before) < len(BAGS) + 1
 
-    again_without_resume = _cli("batch", folder, "-o", out, "--workers", 1)
-    assert again_without_resume.returncode == 2 and "--resume" in again_without_resume.stderr
 
 
 def test_select_on_metadata_and_explicit_rig(season, tmp_path):
@@ -273,13 +271,21 @@ def test_select_on_metadata_and_explicit_rig(season, tmp_path):
     assert run_bag_task(str(folder / f"{TRUNCATED}.mcap"), opts)[0] == "error"
 
 
-def test_usage_errors_are_one_line(tmp_path, season):
+def test_usage_errors_are_one_line(tmp_path, season, capsys):
+    from canopy_stereo.cli import main
+
     folder, _ = season
+    (tmp_path / "done").mkdir()
+    (tmp_path / "done" / "plants.csv").write_text("source,frames\n/x.mcap,2\n")
     for args, text in [(("batch", tmp_path / "missing.mcap", "-o", tmp_path / "o"), "input not found"),
                        (("batch", folder, "-o", tmp_path / "o", "--select", "plot"), "KEY=VALUE"),
-                       (("batch", tmp_path, "-o", tmp_path / "o"), "no .mcap bag")]:
-        r = _cli(*args)
-        assert r.returncode == 2 and text in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+                       (("batch", tmp_path / "done", "-o", tmp_path / "o"), "no .mcap bag"),
+                       (("batch", folder, "-o", tmp_path / "done"), "add --resume"),
+                       (("batch", folder, "-o", tmp_path / "o", "--workers", "0"), "--workers must be >= 1")]:
+        assert main([str(a) for a in args]) == 2
+        err = capsys.readouterr().err
+        assert text in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "o").exists()  # nothing written by a command that did not start
 
 
 def test_progress_line_only_on_a_terminal(capsys):

@@ -186,9 +186,12 @@ def run_batch(inputs, out, *, options: BatchOptions | None = None, workers: int 
 def _run(client, todo, options, table, summary, bar) -> None:
     from distributed import as_completed
 
+    import uuid
+
     opts = client.scatter(options, broadcast=True) if options.rig is not None else options
-    futures = {client.submit(run_bag_task, path, opts, key=f"canopy-bag-{i}-{os.path.basename(path)}",
-                             pure=False, retries=0): path for i, path in enumerate(todo)}
+    run = uuid.uuid4().hex[:8]  # keys unique to this run: several batches may share a cluster
+    futures = {client.submit(run_bag_task, path, opts, key=f"canopy-bag-{run}-{i}", pure=False, retries=0): path
+               for i, path in enumerate(todo)}
     summary.submitted = len(futures)
     for fut in as_completed(futures):
         path = futures.pop(fut)
