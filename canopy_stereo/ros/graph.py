@@ -249,6 +249,10 @@ def main(args=None) -> int:
 
     argv = sys.argv if args is None else args
     opts = build_parser().parse_args(remove_ros_args(argv)[1:])
+    if opts.metadata and not (opts.cameras and opts.record):
+        print("canopy_graph: error: --metadata describes a recording from cameras: use it with "
+              "--cameras and --record", file=sys.stderr)
+        return 2
     options = GraphOptions(namespace=opts.namespace, matcher=opts.matcher,
                            segment=not opts.no_segment or opts.use_mask, use_mask=opts.use_mask,
                            organized=opts.organized, threads=opts.threads,
