@@ -25,6 +25,11 @@ from canopy_stereo.batch.work import BatchOptions, run_bag_task
 from canopy_stereo.errors import CanopyStereoError
 
 BAG_SUFFIX = ".mcap"
+#: glibc settings of the LocalCluster's workers (as the ROS node processes' allocator tuning,
+#: :func:`canopy_stereo.ros.context.tune_memory_allocator`): frame-sized buffers stay on the heap
+#: instead of Dask's default of trimming the heap above 64 kB (a page fault storm per frame).
+_MALLOC_ENV = {"MALLOC_MMAP_THRESHOLD_": str(256 << 20), "MALLOC_TRIM_THRESHOLD_": str(1 << 30),
+               "MALLOC_TOP_PAD_": str(256 << 20)}
 
 
 @dataclass
@@ -119,6 +124,7 @@ def _client(scheduler: str | None, workers: int):
     # one thread per worker process, and no hidden thread pools under it
     environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}))
     environ.update({"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"})
+    environ.update(_MALLOC_ENV)
     with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                dashboard_address=None, silence_logs=logging.ERROR)
