@@ -149,6 +149,9 @@ def run_batch(inputs, out, *, options: BatchOptions | None = None, workers: int 
 
     Returns a :class:`BatchSummary`. On KeyboardInterrupt the rows of the bags
     finished so far are on disk and the summary has ``interrupted=True``.
+
+    The LocalCluster starts its workers with ``multiprocessing``'s *spawn*: a script
+    that calls this must do so under ``if __name__ == "__main__":``.
     """
     options = options or BatchOptions()
     t0 = time.monotonic()
