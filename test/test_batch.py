@@ -174,23 +174,26 @@ def test_local_cluster_and_external_cluster_give_identical_rows(season, tmp_path
         assert [r["plant_id"] for r in t] == [r["plant_id"] for r in rows]
         assert t[0]["frames"] == FRAMES and isinstance(t[0]["canopy_height_mm"], float)
 
-    # a cluster as separate processes: dask scheduler + 2 x dask worker
-    dask_cli = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
+    # a cluster as separate processes: `dask scheduler` + 2 x `dask worker` (the dask CLI)
+    dask_cli = [sys.executable, "-m", "dask"]
     sched_file = tmp_path / "scheduler.json"
     procs = []
     try:
-        procs.append(subprocess.Popen(dask_cli + ["--scheduler-file", str(sched_file), "--port", "0",
+        procs.append(subprocess.Popen(dask_cli + ["scheduler", "--scheduler-file", str(sched_file), "--port", "0",
                                                   "--host", "127.0.0.1", "--no-dashboard"],
                                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                       start_new_session=True))
-        deadline = time.monotonic() + 60
-        while not sched_file.is_file() and time.monotonic() < deadline:
-            time.sleep(0.2)
-        address = json.loads(sched_file.read_text())["address"]
+        deadline, address = time.monotonic() + 60, None
+        while address is None and time.monotonic() < deadline:
+            try:
+                address = json.loads(sched_file.read_text())["address"]
+            except (OSError, ValueError, KeyError):
+                time.sleep(0.2)
+        assert address, "dask scheduler did not start"
         for i in range(2):
             procs.append(subprocess.Popen(
-                [sys.executable, "-m", "distributed.cli.dask_worker", "--scheduler-file", str(sched_file),
-                 "--nthreads", "1", "--nworkers", "1", "--no-dashboard", "--name", f"w{i}"],
+                dask_cli + ["worker", "--scheduler-file", str(sched_file), "--nthreads", "1", "--nworkers", "1",
+                            "--no-dashboard", "--name", f"w{i}"],
                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True))
         from distributed import Client
 
