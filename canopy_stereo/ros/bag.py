@@ -36,6 +36,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.io.bag_metadata import METADATA_RECORD
 from canopy_stereo.ros.msgdefs import message_class, message_definition, type_name
 
 _MAGIC = b"\x89MCAP0\r\n"
@@ -155,8 +156,6 @@ class BagWriter:
             if self.closed:
                 raise BagError(f"bag {self.path} is closed")
             self._writer.add_metadata(name, record)
-            from canopy_stereo.io.bag_metadata import METADATA_RECORD
-
             if name == METADATA_RECORD:
                 self.custom_data.update(record)
 
