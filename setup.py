@@ -53,8 +53,12 @@ setup(
     extras_require={
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-common-interfaces"],
         # catkin_pkg: rosidl_adapter (.msg -> .idl) for the test that builds tf2_msgs from its .msg
-        "test": ["pytest>=7", "rosbags>=0.9", "matplotlib>=3.6", "catkin_pkg"],
+        "test": ["pytest>=7", "rosbags>=0.9", "matplotlib>=3.6", "catkin_pkg", "dask[distributed]>=2023.1",
+                 "pyarrow>=12"],
         "plot": ["matplotlib>=3.6"],
+        # canopy-stereo batch: Dask distributed (LocalCluster or a cluster); Parquet with pyarrow
+        "batch": ["dask[distributed]>=2023.1", "matplotlib>=3.6"],
+        "parquet": ["pyarrow>=12"],
     },
     zip_safe=True,
     tests_require=["pytest"],

@@ -154,30 +154,41 @@ def load_rig(path) -> Rig:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise RigError(f"cannot read rig file {path}: {exc.strerror or exc}") from None
+    return rig_from_yaml(text, source=f"rig file {path}")
+
+
+def rig_from_yaml(text: str, source: str = "rig") -> Rig:
+    """Parse the text of a rig file (ROS 2 parameter YAML, e.g. one stored in a bag's
+    metadata); ``source`` names it in errors. Raises :class:`RigError` on any problem."""
     try:
         doc = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise RigError(f"rig file {path} is not valid YAML: {exc}") from None
+        raise RigError(f"{source} is not valid YAML: {exc}") from None
     if not isinstance(doc, dict):
-        raise RigError(f"rig file {path} is not a ROS 2 parameter file (expected a mapping)")
+        raise RigError(f"{source} is not a ROS 2 parameter file (expected a mapping)")
     params = None
     for node_params in doc.values():
         if isinstance(node_params, dict) and "ros__parameters" in node_params:
             params = node_params["ros__parameters"]
             break
     if params is None:
-        raise RigError(f"rig file {path} has no '<node>: ros__parameters:' section")
-    return rig_from_parameters(params, source=str(path))
+        raise RigError(f"{source} has no '<node>: ros__parameters:' section")
+    return rig_from_parameters(params, source=source.removeprefix("rig file "))
+
+
+def rig_to_yaml(rig: Rig, comment: str | None = None) -> str:
+    """The text of ``rig``'s rig file (see :func:`save_rig`)."""
+    body = yaml.safe_dump({"/**": {"ros__parameters": rig.to_parameters()}},
+                          sort_keys=False, default_flow_style=None, width=200)
+    header = ""
+    if comment:
+        header = "".join(f"# {line}\n" for line in comment.splitlines())
+    return header + body
 
 
 def save_rig(rig: Rig, path, comment: str | None = None) -> Path:
     """Write ``rig`` as a ROS 2 parameter file usable by every node (``/**`` wildcard)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    body = yaml.safe_dump({"/**": {"ros__parameters": rig.to_parameters()}},
-                          sort_keys=False, default_flow_style=None, width=200)
-    header = ""
-    if comment:
-        header = "".join(f"# {line}\n" for line in comment.splitlines())
-    path.write_text(header + body, encoding="utf-8")
+    path.write_text(rig_to_yaml(rig, comment), encoding="utf-8")
     return path

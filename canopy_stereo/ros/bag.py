@@ -11,7 +11,13 @@ Files follow what rosbag2's MCAP storage plugin writes, so ``ros2 bag play``,
   ``log_time`` = reception time, ``publish_time`` = header stamp (or log time);
 * chunked, zstd-compressed by default, with chunk CRCs, a data-section CRC,
   message indexes, statistics and summary offsets; a ``rosbag2`` metadata
-  record holding the bag information.
+  record holding the bag information;
+* optional further metadata records (``metadata=`` / :meth:`BagWriter.add_metadata`),
+  written as soon as they are given (and again at the start of every split file) so
+  that a recording cut short keeps them (canopy_stereo's own:
+  :mod:`canopy_stereo.io.bag_metadata`); the pairs of the ``canopy_stereo`` record are
+  also rosbag2's ``custom_data`` (what ``ros2 bag record --custom-data`` writes), for
+  tools that know only rosbag2.
 
 :class:`BagWriter` ends the chunk in progress and fsyncs the file every
 ``flush_period_s`` (1 s), so a recorder killed with SIGKILL (or a power cut)
@@ -47,6 +53,7 @@ import yaml
 from mcap.writer import CompressionType, Writer
 
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.io.bag_metadata import METADATA_RECORD
 from canopy_stereo.ros.msgdefs import message_class, message_definition, type_name
 
 _MAGIC = b"\x89MCAP0\r\n"
@@ -154,10 +161,13 @@ class BagWriter:
             (0 = never).
         split_duration_s: start a new file when the current one spans this many
             seconds of log time (0 = never).
+        metadata: optional ``{record name: {key: value}}`` MCAP metadata records
+            (strings) written at once (see :meth:`add_metadata`).
     """
 
     def __init__(self, path, compression: str = "zstd", chunk_size: int = 1 << 20,
-                 overwrite: bool = True, *, flush_period_s: float = 1.0, split_size: int = 0,
+                 overwrite: bool = True, metadata: dict | None = None, *,
+                 flush_period_s: float = 1.0, split_size: int = 0,
                  split_duration_s: float = 0.0):
         comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                 "none": CompressionType.NONE, "": CompressionType.NONE}
@@ -175,7 +185,8 @@ class BagWriter:
         self.paths: list[Path] = []
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
-        self._metadata: list[tuple[str, dict]] = []
+        self._metadata: list[tuple[str, dict]] = []  # records written at the start of every file
+        self.custom_data: dict[str, str] = {}  # rosbag2's custom_data: the canopy_stereo record
         self.topics: dict[str, TopicInfo] = {}
         self._lock = threading.RLock()
         self._start_ns: int | None = None
@@ -190,6 +201,8 @@ class BagWriter:
             self._flusher = threading.Thread(target=self._flush_loop, args=(float(flush_period_s),),
                                              name=f"bag_flush:{self.base_path.name}", daemon=True)
             self._flusher.start()
+        for name, data in (metadata or {}).items():
+            self.add_metadata(name, data)
 
     # -- files -------------------------------------------------------------------------------
 
@@ -220,6 +233,8 @@ class BagWriter:
         self._dirty = False
         for info in self.topics.values():
             self._register(info)
+        for name, data in self._metadata:
+            self._io(self._writer.add_metadata, name, data)
 
     def _io(self, fn, *args, **kwargs):
         try:
@@ -240,8 +255,6 @@ class BagWriter:
     def _finish_file(self) -> None:
         self._io(self._writer.add_metadata, "rosbag2",
                  {"serialized_metadata": self._bag_information()})
-        for name, data in self._metadata:
-            self._io(self._writer.add_metadata, name, data)
         self._io(self._writer.finish)
         self._io(self._file.flush)
         try:
@@ -276,10 +289,20 @@ class BagWriter:
         self._register(info)
 
     def add_metadata(self, name: str, data: dict) -> None:
-        """Store an MCAP metadata record ``name`` (string -> string map) in every file
-        (written when each file is finished)."""
+        """Write an MCAP metadata record ``name`` holding ``data`` (str -> str; other
+        values are converted with ``str``). It goes into the current file at once, so a
+        recording cut short keeps it, and into every later split file when it starts.
+        ``rosbag2`` is reserved for the bag information."""
+        if not name or name == "rosbag2":
+            raise BagError(f"metadata record name {name!r} is reserved or empty")
+        record = {str(k): str(v) for k, v in dict(data).items()}
         with self._lock:
-            self._metadata.append((str(name), {str(k): str(v) for k, v in data.items()}))
+            if self.closed:
+                raise BagError(f"bag {self.path} is closed")
+            self._metadata.append((str(name), record))
+            self._io(self._writer.add_metadata, str(name), record)
+            if name == METADATA_RECORD:
+                self.custom_data.update(record)
 
     def write(self, topic: str, msg, log_time_ns: int, publish_time_ns: int | None = None,
               msg_type: str | None = None) -> None:
@@ -349,7 +372,7 @@ class BagWriter:
             "relative_file_paths": [self.path.name],
             "files": [{"path": self.path.name, "starting_time": {"nanoseconds_since_epoch": start},
                        "duration": {"nanoseconds": duration}, "message_count": self._file_messages}],
-            "custom_data": {},
+            "custom_data": dict(self.custom_data),
             "ros_distro": "jazzy",
         }
         return yaml.safe_dump(info, sort_keys=False)
@@ -666,7 +689,8 @@ class BagReader:
         damage: every damaged place found so far (:class:`BagDamage`); reading the
             messages may find more (:meth:`verify` reads everything).
         messages_lost: messages known lost so far (``lost_unknown``: and maybe more).
-        metadata: MCAP metadata records ``(name, dict)`` that were read intact.
+        metadata_records: MCAP metadata records ``(name, dict)`` that were read intact
+            (:meth:`metadata` gives them by name).
     """
 
     def __init__(self, path, *, strict: bool = False,
@@ -679,7 +703,7 @@ class BagReader:
         self.damage: list[BagDamage] = []
         self._damaged_at: set[int] = set()
         self.lost_unknown = False
-        self.metadata: list[tuple[str, dict]] = []
+        self.metadata_records: list[tuple[str, dict]] = []
         try:
             self._open()
         except BagError:
@@ -928,7 +952,7 @@ class BagReader:
             elif op == _METADATA and length <= 1 << 26:
                 try:
                     c = _Cursor(self._read(body_at, length))
-                    self.metadata.append((c.string(), c.str_map()))
+                    self.metadata_records.append((c.string(), c.str_map()))
                 except _Malformed as exc:
                     self._report(BagDamage(p, 9 + length, f"damaged metadata record ({exc})", 0))
             elif op == _DATA_END:
@@ -1339,6 +1363,12 @@ class BagReader:
             if heap:
                 yield make(heapq.heappop(heap)[3])
 
+    def metadata(self) -> dict[str, dict[str, str]]:
+        """The file's MCAP metadata records that read intact, ``{name: {key: value}}`` (the
+        ``rosbag2`` record included when the file has one; a later record of the same name
+        wins). A truncated or damaged file yields the records found intact."""
+        return {name: dict(data) for name, data in self.metadata_records}
+
     def read(self, topics=None, start_ns=None, end_ns=None):
         """``(BagMessage, decoded message)`` pairs in log-time order (:class:`BagError` for a
         message that is not valid CDR)."""
@@ -1417,7 +1447,7 @@ def repair_bag(src, dst, *, compression: str | None = None, overwrite: bool = Fa
     try:
         for topic, info in reader.topics.items():
             writer.add_topic(topic, info.type_name, info.qos_yaml, definition=info.definition)
-        for name, data in reader.metadata:
+        for name, data in reader.metadata_records:
             if name != "rosbag2":
                 writer.add_metadata(name, data)
         for m in reader.messages(log_time_order=True):

@@ -74,7 +74,8 @@ def bundled_rig(scene: str) -> Path:
     return _find("config", BUNDLED[scene][1])
 
 
-def write_stereo_bag(path, frames, truth_depths=None, compression: str = "zstd") -> Path:
+def write_stereo_bag(path, frames, truth_depths=None, compression: str = "zstd",
+                     metadata: dict | None = None, rig: Rig | None = None) -> Path:
     """Write stereo frames (and optional truth depth maps) as a bag.
 
     Args:
@@ -84,12 +85,16 @@ def write_stereo_bag(path, frames, truth_depths=None, compression: str = "zstd")
             one per frame, stamped like the left image, on :data:`TRUTH_DEPTH_TOPIC`
             as 16UC1 millimetres (REP 118; 0 = nothing). Rounding to 0.5 mm is
             below 0.1 % of the scene's depth and keeps the bag small.
+        metadata, rig: optional ``canopy_stereo`` KEY=VALUE metadata and rig, stored
+            as the bag's metadata records (:mod:`canopy_stereo.io.bag_metadata`).
     """
+    from canopy_stereo.io.bag_metadata import recording_metadata
     from canopy_stereo.ros.bag import BagWriter
     from canopy_stereo.ros.convert import image_to_msg
 
     transport_ns = 2_000_000  # reception 2 ms after capture
-    with BagWriter(path, compression=compression) as bag:
+    with BagWriter(path, compression=compression,
+                   metadata=recording_metadata(metadata, rig)) as bag:
         for k, (left, right, t_left, t_right) in enumerate(frames):
             bag.write(LEFT_TOPIC, image_to_msg(left, "bgr8", t_left, "left_camera"), t_left + transport_ns)
             bag.write(RIGHT_TOPIC, image_to_msg(right, "bgr8", t_right, "right_camera"),

@@ -237,6 +237,9 @@ def build_parser() -> argparse.ArgumentParser:
     from canopy_stereo.ros.bag import add_split_arguments
 
     add_split_arguments(p)
+    p.add_argument("--metadata", nargs="+", action="extend", default=[], metavar="KEY=VALUE",
+                   help="with --cameras --record: describe the recording (plant_id=A12 plot=row1 ...); "
+                        "stored with the rig file as the bag's metadata records")
     p.add_argument("--matcher", choices=("elas", "sgbm"), default=None)
     p.add_argument("--use-mask", action="store_true", help="keep only plant pixels in the clouds")
     p.add_argument("--no-segment", action="store_true", help="do not run segment_node")
@@ -294,6 +297,10 @@ def main(args=None) -> int:
 
     argv = sys.argv if args is None else args
     opts = build_parser().parse_args(remove_ros_args(argv)[1:])
+    if opts.metadata and not (opts.cameras and opts.record):
+        print("canopy_graph: error: --metadata describes a recording from cameras: use it with "
+              "--cameras and --record", file=sys.stderr)
+        return 2
     options = GraphOptions(namespace=opts.namespace, matcher=opts.matcher,
                            segment=not opts.no_segment or opts.use_mask, use_mask=opts.use_mask,
                            organized=opts.organized, threads=opts.threads,
@@ -333,6 +340,10 @@ def main(args=None) -> int:
                                              "left/depth/camera_info", "left/image_rect/camera_info",
                                              "right/image_rect/camera_info", "left/camera_info",
                                              "right/camera_info", "left/image_raw", "right/image_raw")]
+            from canopy_stereo.io.bag_metadata import parse_key_values, recording_metadata
+
+            for name, data in recording_metadata(parse_key_values(opts.metadata), rig).items():
+                writer.add_metadata(name, data)
             recorder = BagRecorder(writer, topics, context=context,
                                    static_transforms=graph.nodes["rectify_node"].transforms)
             graph.add_node(recorder)

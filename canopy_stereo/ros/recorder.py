@@ -12,8 +12,12 @@ every second, so even a killed recorder (SIGKILL, power loss) leaves a file
 that :class:`~canopy_stereo.ros.bag.BagReader` reads up to the last second
 (and ``canopy-stereo bag repair`` completes).
 
-``bag_record -o OUT.mcap TOPIC ... | --all [--split-size BYTES] [--split-duration S]``:
-with splitting the files are ``OUT_0.mcap``, ``OUT_1.mcap``, ... (rosbag2's naming).
+``bag_record -o OUT.mcap TOPIC ... | --all [--namespace NS] [--metadata KEY=VALUE ...] [--rig RIG.yaml]
+[--split-size BYTES] [--split-duration S]``: with splitting the files are ``OUT_0.mcap``,
+``OUT_1.mcap``, ... (rosbag2's naming). The metadata pairs (plant_id, plot, treatment,
+date, ...) and the rig file are written at the start of the bag (and of every split file)
+as MCAP metadata records (:mod:`canopy_stereo.io.bag_metadata`), so the bag describes
+itself (``canopy-stereo batch`` reads them).
 """
 from __future__ import annotations
 
@@ -185,6 +189,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-duration", type=float, default=0.0, metavar="S",
                    help="stop after S seconds (0 = until Ctrl-C/SIGTERM/SIGHUP)")
     add_split_arguments(p)
+    p.add_argument("--metadata", nargs="+", action="extend", default=[], metavar="KEY=VALUE",
+                   help="describe the recording (plant_id=A12 plot=row1 treatment=dry date=2026-05-04 ...): "
+                        "stored in the bag's 'canopy_stereo' metadata record")
+    p.add_argument("--rig", metavar="RIG.yaml",
+                   help="rig file of the cameras, stored in the bag's 'canopy_stereo_rig' metadata record")
     return p
 
 
@@ -205,7 +214,13 @@ def main(args=None) -> int:
         signal.signal(sig, lambda *_: stop.set())
     recorder = None
     try:
-        writer = BagWriter(opts.output, compression=opts.compression, **split_options(opts))
+        from canopy_stereo.io.bag_metadata import parse_key_values, recording_metadata
+        from canopy_stereo.io.rig import load_rig
+
+        records = recording_metadata(parse_key_values(opts.metadata),
+                                     load_rig(opts.rig) if opts.rig else None)
+        writer = BagWriter(opts.output, compression=opts.compression, metadata=records,
+                           **split_options(opts))
         recorder = BagRecorder(writer, opts.topics, all_topics=opts.all)
         executor = SingleThreadedExecutor()
         executor.add_node(recorder)
