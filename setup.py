@@ -52,8 +52,13 @@ setup(
     ],
     extras_require={
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-common-interfaces"],
-        "test": ["pytest>=7", "rosbags>=0.9", "matplotlib>=3.6"],
+        # the viewer (canopy-stereo view, run/demo --view): rerun-sdk pinned, its web viewer and
+        # `rerun` tool ship inside the wheel. Also in "test": CI checks recordings and the web
+        # viewer (a 170 MB wheel plus pyarrow; seconds to install from a
+        # warm cache, well under a minute otherwise).
+        "test": ["pytest>=7", "rosbags>=0.9", "matplotlib>=3.6", "rerun-sdk==0.41.0"],
         "plot": ["matplotlib>=3.6"],
+        "viz": ["rerun-sdk==0.41.0"],
     },
     zip_safe=True,
     tests_require=["pytest"],

@@ -153,7 +153,7 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
             domain_id: int | None = None, max_in_flight: int = 2, idle_s: float = 2.0,
             timeout_s: float = 120.0, keep=(), remap: dict | None = None,
             startup_timeout_s: float = 30.0, progress=None, compression: str = "lz4",
-            context=None) -> RunResult:
+            context=None, extra_outputs: dict | None = None, on_output=None) -> RunResult:
     """Replay ``bag_path`` through the graph for ``rig``; see the module docstring.
 
     Args:
@@ -175,6 +175,11 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
             zstd is smaller but costs about 20 ms per megabyte of output on this machine).
         context: an initialised rclpy context to build the graph in (default: a
             private one on ``domain_id``, shut down at the end).
+        extra_outputs: further graph topics to receive (relative name -> message class,
+            e.g. ``{"left/image_rect_color": Image}``); recorded and kept like the others.
+        on_output: optional ``f(relative topic, stamp_ns, CDR bytes)`` called for every
+            output message as it arrives (from the receiving thread; keep it short), e.g.
+            to stream the graph to a viewer.
     """
     from sensor_msgs.msg import CameraInfo, Image, PointCloud2
     from stereo_msgs.msg import DisparityImage
@@ -199,13 +204,14 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
                "left/camera_info": CameraInfo, "right/camera_info": CameraInfo}
     if options.segment or options.use_mask:
         outputs["left/mask"] = Image
+    outputs.update(extra_outputs or {})
     result = RunResult(truncated=bag.truncated, problem=bag.problem,
                        outputs={k: [] for k in keep})
     book = _FrameBook()
     writer = BagWriter(record, compression=compression) if record is not None else None
     try:
         _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, remap, startup_timeout_s,
-             progress, context, play_topics, left_topics, ns, outputs, result, book, writer)
+             progress, context, play_topics, left_topics, ns, outputs, result, book, writer, on_output)
     finally:
         if writer is not None:
             result.recorded = writer.close()
@@ -218,7 +224,8 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
 
 
 def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, remap, startup_timeout_s,
-         progress, context, play_topics, left_topics, ns, outputs, result, book, writer) -> None:
+         progress, context, play_topics, left_topics, ns, outputs, result, book, writer,
+         on_output_cb=None) -> None:
     """Build the graph, play, drain and tear down (the body of :func:`run_bag`)."""
     reliability = options.reliability
     with (_given(context) if context is not None else ros_context(domain_id)) as ctx:
@@ -234,6 +241,8 @@ def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, r
                                  type_name(outputs[rel]))
                 if rel in result.outputs:
                     result.outputs[rel].append((stamp, bytes(data)))
+                if on_output_cb is not None and stamp is not None:
+                    on_output_cb(rel, stamp, bytes(data))
                 if rel == "points2" and stamp is not None:
                     book.completed(stamp, now)
                     if progress is not None:
