@@ -66,7 +66,7 @@ def run(args) -> int:
 
 def wait_until_interrupted(web) -> None:
     """Serve until Ctrl-C / SIGTERM (or until the viewer server dies)."""
-    print(f"viewer: {web.url}  (Ctrl-C to stop)", flush=True)
+    print(f"serving the viewer at {web.url} (localhost only); Ctrl-C to stop", flush=True)
 
     def stop(signum, frame):
         raise KeyboardInterrupt
@@ -94,6 +94,7 @@ def _show_rrd(src: Path, args) -> int:
         return 0
     if args.web:
         web = serve_web(port=args.port or 9090, files=[src])
+        print(f"viewer: {web.url}", flush=True)
         try:
             wait_until_interrupted(web)
         finally:
@@ -121,6 +122,8 @@ def _show_bag(src: Path, args) -> int:
         raise CanopyStereoError(f"{src} holds raw frames but no rig (no '{'canopy_stereo'}' metadata "
                                 "record): give the rig with --rig RIG.yaml")
     web = serve_web(port=args.port or 9090) if args.web else None
+    if web is not None:
+        print(f"viewer: {web.url}", flush=True)
     try:
         rec = open_recording(save=args.save, web=web, spawn=not (args.save or args.web),
                              name=src.stem, with_measurements=kind == "raw" and not args.no_measure)

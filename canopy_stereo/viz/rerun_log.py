@@ -52,7 +52,7 @@ CANOPY = "world/canopy"
 MEASUREMENTS = "measurements"
 
 #: Class ids of the mask's segmentation image.
-MASK_CLASSES = ((0, "background", (0, 0, 0, 0)), (1, "plant", (255, 0, 200, 70)))
+MASK_CLASSES = ((0, "background", (0, 0, 0, 0)), (1, "plant", (255, 0, 200, 255)))
 
 #: Largest number of points logged per cloud (uniform subsample beyond; the viewer stays fluid).
 MAX_CLOUD_POINTS = 400_000
@@ -219,7 +219,8 @@ class FrameLogger:
             rec.log(DEPTH, rr.DepthImage(z, meter=1.0, colormap="turbo",
                                          depth_range=[float(lo), float(max(hi, lo + 1e-3))]))
         if mask is not None:
-            rec.log(MASK, rr.SegmentationImage((np.asarray(mask) > 0).astype(np.uint8)))
+            rec.log(MASK, rr.SegmentationImage((np.asarray(mask) > 0).astype(np.uint8), opacity=0.35,
+                                               draw_order=10.0))
         if measurement is not None:
             self.log_measurement(measurement)
         self.frames += 1
