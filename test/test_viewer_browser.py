@@ -119,6 +119,12 @@ def leaf_green_fraction(bgr: np.ndarray) -> float:
     return float(((g > r + 10) & (g > b + 25) & (g > 60)).mean())
 
 
+def mask_tint_fraction(bgr: np.ndarray) -> float:
+    """Fraction of pixels tinted by the viewer's magenta plant mask (R and B well above G)."""
+    b, g, r = (bgr[..., i].astype(int) for i in range(3))
+    return float(((r > g + 40) & (b > g + 40)).mean())
+
+
 def _read_line(proc, pattern: str, timeout_s: float, seen: list) -> re.Match:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
@@ -152,12 +158,13 @@ def test_web_viewer_in_headless_chromium_shows_the_cloud(tmp_path):
                             stdout=subprocess.PIPE, stderr=open(tmp_path / "view.err", "w"), text=True,
                             cwd=REPO, env=env)
     browser = None
+    servers = []
     seen: list[str] = []
     try:
         url = _read_line(view, r"viewer: (http://127\.0\.0\.1:\d+/\S+)", 120, seen).group(1)
         assert url.startswith(f"http://127.0.0.1:{port}/")
         # the viewer server listens on localhost only
-        children = psutil.Process(view.pid).children(recursive=True)
+        children = servers = psutil.Process(view.pid).children(recursive=True)
         listening = [c.laddr for ch in children for c in ch.net_connections(kind="inet")
                      if c.status == psutil.CONN_LISTEN]
         assert listening and all(addr.ip == "127.0.0.1" for addr in listening), listening
@@ -165,24 +172,24 @@ def test_web_viewer_in_headless_chromium_shows_the_cloud(tmp_path):
 
         browser = DevTools(exe, tmp_path / "profile", tmp_path / "chromium.log")
         browser.open(url)
-        shot, green = None, 0.0
+        shot, green, tint = None, 0.0, 0.0
         deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:
+        while time.monotonic() < deadline:  # until both views are drawn (software WebGL is slow)
             time.sleep(3)
             shot = browser.screenshot()
             h, w = shot.shape[:2]
             cloud_view = shot[int(0.08 * h):int(0.92 * h), : int(0.58 * w)]  # the blueprint's 3D view
             green = leaf_green_fraction(cloud_view)
-            if green > 0.01:
+            tint = mask_tint_fraction(shot[int(0.08 * h):int(0.5 * h), int(0.62 * w):])  # image view
+            if green > 0.01 and tint > 0.01:
                 break
         import cv2
 
         cv2.imwrite(str(tmp_path / "viewer.png"), shot)
         print(f"screenshot: {tmp_path / 'viewer.png'}")
         assert green > 0.01, f"no cloud drawn in the 3D view (leaf-green fraction {green:.4f})"
-        # ... and the image view on the right shows the plant mask (magenta, over the plant)
-        b, g, r = (shot[int(0.08 * h):int(0.5 * h), int(0.62 * w):, i].astype(int) for i in range(3))
-        assert ((r > g + 40) & (b > g + 40)).mean() > 0.01
+        # ... and the image view on the right shows the rectified image with the plant mask over it
+        assert tint > 0.01, f"no plant mask drawn over the image (magenta fraction {tint:.4f})"
     finally:
         if browser is not None:
             browser.close()
@@ -194,3 +201,6 @@ def test_web_viewer_in_headless_chromium_shows_the_cloud(tmp_path):
                 view.kill()
                 view.wait(10)
     assert view.returncode == 0, (tmp_path / "view.err").read_text()[-2000:]
+    # Ctrl-C stopped the viewer server too: nothing is left listening
+    gone, alive = psutil.wait_procs(servers, timeout=15)
+    assert not alive, [p.cmdline() for p in alive]

@@ -32,6 +32,9 @@ def add_arguments(p):
                    help="DDS domain of the graph (default: a private one from the process id)")
     p.add_argument("--compression", choices=("lz4", "zstd", "none"), default="lz4",
                    help="chunk compression of the recorded bag (default lz4)")
+    p.add_argument("--view", action="store_true",
+                   help="stream the outputs live to the Rerun viewer (extra 'viz'): a window, or the "
+                        "web viewer on localhost when there is no display (served until Ctrl-C)")
 
 
 def run(args) -> int:
@@ -49,9 +52,22 @@ def run(args) -> int:
     options = GraphOptions(matcher=args.matcher, segment=not args.no_segment or args.use_mask,
                            use_mask=args.use_mask, organized=args.organized,
                            parameter_services=False)
-    result = run_bag(args.bag, rig, rate=args.rate, record=args.record, options=options,
-                     domain_id=args.domain_id, max_in_flight=args.max_in_flight,
-                     remap=parse_remaps(args.remap), compression=args.compression)
-    for line in result.summary_lines():
-        print(line)
+    view = None
+    if args.view:
+        from pathlib import Path
+
+        from canopy_stereo.viz.sources import LiveView
+
+        view = LiveView(rig, name=Path(args.bag).stem, need_mask=options.segment)
+    try:
+        result = run_bag(args.bag, rig, rate=args.rate, record=args.record, options=options,
+                         domain_id=args.domain_id, max_in_flight=args.max_in_flight,
+                         remap=parse_remaps(args.remap), compression=args.compression,
+                         extra_outputs=view.extra_outputs if view else None,
+                         on_output=view.on_output if view else None)
+        for line in result.summary_lines():
+            print(line, flush=True)
+    finally:
+        if view is not None:
+            view.finish()
     return 0 if result.frames_out > 0 or result.frames_in == 0 else 1

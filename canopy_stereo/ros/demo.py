@@ -42,14 +42,19 @@ def disparity_png(frame) -> np.ndarray:
     return out
 
 
-def run_scene(scene: str, out_dir, matcher=None, domain_id=None) -> list[str]:
-    """Run one bundled scene; write its files and return the summary lines."""
+def run_scene(scene: str, out_dir, matcher=None, domain_id=None, view=None) -> list[str]:
+    """Run one bundled scene; write its files and return the summary lines.
+
+    ``view``: an optional :class:`~canopy_stereo.viz.sources.LiveView` the graph's outputs
+    are streamed to as they arrive."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     bag, rig_path = bundled_bag(scene), bundled_rig(scene)
     rig = load_rig(rig_path)
     result = run_bag(bag, rig, rate=0, options=GraphOptions(matcher=matcher, parameter_services=False),
-                     domain_id=domain_id, keep=("points2", "disparity", "left/mask"))
+                     domain_id=domain_id, keep=("points2", "disparity", "left/mask"),
+                     extra_outputs=view.extra_outputs if view is not None else None,
+                     on_output=view.on_output if view is not None else None)
     lines = [f"scene {scene}: {bag.name} through {rig_path.name}"] + ["  " + s for s in result.summary_lines()]
     clouds = sorted(result.outputs["points2"])
     if not clouds:

@@ -352,8 +352,17 @@ class WebViewer:
 
 
 def rerun_command() -> list[str]:
-    """The ``rerun`` command line tool of the installed rerun-sdk."""
+    """The ``rerun`` viewer binary shipped in the rerun-sdk wheel (called directly, not through
+    the ``rerun`` console script, which would leave the binary behind when stopped)."""
     import_rerun()
+    try:
+        import rerun_cli
+
+        exe = os.path.join(os.path.dirname(rerun_cli.__file__), "rerun")
+        if os.path.isfile(exe) and os.access(exe, os.X_OK):
+            return [exe]
+    except ImportError:
+        pass
     exe = shutil.which("rerun", path=os.path.dirname(sys.executable) + os.pathsep + os.environ.get("PATH", ""))
     return [exe] if exe else [sys.executable, "-m", "rerun"]
 

@@ -94,13 +94,7 @@ class FrameStreamer:
     def __init__(self, logger: FrameLogger, rig=None, *, need_mask: bool = True, measure: bool = False,
                  drop_when_busy: bool = False):
         self.logger = logger
-        self.rig = rig
-        self.pose = None
-        if rig is not None:
-            try:
-                self.pose = camera_pose_from_rig(rig)
-            except CanopyStereoError:
-                self.pose = None
+        self.set_rig(rig)
         self.required = {"points2", "disparity", "left/image_rect_color"} | ({"left/mask"} if need_mask else set())
         self.measure = measure
         self.pending: dict[int, dict] = {}
@@ -113,6 +107,16 @@ class FrameStreamer:
         self.worker = threading.Thread(target=self._work, name="canopy_viewer", daemon=True)
         self.worker.start()
 
+    def set_rig(self, rig) -> None:
+        """The rig of the frames that follow (None: camera pose unknown)."""
+        self.rig = rig
+        self.pose = None
+        if rig is not None:
+            try:
+                self.pose = camera_pose_from_rig(rig)
+            except CanopyStereoError:
+                self.pose = None
+
     # called from the graph's receiving thread
     def on_output(self, rel: str, stamp: int, data: bytes) -> None:
         if rel not in FRAME_TOPICS or stamp is None:
@@ -122,11 +126,11 @@ class FrameStreamer:
             entry = self.pending.setdefault(stamp, {})
             entry[rel] = data
             if self.required <= entry.keys():
-                done.append((stamp, self.pending.pop(stamp)))
+                done.append((stamp, self.pending.pop(stamp), self.pose, self.rig))
                 for older in sorted(s for s in self.pending if s < stamp):
                     old = self.pending.pop(older)
                     if "points2" in old:
-                        done.insert(-1, (older, old))
+                        done.insert(-1, (older, old, self.pose, self.rig))
         for item in done:
             self._submit(item)
 
@@ -146,7 +150,7 @@ class FrameStreamer:
             self.pending.clear()
         for stamp, entry in rest:
             if "points2" in entry:
-                self.queue.put((stamp, entry))
+                self.queue.put((stamp, entry, self.pose, self.rig))
         self.queue.put(None)
         self.worker.join(timeout_s)
 
@@ -160,15 +164,16 @@ class FrameStreamer:
             except Exception as exc:  # noqa: BLE001 - a bad frame must not stop the viewer
                 self.errors.append(f"{type(exc).__name__}: {exc}")
 
-    def log_messages(self, stamp: int, entry: dict) -> None:
-        """Decode one stamp's CDR messages (relative topic -> bytes) and log the frame."""
+    def log_messages(self, stamp: int, entry: dict, pose: CameraPose | None = None, rig=None) -> None:
+        """Decode one stamp's CDR messages (relative topic -> bytes) and log the frame
+        (``pose``: of its rectified left camera, default the current rig's)."""
         frame = decode_frame(entry)
-        pose = self.pose
+        pose = pose if pose is not None else self.pose
         if pose is None and frame.get("K") is not None:
             pose = CameraPose(K=frame["K"], size=frame["size"])
         measurement = None
         if self.measure and frame.get("organized") is not None and frame.get("mask") is not None:
-            measurement = measure_frame(frame["organized"], frame["mask"], self.rig)
+            measurement = measure_frame(frame["organized"], frame["mask"], rig if rig is not None else self.rig)
         self.logger.log_frame(stamp, points_m=frame.get("points"), colors=frame.get("colors"),
                               image_bgr=frame.get("image"), depth_m=frame.get("depth"),
                               mask=frame.get("mask"), camera=pose, measurement=measurement)
@@ -260,3 +265,58 @@ def run_raw_bag(path, rig, logger: FrameLogger, *, measure: bool = True, matcher
         raise CanopyStereoError(f"{path}: could not show a frame: {streamer.errors[0]}")
     result.viewer_frames = streamer.logged
     return result
+
+
+class LiveView:
+    """Stream a running graph to a viewer: a native window when there is a display, else the
+    web viewer served on localhost (its address printed), kept up after the run until Ctrl-C.
+
+    Pass :attr:`extra_outputs` and :meth:`on_output` to
+    :func:`~canopy_stereo.ros.runner.run_bag`; call :meth:`finish` afterwards. Frames the
+    viewer cannot keep up with are skipped, never queued: the graph does not wait for it.
+    """
+
+    def __init__(self, rig=None, *, name: str = "live", need_mask: bool = True, port: int | None = None,
+                 printer=print):
+        from sensor_msgs.msg import Image
+
+        from canopy_stereo.viz.rerun_log import has_display, open_recording, serve_web
+
+        self.printer = printer
+        self.web = None if has_display() else serve_web(port=port or 9090)
+        if self.web is not None:
+            printer(f"viewer: {self.web.url} (no display here: open it in a browser)")
+        self.rec = open_recording(web=self.web, spawn=self.web is None, name=name, with_measurements=False)
+        self.logger = FrameLogger(self.rec, with_measurements=False)
+        self.streamer = FrameStreamer(self.logger, rig, need_mask=need_mask, measure=False,
+                                      drop_when_busy=True)
+        self.extra_outputs = {"left/image_rect_color": Image}
+
+    def on_output(self, rel: str, stamp: int, data: bytes) -> None:
+        self.streamer.on_output(rel, stamp, data)
+
+    def set_rig(self, rig) -> None:
+        """The rig of the frames that follow (places the camera in the world)."""
+        self.streamer.set_rig(rig)
+
+    def add_frame(self, stamp: int, entry: dict) -> None:
+        """Log one frame given as relative topic -> CDR bytes (e.g. kept run outputs)."""
+        self.streamer.log_messages(stamp, entry)
+
+    def finish(self, *, wait: bool = True) -> None:
+        """Log what is pending, close the recording; with a web viewer, serve until Ctrl-C
+        (``wait``) and stop it."""
+        from canopy_stereo.viz.rerun_log import close_recording
+
+        try:
+            self.streamer.close()
+            close_recording(self.rec)
+            self.printer(f"viewer: showed {self.streamer.logged} frames"
+                         + (f", skipped {self.streamer.skipped} while busy" if self.streamer.skipped else ""))
+            if self.web is not None and wait:
+                from canopy_stereo.cli.cmd_view import wait_until_interrupted
+
+                wait_until_interrupted(self.web)
+        finally:
+            if self.web is not None:
+                self.web.stop()
