@@ -51,6 +51,7 @@ class RunResult:
         outputs: topic -> list of ``(stamp_ns, CDR bytes)`` for the topics asked to keep.
         graph_stats: node -> counters and drop reasons.
         truncated, problem: the input bag was cut short (and why).
+        completed_at_s: per completed frame, when its cloud arrived (monotonic seconds).
     """
 
     frames_in: int = 0
@@ -63,6 +64,7 @@ class RunResult:
     graph_stats: dict = field(default_factory=dict)
     truncated: bool = False
     problem: str = ""
+    completed_at_s: list = field(default_factory=list)
 
     @property
     def fps(self) -> float:
@@ -104,6 +106,7 @@ class _FrameBook:
         self.last_out = None
         self.last_activity = time.monotonic()
         self.latencies: list[float] = []
+        self.out_times: list[float] = []
 
     def published(self, is_left: bool, stamp: int, t: float) -> None:
         with self.cond:
@@ -134,6 +137,7 @@ class _FrameBook:
                     break
                 if s == stamp:
                     self.latencies.append(t - self._pair_time(s))
+                    self.out_times.append(t)
                     self.frames_out += 1
                     self.last_out = t
                 else:
@@ -218,6 +222,7 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
     result.frames_in, result.frames_out = book.frames_in, book.frames_out
     result.frames_dropped = book.dropped + len(book.in_flight)
     result.latencies_s = list(book.latencies)
+    result.completed_at_s = list(book.out_times)
     if book.first_pub is not None and book.last_out is not None:
         result.wall_s = book.last_out - book.first_pub
     return result
