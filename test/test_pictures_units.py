@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from canopy_stereo.io.ply import read_ply, write_ply
 from canopy_stereo.viz.colour import (COLORMAP, colorize, depth_picture, disparity_picture,
@@ -67,3 +68,46 @@ def test_disparity_and_depth_pictures_have_a_colour_bar_with_units():
     z = depth_picture(1.0 / d, unit="m")
     assert z.shape == pic.shape
     assert COLORMAP is not None
+
+
+def test_progress_only_on_a_terminal():
+    import io
+
+    from canopy_stereo.cli.progress import Progress
+
+    log = io.StringIO()  # not a TTY: logs and CI stay quiet
+    with Progress(3, "view", stream=log) as bar:
+        for name in "abc":
+            bar.step(name)
+    assert log.getvalue() == ""
+
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    term = Tty()
+    with Progress(3, "view", stream=term) as bar:
+        bar.step("a")
+        assert "view 1/3" in term.getvalue() and ": a" in term.getvalue()
+        bar.step("b")
+    assert "view 2/3" in term.getvalue() and term.getvalue().endswith("\r")
+
+
+@pytest.mark.slow
+def test_first_run_says_it_is_compiling_and_how_long(tmp_path):
+    """A fresh numba cache (as on a new installation): the warm-up says what it does and
+    how long it took; the next process loads the cache and says nothing."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    code = "from canopy_stereo.cli.progress import warm_up_kernels; warm_up_kernels(say_after_s=0.5)"
+    first = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600)
+    assert first.returncode == 0, first.stderr
+    lines = first.stderr.strip().splitlines()
+    assert lines[0].startswith("preparing the numba kernels") and "first run only" in lines[0]
+    assert lines[-1].startswith("compiled ") and " kernels in " in lines[-1] and "cached" in lines[-1]
+    second = subprocess.run([sys.executable, "-c", code.replace("0.5", "60")], capture_output=True,
+                            text=True, env=env, timeout=600)
+    assert second.returncode == 0 and second.stderr.strip() == "", second.stderr

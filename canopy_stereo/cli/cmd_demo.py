@@ -34,6 +34,9 @@ def run(args) -> int:
     require_ros("canopy-stereo demo")
     from canopy_stereo.ros.demo import run_scene
 
+    from canopy_stereo.cli.progress import warm_up_kernels
+
+    warm_up_kernels()  # says so when numba compiles (first run), so that the speed excludes it
     out_dir = Path(args.out)
     scenes = SCENES if args.scene == "all" else (args.scene,)
     view = None

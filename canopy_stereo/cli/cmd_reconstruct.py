@@ -51,6 +51,10 @@ def run(args) -> int:
         raise CanopyStereoError("--measure needs --report REPORT.json")
     if (args.leaf_ids or args.report or args.csv or args.plot) and not args.measure:
         raise CanopyStereoError("--leaf-ids/--report/--csv/--plot need --measure")
+    if args.matcher == "elas":
+        from canopy_stereo.cli.progress import warm_up_kernels
+
+        warm_up_kernels()  # says so when numba compiles (first run); not in the stage times
     t0 = time.perf_counter()
     rig = load_rig(args.rig)
     left, right = read_image(args.left), read_image(args.right)

@@ -49,6 +49,10 @@ def run(args) -> int:
     if args.rate < 0:
         raise CanopyStereoError(f"--rate must be >= 0, got {args.rate}")
     rig = load_rig(args.rig)
+    if args.matcher in (None, "elas"):
+        from canopy_stereo.cli.progress import warm_up_kernels
+
+        warm_up_kernels()  # says so when numba compiles (first run)
     options = GraphOptions(matcher=args.matcher, segment=not args.no_segment or args.use_mask,
                            use_mask=args.use_mask, organized=args.organized,
                            parameter_services=False)

@@ -130,6 +130,9 @@ def _show_bag(src: Path, args) -> int:
         logger = FrameLogger(rec, with_measurements=kind == "raw" and not args.no_measure)
         try:
             if kind == "raw":
+                from canopy_stereo.cli.progress import warm_up_kernels
+
+                warm_up_kernels()
                 if ns != "/stereo":
                     raise CanopyStereoError(f"{src}: raw frames under {ns}, the graph reads /stereo")
                 result = run_raw_bag(src, rig, logger, measure=not args.no_measure, matcher=args.matcher,
