@@ -52,13 +52,17 @@ setup(
     ],
     extras_require={
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-common-interfaces"],
-        # catkin_pkg: rosidl_adapter (.msg -> .idl) for the test that builds tf2_msgs from its .msg
+        # catkin_pkg: rosidl_adapter (.msg -> .idl) for the test that builds tf2_msgs from its .msg;
+        # rerun-sdk: CI checks viewer recordings and the web viewer (a 170 MB wheel)
         "test": ["pytest>=7", "rosbags>=0.9", "matplotlib>=3.6", "catkin_pkg", "dask[distributed]>=2023.1",
-                 "pyarrow>=12"],
+                 "pyarrow>=12", "rerun-sdk==0.41.0"],
         "plot": ["matplotlib>=3.6"],
         # canopy-stereo batch: Dask distributed (LocalCluster or a cluster); Parquet with pyarrow
         "batch": ["dask[distributed]>=2023.1", "matplotlib>=3.6"],
         "parquet": ["pyarrow>=12"],
+        # the viewer (canopy-stereo view, run/demo --view): rerun-sdk pinned, its web viewer and
+        # `rerun` tool ship inside the wheel
+        "viz": ["rerun-sdk==0.41.0"],
     },
     zip_safe=True,
     tests_require=["pytest"],

@@ -45,7 +45,7 @@ def test_ply_round_trip(tmp_path, rng):
     assert cloud.unit == "mm" and len(cloud) == 1000
     assert np.allclose(cloud.points, pts.astype(np.float32))
     assert np.array_equal(cloud.colors, cols)
-    head = path.read_bytes()[:200]
+    head = path.read_bytes()[:400]
     assert b"format binary_little_endian 1.0" in head and b"property uchar red" in head
 
 

@@ -106,8 +106,21 @@ def run(args) -> int:
         from canopy_stereo.io.images import read_image
 
         pattern = tuple(parse_int_list(args.pattern, 2, "--pattern"))
-        cal = calibrate_stereo_chessboard(args.chessboard[0], args.chessboard[1], pattern, args.square,
-                                          world_board=args.world_board)
+        from canopy_stereo.cli.progress import Progress
+
+        bar = None
+
+        def progress(total, name):
+            nonlocal bar
+            bar = bar or Progress(total, "finding the chessboard in pair")
+            bar.step(name)
+
+        try:
+            cal = calibrate_stereo_chessboard(args.chessboard[0], args.chessboard[1], pattern, args.square,
+                                              world_board=args.world_board, progress=progress)
+        finally:
+            if bar is not None:
+                bar.close()
         first = read_image(expand_image_list(args.chessboard[0])[0], color=False)
         h, w = first.shape
         print(f"chessboard calibration, {len(cal.check.errors) // (pattern[0] * pattern[1])} pairs used; "

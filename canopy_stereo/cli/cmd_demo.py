@@ -23,6 +23,9 @@ def add_arguments(p):
     p.add_argument("--matcher", choices=("elas", "sgbm"), default=None,
                    help="disparity matcher (default: elas)")
     p.add_argument("--domain-id", type=int, default=None, help="DDS domain (default: private)")
+    p.add_argument("--view", action="store_true",
+                   help="stream the outputs live to the Rerun viewer (extra 'viz'): a window, or the "
+                        "web viewer on localhost when there is no display (served until Ctrl-C)")
 
 
 def run(args) -> int:
@@ -34,9 +37,26 @@ def run(args) -> int:
     install_stop_signals()  # SIGTERM/SIGHUP stop like Ctrl-C (no half-written outputs left open)
     from canopy_stereo.ros.demo import run_scene
 
+    from canopy_stereo.cli.progress import warm_up_kernels
+
+    warm_up_kernels()  # says so when numba compiles (first run), so that the speed excludes it
     out_dir = Path(args.out)
     scenes = SCENES if args.scene == "all" else (args.scene,)
-    for scene in scenes:
-        for line in run_scene(scene, out_dir, args.matcher, args.domain_id):
-            print(line, flush=True)
+    view = None
+    if args.view:
+        from canopy_stereo.viz.sources import LiveView
+
+        view = LiveView(None, name="demo", need_mask=True)
+    try:
+        for scene in scenes:
+            if view is not None:
+                from canopy_stereo.io.rig import load_rig
+                from canopy_stereo.ros.bundled import bundled_rig
+
+                view.set_rig(load_rig(bundled_rig(scene)))
+            for line in run_scene(scene, out_dir, args.matcher, args.domain_id, view=view):
+                print(line, flush=True)
+    finally:
+        if view is not None:
+            view.finish()
     return 0

@@ -4,35 +4,22 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.images import read_image, write_image
 from canopy_stereo.io.pfm import write_pfm
+from canopy_stereo.viz.colour import colorize_disparity, disparity_picture  # noqa: F401 - colorize_disparity re-exported
 
 COMMAND = "disparity"
 HELP = "dense disparity of a rectified pair (ELAS or SGBM) as a PFM"
 DESCRIPTION = """Match the rectified pair LEFT/RIGHT and write the left disparity (pixels,
 u_right = u_left - d) as a Middlebury-style PFM (float32, inf where invalid).
---png adds a colour-mapped picture (turbo from 0 to --disp-max, or to the largest
-disparity found; near = red, invalid = black)."""
+--png adds a colour-mapped picture with a colour bar in pixels (turbo from 0 to
+--disp-max, or to the 99th percentile; near = red, invalid = black)."""
 
 MATCHERS = ("elas", "sgbm")
 DEFAULT_DISP_MAX = {"elas": 255, "sgbm": 128}
-
-
-def colorize_disparity(disp: np.ndarray, disp_max: float | None = None) -> np.ndarray:
-    """uint8 BGR (H, W, 3) picture of a disparity map: turbo colour map from 0 to
-    ``disp_max`` (default: the largest valid value), invalid pixels black."""
-    disp = np.asarray(disp, dtype=np.float32)
-    valid = np.isfinite(disp) & (disp >= 0)
-    top = float(disp_max) if disp_max else (float(disp[valid].max()) if valid.any() else 1.0)
-    scaled = np.zeros(disp.shape, np.uint8)
-    scaled[valid] = np.clip(disp[valid] / max(top, 1e-6) * 255.0, 0, 255).astype(np.uint8)
-    colour = cv2.applyColorMap(scaled, cv2.COLORMAP_TURBO)
-    colour[~valid] = 0
-    return colour
 
 
 def add_arguments(p):
@@ -58,6 +45,11 @@ def run(args) -> int:
         raise CanopyStereoError(f"output must be a .pfm file, got {args.output}")
     from canopy_stereo.disparity import compute_disparity
 
+    if args.matcher == "elas":
+        from canopy_stereo.cli.progress import warm_up_kernels
+
+        warm_up_kernels()  # the time printed below is then the matching alone
+
     left, right = read_image(args.left), read_image(args.right)
     disp_max = args.disp_max if args.disp_max is not None else DEFAULT_DISP_MAX[args.matcher]
     params = {"preset": args.preset, "subpixel": args.subpixel} if args.matcher == "elas" else {}
@@ -69,7 +61,9 @@ def run(args) -> int:
     out = np.where(valid, disp, np.inf).astype(np.float32)
     write_pfm(args.output, out)
     if args.png:
-        write_image(Path(args.png), colorize_disparity(disp, args.disp_max))
+        top = float(args.disp_max) if args.disp_max else None
+        write_image(Path(args.png), disparity_picture(np.where(valid, disp, np.nan), lo=0.0, hi=top,
+                                                      title=f"{args.matcher} disparity"))
     h, w = disp.shape
     rng = f"{disp[valid].min():.1f}..{disp[valid].max():.1f}" if valid.any() else "none"
     print(f"{args.matcher}: {w}x{h}, density {100.0 * valid.mean():.1f}%, disparities {rng} px, "

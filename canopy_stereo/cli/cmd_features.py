@@ -1,7 +1,6 @@
 """``canopy-stereo features``: the paper's feature-matching study on your own pair."""
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 from canopy_stereo.errors import CanopyStereoError
@@ -53,10 +52,10 @@ def run(args) -> int:
                                     "(stored value / disparity)")
         gt = read_disparity(args.gt, args.gt_scale)
 
-    def progress(m):
-        print(f"matching with {m} ...", file=sys.stderr, flush=True)
+    from canopy_stereo.cli.progress import Progress
 
-    rows = run_study(left, right, methods, gt_disparity=gt, progress=progress)
+    with Progress(len(methods), "matching with method") as bar:  # on a terminal only
+        rows = run_study(left, right, methods, gt_disparity=gt, progress=bar.step)
     print(format_table(rows))
     if args.csv:
         print(f"table written to {write_csv(rows, args.csv)}")

@@ -96,11 +96,18 @@ def run(args) -> int:
     dupes = sorted({n for n in names if names.count(n) > 1})
     if dupes:
         raise CanopyStereoError(f"view folder names must differ (they name the poses): {', '.join(dupes)}")
+    from canopy_stereo.cli.progress import Progress, warm_up_kernels
+
+    if any(not (f / "cloud.ply").is_file() for f in folders):
+        warm_up_kernels()  # views given as image pairs are reconstructed with ELAS
     views = []
+    bar = Progress(len(folders), "loading view")
     for f in folders:
         t = time.perf_counter()
+        bar.step(f.name)
         view = load_view(f, unit=args.unit, method=args.method, matcher=args.matcher)
         views.append(view)
+        bar.close()
         print(f"view {view.name}: {len(view.points)} points ({view.unit})"
               f"{', pose from pose.yaml' if view.pose is not None else ''}  [{(time.perf_counter() - t):.1f} s]")
     unit = common_unit(views)

@@ -13,10 +13,11 @@ from canopy_stereo.io.rig import load_rig
 from canopy_stereo.pipeline.reconstruct import RECTIFICATION_METHODS, reconstruct_pair
 
 COMMAND = "reconstruct"
-HELP = "reconstruct a stereo pair into a metric point cloud (PLY, world units)"
+HELP = "reconstruct a stereo pair into a metric point cloud (PLY, millimetres)"
 DESCRIPTION = """Rectify, match densely, map the matches back to the original images and
 triangulate them with the rig's world-frame P matrices. Writes a binary PLY in the rig's
-world unit and prints the number of points, the bounding box and the time per stage."""
+world frame, in millimetres whatever the rig's unit (as every PLY of the package; the header
+says so), and prints the number of points, the bounding box and the time per stage."""
 
 
 def add_arguments(p):
@@ -50,6 +51,10 @@ def run(args) -> int:
         raise CanopyStereoError("--measure needs --report REPORT.json")
     if (args.leaf_ids or args.report or args.csv or args.plot) and not args.measure:
         raise CanopyStereoError("--leaf-ids/--report/--csv/--plot need --measure")
+    if args.matcher == "elas":
+        from canopy_stereo.cli.progress import warm_up_kernels
+
+        warm_up_kernels()  # says so when numba compiles (first run); not in the stage times
     t0 = time.perf_counter()
     rig = load_rig(args.rig)
     left, right = read_image(args.left), read_image(args.right)
@@ -63,7 +68,8 @@ def run(args) -> int:
     rec = reconstruct_pair(left, right, rig, method=args.method, matcher=args.matcher, mask=mask,
                            disp_min=args.disp_min, disp_max=args.disp_max, rectification=rect)
     t = time.perf_counter()
-    write_ply(args.output, rec.points, rec.colors, unit=rig.world_unit,
+    # PLYs are millimetres whatever the rig's unit (canopy_stereo.io.ply.PLY_UNIT)
+    write_ply(args.output, rec.points * (rig.metres_per_unit * 1000.0), rec.colors, unit="mm",
               comments=[f"canopy-stereo reconstruct method={args.method} matcher={args.matcher}"])
     if args.organized:
         from pathlib import Path
@@ -87,7 +93,7 @@ def run(args) -> int:
     print(f"bounding box ({u}): x {lo[0]:.1f}..{hi[0]:.1f}  y {lo[1]:.1f}..{hi[1]:.1f}  z {lo[2]:.1f}..{hi[2]:.1f}")
     print("time per stage: " + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in rec.timings.items())
           + f"; total {(time.perf_counter() - t0) * 1e3:.0f} ms")
-    print(f"wrote {args.output}")
+    print(f"wrote {args.output} (millimetres)")
     return 0
 
 

@@ -38,6 +38,9 @@ def add_arguments(p):
     p.add_argument("--compression", choices=("lz4", "zstd", "none"), default="lz4",
                    help="chunk compression of the recorded bag (default lz4)")
     add_split_arguments(p)
+    p.add_argument("--view", action="store_true",
+                   help="stream the outputs live to the Rerun viewer (extra 'viz'): a window, or the "
+                        "web viewer on localhost when there is no display (served until Ctrl-C)")
 
 
 def run(args) -> int:
@@ -70,13 +73,29 @@ def run(args) -> int:
                                                    rig.extra.get("H_left"), rig.extra.get("H_right")))
     except CanopyStereoError as exc:
         raise CanopyStereoError(f"rig {args.rig}: {exc}") from None
+    if args.matcher in (None, "elas"):
+        from canopy_stereo.cli.progress import warm_up_kernels
+
+        warm_up_kernels()  # says so when numba compiles (first run)
     options = GraphOptions(matcher=args.matcher, segment=not args.no_segment or args.use_mask,
                            use_mask=args.use_mask, organized=args.organized,
                            parameter_services=False)
-    result = run_bag(args.bag, rig, rate=args.rate, record=args.record, options=options,
-                     domain_id=args.domain_id, max_in_flight=args.max_in_flight,
-                     remap=parse_remaps(args.remap), compression=args.compression,
-                     **split_options(args))
-    for line in result.summary_lines():
-        print(line)
+    view = None
+    if args.view:
+        from pathlib import Path
+
+        from canopy_stereo.viz.sources import LiveView
+
+        view = LiveView(rig, name=Path(args.bag).stem, need_mask=options.segment)
+    try:
+        result = run_bag(args.bag, rig, rate=args.rate, record=args.record, options=options,
+                         domain_id=args.domain_id, max_in_flight=args.max_in_flight,
+                         remap=parse_remaps(args.remap), compression=args.compression,
+                         extra_outputs=view.extra_outputs if view else None,
+                         on_output=view.on_output if view else None, **split_options(args))
+        for line in result.summary_lines():
+            print(line, flush=True)
+    finally:
+        if view is not None:
+            view.finish()
     return 0 if result.frames_out > 0 or result.frames_in == 0 else 1

@@ -150,8 +150,12 @@ def _run_views(args, rig, out: Path, effects) -> int:
     mode = args.mode or "turntable"
     if args.elevation is not None and mode != "orbit":
         raise CanopyStereoError("--elevation needs --orbit (a turntable's rig does not move)")
-    seq = render_views(args.scene, rig, n_views=args.views, mode=mode, seed=args.seed,
-                       elevation_deg=args.elevation, supersample=args.supersample, effects=effects)
+    from canopy_stereo.cli.progress import Progress
+
+    with Progress(args.views, f"rendering {args.scene} view") as bar:
+        seq = render_views(args.scene, rig, n_views=args.views, mode=mode, seed=args.seed,
+                           elevation_deg=args.elevation, supersample=args.supersample, effects=effects,
+                           progress=bar.step)
     write_views(seq, out)
     for v in seq.views:
         seen = int((v.sim.leaf_ids_left > 0).sum())

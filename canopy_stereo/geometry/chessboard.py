@@ -62,8 +62,10 @@ def find_corners(gray: np.ndarray, pattern: tuple[int, int]) -> np.ndarray | Non
     return corners.reshape(-1, 2).astype(np.float64)
 
 
-def detect_stereo_chessboards(left_paths, right_paths, pattern=(9, 6), square_size=25.0) -> ChessboardViews:
-    """Detect the board in every pair; pairs where either image misses it are skipped."""
+def detect_stereo_chessboards(left_paths, right_paths, pattern=(9, 6), square_size=25.0,
+                              progress=None) -> ChessboardViews:
+    """Detect the board in every pair; pairs where either image misses it are skipped.
+    ``progress``: optional ``f(total, left image name)`` called before each pair."""
     left_paths, right_paths = expand_image_list(left_paths), expand_image_list(right_paths)
     if not left_paths:
         raise CalibrationError("no left chessboard images found")
@@ -72,6 +74,8 @@ def detect_stereo_chessboards(left_paths, right_paths, pattern=(9, 6), square_si
     obj = board_points(pattern, square_size)
     lefts, rights, names, size = [], [], [], None
     for lp, rp in zip(left_paths, right_paths):
+        if progress is not None:
+            progress(len(left_paths), lp.name)
         gl, gr = read_image(lp, color=False), read_image(rp, color=False)
         if gl.shape != gr.shape:
             raise CalibrationError(f"{lp.name} and {rp.name} differ in size")
@@ -92,7 +96,7 @@ def detect_stereo_chessboards(left_paths, right_paths, pattern=(9, 6), square_si
 
 
 def calibrate_stereo_chessboard(left_paths, right_paths, pattern=(9, 6), square_size=25.0,
-                                world_board: int | None = None) -> StereoCalibration:
+                                world_board: int | None = None, progress=None) -> StereoCalibration:
     """Zhang calibration of both cameras plus stereo extrinsics, as world-frame ``P`` + ``D``.
 
     Args:
@@ -106,7 +110,7 @@ def calibrate_stereo_chessboard(left_paths, right_paths, pattern=(9, 6), square_
         A :class:`StereoCalibration` with ``P``/``D`` per camera, the stereo
         RMS (``rms_stereo``, pixels) and the corner triangulation check.
     """
-    views = detect_stereo_chessboards(left_paths, right_paths, pattern, square_size)
+    views = detect_stereo_chessboards(left_paths, right_paths, pattern, square_size, progress=progress)
     obj = [views.object_points.astype(np.float32).reshape(-1, 1, 3)] * len(views.left)
     il = [c.astype(np.float32).reshape(-1, 1, 2) for c in views.left]
     ir = [c.astype(np.float32).reshape(-1, 1, 2) for c in views.right]

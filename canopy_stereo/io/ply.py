@@ -1,7 +1,10 @@
 """PLY point clouds: binary little-endian, float32 x y z + uchar red green blue.
 
 Readable by MeshLab, Open3D and CloudCompare. The header carries the world unit
-as a comment (``comment unit mm``) so a reader knows the scale.
+as a comment (``comment unit mm``, read back by :func:`read_ply`) and says it in
+words (``comment x y z in millimetres``) so a person opening the file knows the scale.
+Every cloud the package writes (``reconstruct``, ``demo``, ``fuse`` of those) is in
+millimetres; the ROS messages are in metres (REP 103).
 """
 from __future__ import annotations
 
@@ -31,6 +34,14 @@ class PointCloud:
 
     def __len__(self) -> int:
         return len(self.points)
+
+
+#: unit -> its name in the header's plain-language comment.
+UNIT_NAMES = {"mm": "millimetres", "cm": "centimetres", "m": "metres", "in": "inches", "ft": "feet",
+              "um": "micrometres"}
+
+#: The unit of every cloud the package writes.
+PLY_UNIT = "mm"
 
 
 #: numpy dtype -> PLY property type for extra per-vertex properties.
@@ -75,7 +86,7 @@ def write_ply(path, points, colors=None, unit: str = "mm", comments=(), properti
     for name, arr in extra.items():
         rec[name] = arr
     lines = ["ply", "format binary_little_endian 1.0", f"comment unit {unit}",
-             "comment generator canopy_stereo"]
+             f"comment x y z in {UNIT_NAMES.get(unit, unit)}", "comment generator canopy_stereo"]
     lines += [f"comment {c}" for c in comments]
     lines += [f"element vertex {len(pts)}", "property float x", "property float y", "property float z"]
     if colors is not None:

@@ -56,6 +56,7 @@ class RunResult:
         truncated, problem: the input bag was cut short (and why).
         damage: damaged places of the input bag (one line each: offset, problem, messages lost).
         invalid_messages: input messages skipped because they are not valid CDR (one line each).
+        completed_at_s: per completed frame, when its cloud arrived (monotonic seconds).
     """
 
     frames_in: int = 0
@@ -71,6 +72,7 @@ class RunResult:
     problem: str = ""
     damage: list = field(default_factory=list)
     invalid_messages: list = field(default_factory=list)
+    completed_at_s: list = field(default_factory=list)
 
     @property
     def fps(self) -> float:
@@ -123,6 +125,7 @@ class _FrameBook:
         self.last_out = None
         self.last_activity = time.monotonic()
         self.latencies: list[float] = []
+        self.out_times: list[float] = []
 
     def published(self, is_left: bool, stamp: int, t: float) -> None:
         with self.cond:
@@ -157,6 +160,7 @@ class _FrameBook:
                 for s in list(self.in_flight):  # publication order: earlier frames were overtaken
                     if s == stamp:
                         self.latencies.append(t - self._pair_time(s))
+                        self.out_times.append(t)
                         self.frames_out += 1
                         self.last_out = t
                     else:
@@ -179,7 +183,8 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
             timeout_s: float = 120.0, keep=(), remap: dict | None = None,
             startup_timeout_s: float = 30.0, progress=None, compression: str = "lz4",
             context=None, loop: bool = False, stop: threading.Event | None = None,
-            split_size: int = 0, split_duration_s: float = 0.0) -> RunResult:
+            split_size: int = 0, split_duration_s: float = 0.0, extra_outputs: dict | None = None,
+            on_output=None) -> RunResult:
     """Replay ``bag_path`` through the graph for ``rig``; see the module docstring.
 
     Args:
@@ -206,6 +211,11 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
         stop: event that ends playback early (the frames in flight are still awaited).
         split_size, split_duration_s: split the recording into ``<name>_0.mcap``, ... by
             size (bytes) or log-time span (s), as rosbag2 does (0 = never).
+        extra_outputs: further graph topics to receive (relative name -> message class,
+            e.g. ``{"left/image_rect_color": Image}``); recorded and kept like the others.
+        on_output: optional ``f(relative topic, stamp_ns, CDR bytes)`` called for every
+            output message as it arrives (from the receiving thread; keep it short), e.g.
+            to stream the graph to a viewer.
     """
     from sensor_msgs.msg import CameraInfo, Image, PointCloud2
     from stereo_msgs.msg import DisparityImage
@@ -236,6 +246,7 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
                "left/image_rect/camera_info": CameraInfo, "right/image_rect/camera_info": CameraInfo}
     if options.segment or options.use_mask:
         outputs["left/mask"] = Image
+    outputs.update(extra_outputs or {})
     result = RunResult(truncated=bag.truncated, problem=bag.problem,
                        outputs={k: [] for k in keep})
     book = _FrameBook()
@@ -244,7 +255,8 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
                         split_duration_s=split_duration_s) if own_writer else record)
     try:
         _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, remap, startup_timeout_s,
-             progress, context, play_topics, left_topics, ns, outputs, result, book, writer, loop, stop)
+             progress, context, play_topics, left_topics, ns, outputs, result, book, writer, loop, stop,
+             on_output)
     finally:
         if own_writer:
             result.recorded = writer.close()
@@ -262,6 +274,7 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
     result.frames_in, result.frames_out = book.frames_in, book.frames_out
     result.frames_dropped = book.dropped + len(book.in_flight)
     result.latencies_s = list(book.latencies)
+    result.completed_at_s = list(book.out_times)
     if book.first_pub is not None and book.last_out is not None:
         result.wall_s = book.last_out - book.first_pub
     return result
@@ -269,7 +282,7 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
 
 def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, remap, startup_timeout_s,
          progress, context, play_topics, left_topics, ns, outputs, result, book, writer, loop=False,
-         stop=None) -> None:
+         stop=None, on_output_cb=None) -> None:
     """Build the graph, play, drain and tear down (the body of :func:`run_bag`)."""
     reliability = options.reliability
     with (_given(context) if context is not None else ros_context(domain_id)) as ctx:
@@ -289,6 +302,8 @@ def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, r
                                  type_name(outputs[rel]))
                 if rel in result.outputs:
                     result.outputs[rel].append((stamp, bytes(data)))
+                if on_output_cb is not None and stamp is not None:
+                    on_output_cb(rel, stamp, bytes(data))
                 if rel == "points2" and stamp is not None:
                     book.completed(stamp, now)
                     if progress is not None:

@@ -170,7 +170,7 @@ def foreground_mask(sim: SimResult) -> np.ndarray:
 
 def render_views(scene="croton", rig=None, n_views: int = 8, mode: str = "turntable", seed: int = 0,
                  elevation_deg: float | None = None, start_deg: float = 0.0, supersample: int = 2,
-                 effects=None, indices=None) -> MultiViewSequence:
+                 effects=None, indices=None, progress=None) -> MultiViewSequence:
     """Render a multi-view sequence of a plant with true poses.
 
     Args:
@@ -181,6 +181,7 @@ def render_views(scene="croton", rig=None, n_views: int = 8, mode: str = "turnta
         mode: ``"turntable"`` (plant turns) or ``"orbit"`` (rig circles, looking down).
         seed: scene layout seed (for a name) and per-view sensor noise.
         elevation_deg: orbit elevation (default 20; must be 0 or absent for the turntable).
+        progress: optional ``f(view name)`` called after each view is rendered.
         start_deg: angle of view 0.
         supersample, effects: passed to :func:`~canopy_stereo.sim.render.render_pair`.
         indices: render only these views of the ``n_views`` sequence (default all).
@@ -210,6 +211,8 @@ def render_views(scene="croton", rig=None, n_views: int = 8, mode: str = "turnta
         moved = _moved_scene(placed, invert_transform(T), seed=int(seed) * 1000 + i)
         sim = render_pair(moved, rig, supersample=supersample, effects=effects)
         views.append(SimView(index=i, name=f"view_{i:02d}", pose=T, sim=sim, mask=foreground_mask(sim)))
+        if progress is not None:
+            progress(f"view_{i:02d}")
     return MultiViewSequence(scene=placed, rig=rig, mode=mode, views=views, axis_point=point,
                              axis_direction=direction, centre=centre, elevation_deg=elevation)
 

@@ -1,0 +1,322 @@
+"""What the viewer shows: a bag (raw frames through the graph, or recorded outputs), a live graph.
+
+Graph outputs arrive per topic; :class:`FrameStreamer` gathers the messages of
+one stamp (``points2``, ``disparity``, ``left/mask``, ``left/image_rect_color``,
+``left/camera_info``), converts them and logs the frame from a worker thread
+(optionally measuring leaves and canopy first), so that the graph's receiving
+thread never waits for the viewer. ROS message classes are imported only here,
+when a bag or graph is used.
+"""
+from __future__ import annotations
+
+import queue
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.viz.rerun_log import CameraPose, FrameLogger, camera_pose_from_rig
+
+#: Name of the MCAP metadata record that holds the rig of a bag.
+RIG_METADATA_NAME = "canopy_stereo"
+
+#: Graph topics (relative to the namespace) a frame is made of.
+FRAME_TOPICS = ("points2", "disparity", "left/mask", "left/image_rect_color", "left/camera_info")
+
+
+def rig_from_bag(path):
+    """The rig stored in the bag's ``canopy_stereo`` MCAP metadata record, or None.
+
+    The record's values are read as a rig file (ROS 2 parameter YAML, or a bare
+    ``ros__parameters`` mapping); the first value that is a rig wins.
+    """
+    import yaml
+    from mcap.reader import make_reader
+
+    from canopy_stereo.io.rig import rig_from_parameters
+
+    try:
+        with open(path, "rb") as f:
+            records = list(make_reader(f).iter_metadata())
+    except Exception:  # noqa: BLE001 - a bag without a readable summary has no metadata index
+        return None
+    for record in records:
+        if record.name != RIG_METADATA_NAME:
+            continue
+        for key, text in sorted(record.metadata.items(), key=lambda kv: kv[0] != "rig"):
+            try:
+                doc = yaml.safe_load(text)
+            except yaml.YAMLError:
+                continue
+            if not isinstance(doc, dict):
+                continue
+            params = doc
+            for value in doc.values():
+                if isinstance(value, dict) and "ros__parameters" in value:
+                    params = value["ros__parameters"]
+                    break
+            if isinstance(params, dict) and "P_left" in params:
+                return rig_from_parameters(params, source=f"{path} metadata {RIG_METADATA_NAME}/{key}")
+    return None
+
+
+def measure_frame(organized_m: np.ndarray, mask: np.ndarray, rig=None):
+    """Leaves and canopy of one organized cloud (metres, rectified left grid) and its plant
+    mask, measured in millimetres (:func:`canopy_stereo.measure.measure_scene`); None when
+    there is nothing to measure."""
+    from canopy_stereo.measure import measure_scene
+
+    if mask is None or organized_m is None or np.asarray(organized_m).ndim != 3:
+        return None
+    plant = np.asarray(mask) > 0
+    if plant.shape != organized_m.shape[:2] or plant.sum() < 50:
+        return None
+    try:
+        return measure_scene(np.asarray(organized_m, np.float64) * 1000.0, mask=plant, unit="mm",
+                             camera="auto")
+    except CanopyStereoError:
+        return None
+
+
+class FrameStreamer:
+    """Gathers graph outputs per stamp and logs complete frames to a :class:`FrameLogger`.
+
+    Args:
+        logger: where frames go.
+        rig: the rig (places the camera in the world), or None (pinhole only).
+        need_mask: wait for the plant mask too before a frame is complete.
+        measure: measure leaves and canopy of each frame (needs organized clouds and masks).
+        drop_when_busy: live use: when the logger is still busy with earlier frames,
+            skip frames instead of queueing them (the graph never waits).
+    """
+
+    def __init__(self, logger: FrameLogger, rig=None, *, need_mask: bool = True, measure: bool = False,
+                 drop_when_busy: bool = False):
+        self.logger = logger
+        self.set_rig(rig)
+        self.required = {"points2", "disparity", "left/image_rect_color"} | ({"left/mask"} if need_mask else set())
+        self.measure = measure
+        self.pending: dict[int, dict] = {}
+        self.lock = threading.Lock()
+        self.queue: queue.Queue = queue.Queue(maxsize=2 if drop_when_busy else 0)
+        self.drop_when_busy = drop_when_busy
+        self.skipped = 0
+        self.logged = 0
+        self.errors: list[str] = []
+        self.worker = threading.Thread(target=self._work, name="canopy_viewer", daemon=True)
+        self.worker.start()
+
+    def set_rig(self, rig) -> None:
+        """The rig of the frames that follow (None: camera pose unknown)."""
+        self.rig = rig
+        self.pose = None
+        if rig is not None:
+            try:
+                self.pose = camera_pose_from_rig(rig)
+            except CanopyStereoError:
+                self.pose = None
+
+    # called from the graph's receiving thread
+    def on_output(self, rel: str, stamp: int, data: bytes) -> None:
+        if rel not in FRAME_TOPICS or stamp is None:
+            return
+        done = []
+        with self.lock:
+            entry = self.pending.setdefault(stamp, {})
+            entry[rel] = data
+            if self.required <= entry.keys():
+                done.append((stamp, self.pending.pop(stamp), self.pose, self.rig))
+                for older in sorted(s for s in self.pending if s < stamp):
+                    old = self.pending.pop(older)
+                    if "points2" in old:
+                        done.insert(-1, (older, old, self.pose, self.rig))
+        for item in done:
+            self._submit(item)
+
+    def _submit(self, item) -> None:
+        if self.drop_when_busy:
+            try:
+                self.queue.put_nowait(item)
+            except queue.Full:
+                self.skipped += 1
+        else:
+            self.queue.put(item)
+
+    def close(self, timeout_s: float = 600.0) -> None:
+        """Log the frames still pending (those with a cloud), then stop the worker."""
+        with self.lock:
+            rest = sorted(self.pending.items())
+            self.pending.clear()
+        for stamp, entry in rest:
+            if "points2" in entry:
+                self.queue.put((stamp, entry, self.pose, self.rig))
+        self.queue.put(None)
+        self.worker.join(timeout_s)
+
+    def _work(self) -> None:
+        while True:
+            item = self.queue.get()
+            if item is None:
+                return
+            try:
+                self.log_messages(*item)
+            except Exception as exc:  # noqa: BLE001 - a bad frame must not stop the viewer
+                self.errors.append(f"{type(exc).__name__}: {exc}")
+
+    def log_messages(self, stamp: int, entry: dict, pose: CameraPose | None = None, rig=None) -> None:
+        """Decode one stamp's CDR messages (relative topic -> bytes) and log the frame
+        (``pose``: of its rectified left camera, default the current rig's)."""
+        frame = decode_frame(entry)
+        pose = pose if pose is not None else self.pose
+        if pose is None and frame.get("K") is not None:
+            pose = CameraPose(K=frame["K"], size=frame["size"])
+        measurement = None
+        if self.measure and frame.get("organized") is not None and frame.get("mask") is not None:
+            measurement = measure_frame(frame["organized"], frame["mask"], rig if rig is not None else self.rig)
+        self.logger.log_frame(stamp, points_m=frame.get("points"), colors=frame.get("colors"),
+                              image_bgr=frame.get("image"), depth_m=frame.get("depth"),
+                              mask=frame.get("mask"), camera=pose, measurement=measurement)
+        self.logged += 1
+
+
+def decode_frame(entry: dict) -> dict:
+    """Arrays of one frame's CDR messages (relative topic -> bytes): ``points`` (N, 3) m,
+    ``colors``, ``organized`` (H, W, 3) m or None, ``depth`` (H, W) m, ``image`` BGR,
+    ``mask``, ``K``/``size`` from the camera info."""
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+    from stereo_msgs.msg import DisparityImage
+
+    from canopy_stereo.ros.convert import cloud2_to_points, msg_to_bgr, msg_to_disparity, msg_to_image
+
+    out: dict = {}
+    if "points2" in entry:
+        cloud = deserialize_message(entry["points2"], PointCloud2)
+        pts, cols = cloud2_to_points(cloud, organized=cloud.height > 1)
+        if cloud.height > 1:
+            out["organized"] = pts
+        out["points"], out["colors"] = pts.reshape(-1, 3), None if cols is None else cols.reshape(-1, 3)
+    if "disparity" in entry:
+        disp = msg_to_disparity(deserialize_message(entry["disparity"], DisparityImage))
+        out["depth"] = disp.depth()
+        out["disparity"] = disp
+    if "left/image_rect_color" in entry:
+        out["image"] = msg_to_bgr(deserialize_message(entry["left/image_rect_color"], Image))
+    if "left/mask" in entry:
+        out["mask"] = msg_to_image(deserialize_message(entry["left/mask"], Image))
+    if "left/camera_info" in entry:
+        info = deserialize_message(entry["left/camera_info"], CameraInfo)
+        out["K"] = np.asarray(info.k, np.float64).reshape(3, 3)
+        out["size"] = (int(info.width), int(info.height))
+    return out
+
+
+def bag_kind(bag) -> tuple[str, str]:
+    """``("outputs", namespace)`` for a bag with recorded ``points2``, ``("raw", namespace)``
+    for one with ``left/image_raw`` and ``right/image_raw``; else :class:`CanopyStereoError`."""
+    topics = set(bag.topics)
+    for t in sorted(topics):
+        if t.endswith("/points2"):
+            return "outputs", t[: -len("/points2")]
+    for t in sorted(topics):
+        if t.endswith("/left/image_raw") and t[: -len("left/image_raw")] + "right/image_raw" in topics:
+            return "raw", t[: -len("/left/image_raw")]
+    raise CanopyStereoError(f"{bag.path} has neither raw stereo frames (<ns>/left/image_raw and "
+                            f"<ns>/right/image_raw) nor recorded clouds (<ns>/points2); topics: "
+                            f"{', '.join(sorted(topics)) or 'none'}")
+
+
+def show_recorded_outputs(bag, namespace: str, logger: FrameLogger, rig=None, measure: bool = False) -> int:
+    """Log a bag of recorded graph outputs frame by frame (grouped by header stamp); returns
+    the number of frames (clouds) logged."""
+    from canopy_stereo.ros.recorder import header_stamp_from_cdr
+
+    prefix = namespace.rstrip("/") + "/"
+    topics = [prefix + rel for rel in FRAME_TOPICS if prefix + rel in bag.topics]
+    streamer = FrameStreamer(logger, rig, need_mask=prefix + "left/mask" in bag.topics, measure=measure)
+    streamer.required = {rel for rel in FRAME_TOPICS if prefix + rel in bag.topics} - {"left/camera_info"}
+    for m in bag.messages(topics):
+        streamer.on_output(m.topic[len(prefix):], header_stamp_from_cdr(m.data), m.data)
+    streamer.close()
+    if streamer.errors:
+        raise CanopyStereoError(f"{bag.path}: could not show a frame: {streamer.errors[0]}")
+    return streamer.logged
+
+
+def run_raw_bag(path, rig, logger: FrameLogger, *, measure: bool = True, matcher=None,
+                domain_id=None, progress=None):
+    """Run a bag of raw frames through the graph (organized clouds, plant masks) and log
+    every frame as it comes out; returns the :class:`~canopy_stereo.ros.runner.RunResult`."""
+    from sensor_msgs.msg import Image
+
+    from canopy_stereo.ros.graph import GraphOptions
+    from canopy_stereo.ros.runner import run_bag
+
+    streamer = FrameStreamer(logger, rig, need_mask=True, measure=measure)
+    options = GraphOptions(matcher=matcher, segment=True, organized=True, parameter_services=False)
+    try:
+        result = run_bag(Path(path), rig, rate=0, options=options, domain_id=domain_id,
+                         extra_outputs={"left/image_rect_color": Image}, on_output=streamer.on_output,
+                         progress=progress)
+    finally:
+        streamer.close()
+    if streamer.errors:
+        raise CanopyStereoError(f"{path}: could not show a frame: {streamer.errors[0]}")
+    result.viewer_frames = streamer.logged
+    return result
+
+
+class LiveView:
+    """Stream a running graph to a viewer: a native window when there is a display, else the
+    web viewer served on localhost (its address printed), kept up after the run until Ctrl-C.
+
+    Pass :attr:`extra_outputs` and :meth:`on_output` to
+    :func:`~canopy_stereo.ros.runner.run_bag`; call :meth:`finish` afterwards. Frames the
+    viewer cannot keep up with are skipped, never queued: the graph does not wait for it.
+    """
+
+    def __init__(self, rig=None, *, name: str = "live", need_mask: bool = True, port: int | None = None,
+                 printer=print):
+        from sensor_msgs.msg import Image
+
+        from canopy_stereo.viz.rerun_log import has_display, open_recording, serve_web
+
+        self.printer = printer
+        self.web = None if has_display() else serve_web(port=port or 9090)
+        if self.web is not None:
+            printer(f"viewer: {self.web.url} (no display here: open it in a browser)")
+        self.rec = open_recording(web=self.web, spawn=self.web is None, name=name, with_measurements=False)
+        self.logger = FrameLogger(self.rec, with_measurements=False)
+        self.streamer = FrameStreamer(self.logger, rig, need_mask=need_mask, measure=False,
+                                      drop_when_busy=True)
+        self.extra_outputs = {"left/image_rect_color": Image}
+
+    def on_output(self, rel: str, stamp: int, data: bytes) -> None:
+        self.streamer.on_output(rel, stamp, data)
+
+    def set_rig(self, rig) -> None:
+        """The rig of the frames that follow (places the camera in the world)."""
+        self.streamer.set_rig(rig)
+
+    def add_frame(self, stamp: int, entry: dict) -> None:
+        """Log one frame given as relative topic -> CDR bytes (e.g. kept run outputs)."""
+        self.streamer.log_messages(stamp, entry)
+
+    def finish(self, *, wait: bool = True) -> None:
+        """Log what is pending, close the recording; with a web viewer, serve until Ctrl-C
+        (``wait``) and stop it."""
+        from canopy_stereo.viz.rerun_log import close_recording
+
+        try:
+            self.streamer.close()
+            close_recording(self.rec)
+            self.printer(f"viewer: showed {self.streamer.logged} frames"
+                         + (f", skipped {self.streamer.skipped} while busy" if self.streamer.skipped else ""))
+            if self.web is not None and wait:
+                from canopy_stereo.cli.cmd_view import wait_until_interrupted
+
+                wait_until_interrupted(self.web)
+        finally:
+            if self.web is not None:
+                self.web.stop()
