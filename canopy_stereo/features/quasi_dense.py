@@ -961,6 +961,8 @@ def resample(prop: Propagation, *, cell_px: int = DISTRIBUTION_CELL_PX, model: s
         min_spread_px: the inliers' smaller standard deviation (pixels) must reach
             this, so a region matched only along a line (an edge) emits nothing.
         seed: RNG seed (results are deterministic).
+        The defaults are Lhuillier & Quan's resampling; :func:`qdmatch` relaxes them
+        (centroid anchors, thin single-surface regions) to reach every textured region.
         anchor: where a region's match is placed: ``"centre"`` (Lhuillier & Quan: only
             regions whose inliers surround the centre emit a match), ``"centroid"``
             (the centre when surrounded, else the inliers' centroid, so regions cut by
