@@ -115,6 +115,18 @@ def test_feature_tables_are_the_matches_the_run_wrote(paper_run):
                 share, _ = correspondence_correctness(xl, xr, true_right_pixels(sims[scene]))
                 assert _num(r[corr_col]) == pytest.approx(100 * share, abs=0.051)
                 assert share >= 0.95
+                # leaf cells reached, from the rendered labels (leaf = 1)
+                h, w = sims[scene].labels_left.shape
+                leaf = (sims[scene].labels_left == 1)[:h // 8 * 8, :w // 8 * 8]
+                cells = leaf.reshape(h // 8, 8, w // 8, 8).mean(axis=(1, 3)) > 0.5
+                c = np.floor((xl + 0.5) / 8).astype(int)
+                c = c[(c[:, 0] < w // 8) & (c[:, 1] < h // 8)]
+                used = np.zeros_like(cells)
+                used[c[:, 1], c[:, 0]] = True
+                assert _num(r["leaf cells reached"]) == pytest.approx(
+                    100 * (used & cells).sum() / cells.sum(), abs=0.051)
+            else:
+                assert "leaf cells reached" not in r
         qd = next(r for r in rows if r["method"] == "qdmatch")
         sift = next(r for r in rows if r["method"] == "sift")
         assert _num(qd["distribution"]) > _num(sift["distribution"])

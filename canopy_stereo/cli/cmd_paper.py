@@ -19,10 +19,10 @@ clouds/*.ply. Progress goes to stderr. --quick is the reduced mode used by CI.""
 def add_arguments(p):
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
     p.add_argument("--quick", action="store_true",
-                   help="reduced mode: methods sift,orb,qdmatch and 15 calibration placements")
+                   help="reduced mode: methods sift,asift,qdmatch and 15 of the 45 calibration placements")
     p.add_argument("--seed", type=int, default=0, help="seed of the rendered scenes (default 0)")
     p.add_argument("--methods", metavar="M1,M2,...",
-                   help="feature methods of Tables 2-4 (default: all; --quick: sift,orb,qdmatch)")
+                   help="feature methods of Tables 2-4 (default: all; --quick: sift,asift,qdmatch)")
     p.add_argument("--no-calibration", action="store_true", help="skip Table 1 / Figure 5")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
 
