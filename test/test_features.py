@@ -347,6 +347,8 @@ def test_resampling_places_cut_regions_at_the_inliers_centroid():
     assert len(cl) == 48                                     # every cell, one surface
     assert np.allclose(cl[:, 0] % 8, 1.0) and np.allclose(cl[:, 1] % 8, 3.5)
     assert np.allclose(cr, cl + [5, 0])
+    with pytest.raises(CanopyStereoError, match="anchor"):
+        resample(prop, anchor="middle")
     # the same strips beside a region matched with another displacement (an occlusion
     # edge) are refused; that full region is resampled at its cell centres
     a = (u % 16) < 3

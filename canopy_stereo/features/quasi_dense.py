@@ -767,7 +767,7 @@ def _map_point(model, use_h, x, y):
 
 @njit(cache=True)
 def _resample_kernel(match_map, cell, use_h, iters, tol, min_support, min_share, min_spread, seed,
-                     anchor_centroid, anchor_deep, thin_spread, conflict_pad, conflict_px):
+                     anchor_centroid, thin_spread, conflict_pad, conflict_px):
     """One match per cell of the left image from a local affine/homography RANSAC fit.
 
     Returns (K, 4) float64 rows (u_left, v_left, u_right, v_right) and (K,) inlier counts.
@@ -785,7 +785,6 @@ def _resample_kernel(match_map, cell, use_h, iters, tol, min_support, min_share,
     idx = np.empty(cell * cell, np.int64)
     best_idx = np.empty(cell * cell, np.int64)
     sample = np.empty(4, np.int64)
-    inl = np.zeros((cell, cell), np.bool_)
     k_min = 4 if use_h else 3
     state = np.uint64(seed)
     for cyi in range(ny):
@@ -907,30 +906,7 @@ def _resample_kernel(match_map, cell, use_h, iters, tol, min_support, min_share,
                     continue
             ax, ay = ccx, ccy
             if not surrounded:
-                if anchor_deep:
-                    # the inlier deepest inside the cell's inlier set (largest distance
-                    # to a cell pixel that is not an inlier), nearest the centroid on ties
-                    inl[:, :] = False
-                    for k in range(best):
-                        i = best_idx[k]
-                        inl[int(py[i]) - y0, int(px[i]) - x0] = True
-                    bd = -1.0
-                    for k in range(best):
-                        i = best_idx[k]
-                        iu, iv = int(px[i]) - x0, int(py[i]) - y0
-                        dmin = 1e9
-                        for vv in range(y1 - y0):
-                            for uu in range(x1 - x0):
-                                if not inl[vv, uu]:
-                                    dd = (uu - iu) ** 2 + (vv - iv) ** 2
-                                    if dd < dmin:
-                                        dmin = dd
-                        score = dmin - 1e-3 * ((px[i] - sx) ** 2 + (py[i] - sy) ** 2)
-                        if score > bd:
-                            bd = score
-                            ax, ay = px[i], py[i]
-                else:
-                    ax, ay = sx, sy                 # the inliers' centroid: inside their support
+                ax, ay = sx, sy                 # the inliers' centroid: inside their support
             mx, my = _map_point(model, use_h, ax, ay)
             if not (-0.5 <= mx < W - 0.5 and -0.5 <= my < H - 0.5):
                 continue
@@ -966,8 +942,7 @@ def resample(prop: Propagation, *, cell_px: int = DISTRIBUTION_CELL_PX, model: s
         anchor: where a region's match is placed: ``"centre"`` (Lhuillier & Quan: only
             regions whose inliers surround the centre emit a match), ``"centroid"``
             (the centre when surrounded, else the inliers' centroid, so regions cut by
-            a leaf edge still emit a match inside their support) or ``"deep"`` (the
-            inlier farthest from the region's other pixels).
+            a leaf edge still emit a match inside their support).
         thin_spread_px: inliers spread less than ``min_spread_px`` are still accepted
             down to this spread when no propagated match within ``conflict_pad_px`` of
             the region disagrees with its map by more than ``conflict_px`` (one
@@ -980,12 +955,14 @@ def resample(prop: Propagation, *, cell_px: int = DISTRIBUTION_CELL_PX, model: s
     """
     if model not in ("affine", "homography"):
         raise CanopyStereoError(f"unknown resampling model {model!r}; choose affine or homography")
+    if anchor not in ("centre", "centroid"):
+        raise CanopyStereoError(f"unknown resampling anchor {anchor!r}; choose centre or centroid")
     if cell_px < 2:
         raise CanopyStereoError(f"cell_px must be >= 2, got {cell_px}")
     mm = prop.match_map()
     rows, support = _resample_kernel(mm, int(cell_px), model == "homography", int(iters),
                                      float(tol_px), int(min_support), float(min_inlier_share),
-                                     float(min_spread_px), int(seed), anchor != "centre", anchor == "deep",
+                                     float(min_spread_px), int(seed), anchor == "centroid",
                                      float(min_spread_px if thin_spread_px is None else thin_spread_px),
                                      int(conflict_pad_px), float(conflict_px))
     return rows[:, :2].copy(), rows[:, 2:].copy(), support
