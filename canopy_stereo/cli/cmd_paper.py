@@ -19,7 +19,7 @@ clouds/*.ply. Progress goes to stderr. --quick is the reduced mode used by CI.""
 def add_arguments(p):
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
     p.add_argument("--quick", action="store_true",
-                   help="reduced mode: methods sift,asift,qdmatch and 15 of the 45 calibration placements")
+                   help="reduced mode: methods sift,asift,qdmatch and 9 of the 45 calibration placements")
     p.add_argument("--seed", type=int, default=0, help="seed of the rendered scenes (default 0)")
     p.add_argument("--methods", metavar="M1,M2,...",
                    help="feature methods of Tables 2-4 (default: all; --quick: sift,asift,qdmatch)")

@@ -86,8 +86,9 @@ FULL_METHODS = ("harris-affine", "hessian-affine", "sift", "asift", "surf", "orb
                 "qdmatch")
 QUICK_METHODS = ("sift", "asift", "qdmatch")
 
-#: Placements of the world-rig calibration: full = the paper's 45, quick = a subset.
-QUICK_PLACEMENTS = 15
+#: Placements of the world-rig calibration: full = the paper's 45, quick = 9 of them
+#: (three per line, spread along each line).
+QUICK_PLACEMENTS = 9
 
 #: Table number, paper table and shipped pair of the feature study.
 FEATURE_SCENES = (
@@ -212,7 +213,7 @@ def _run_world_rig(world_rig, sim_calibration, out: Path, quick: bool, seed: int
     progress.detail(f"rendering {len(placements)} of the paper's {total} chessboard placements "
                     "through the paper's rig (0.7 px blur, noise sigma 2)")
     pairs = sim_calibration.render_calibration_scene(rig, placements, blur_px=0.7, noise_sigma=2.0,
-                                                     seed=seed)
+                                                     seed=seed, progress=progress.detail)
     lefts = [a for a, _ in pairs]
     rights = [b for _, b in pairs]
     folder = out / "calibration_images"
@@ -221,7 +222,8 @@ def _run_world_rig(world_rig, sim_calibration, out: Path, quick: bool, seed: int
         cv2.imwrite(str(folder / f"left{k:02d}.png"), lefts[k])
         cv2.imwrite(str(folder / f"right{k:02d}.png"), rights[k])
     progress.detail("corners, Gold Standard calibration, leave-one-placement-out check")
-    cal = world_rig.calibrate_world_rig(lefts, rights, placements, pattern=(7, 5), square=50.0)
+    cal = world_rig.calibrate_world_rig(lefts, rights, placements, pattern=(7, 5), square=50.0,
+                                        progress=progress.detail)
     t1 = cal.table1
     table = {axis: (float(t1.mean_abs[i]), float(t1.std[i])) for i, axis in enumerate("XYZ")}
     fig = out / "figures" / "fig05_calibration_errors.png"
@@ -492,8 +494,8 @@ def run_paper(out_dir, *, quick: bool = False, seed: int = 0, methods=None,
 
     Args:
         out_dir: output folder (created; files in it are overwritten).
-        quick: reduced mode for CI: methods :data:`QUICK_METHODS`, fewer calibration
-            placements, no citrus figure in the reconstruction.
+        quick: reduced mode for CI: methods :data:`QUICK_METHODS` and
+            :data:`QUICK_PLACEMENTS` calibration placements.
         seed: seed of the rendered scenes (croton, citrus branch, calibration noise).
         methods: feature methods of Tables 2-4 (default :data:`FULL_METHODS`, or
             :data:`QUICK_METHODS` when ``quick``).
