@@ -11,6 +11,14 @@ Writes into ``DIR`` (one frame), or into ``DIR/frame_0000``, ``DIR/frame_0001``,
   chords, area, pose, visible pixels) -- see :mod:`canopy_stereo.sim`;
 
 and ``DIR/rig.yaml``, a copy of the rig file used (default ``config/paper_rig.yaml``).
+
+``canopy-stereo simulate calibration -o DIR`` renders the paper's world-rig
+calibration instead (the chessboard at each of the 45 places of the paper's
+layout, on the floor sheet, 0.7 px blur, noise sigma 2 grey levels; or the
+places of ``--placements FILE``): ``DIR/left_NN.png``, ``DIR/right_NN.png``,
+``DIR/placements.yaml`` and ``DIR/rig.yaml`` (the true rig), ready for
+``canopy-stereo calibrate --world-rig DIR/placements.yaml "DIR/left_*.png"
+"DIR/right_*.png" -o rig.yaml``.
 """
 from __future__ import annotations
 
@@ -32,7 +40,8 @@ DESCRIPTION = __doc__.split("\n\n", 1)[1].strip()
 def add_arguments(parser) -> None:
     # scene names are checked by canopy_stereo.sim.build_scene (not imported here: it loads numba)
     parser.add_argument("scene", metavar="SCENE",
-                        help="scene name: croton, citrus_branch or seedling_tray")
+                        help="scene name: croton, citrus_branch or seedling_tray; or calibration "
+                             "(the paper's world-rig calibration images + placements)")
     parser.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
     parser.add_argument("--rig", metavar="RIG.yaml", default=None,
                         help="rig file (default: config/paper_rig.yaml, the paper's rig)")
@@ -55,6 +64,15 @@ def add_arguments(parser) -> None:
                       help="with --views: the rig circles the plant, looking down on it")
     parser.add_argument("--elevation", type=float, default=None, metavar="DEG",
                         help="with --orbit: how far the rig looks down (default 20 degrees)")
+    cal = parser.add_argument_group("calibration scene")
+    cal.add_argument("--placements", metavar="PLACEMENTS.yaml", default=None,
+                     help="board placements to render (default: the paper's layout in front of the rig)")
+    cal.add_argument("--blur", type=float, default=0.7, metavar="PX",
+                     help="Gaussian optical blur, sigma in pixels (default 0.7)")
+    cal.add_argument("--noise", type=float, default=2.0, metavar="DN",
+                     help="sensor noise sigma in grey levels (default 2; --clean: 0)")
+    cal.add_argument("--samples", type=int, default=16, metavar="N",
+                     help="anti-aliasing rays per pixel, lattice pattern (default 16)")
 
 
 def _json_default(obj):
@@ -90,6 +108,8 @@ def run(args) -> int:
     out = Path(args.output)
     if out.exists() and not out.is_dir():
         raise CanopyStereoError(f"output {out} exists and is not a folder")
+    if args.scene == "calibration":
+        return _run_calibration(args, rig, rig_path, out)
     out.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(rig_path, out / "rig.yaml")
     effects = CLEAN if args.clean else None
@@ -128,4 +148,49 @@ def _run_views(args, rig, out: Path, effects) -> int:
               f"{seen} leaf pixels in the left view")
     print(f"true poses: {out / 'poses_true.yaml'} (fuse with: canopy-stereo fuse {out}/view_* -o fused.ply "
           f"[--poses {out / 'poses_true.yaml'}])")
+    return 0
+
+
+def _run_calibration(args, rig, rig_path: Path, out: Path) -> int:
+    """``simulate calibration``: the paper's world-rig calibration images and placements."""
+    from canopy_stereo.geometry.world_rig import load_placements, write_placements
+    from canopy_stereo.sim.calibration import calibration_placements, render_calibration_scene
+
+    if args.views != 1 or args.mode is not None or args.frames != 1:
+        raise CanopyStereoError("the calibration scene has no --views, --turntable/--orbit or --frames")
+    if not args.blur >= 0:
+        raise CanopyStereoError(f"--blur must be >= 0, got {args.blur}")
+    if not args.noise >= 0:
+        raise CanopyStereoError(f"--noise must be >= 0, got {args.noise}")
+    if not 1 <= args.samples <= 256:
+        raise CanopyStereoError(f"--samples must be 1..256, got {args.samples}")
+    if args.placements:
+        placements = load_placements(args.placements)
+        if placements.unit != rig.world_unit:
+            raise CanopyStereoError(f"{args.placements} is in {placements.unit} but the rig in {rig.world_unit}")
+        if placements.pairs != list(range(len(placements))):
+            raise CanopyStereoError(f"{args.placements}: pairs must be numbered 0..{len(placements) - 1}")
+    else:
+        placements = calibration_placements(rig)
+    out.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(rig_path, out / "rig.yaml")
+    noise = 0.0 if args.clean else args.noise
+
+    def progress(msg):
+        print(msg, flush=True)
+
+    pairs = render_calibration_scene(rig, placements, blur_px=args.blur, noise_sigma=noise, seed=args.seed,
+                                     samples=args.samples, progress=progress)
+    digits = max(2, len(str(len(pairs) - 1)))
+    for p, (left, right) in zip(placements, pairs):
+        write_image(out / f"left_{p.pair:0{digits}d}.png", left)
+        write_image(out / f"right_{p.pair:0{digits}d}.png", right)
+    write_placements(placements, out / "placements.yaml", comment=(
+        "Placements of the rendered calibration boards (canopy-stereo simulate calibration);\n"
+        f"world frame and unit of {rig_path.name}."))
+    print(f"{out}: {len(pairs)} calibration pairs (blur {args.blur:g} px, noise {noise:g} DN) + "
+          "placements.yaml + rig.yaml (the true rig)")
+    print(f"calibrate with: canopy-stereo calibrate --world-rig {out / 'placements.yaml'} "
+          f"\"{out}/left_*.png\" \"{out}/right_*.png\" --pattern {placements.pattern[0]}x{placements.pattern[1]} "
+          f"--square {placements.square:g} -o rig.yaml --plot err.png")
     return 0

@@ -82,33 +82,52 @@ def reprojection_errors(P, X, x) -> np.ndarray:
     return np.linalg.norm(project(P, X) - np.asarray(x, np.float64), axis=1)
 
 
-def gold_standard_projection(X, x, max_iterations: int = 200) -> tuple[np.ndarray, float]:
+def gold_standard_projection(X, x, max_iterations: int = 200, *,
+                             initial=None) -> tuple[np.ndarray, float]:
     """Gold Standard estimate of ``P`` (H&Z alg. 7.1).
 
     Normalised DLT, then Levenberg-Marquardt (``scipy.optimize.least_squares``,
-    ``method="lm"``) over the 12 entries of the normalised ``P`` minimising the
-    pixel reprojection error.
+    ``method="lm"``, analytic Jacobian) over the 12 entries of the normalised
+    ``P`` minimising the pixel reprojection error.
+
+    Args:
+        X: (N, 3) world points (world units); x: (N, 2) their pixels.
+        initial: optional (3, 4) starting ``P`` instead of the DLT estimate (e.g.
+            the camera of a nearby data set, to save the DLT).
 
     Returns:
         ``(P, rms)``: (3, 4) matrix scaled by :func:`normalize_projection` and the
         RMS reprojection error in pixels.
     """
     X, x = _check_correspondences(X, x)
-    P0 = dlt_projection(X, x)
+    P0 = dlt_projection(X, x) if initial is None else np.asarray(initial, np.float64).reshape(3, 4)
     T = _normalising_transform(x)
     U = _normalising_transform(X)
     Xn = (U @ np.column_stack([X, np.ones(len(X))]).T).T
     Pn0 = T @ P0 @ np.linalg.inv(U)
     Pn0 /= np.linalg.norm(Pn0)
     Tinv = np.linalg.inv(T)
+    n = len(X)
 
     def residuals(p):
         Pn = p.reshape(3, 4)
         xh = Xn @ (Tinv @ Pn).T
         return (xh[:, :2] / xh[:, 2:3] - x).ravel()
 
-    res = least_squares(residuals, Pn0.ravel(), method="lm", max_nfev=max_iterations * 13,
-                        xtol=1e-12, ftol=1e-12)
+    def jacobian(p):
+        # pixel = (Tinv[r] . q) / q_2 with q = Pn Xn (Tinv's last row is (0, 0, 1))
+        q = Xn @ p.reshape(3, 4).T                                 # (N, 3)
+        J = np.empty((n, 2, 3, 4))
+        for r in range(2):
+            a = Tinv[r]
+            num = q @ a
+            dq = a[None, :] / q[:, 2:3]                            # d pixel / d q
+            dq[:, 2] -= num / q[:, 2] ** 2
+            J[:, r] = dq[:, :, None] * Xn[:, None, :]
+        return J.reshape(2 * n, 12)
+
+    res = least_squares(residuals, Pn0.ravel(), jac=jacobian, method="lm",
+                        max_nfev=max_iterations * 13, xtol=1e-12, ftol=1e-12)
     P = Tinv @ res.x.reshape(3, 4) @ U
     P = normalize_projection(P)
     rms = float(np.sqrt(np.mean(reprojection_errors(P, X, x) ** 2)))

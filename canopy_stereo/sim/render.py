@@ -70,7 +70,7 @@ def _trace(scene: Scene, P, D5, size, offsets, weights, tile_size: int) -> ViewR
 
 
 def render_view(scene: Scene, P, D, image_size, supersample: int = 2,
-                tile_size: int = TILE_SIZE) -> ViewRender:
+                tile_size: int = TILE_SIZE, *, samples=None) -> ViewRender:
     """Ray-cast one view of ``scene`` through the camera ``P`` (3, 4) with
     distortion ``D`` (None or OpenCV ``[k1, k2, p1, p2, k3]``).
 
@@ -79,10 +79,18 @@ def render_view(scene: Scene, P, D, image_size, supersample: int = 2,
     distortion, ``distort_pixels(P, D, project(P, X))`` is the pixel centre.
     ``supersample`` 2 (quincunx) traces the pixel centres and, once, the grid of
     pixel corners that neighbouring pixels share: 5 samples per pixel for 2 rays.
+    ``samples``: an explicit ``(offsets (S, 2), weights (S,))`` pattern instead
+    (sample 0 the pixel centre), e.g. :func:`~canopy_stereo.sim.sensor.lattice_pattern`.
     """
     P = validate_projection(P)
     w, h = (int(v) for v in image_size)
     D5 = check_distortion(D, "D")
+    if samples is not None:
+        offsets, weights = (np.asarray(a, np.float64) for a in samples)
+        if offsets.ndim != 2 or offsets.shape[1] != 2 or weights.shape != (len(offsets),) \
+                or np.any(offsets[0] != 0):
+            raise CanopyStereoError("samples must be (offsets (S, 2) with offsets[0] = (0, 0), weights (S,))")
+        return _trace(scene, P, D5, (w, h), offsets, weights, tile_size)
     offsets, weights = sample_pattern(supersample)
     if supersample != 2:
         return _trace(scene, P, D5, (w, h), offsets, weights, tile_size)

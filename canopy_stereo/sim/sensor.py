@@ -51,6 +51,29 @@ def sample_pattern(supersample: int) -> tuple[np.ndarray, np.ndarray]:
     return offsets, weights
 
 
+def lattice_pattern(count: int = 16, generator: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """Rank-1 lattice sample pattern: offsets (count + 1, 2) in pixels and weights.
+
+    Sample ``k`` of ``count`` sits at ``((k + 1/2) / count, ((generator k) mod count + 1/2) / count)
+    - 1/2``: every sample has its own column AND its own row, so a nearly
+    horizontal or vertical edge (a chessboard's) is resolved in ``count`` steps
+    instead of ``sqrt(count)`` for an ``n x n`` grid with as many rays.
+    ``generator`` must be coprime with ``count``. Sample 0 is the pixel centre
+    with weight 0 (traced for the ground truth only), as in :func:`sample_pattern`.
+    """
+    import math
+
+    n = int(count)
+    if n < 2 or math.gcd(int(generator), n) != 1:
+        raise CanopyStereoError(f"lattice_pattern needs count >= 2 and a generator coprime with it, "
+                                f"got {count}, {generator}")
+    k = np.arange(n)
+    grid = np.column_stack([(k + 0.5) / n - 0.5, ((int(generator) * k) % n + 0.5) / n - 0.5])
+    offsets = np.vstack([np.zeros((1, 2)), grid])
+    weights = np.concatenate([[0.0], np.full(n, 1.0 / n)])
+    return offsets, weights
+
+
 def check_distortion(D, name: str) -> np.ndarray | None:
     """The 5 coefficients ``[k1, k2, p1, p2, k3]`` of ``D``, or None when all zero.
 

@@ -33,12 +33,15 @@ MAT_BACKDROP = 7
 MAT_FOLIAGE = 8
 MAT_TRAY = 9
 MAT_FRUIT = 10
+MAT_CHECKERBOARD = 11
+MAT_SHEET = 12
 
 #: Material name -> kind code.
 MATERIAL_KINDS = {
     "croton": MAT_CROTON, "citrus": MAT_CITRUS, "seedling": MAT_SEEDLING, "stem": MAT_STEM,
     "bark": MAT_BARK, "pot": MAT_POT, "soil": MAT_SOIL, "backdrop": MAT_BACKDROP,
     "foliage": MAT_FOLIAGE, "tray": MAT_TRAY, "fruit": MAT_FRUIT,
+    "checkerboard": MAT_CHECKERBOARD, "sheet": MAT_SHEET,
 }
 
 #: Number of float parameters a material carries.
@@ -61,6 +64,9 @@ MATERIAL_PARAMS = {
     "tray": ("cell pitch (mm)", "wall half thickness (mm)",
              "grain size of the soil in the cells (mm)"),
     "fruit": (),
+    "checkerboard": ("square side (mm)", "squares across", "squares down"),
+    "sheet": ("grid spacing (mm)", "grid line width (mm)", "origin u (mm)", "origin v (mm)",
+              "angle of the side lines (degrees)", "line width of the three lines (mm)"),
 }
 
 
@@ -273,6 +279,34 @@ def albedo(kind, seed, params, tu, tv, geom, rel, mm_per_unit):
         r, g, b = _soil(tu, tv, grain, seed)
         plastic = 0.025 * (0.7 + 0.6 * value_noise(tu / 1.5, tv / 1.5, seed + 21))
         return _mix(r, plastic, is_wall), _mix(g, plastic, is_wall), _mix(b, plastic * 1.1, is_wall)
+    if kind == MAT_CHECKERBOARD:
+        # squares of side params[0] mm, params[1] x params[2] of them centred on the
+        # plane's origin, the first one black; white margin around them
+        sq = params[0]
+        i = math.floor(tu / sq + 0.5 * params[1])
+        j = math.floor(tv / sq + 0.5 * params[2])
+        if i < 0 or j < 0 or i >= params[1] or j >= params[2] or (i + j) % 2 == 1:
+            return 0.80, 0.80, 0.78
+        return 0.035, 0.035, 0.035
+    if kind == MAT_SHEET:
+        # white A0 paper: a light grid every params[0] mm and three dark lines from
+        # the origin (params[2], params[3]) along +v and turned by +-params[4] degrees
+        grid = params[0]
+        half = 0.5 * params[1]
+        fu = tu / grid - math.floor(tu / grid)
+        fv = tv / grid - math.floor(tv / grid)
+        r = 0.78
+        if min(fu, 1.0 - fu) * grid < half or min(fv, 1.0 - fv) * grid < half:
+            r = 0.55
+        du = tu - params[2]
+        dv = tv - params[3]
+        for k in range(3):
+            a = math.radians(params[4]) * (k - 1)
+            along = du * math.sin(a) + dv * math.cos(a)
+            across = du * math.cos(a) - dv * math.sin(a)
+            if along >= 0.0 and abs(across) < 0.5 * params[5]:
+                r = 0.08
+        return r, r, 0.97 * r
     # fruit
     dimple = fbm(tu / 1.0, tv / 1.0, seed, 2)
     k = 0.8 + 0.4 * dimple
