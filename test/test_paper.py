@@ -180,6 +180,11 @@ def test_table1_is_reported_honestly(paper_run):
             m, s = cal["table1"][row["axis"]]
             assert float(row["mean absolute error (mm)"]) == pytest.approx(m, abs=6e-4)
         assert float(rows[0]["paper mean (mm)"]) == 0.42
+        # the rendered rig is recovered: errors of the paper's size, leave-one-out honest
+        assert cal["pairs_used"] == cal["placements"] == 9
+        assert max(cal["table1"]["X"][0], cal["table1"]["Y"][0]) < 1.0 and cal["table1"]["Z"][0] < 5.0
+        assert cal["rms_left_px"] < 0.2 and cal["rms_right_px"] < 0.2
+        assert "fig05_calibration_errors.png" in section
     else:
         assert "Not reproduced in this run" in section and cal["reason"] in section
 

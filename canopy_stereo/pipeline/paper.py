@@ -232,8 +232,9 @@ def _run_world_rig(world_rig, sim_calibration, out: Path, quick: bool, seed: int
     from canopy_stereo.pipeline.figures import panel_row
 
     mid = len(pairs) // 2
+    mark = placements[mid].label.split(":")[0] or f"placement {mid}"
     cv2.imwrite(str(sample), panel_row([lefts[mid], rights[mid]],
-                                       [f"rendered left, placement {mid}", "rendered right"]))
+                                       [f"rendered left, {mark}", "rendered right"]))
     centre_err = [float(np.linalg.norm(camera_centre(cal.rig.P_left) - camera_centre(rig.P_left))),
                   float(np.linalg.norm(camera_centre(cal.rig.P_right) - camera_centre(rig.P_right)))]
     return {"available": True, "placements": len(placements), "placements_paper": total,
