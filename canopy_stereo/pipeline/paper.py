@@ -629,7 +629,7 @@ def _feature_table_md(info: dict) -> list[str]:
                                    _f(v["t_s"]), _f(v["propagation_s"]), _f(v["resample_s"])])
                  + [_f(v["num"]), _f(v["distribution_pct"], 2, " %"),
                     _f(v["correct_pct"], 1, " %") if v["correct_pct"] is not None else "-"]
-                 + ([_f(v["leaf_cells_pct"], 1, " %")] if leaf else [])
+                 + ([("-" if empty else _f(v["leaf_cells_pct"], 1, " %"))] if leaf else [])
                  + [_f(p[7]) if p else "-", _f(p[8], 2, " %") if p else "-"])
         lines.append("| " + " | ".join(cells) + " |")
     return lines
