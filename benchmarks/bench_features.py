@@ -7,10 +7,15 @@ Prints:
    median of 3 runs after a warm-up: process CPU time of the whole call (robust on
    a shared machine) and wall-clock stage times. Target: < 1.5 s per pair.
 2. Distribution (share of 8x8-pixel cells with a match) on the plant scenes
-   (Aloe, Plants, croton), qdmatch vs SIFT. Target: qdmatch >= 28 %.
+   (Aloe, Plants, Flowerpots, croton, citrus branch), qdmatch before issue 18 (no
+   reseeding, Lhuillier & Quan's centre-only resampling), qdmatch now, SIFT and
+   ASIFT, with the share of *textured* cells reached (mean gradient magnitude above
+   3 grey levels per pixel: leaves, pots, edges; not walls) and the share correct
+   (ground truth where it exists, else the epipolar line). Target: qdmatch 27-31 %
+   (the paper's), >= 95 % correct.
 3. Correct matches (disparity within 1 px of the ground truth, rows within 1 px) on
-   every Middlebury GT scene in ../shared/data, qdmatch vs SIFT, and on croton
-   against the simulator's exact correspondences. Target: qdmatch >= 95 %.
+   every Middlebury GT scene in ../shared/data, qdmatch (before / now) vs SIFT, and on
+   croton against the simulator's exact correspondences. Target: qdmatch >= 95 %.
 4. Hartley rectification from qdmatch matches on the 13 raw chessboard pairs:
    median |v_left - v_right| of the rectified board corners (target <= 0.5 px),
    per pair and with the matches of all pairs pooled (one fixed rig), matches and
@@ -53,39 +58,52 @@ for _s in ("Adirondack", "ArtL", "Motorcycle", "Piano", "Playtable", "Recycle", 
                            "disp0GT.pfm", None)
 
 
-def croton():
-    """(left, right, true right pixel per left pixel (H, W, 2) NaN where unknown/occluded)."""
-    from canopy_stereo.geometry.camera import project
-    from canopy_stereo.sim import render_scene
+#: qdmatch as it was before issue 18: SIFT seeds only, Lhuillier & Quan's resampling
+#: (cell centre only when surrounded, every region spread >= 1.8 px).
+QDMATCH_BEFORE = dict(reseed_rounds=0, anchor="centre", min_spread_px=1.8, thin_spread_px=1.8)
 
-    sim = render_scene("croton")
-    h, w = sim.left.shape[:2]
-    X = sim.xyz_left.reshape(-1, 3)
-    ok = np.all(np.isfinite(X), axis=1)
-    xr = np.full((len(X), 2), np.nan)
-    xr[ok] = project(sim.rig.P_right, X[ok])
-    # visible in the right image: the right pixel sees the same world point
-    u = np.rint(xr[:, 0])
-    v = np.rint(xr[:, 1])
-    inside = ok & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    seen = np.full(len(X), False)
-    idx = np.nonzero(inside)[0]
-    Xr = sim.xyz_right[v[idx].astype(int), u[idx].astype(int)]
-    seen[idx] = np.linalg.norm(Xr - X[idx], axis=1) < 2.0           # mm
-    xr[~seen] = np.nan
-    return sim.left, sim.right, xr.reshape(h, w, 2)
+
+def rendered(scene="croton"):
+    """(left, right, true right pixel per left pixel (H, W, 2) NaN where unknown/occluded)."""
+    from canopy_stereo.sim import render_scene
+    from canopy_stereo.sim.correspondence import true_right_pixels
+
+    sim = render_scene(scene)
+    return sim.left, sim.right, true_right_pixels(sim)
+
+
+def croton():
+    return rendered("croton")
 
 
 def croton_correctness(res, truth):
-    h, w = truth.shape[:2]
-    u = np.clip(np.rint(res.x_left[:, 0]).astype(int), 0, w - 1)
-    v = np.clip(np.rint(res.x_left[:, 1]).astype(int), 0, h - 1)
-    t = truth[v, u]
-    known = np.all(np.isfinite(t), axis=1)
-    if not known.any():
-        return None, 0
-    err = np.abs(res.x_right[known] - t[known]).max(axis=1)
-    return float(np.mean(err <= 1.0)), int(known.sum())
+    from canopy_stereo.features.study import correspondence_correctness
+
+    return correspondence_correctness(res.x_left, res.x_right, truth)
+
+
+def textured_cells(gray, gradient_min=3.0, cell=8):
+    """(ny, nx) bool: cells whose mean gradient magnitude (Gaussian sigma 1 px) exceeds
+    ``gradient_min`` grey levels per pixel (leaves, pots, edges; not walls or table tops)."""
+    g = cv2.GaussianBlur(np.asarray(gray, np.float64), (0, 0), 1.0)
+    mag = np.hypot(cv2.Sobel(g, cv2.CV_64F, 1, 0, ksize=3), cv2.Sobel(g, cv2.CV_64F, 0, 1, ksize=3)) / 8
+    h, w = mag.shape
+    ny, nx = -(-h // cell), -(-w // cell)
+    pad = np.zeros((ny * cell, nx * cell))
+    pad[:h, :w] = mag
+    return pad.reshape(ny, cell, nx, cell).mean(axis=(1, 3)) > gradient_min
+
+
+def reached(x_left, cells, cell=8):
+    """Share of the ``cells`` (bool (ny, nx)) holding a match."""
+    if not cells.any():
+        return float("nan")
+    x = np.asarray(x_left, np.float64).reshape(-1, 2)
+    cx = np.clip(np.floor((x[:, 0] + 0.5) / cell).astype(int), 0, cells.shape[1] - 1)
+    cy = np.clip(np.floor((x[:, 1] + 0.5) / cell).astype(int), 0, cells.shape[0] - 1)
+    used = np.zeros_like(cells)
+    used[cy, cx] = True
+    return float((used & cells).sum() / cells.sum())
 
 
 def load_gt_scene(data: Path, name: str):
@@ -115,30 +133,54 @@ def bench_speed(pairs):
     cv2.setNumThreads(-1)
 
 
-def bench_spread(plant_pairs):
-    print("2. distribution on plant scenes (target qdmatch >= 28 %)")
-    for name, (left, right) in plant_pairs.items():
-        s = match_pair(left, right, "sift")
-        q = match_pair(left, right, "qdmatch")
-        print(f"   {name:<12} sift {100 * s.distribution:5.1f} % ({s.num} matches)   "
-              f"qdmatch {100 * q.distribution:5.1f} % ({q.num} matches)")
+def bench_spread(plant_pairs, asift=True):
+    """plant_pairs: name -> (left, right, truth kind, truth) with kind "disp", "pixels" or None."""
+    from canopy_stereo.features.study import correspondence_correctness, epipolar_correctness
+    from canopy_stereo.io.images import to_gray
+
+    print("2. distribution on plant scenes: cells with a match % (textured cells reached %, "
+          "correct %) [matches]; target qdmatch 27-31 % (paper), >= 95 % correct")
+    variants = [("sift", "sift", {}), ("qdmatch before", "qdmatch", QDMATCH_BEFORE),
+                ("qdmatch", "qdmatch", {})] + ([("asift", "asift", {})] if asift else [])
+    for name, (left, right, kind, truth) in plant_pairs.items():
+        cells = textured_cells(to_gray(left))
+        results = [(label, match_pair(left, right, m, min_matches=0, **kw)) for label, m, kw in variants]
+        if kind is None:
+            shares, _ = epipolar_correctness([r for _, r in results])
+        parts = []
+        for k, (label, r) in enumerate(results):
+            if kind == "disp":
+                c, _ = gt_correctness(r.x_left, r.x_right, truth)
+            elif kind == "pixels":
+                c, _ = correspondence_correctness(r.x_left, r.x_right, truth)
+            else:
+                c = shares[k]
+            cs = "-" if c is None else f"{100 * c:.1f}"
+            parts.append(f"{label} {100 * r.distribution:5.1f} % ({100 * reached(r.x_left, cells):4.1f}, "
+                         f"{cs}) [{r.num}]")
+        basis = {"disp": "GT", "pixels": "exact", None: "epipolar"}[kind]
+        print(f"   {name:<12} ({basis:>8}, textured cells {100 * cells.mean():4.1f} %): " + "   ".join(parts))
 
 
 def bench_correctness(data: Path, croton_pair):
     print("3. correct matches (|d - d_gt| <= 1 px and |dv| <= 1 px; target qdmatch >= 95 %)")
-    shares = []
+    shares, before_shares = [], []
     for name in GT_SCENES:
         left, right, gt = load_gt_scene(data, name)
         s = match_pair(left, right, "sift")
         q = match_pair(left, right, "qdmatch")
+        b = match_pair(left, right, "qdmatch", min_matches=0, **QDMATCH_BEFORE)
         cs, _ = gt_correctness(s.x_left, s.x_right, gt)
         cq, n = gt_correctness(q.x_left, q.x_right, gt)
+        cb, _ = gt_correctness(b.x_left, b.x_right, gt)
         shares.append(cq)
+        before_shares.append(cb)
         print(f"   {name:<12} sift {100 * cs:5.1f} % of {s.num:4d}   qdmatch {100 * cq:5.1f} % of "
-              f"{n:4d} with GT (distribution {100 * q.distribution:4.1f} %)")
-    print(f"   Middlebury mean {100 * np.mean(shares):.1f} %, median {100 * np.median(shares):.1f} %, "
-          f"min {100 * np.min(shares):.1f} %, scenes >= 95 %: {sum(c >= 0.95 for c in shares)}"
-          f"/{len(shares)}")
+              f"{n:4d} with GT (distribution {100 * q.distribution:4.1f} %; before issue 18: "
+              f"{100 * cb:5.1f} % at {100 * b.distribution:4.1f} %)")
+    for label, sh in (("now", shares), ("before issue 18", before_shares)):
+        print(f"   Middlebury ({label}) mean {100 * np.mean(sh):.1f} %, median {100 * np.median(sh):.1f} %, "
+              f"min {100 * np.min(sh):.1f} %, scenes >= 95 %: {sum(c >= 0.95 for c in sh)}/{len(sh)}")
     left, right, truth = croton_pair
     for m in ("sift", "qdmatch"):
         res = match_pair(left, right, m)
@@ -202,6 +244,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
     ap.add_argument("--study", action="store_true", help="also print the full study tables")
+    ap.add_argument("--no-asift", action="store_true", help="leave ASIFT out of the spread table")
     args = ap.parse_args(argv)
     data = args.data
     if not data.is_dir():
@@ -212,15 +255,20 @@ def main(argv=None) -> int:
              read_image(data / "opencv_stereo_calib_chessboard/right01.jpg"))
     plants = (read_image(data / "middlebury_MiddEval3_testQ/Plants/im0.png"),
               read_image(data / "middlebury_MiddEval3_testQ/Plants/im1.png"))
-    aloe = load_gt_scene(data, "Aloe")[:2]
+    aloe = load_gt_scene(data, "Aloe")
+    flower = load_gt_scene(data, "Flowerpots")
+    citrus = rendered("citrus_branch")
     bench_speed({"croton": crot[:2], "chessboard01": chess, "Plants": plants})
-    bench_spread({"Aloe": aloe, "Plants": plants, "croton": crot[:2]})
+    bench_spread({"Aloe": (*aloe[:2], "disp", aloe[2]), "Plants": (*plants, None, None),
+                  "Flowerpots": (*flower[:2], "disp", flower[2]),
+                  "croton": (*crot[:2], "pixels", crot[2]),
+                  "citrus": (*citrus[:2], "pixels", citrus[2])}, asift=not args.no_asift)
     bench_correctness(data, crot)
     bench_hartley(data)
     if args.study:
         print("5. study tables")
-        aloe_gt = load_gt_scene(data, "Aloe")[2]
-        for name, (left, right), gt in (("Aloe", aloe, aloe_gt), ("Plants", plants, None),
+        aloe_gt = aloe[2]
+        for name, (left, right), gt in (("Aloe", aloe[:2], aloe_gt), ("Plants", plants, None),
                                         ("croton", crot[:2], None)):
             print(f"--- {name}")
             print(format_table(run_study(left, right, gt_disparity=gt)))

@@ -269,3 +269,97 @@ def test_unavailable_methods_say_why_and_are_not_faked(slanted_pair):
         assert rows[0].result.num == 0 and "patented" in rows[0].result.note
     assert set(METHODS) >= {"sift", "asift", "orb", "akaze", "kaze", "surf", "harris-affine",
                             "hessian-affine", "qdmatch"}
+
+
+# ----------------------------------------------------------------------------- quasi-dense spread
+
+
+def _split_pair(slanted_pair, band=(100, 140)):
+    """The slanted pair with a flat vertical band cut through both images: two textured
+    halves that propagation cannot cross."""
+    left, right, d = slanted_pair
+    left, right = left.copy(), right.copy()
+    left[:, band[0]:band[1]] = 128
+    right[:, band[0] - 20:band[1] - 5] = 128
+    return left, right, d
+
+
+def test_reseeding_reaches_a_textured_region_without_seeds(slanted_pair):
+    left, right, d = _split_pair(slanted_pair)
+    seeds = sift_seeds(left, right)
+    only_left_half = seeds["x_left"][:, 0] < 90
+    assert only_left_half.sum() >= 8 and (~only_left_half).sum() > 0
+    sl, sr = seeds["x_left"][only_left_half], seeds["x_right"][only_left_half]
+    plain = propagate(left, right, sl, sr, F=seeds["F"], reseed_rounds=0)
+    grown = propagate(left, right, sl, sr, F=seeds["F"])
+    # without reseeding nothing crosses the flat band
+    assert np.sum(plain.x_left[:, 0] > 150) == 0
+    right_half = grown.x_left[:, 0] > 150
+    assert right_half.sum() > 0.5 * 60 * 150                 # most of the far half's pixels
+    assert grown.params["num_reseeded"] > 0
+    share, _ = gt_correctness(grown.x_left[right_half], grown.x_right[right_half], d)
+    assert share > 0.95
+    # still one match per pixel in each image, seeds (of every pass) first, parents first
+    assert len(np.unique(grown.x_left, axis=0)) == len(grown)
+    assert len(np.unique(grown.x_right, axis=0)) == len(grown)
+    assert np.all(grown.parent[:grown.num_seeds] == -1)
+    child = np.arange(grown.num_seeds, len(grown))
+    assert np.all((grown.parent[child] >= 0) & (grown.parent[child] < child))
+
+
+def test_epipolar_seeds_are_distinct_and_left_right_consistent(slanted_pair):
+    from canopy_stereo.features.quasi_dense import epipolar_seeds
+
+    left, right, d = slanted_pair
+    F = np.array([[0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])      # rectified pair: v' = v
+    vv, uu = np.mgrid[20:160:10, 30:220:10]
+    cand = np.column_stack([uu.ravel(), vv.ravel()])
+    found = epipolar_seeds(left, right, F, cand, (-30, 0, -2, 2))
+    assert len(found) > 0.8 * len(cand)
+    share, _ = gt_correctness(found[:, :2], found[:, 2:4], d)
+    assert share > 0.98
+    assert np.all(found[:, 4] >= 0.9)
+    # a flat image gives nothing, and a box that excludes the truth gives nothing right
+    flat = np.full_like(left, 90)
+    assert len(epipolar_seeds(flat, flat, F, cand, (-30, 0, -2, 2))) == 0
+    wrong = epipolar_seeds(left, right, F, cand, (5, 30, -2, 2))
+    assert len(wrong) < 0.05 * len(cand)
+    with pytest.raises(CanopyStereoError):
+        epipolar_seeds(left, right, F, cand, (-30, 0, -2, 2), half_window=0)
+
+
+def test_resampling_places_cut_regions_at_the_inliers_centroid():
+    from canopy_stereo.features.quasi_dense import Propagation
+
+    # matches only on the left 3 columns of each 8x8 cell (a region cut by an edge)
+    u, v = np.meshgrid(np.arange(64), np.arange(48))
+    keep = (u % 8) < 3
+    xl = np.column_stack([u[keep], v[keep]]).astype(np.int32)
+    xr = xl.copy()
+    xr[:, 0] += 5
+    prop = Propagation(xl, xr, np.ones(len(xl), np.float32), np.full(len(xl), -1), len(xl),
+                       (64, 48), {})
+    cl, cr, _ = resample(prop, anchor="centre")
+    assert len(cl) == 0                                      # centre not surrounded
+    cl, cr, _ = resample(prop, anchor="centroid")
+    assert len(cl) == 0                                      # thin: refused by default
+    cl, cr, support = resample(prop, anchor="centroid", thin_spread_px=0.0)
+    assert len(cl) == 48                                     # every cell, one surface
+    assert np.allclose(cl[:, 0] % 8, 1.0) and np.allclose(cl[:, 1] % 8, 3.5)
+    assert np.allclose(cr, cl + [5, 0])
+    with pytest.raises(CanopyStereoError, match="anchor"):
+        resample(prop, anchor="middle")
+    # the same strips beside a region matched with another displacement (an occlusion
+    # edge) are refused; that full region is resampled at its cell centres
+    a = (u % 16) < 3
+    b = (u % 16) >= 8
+    xl2 = np.column_stack([np.r_[u[a], u[b]], np.r_[v[a], v[b]]]).astype(np.int32)
+    xr2 = xl2.copy()
+    xr2[:len(u[a]), 0] += 5
+    xr2[len(u[a]):, 0] -= 3
+    prop2 = Propagation(xl2, xr2, np.ones(len(xl2), np.float32), np.full(len(xl2), -1),
+                        len(xl2), (64, 48), {})
+    cl2, cr2, _ = resample(prop2, anchor="centroid", thin_spread_px=0.0)
+    cells = np.floor(cl2[:, 0] / 8).astype(int)
+    assert len(cl2) > 0 and np.all(cells % 2 == 1)
+    assert np.allclose(cl2 % 8, 3.5) and np.allclose(cr2, cl2 - [3, 0])

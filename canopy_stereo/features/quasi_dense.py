@@ -13,12 +13,18 @@
    F is known, ``u'`` within ``epipolar_band_px`` of the epipolar line of ``u``.
    Candidates are accepted best first when neither ``u`` nor ``u'`` is matched yet
    (uniqueness in both images) and are pushed on the queue in turn.
+2b. **Reseeding**: a region without a SIFT seed of its own (a leaf separated from its
+   neighbours by background) is never reached by growth alone. With F, textured left
+   pixels far from every match are matched by a ZNCC search along their epipolar
+   line within the displacements seen so far (a distinct peak, left-right
+   consistent) and grow in a further pass; up to ``reseed_rounds`` passes.
 3. **Resampling**: the left image is cut into ``cell_px`` x ``cell_px`` regions; a
    local affine map (or homography) is fitted by RANSAC to the propagated matches
    of each region, and a region whose fit explains at least ``min_inlier_share``
-   of its matches, whose inliers surround the centre (all four quadrants) and
-   spread over an area (not a single edge: those are mostly occlusion boundaries)
-   emits one match: its centre and the centre's image under the map. A final robust
+   of its matches and whose inliers spread over an area (a thin line of matches
+   is accepted only where no match nearby disagrees with the fit: one surface, not
+   an occlusion edge) emits one match: its centre (when the inliers surround it)
+   or the inliers' centroid, and that point's image under the map. A final robust
    F over the resampled matches removes the inconsistent ones.
 
 The propagation and the resampling are numba kernels (single thread: the
@@ -198,12 +204,14 @@ def _heap_pop(keys, vals, size):
 
 @njit(cache=True)
 def _propagate_kernel(L, R, mean_l, inv_l, tex_l, mean_r, inv_r, tex_r, seeds, hw, radius, eps,
-                      zncc_min, texture_min, F, band):
+                      zncc_min, texture_min, F, band, used_l, used_r):
     """Best-first match propagation; see :func:`propagate`.
 
     seeds: (S, 4) int64 rows (xl, yl, xr, yr) in decreasing ZNCC order; ``band`` <= 0
-    disables the epipolar check with ``F``. Returns the match list arrays
-    (xl, yl, xr, yr, zncc, parent), seeds first, truncated to the number of matches.
+    disables the epipolar check with ``F``. ``used_l``/``used_r``: (H, W) bool maps of
+    the pixels already matched (by an earlier pass), updated in place. Returns the
+    match list arrays (xl, yl, xr, yr, zncc, parent) of this pass, seeds first,
+    truncated to the number of matches.
     """
     H, W = L.shape
     cap = seeds.shape[0] + H * W
@@ -213,8 +221,6 @@ def _propagate_kernel(L, R, mean_l, inv_l, tex_l, mean_r, inv_r, tex_r, seeds, h
     myr = np.empty(cap, np.int32)
     mz = np.empty(cap, np.float32)
     mparent = np.empty(cap, np.int64)
-    used_l = np.zeros((H, W), np.bool_)
-    used_r = np.zeros((H, W), np.bool_)
     hkeys = np.empty(cap, np.float64)
     hvals = np.empty(cap, np.int64)
     hsize = 0
@@ -324,6 +330,152 @@ def _propagate_kernel(L, R, mean_l, inv_l, tex_l, mean_r, inv_r, tex_r, seeds, h
             mz[:count].copy(), mparent[:count].copy())
 
 
+@njit(cache=True)
+def _search_line(A, B, mean_a, inv_a, mean_b, inv_b, x, y, l0, l1, l2, dx_lo, dx_hi, dy_lo, dy_hi,
+                 hw, zs, xs, ys):
+    """ZNCC of A's window at (x, y) against every integer pixel of B on the line
+    ``l0 u + l1 v + l2 = 0`` whose displacement from (x, y) is within the ranges.
+
+    Fills ``zs``/``xs``/``ys`` (candidates in order along the line) and returns
+    their number.
+    """
+    H, W = A.shape
+    n = 0
+    if abs(l1) >= abs(l0):                      # mostly horizontal: step along u
+        for xb in range(x + dx_lo, x + dx_hi + 1):
+            yb = int(np.floor(-(l0 * xb + l2) / l1 + 0.5))
+            if yb - y < dy_lo or yb - y > dy_hi:
+                continue
+            if not (hw <= xb < W - hw and hw <= yb < H - hw):
+                continue
+            zs[n] = _zncc(A, B, x, y, xb, yb, hw, mean_a, inv_a, mean_b, inv_b)
+            xs[n] = xb
+            ys[n] = yb
+            n += 1
+    else:                                       # mostly vertical: step along v
+        for yb in range(y + dy_lo, y + dy_hi + 1):
+            xb = int(np.floor(-(l1 * yb + l2) / l0 + 0.5))
+            if xb - x < dx_lo or xb - x > dx_hi:
+                continue
+            if not (hw <= xb < W - hw and hw <= yb < H - hw):
+                continue
+            zs[n] = _zncc(A, B, x, y, xb, yb, hw, mean_a, inv_a, mean_b, inv_b)
+            xs[n] = xb
+            ys[n] = yb
+            n += 1
+    return n
+
+
+@njit(cache=True)
+def _distinct_best(zs, n, exclude):
+    """Index of the best of ``zs[:n]`` and the best value more than ``exclude``
+    candidates away from it (the runner-up peak; -1 when there is none)."""
+    best = -1
+    for k in range(n):
+        if best < 0 or zs[k] > zs[best]:
+            best = k
+    second = -1.0
+    for k in range(n):
+        if abs(k - best) > exclude and zs[k] > second:
+            second = zs[k]
+    return best, second
+
+
+@njit(cache=True)
+def _epipolar_seed_kernel(L, R, mean_l, inv_l, mean_r, inv_r, cand, F, dx_lo, dx_hi, dy_lo,
+                          dy_hi, hw, zncc_min, margin, used_r):
+    """Seeds for regions the propagation did not reach: for each candidate left pixel,
+    the best ZNCC along its epipolar line within the displacement ranges, kept when it
+    reaches ``zncc_min``, beats every other peak on the line by ``margin`` and the
+    search back from the right pixel along its own epipolar line returns to within
+    1 px of the left pixel. Returns (K, 5) float64 rows (xl, yl, xr, yr, zncc).
+    """
+    n_c = cand.shape[0]
+    span = max(dx_hi - dx_lo, dy_hi - dy_lo) + 1
+    zs = np.empty(span)
+    xs = np.empty(span, np.int64)
+    ys = np.empty(span, np.int64)
+    out = np.empty((n_c, 5))
+    k_out = 0
+    for c in range(n_c):
+        x, y = cand[c, 0], cand[c, 1]
+        l0 = F[0, 0] * x + F[0, 1] * y + F[0, 2]
+        l1 = F[1, 0] * x + F[1, 1] * y + F[1, 2]
+        l2 = F[2, 0] * x + F[2, 1] * y + F[2, 2]
+        if abs(l0) + abs(l1) < 1e-12:
+            continue
+        n = _search_line(L, R, mean_l, inv_l, mean_r, inv_r, x, y, l0, l1, l2, dx_lo, dx_hi,
+                         dy_lo, dy_hi, hw, zs, xs, ys)
+        if n == 0:
+            continue
+        b, second = _distinct_best(zs, n, 2)
+        zb = zs[b]
+        if zb < zncc_min or zb - second < margin:
+            continue
+        xb, yb = xs[b], ys[b]
+        if used_r[yb, xb]:
+            continue
+        # back from the right pixel along its epipolar line in the left image
+        m0 = F[0, 0] * xb + F[1, 0] * yb + F[2, 0]
+        m1 = F[0, 1] * xb + F[1, 1] * yb + F[2, 1]
+        m2 = F[0, 2] * xb + F[1, 2] * yb + F[2, 2]
+        if abs(m0) + abs(m1) < 1e-12:
+            continue
+        n = _search_line(R, L, mean_r, inv_r, mean_l, inv_l, xb, yb, m0, m1, m2, -dx_hi, -dx_lo,
+                         -dy_hi, -dy_lo, hw, zs, xs, ys)
+        if n == 0:
+            continue
+        b2, _ = _distinct_best(zs, n, 2)
+        if abs(xs[b2] - x) > 1 or abs(ys[b2] - y) > 1:
+            continue
+        out[k_out, 0] = x
+        out[k_out, 1] = y
+        out[k_out, 2] = xb
+        out[k_out, 3] = yb
+        out[k_out, 4] = zb
+        k_out += 1
+    return out[:k_out].copy()
+
+
+def epipolar_seeds(left_gray: np.ndarray, right_gray: np.ndarray, F: np.ndarray, candidates,
+                   displacement_box, *, half_window: int = 3, zncc_min: float = 0.9,
+                   margin: float = 0.1, used_right: np.ndarray | None = None,
+                   stats=None) -> np.ndarray:
+    """Matches found by a 1-D ZNCC search along epipolar lines (seeds for unreached regions).
+
+    Args:
+        left_gray, right_gray: (H, W) grey images of the same size.
+        F: (3, 3) fundamental matrix, ``x_r^T F x_l = 0``.
+        candidates: (C, 2) integer left pixels ``(u, v)`` to find matches for.
+        displacement_box: ``(dx_lo, dx_hi, dy_lo, dy_hi)`` integer pixels: the right pixel
+            ``(u', v')`` must satisfy ``dx_lo <= u' - u <= dx_hi`` and ``dy_lo <= v' - v <= dy_hi``.
+        half_window: the search's ZNCC window is ``2 * half_window + 1`` pixels square.
+        zncc_min: correlation the best candidate must reach.
+        margin: it must beat every other peak on the line (more than 2 px away) by this.
+        used_right: optional (H, W) bool map of right pixels that are taken already.
+        stats: precomputed ``(window_statistics(left), window_statistics(right))`` at
+            ``half_window``.
+
+    Returns:
+        (K, 5) float64 rows ``(u, v, u', v', zncc)``, left-right consistent to 1 px.
+    """
+    if half_window < 1:
+        raise CanopyStereoError(f"half_window must be >= 1, got {half_window}")
+    if stats is None:
+        stats = (window_statistics(left_gray, half_window), window_statistics(right_gray, half_window))
+    (L, mean_l, inv_l, _), (R, mean_r, inv_r, _) = stats
+    cand = np.ascontiguousarray(np.asarray(candidates, np.int64).reshape(-1, 2))
+    if used_right is None:
+        used_right = np.zeros(L.shape, np.bool_)
+    dx_lo, dx_hi, dy_lo, dy_hi = (int(v) for v in displacement_box)
+    if dx_hi < dx_lo or dy_hi < dy_lo or len(cand) == 0:
+        return np.zeros((0, 5))
+    return _epipolar_seed_kernel(L, R, mean_l, inv_l, mean_r, inv_r, cand,
+                                 np.asarray(F, np.float64), dx_lo, dx_hi, dy_lo, dy_hi,
+                                 int(half_window), float(zncc_min), float(margin),
+                                 np.ascontiguousarray(used_right, dtype=np.bool_))
+
+
 @dataclass
 class Propagation:
     """Pixel matches grown from the seeds.
@@ -360,7 +512,9 @@ def propagate(left_gray: np.ndarray, right_gray: np.ndarray, seeds_left, seeds_r
               half_window: int = 2, radius: int = 1, eps: int = 1, zncc_min: float = 0.8,
               texture_min: float = 2.0, F: np.ndarray | None = None,
               epipolar_band_px: float | None = 1.0, directional_texture: bool = True,
-              stats=None) -> Propagation:
+              reseed_rounds: int = 2, reseed_step_px: int = 4, reseed_gap_px: int = 3,
+              reseed_half_window: int = 3, reseed_zncc_min: float = 0.9,
+              reseed_margin: float = 0.1, stats=None) -> Propagation:
     """Grow pixel matches from seeds, best ZNCC first (Lhuillier & Quan's propagation).
 
     Args:
@@ -378,13 +532,24 @@ def propagate(left_gray: np.ndarray, right_gray: np.ndarray, seeds_left, seeds_r
         epipolar_band_px: band half-width in pixels; None or 0 disables the check.
         directional_texture: with F, measure texture along the epipolar lines
             (rejects aperture-ambiguous windows) instead of the 4-neighbour measure.
+        reseed_rounds: with F, up to this many more passes grow from new seeds in the
+            textured regions the earlier passes did not reach (leaves with no SIFT
+            match of their own): left pixels on a ``reseed_step_px`` grid, with texture,
+            at least ``reseed_gap_px`` from every matched pixel, matched by a ZNCC search
+            along their epipolar line within the displacements seen so far (window
+            ``2 reseed_half_window + 1``, best >= ``reseed_zncc_min``, ahead of any
+            other peak by ``reseed_margin``, left-right consistent). 0: SIFT seeds only.
         stats: precomputed ``(window_statistics(left), window_statistics(right))``.
 
     Returns:
-        :class:`Propagation`; every left pixel and every right pixel is used at most once.
+        :class:`Propagation`; every left pixel and every right pixel is used at most
+        once. Seeds (of every pass) come first, then the grown matches in the order
+        they were accepted, so a match's parent always precedes it.
     """
     if half_window < 1 or radius < 1 or eps < 0:
         raise CanopyStereoError("half_window and radius must be >= 1 and eps >= 0")
+    if reseed_rounds < 0 or reseed_step_px < 1 or reseed_gap_px < 0:
+        raise CanopyStereoError("reseed_rounds and reseed_gap_px must be >= 0, reseed_step_px >= 1")
     h, w = left_gray.shape[:2]
     if stats is None:
         e_l = e_r = None
@@ -404,14 +569,109 @@ def propagate(left_gray: np.ndarray, right_gray: np.ndarray, seeds_left, seeds_r
     use_band = F is not None and epipolar_band_px is not None and epipolar_band_px > 0
     Fk = np.asarray(F, np.float64) if use_band else np.eye(3)
     band = float(epipolar_band_px) if use_band else 0.0
-    xl, yl, xr, yr, zz, parent = _propagate_kernel(
-        L, R, mean_l, inv_l, tex_l, mean_r, inv_r, tex_r, seeds, int(half_window), int(radius),
-        int(eps), float(zncc_min), float(texture_min), Fk, band)
+    used_l = np.zeros((h, w), np.bool_)
+    used_r = np.zeros((h, w), np.bool_)
+
+    def run(pass_seeds):
+        return _propagate_kernel(L, R, mean_l, inv_l, tex_l, mean_r, inv_r, tex_r, pass_seeds,
+                                 int(half_window), int(radius), int(eps), float(zncc_min),
+                                 float(texture_min), Fk, band, used_l, used_r)
+
+    passes = [run(seeds)]
+    num_reseeded = 0
+    if F is not None and reseed_rounds > 0:
+        F64 = np.asarray(F, np.float64)
+        seed_stats = None
+        for _ in range(int(reseed_rounds)):
+            box = _displacement_box(np.concatenate([p[0] for p in passes]),
+                                    np.concatenate([p[1] for p in passes]),
+                                    np.concatenate([p[2] for p in passes]),
+                                    np.concatenate([p[3] for p in passes]))
+            if box is None:
+                break
+            cand = _reseed_candidates(tex_l, inv_l, used_l, texture_min, reseed_step_px,
+                                      reseed_gap_px, reseed_half_window)
+            if len(cand) == 0:
+                break
+            if seed_stats is None:
+                seed_stats = (window_statistics(L, reseed_half_window),
+                              window_statistics(R, reseed_half_window))
+            found = epipolar_seeds(L, R, F64, cand, box, half_window=reseed_half_window,
+                                   zncc_min=reseed_zncc_min, margin=reseed_margin,
+                                   used_right=used_r, stats=seed_stats)
+            if len(found) == 0:
+                break
+            new_seeds = np.rint(found[:, :4]).astype(np.int64)
+            z = zncc_at(L, R, new_seeds[:, 0], new_seeds[:, 1], new_seeds[:, 2], new_seeds[:, 3],
+                        half_window, mean_l, inv_l, mean_r, inv_r)
+            new_seeds = np.ascontiguousarray(new_seeds[np.argsort(-z, kind="stable")])
+            res = run(new_seeds)
+            if len(res[0]) == 0:
+                break
+            num_reseeded += int(np.sum(res[5] < 0))
+            passes.append(res)
+    xl, yl, xr, yr, zz, parent = _merge_passes(passes)
     num_seeds = int(np.sum(parent < 0))
     params = dict(half_window=half_window, radius=radius, eps=eps, zncc_min=zncc_min,
-                  texture_min=texture_min, epipolar_band_px=band if use_band else None)
+                  texture_min=texture_min, epipolar_band_px=band if use_band else None,
+                  reseed_rounds=reseed_rounds, num_reseeded=num_reseeded)
     return Propagation(np.column_stack([xl, yl]), np.column_stack([xr, yr]), zz, parent,
                        num_seeds, (w, h), params)
+
+
+def _displacement_box(xl, yl, xr, yr, min_matches: int = 20):
+    """Integer ``(dx_lo, dx_hi, dy_lo, dy_hi)`` covering the displacements of the
+    matches so far (0.5-99.5th percentiles widened by a tenth of their span + 2 px);
+    None with fewer than ``min_matches`` matches."""
+    if len(xl) < min_matches:
+        return None
+    box = []
+    for d in (xr.astype(np.float64) - xl, yr.astype(np.float64) - yl):
+        lo, hi = np.percentile(d, [0.5, 99.5])
+        pad = 0.1 * (hi - lo) + 2.0
+        box += [int(np.floor(lo - pad)), int(np.ceil(hi + pad))]
+    return tuple(box)
+
+
+def _reseed_candidates(tex_l, inv_l, used_l, texture_min, step, gap, half_window):
+    """(C, 2) int64 left pixels on a ``step`` grid with texture, a non-flat search
+    window, and at least ``gap`` pixels from every matched left pixel."""
+    h, w = used_l.shape
+    far = ~used_l
+    if gap > 0:
+        k = 2 * gap + 1
+        near = cv2.dilate(used_l.astype(np.uint8), np.ones((k, k), np.uint8)) > 0
+        far = ~near
+    m = half_window + 1
+    grid = np.zeros((h, w), bool)
+    grid[m:h - m:step, m:w - m:step] = True
+    ok = grid & far & (tex_l > texture_min) & (inv_l > 0)
+    v, u = np.nonzero(ok)
+    return np.column_stack([u, v]).astype(np.int64)
+
+
+def _merge_passes(passes):
+    """Concatenate propagation passes as one match list: every pass's seeds first, then
+    the grown matches pass by pass, parent indices remapped (a parent precedes its child)."""
+    if len(passes) == 1:
+        return passes[0]
+    order, offset = [], 0
+    for p in passes:
+        order.append(offset + np.nonzero(p[5] < 0)[0])
+        offset += len(p[0])
+    offset = 0
+    for p in passes:
+        order.append(offset + np.nonzero(p[5] >= 0)[0])
+        offset += len(p[0])
+    order = np.concatenate(order)
+    cols = [np.concatenate([p[i] for p in passes]) for i in range(5)]
+    parent = np.concatenate([np.where(p[5] >= 0, p[5] + off, -1) for p, off in
+                             zip(passes, np.cumsum([0] + [len(p[0]) for p in passes[:-1]]))])
+    new_index = np.empty(len(order), np.int64)
+    new_index[order] = np.arange(len(order))
+    parent = parent[order]
+    parent = np.where(parent >= 0, new_index[np.maximum(parent, 0)], -1)
+    return tuple(c[order] for c in cols) + (parent,)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -506,7 +766,8 @@ def _map_point(model, use_h, x, y):
 
 
 @njit(cache=True)
-def _resample_kernel(match_map, cell, use_h, iters, tol, min_support, min_share, min_spread, seed):
+def _resample_kernel(match_map, cell, use_h, iters, tol, min_support, min_share, min_spread, seed,
+                     anchor_centroid, thin_spread, conflict_pad, conflict_px):
     """One match per cell of the left image from a local affine/homography RANSAC fit.
 
     Returns (K, 4) float64 rows (u_left, v_left, u_right, v_right) and (K,) inlier counts.
@@ -592,7 +853,8 @@ def _resample_kernel(match_map, cell, use_h, iters, tol, min_support, min_share,
                     q2 += 1
                 else:
                     q3 += 1
-            if q0 == 0 or q1 == 0 or q2 == 0 or q3 == 0:
+            surrounded = q0 > 0 and q1 > 0 and q2 > 0 and q3 > 0
+            if not surrounded and not anchor_centroid:
                 continue
             # ... and cover an area, not a thin line (an edge: the aperture problem, and
             # typically an occlusion boundary): minor standard deviation of the inliers
@@ -613,7 +875,8 @@ def _resample_kernel(match_map, cell, use_h, iters, tol, min_support, min_share,
             cyy /= best
             cxy /= best
             minor = 0.5 * (cxx + cyy) - np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy * cxy)
-            if minor < min_spread * min_spread:
+            thin = minor < min_spread * min_spread
+            if thin and minor < thin_spread * thin_spread:
                 continue
             # refit on the inliers and map the cell centre
             if use_h:
@@ -625,11 +888,30 @@ def _resample_kernel(match_map, cell, use_h, iters, tol, min_support, min_share,
                 model[2, 2] = 1.0
             if not ok:
                 continue
-            mx, my = _map_point(model, use_h, ccx, ccy)
+            if thin:
+                # a thin set of inliers is kept only on one surface: no propagated match
+                # around the cell (within conflict_pad px) may disagree with its map
+                conflict = False
+                for v in range(max(0, y0 - conflict_pad), min(H, y1 + conflict_pad)):
+                    for u in range(max(0, x0 - conflict_pad), min(W, x1 + conflict_pad)):
+                        if match_map[v, u, 0] >= 0:
+                            mx, my = _map_point(model, use_h, u, v)
+                            if (abs(mx - match_map[v, u, 0]) > conflict_px
+                                    or abs(my - match_map[v, u, 1]) > conflict_px):
+                                conflict = True
+                                break
+                    if conflict:
+                        break
+                if conflict:
+                    continue
+            ax, ay = ccx, ccy
+            if not surrounded:
+                ax, ay = sx, sy                 # the inliers' centroid: inside their support
+            mx, my = _map_point(model, use_h, ax, ay)
             if not (-0.5 <= mx < W - 0.5 and -0.5 <= my < H - 0.5):
                 continue
-            out[nout, 0] = ccx
-            out[nout, 1] = ccy
+            out[nout, 0] = ax
+            out[nout, 1] = ay
             out[nout, 2] = mx
             out[nout, 3] = my
             support[nout] = best
@@ -639,7 +921,9 @@ def _resample_kernel(match_map, cell, use_h, iters, tol, min_support, min_share,
 
 def resample(prop: Propagation, *, cell_px: int = DISTRIBUTION_CELL_PX, model: str = "affine",
              iters: int = 32, tol_px: float = 1.0, min_support: int = 12,
-             min_inlier_share: float = 0.85, min_spread_px: float = 1.8, seed: int = 12345):
+             min_inlier_share: float = 0.85, min_spread_px: float = 1.8, seed: int = 12345,
+             anchor: str = "centre", thin_spread_px: float | None = None,
+             conflict_pad_px: int = 4, conflict_px: float = 2.0):
     """One match per ``cell_px`` x ``cell_px`` left region from a local RANSAC fit.
 
     Args:
@@ -653,19 +937,34 @@ def resample(prop: Propagation, *, cell_px: int = DISTRIBUTION_CELL_PX, model: s
         min_spread_px: the inliers' smaller standard deviation (pixels) must reach
             this, so a region matched only along a line (an edge) emits nothing.
         seed: RNG seed (results are deterministic).
+        The defaults are Lhuillier & Quan's resampling; :func:`qdmatch` relaxes them
+        (centroid anchors, thin single-surface regions) to reach every textured region.
+        anchor: where a region's match is placed: ``"centre"`` (Lhuillier & Quan: only
+            regions whose inliers surround the centre emit a match), ``"centroid"``
+            (the centre when surrounded, else the inliers' centroid, so regions cut by
+            a leaf edge still emit a match inside their support).
+        thin_spread_px: inliers spread less than ``min_spread_px`` are still accepted
+            down to this spread when no propagated match within ``conflict_pad_px`` of
+            the region disagrees with its map by more than ``conflict_px`` (one
+            surface, not an occlusion edge); None: same as ``min_spread_px``.
+        conflict_pad_px, conflict_px: that neighbourhood (pixels) and tolerance (pixels).
 
     Returns:
-        ``(x_left, x_right, support)``: (K, 2) float64 region centres and their
-        mapped right points, and (K,) inlier counts.
+        ``(x_left, x_right, support)``: (K, 2) float64 region anchors (centres or
+        centroids, see ``anchor``) and their mapped right points, and (K,) inlier counts.
     """
     if model not in ("affine", "homography"):
         raise CanopyStereoError(f"unknown resampling model {model!r}; choose affine or homography")
+    if anchor not in ("centre", "centroid"):
+        raise CanopyStereoError(f"unknown resampling anchor {anchor!r}; choose centre or centroid")
     if cell_px < 2:
         raise CanopyStereoError(f"cell_px must be >= 2, got {cell_px}")
     mm = prop.match_map()
     rows, support = _resample_kernel(mm, int(cell_px), model == "homography", int(iters),
                                      float(tol_px), int(min_support), float(min_inlier_share),
-                                     float(min_spread_px), int(seed))
+                                     float(min_spread_px), int(seed), anchor == "centroid",
+                                     float(min_spread_px if thin_spread_px is None else thin_spread_px),
+                                     int(conflict_pad_px), float(conflict_px))
     return rows[:, :2].copy(), rows[:, 2:].copy(), support
 
 
@@ -698,10 +997,11 @@ def qdmatch(left_gray: np.ndarray, right_gray: np.ndarray, *, ratio: float = 0.8
             mutual: bool = True, f_method: str = "ransac", threshold_px: float = 1.0,
             half_window: int = 2, radius: int = 1, eps: int = 1, zncc_min: float = 0.8,
             texture_min: float = 2.0, epipolar_band_px: float | None = 1.0,
-            directional_texture: bool = True,
+            directional_texture: bool = True, reseed_rounds: int = 2,
+            reseed_zncc_min: float = 0.9, reseed_margin: float = 0.1,
             cell_px: int = DISTRIBUTION_CELL_PX, model: str = "affine", resample_iters: int = 32,
             resample_tol_px: float = 1.0, min_support: int = 12, min_inlier_share: float = 0.85,
-            min_spread_px: float = 1.8,
+            min_spread_px: float = 1.4, thin_spread_px: float = 0.0, anchor: str = "centroid",
             sift_params: dict | None = None, keep_propagation: bool = False) -> MatchResult:
     """Quasi-dense matches of a grey pair (SIFT seeds -> propagation -> resampling).
 
@@ -712,8 +1012,11 @@ def qdmatch(left_gray: np.ndarray, right_gray: np.ndarray, *, ratio: float = 0.8
         half_window, radius, eps, zncc_min, texture_min, epipolar_band_px,
         directional_texture: propagation (see :func:`propagate`); the band and the
             directional texture use the seeds' F.
+        reseed_rounds, reseed_zncc_min, reseed_margin: extra propagation passes from
+            epipolar-search seeds in unreached textured regions (see :func:`propagate`).
         cell_px, model, resample_iters, resample_tol_px, min_support,
-        min_inlier_share: resampling (see :func:`resample`).
+        min_inlier_share, min_spread_px, thin_spread_px, anchor: resampling (see
+            :func:`resample`).
         sift_params: arguments of ``cv2.SIFT_create``.
         keep_propagation: store the :class:`Propagation` in ``extras["propagation"]``.
 
@@ -740,11 +1043,13 @@ def qdmatch(left_gray: np.ndarray, right_gray: np.ndarray, *, ratio: float = 0.8
     prop = propagate(left_gray, right_gray, seeds["x_left"], seeds["x_right"],
                      half_window=half_window, radius=radius, eps=eps, zncc_min=zncc_min,
                      texture_min=texture_min, F=seeds["F"], epipolar_band_px=epipolar_band_px,
-                     directional_texture=directional_texture)
+                     directional_texture=directional_texture, reseed_rounds=reseed_rounds,
+                     reseed_zncc_min=reseed_zncc_min, reseed_margin=reseed_margin)
     t1 = time.perf_counter()
     xl, xr, support = resample(prop, cell_px=cell_px, model=model, iters=resample_iters,
                                tol_px=resample_tol_px, min_support=min_support,
-                               min_inlier_share=min_inlier_share, min_spread_px=min_spread_px)
+                               min_inlier_share=min_inlier_share, min_spread_px=min_spread_px,
+                               thin_spread_px=thin_spread_px, anchor=anchor)
     F, note = seeds["F"], ""
     if len(xl) >= MIN_MATCHES_F:
         try:

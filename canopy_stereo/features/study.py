@@ -8,7 +8,9 @@ the paper could not give:
   disparity ``u_left - u_right`` is within 1 px of the truth at the left point
   (nearest pixel) and whose rows differ by at most 1 px (Middlebury's "bad 1.0"
   criterion); matches on pixels without truth are left out of the share;
-* without one: the share of matches within 1 px of the epipolar line (in the
+* with exact correspondences (a rendered scene, rectified or not): the share of
+  matches within 1 px (each coordinate) of the true right pixel;
+* without either: the share of matches within 1 px of the epipolar line (in the
   right image) of an F fitted by RANSAC to all methods' verified matches pooled.
 """
 from __future__ import annotations
@@ -87,6 +89,36 @@ def gt_correctness(x_left, x_right, disparity: np.ndarray, tol_px: float = CORRE
     return float(np.mean((err_d <= tol_px) & (err_v <= tol_px))), n
 
 
+def correspondence_correctness(x_left, x_right, true_right: np.ndarray,
+                               tol_px: float = CORRECT_TOL_PX):
+    """Share of matches within ``tol_px`` of the true right pixel: ``(share, n_with_truth)``.
+
+    For pairs whose exact correspondences are known (rendered scenes, any geometry,
+    rectified or not): match ``(u, v) <-> (u', v')`` is correct when both coordinates
+    of ``(u', v')`` are within ``tol_px`` of ``true_right[round(v), round(u)]``.
+    ``true_right`` is float (H, W, 2), NaN where the left pixel has no
+    correspondence (see :func:`canopy_stereo.sim.correspondence.true_right_pixels`).
+    Returns ``(None, 0)`` when no match lands on a pixel with truth.
+    """
+    xl = np.asarray(x_left, np.float64).reshape(-1, 2)
+    xr = np.asarray(x_right, np.float64).reshape(-1, 2)
+    t = np.asarray(true_right, np.float64)
+    if t.ndim != 3 or t.shape[2] != 2:
+        raise CanopyStereoError(f"true right pixels must be (H, W, 2), got {t.shape}")
+    h, w = t.shape[:2]
+    u = np.rint(xl[:, 0]).astype(np.int64)
+    v = np.rint(xl[:, 1]).astype(np.int64)
+    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    truth = np.full((len(xl), 2), np.nan)
+    truth[inside] = t[v[inside], u[inside]]
+    known = np.all(np.isfinite(truth), axis=1)
+    n = int(known.sum())
+    if n == 0:
+        return None, 0
+    err = np.abs(xr[known] - truth[known]).max(axis=1)
+    return float(np.mean(err <= tol_px)), n
+
+
 def epipolar_correctness(results, threshold_px: float = CORRECT_TOL_PX, f_method: str = "ransac"):
     """Per result, the share of matches within ``threshold_px`` of the epipolar line of
     one F fitted to all results' matches pooled: ``(shares list, F or None)``."""
@@ -110,13 +142,16 @@ def epipolar_correctness(results, threshold_px: float = CORRECT_TOL_PX, f_method
 
 def run_study(left: np.ndarray, right: np.ndarray, methods=DEFAULT_METHODS,
               gt_disparity: np.ndarray | None = None, method_params: dict | None = None,
-              progress=None) -> list[StudyRow]:
+              progress=None, *, gt_right_pixels: np.ndarray | None = None) -> list[StudyRow]:
     """Match one pair with every method and score the rows.
 
     Args:
         left, right: uint8 images (grey or BGR) of the same size.
         methods: method names (see :data:`~canopy_stereo.features.METHODS`).
         gt_disparity: optional float (H, W) truth of a rectified pair (NaN unknown).
+        gt_right_pixels: optional float (H, W, 2) true right pixel of each left pixel
+            (NaN unknown), for pairs of any geometry with exact correspondences
+            (rendered scenes); scored by :func:`correspondence_correctness`.
         method_params: ``{method: {param: value}}`` passed to :func:`match_pair`.
         progress: optional callable(method) called before each method runs.
 
@@ -132,6 +167,14 @@ def run_study(left: np.ndarray, right: np.ndarray, methods=DEFAULT_METHODS,
         if gt_disparity.shape[:2] != left.shape[:2]:
             raise ImageError(f"ground truth is {gt_disparity.shape[1]}x{gt_disparity.shape[0]} "
                              f"but the images are {left.shape[1]}x{left.shape[0]}")
+    if gt_disparity is not None and gt_right_pixels is not None:
+        raise CanopyStereoError("give either a ground-truth disparity or true right pixels, not both")
+    if gt_right_pixels is not None:
+        gt_right_pixels = np.asarray(gt_right_pixels, np.float64)
+        if gt_right_pixels.shape[:2] != left.shape[:2]:
+            raise ImageError(f"true right pixels are {gt_right_pixels.shape[1]}x"
+                             f"{gt_right_pixels.shape[0]} but the images are "
+                             f"{left.shape[1]}x{left.shape[0]}")
     size = (left.shape[1], left.shape[0])
     params = method_params or {}
     results = []
@@ -152,6 +195,10 @@ def run_study(left: np.ndarray, right: np.ndarray, methods=DEFAULT_METHODS,
     if gt_disparity is not None:
         for r in results:
             share, n = gt_correctness(r.x_left, r.x_right, gt_disparity)
+            rows.append(StudyRow(r, share, "gt", n))
+    elif gt_right_pixels is not None:
+        for r in results:
+            share, n = correspondence_correctness(r.x_left, r.x_right, gt_right_pixels)
             rows.append(StudyRow(r, share, "gt", n))
     else:
         shares, _ = epipolar_correctness(results)
@@ -236,7 +283,7 @@ def write_matches(result: MatchResult, folder) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{result.method}.csv"
     data = np.hstack([result.x_left, result.x_right]) if result.num else np.zeros((0, 4))
-    np.savetxt(path, data, delimiter=",", fmt="%.3f", header="x_left,y_left,x_right,y_right",
+    np.savetxt(path, data, delimiter=",", fmt="%.6f", header="x_left,y_left,x_right,y_right",
                comments="")
     return path
 
@@ -281,6 +328,7 @@ def plot_spread(rows: list[StudyRow], left: np.ndarray, path) -> Path:
     return path
 
 
-__all__ = ["DEFAULT_METHODS", "METHODS", "StudyRow", "epipolar_correctness", "format_table",
+__all__ = ["DEFAULT_METHODS", "METHODS", "StudyRow", "correspondence_correctness",
+           "epipolar_correctness", "format_table",
            "gt_correctness", "parse_methods", "plot_spread", "read_matches", "run_study",
            "write_csv", "write_matches"]

@@ -75,7 +75,7 @@ PLACEMENT_KEYS = ("pair", "origin", "x_axis", "y_axis", "label")
 
 
 # ----------------------------------------------------------------------------- placements
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class BoardPlacement:
     """Where the board stands in one image pair (world frame and unit).
 
@@ -110,7 +110,7 @@ class BoardPlacement:
         return self.origin + square * (0.5 * (cols - 1) * self.x_axis + 0.5 * (rows - 1) * self.y_axis)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Placements:
     """A board (pattern, square size, unit) and its placements, one per image pair.
 
