@@ -262,13 +262,18 @@ def test_graph_from_cameras(croton, tmp_path):
         sink = Node("sink", context=ctx, namespace="/stereo", start_parameter_services=False)
         clouds = []
         sink.create_subscription(PointCloud2, "points2", clouds.append, recording_qos())
+        from sensor_msgs.msg import CameraInfo
+
+        infos = []  # the camera nodes publish their camera_info like a driver
+        sink.create_subscription(CameraInfo, "right/camera_info", infos.append, recording_qos())
         graph.add_node(sink)
         graph.spin_in_background()
         try:
-            assert wait_for(lambda: len(clouds) >= 2, 30.0)
+            assert wait_for(lambda: len(clouds) >= 2 and infos, 30.0)
         finally:
             graph.shutdown()
             sink.destroy_node()
+    assert infos[0].header.frame_id == "right_camera_optical_frame" and infos[0].p[3] < 0
     pts, _ = convert.cloud2_to_points(clouds[0])
     # the croton and its backdrop lie 0.5 to 1.1 m in front of the paper's rig
     z = np.median(pts[:, 2])

@@ -62,6 +62,10 @@ def test_fusiello_shares_one_principal_point_and_keeps_images_in_view(paper_rig)
             src = apply_homography(H_inv, grid)
             inside = (src[:, 0] >= 0) & (src[:, 0] <= w - 1) & (src[:, 1] >= 0) & (src[:, 1] <= h - 1)
             assert inside.mean() > 0.85     # the rectified image is mostly picture, not border
+        # the left (reference) image stays centred as with per-camera principal points
+        centre = np.array([[(w - 1) / 2.0, (h - 1) / 2.0]])
+        c_left = apply_homography(rect.H_left, centre)[0]
+        assert abs(c_left[0] - centre[0, 0]) < 1e-6 and abs(c_left[1] - centre[0, 1]) < 40
         # points at infinity have zero disparity; rows agree
         far = np.array([[0.0, 0.0, 1e9], [3e8, -2e8, 1e9]])
         pl = project(rect.P_rect_left, far)

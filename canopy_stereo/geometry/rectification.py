@@ -86,10 +86,17 @@ def fusiello_rectify(P_left, P_right, image_size) -> Rectification:
     ``stereoRectify`` with ``CALIB_ZERO_DISPARITY`` and as every ROS stereo
     calibration: a point at infinity has disparity 0 (``doffs = 0``), so
     ``Z = f B / d`` and image_geometry's Q matrix built from the two rectified
-    ``CameraInfo`` messages gives the same depth. The common principal point is
-    the mean of the points that would keep each image centred, so each image
-    moves by half the difference and both stay in view (verged cameras, or
-    cameras whose principal points differ, are shifted in opposite directions).
+    ``CameraInfo`` messages gives the same depth.
+
+    The principal point keeps the images in view: the left (reference) image
+    keeps the point that centres it, so its rectified image, the grid of the
+    disparity, depth, mask and cloud, is the same as with per-camera centring,
+    and the right camera takes it too. For converging or parallel cameras (the
+    right camera's centring point lies left of the left's, ``cx_l >= cx_r``) no
+    match is lost by this: what leaves the right image at its far side could never
+    be matched by a left pixel. If the right camera's point lies further right
+    (diverging principal points, e.g. Middlebury's pre-rectified pairs) both
+    take the mean, so the two images share the loss of view.
 
     Args:
         P_left, P_right: (3, 4) world-frame projection matrices.
@@ -121,7 +128,8 @@ def fusiello_rectify(P_left, P_right, image_size) -> Rectification:
             raise RigError("a camera looks away from the rectified viewing direction")
         cx.append(centre[0] - f * ray[0] / ray[2])
         cy.append(centre[1] - f * ray[1] / ray[2])
-    cx_common, cy_common = float(np.mean(cx)), float(np.mean(cy))
+    cx_common = float(cx[0]) if cx[0] >= cx[1] else float(np.mean(cx))
+    cy_common = float(np.mean(cy))
     K_new = np.array([[f, 0, cx_common], [0, f, cy_common], [0, 0, 1.0]])
     H1 = K_new @ R @ cam1.R.T @ np.linalg.inv(cam1.K)
     H2 = K_new @ R @ cam2.R.T @ np.linalg.inv(cam2.K)

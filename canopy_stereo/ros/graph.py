@@ -123,7 +123,7 @@ class CanopyGraph:
             if cameras is not None:
                 for side, params in zip(("left", "right"), cameras):
                     values = {"camera_name": side, **common, **params}
-                    self._add(f"{side}_camera", CameraNode, values, rig_params=False)
+                    self._add(f"{side}_camera", CameraNode, values, rig_params=True)  # camera_info
             for name, cls in classes.items():
                 if name == "segment_node" and not (o.segment or o.use_mask):
                     continue
