@@ -27,14 +27,19 @@ PERIOD_NS = int(1e9 / RATE_HZ)
 T0 = 1_750_000_000_000_000_000
 
 
+#: The nodes on the way from raw pairs to points2 (segment_node is not, unless use_mask; the
+#: launch tests run it too), one process each.
+NODES = ("rectify_node", "disparity_node", "point_cloud_node")
+
+
 @pytest.fixture(scope="module")
 def graph(tmp_path_factory):
-    """rectify, disparity (ELAS), segment and point_cloud nodes, one process each, and a probe
-    with a driver's publishers and four foreign subscribers."""
+    """rectify, disparity (ELAS) and point_cloud nodes, one process each, and a probe with a
+    driver's publishers and four foreign subscribers."""
     group = ProcessGroup(private_domain_id(), tmp_path_factory.mktemp("process_logs"))
     probe = None
     try:
-        group.start_graph(RIG)
+        group.start_graph(RIG, nodes=NODES)
         probe = Probe(group.domain_id)
         probe.pub_left = probe.publisher(Image, "left/image_raw")
         probe.pub_right = probe.publisher(Image, "right/image_raw")
@@ -75,8 +80,7 @@ def _stream(graph, stamps, settle_s: float = 5.0) -> dict:
 
 def test_separate_processes_deliver_a_cloud_for_95_percent_of_pairs(graph):
     """40 pairs at 10 Hz from a default-QoS publisher: >= 95 % become points2 and disparity
-    for a default-QoS subscriber; a sensor-data-QoS (best effort) subscriber is served too."""
-    n0_sensor_points, n0_sensor_disp = len(graph.points_sensor), len(graph.disparity_sensor)
+    for a default-QoS subscriber."""
     stamps = [T0 + k * PERIOD_NS for k in range(40)]
     sent = _stream(graph, stamps)
     clouds = set(graph.points_default.stamps()) & set(stamps)
@@ -92,11 +96,6 @@ def test_separate_processes_deliver_a_cloud_for_95_percent_of_pairs(graph):
     _, _, data = graph.points_default.items[-1]
     pts, _ = convert.cloud2_to_points(deserialize_message(data, PointCloud2))
     assert len(pts) > 100_000 and 0.5 < float(pts[:, 2].mean()) < 1.1
-    # best effort is compatible and served; Fast DDS loses most fragmented (> 64 kB)
-    # best-effort samples between processes, so only "some" can be asserted
-    assert wait_for(lambda: len(graph.points_sensor) > n0_sensor_points
-                    and len(graph.disparity_sensor) > n0_sensor_disp, 10.0)
-    assert graph.points_sensor.subscription.get_publisher_count() == 1
 
 
 def test_stamps_jumping_back_100_s_keep_the_graph_producing(graph):
@@ -132,7 +131,7 @@ def test_every_node_process_reports_on_diagnostics(graph):
         for st in deserialize_message(data, DiagnosticArray).status:
             statuses.setdefault(st.name, []).append(st)
     names = {name.split(":")[0] for name in statuses}
-    assert {"rectify_node", "disparity_node", "segment_node", "point_cloud_node"} <= names
+    assert set(NODES) <= names
     rect = max((status_values(s) for s in statuses["rectify_node: pipeline"]),
                key=lambda v: float(v.get("out /stereo/left/image_rect Hz", 0)))
     assert 5.0 < float(rect["in /stereo/left/image_raw Hz"]) < 15.0
@@ -142,3 +141,26 @@ def test_every_node_process_reports_on_diagnostics(graph):
     pc = [status_values(s) for s in statuses["point_cloud_node: pipeline"]]
     assert any(float(v.get("out /stereo/points2 Hz", 0)) > 5.0 for v in pc)
     assert all("dropped" in v and "busy %" in v for v in pc)
+
+
+def test_a_sensor_data_qos_subscriber_is_served_too(graph):
+    """A REP 2003 consumer (sensor-data QoS: best effort) matches the nodes' reliable publishers
+    and receives points2 and disparity. Fast DDS delivers only part of the large (fragmented)
+    samples to best-effort readers in other processes (README: QoS), so this asserts that some
+    arrive over the module's streams (more pairs are sent while none has)."""
+    assert graph.points_sensor.subscription.get_publisher_count() == 1
+    assert graph.disparity_sensor.subscription.get_publisher_count() == 1
+    base = T0 + 3 * 10**12
+    for k in range(4):
+        if len(graph.points_sensor) and len(graph.disparity_sensor):
+            break
+        feed_pairs(graph.pub_left, graph.pub_right, graph.frames,
+                   [base + (40 * k + j) * PERIOD_NS for j in range(40)], RATE_HZ)
+        time.sleep(1.0)
+    assert len(graph.points_sensor) >= 1 and len(graph.disparity_sensor) >= 1, (
+        len(graph.points_default), len(graph.points_sensor), len(graph.disparity_sensor))
+    # what arrives is whole: a cloud of the croton
+    from canopy_stereo.ros import convert
+
+    pts, _ = convert.cloud2_to_points(deserialize_message(graph.points_sensor.items[-1][2], PointCloud2))
+    assert len(pts) > 100_000
