@@ -145,14 +145,16 @@ def bench_fuzz(tmp: Path) -> None:
 
     t = time.perf_counter()
     tally, failures = run_fuzz(build_sources(tmp), COUNTS, tmp)
-    print(f"fuzz ({time.perf_counter() - t:.1f} s): {tally['variants']} damaged bags "
-          f"({', '.join(f'{k[9:]} {v}' for k, v in sorted(tally.items()) if k.startswith('variants_') and k != 'variants_losing_messages')})")
+    kinds = ", ".join(f"{k[9:]} {v}" for k, v in sorted(tally.items())
+                      if k.startswith("variants_") and k != "variants_losing_messages")
+    print(f"fuzz ({time.perf_counter() - t:.1f} s): {tally['variants']} damaged bags ({kinds})")
     print(f"  foreign exceptions: {tally['foreign_exceptions']}, altered messages returned: "
           f"{tally['altered_messages_returned']}, BagError at open: {tally['bag_error_at_open']}")
     print(f"  intact-chunk messages: {tally['intact_chunk_messages']}, of them missing: "
           f"{tally['intact_chunk_messages_missing']}; bags that lost messages: "
-          f"{tally['variants_losing_messages']} (all reported); messages returned {tally['messages_returned']}, "
-          f"lost {tally['messages_lost']}; strict-mode BagErrors {tally['strict_bag_errors']}")
+          f"{tally['variants_losing_messages']} (all reported); messages returned "
+          f"{tally['messages_returned']}, lost {tally['messages_lost']}; strict-mode BagErrors "
+          f"{tally['strict_bag_errors']}")
     if failures:
         print("  VIOLATIONS:\n    " + "\n    ".join(failures[:20]))
 

@@ -65,7 +65,8 @@ def slow_bag(tmp_path_factory) -> Path:
         for k in range(16):
             for m in pairs[k % len(pairs)]:
                 msg = deserialize_message(m.data, Image)
-                stamp = t0 + k * 2_000_000_000 + (m.publish_time_ns - pairs[0][0].publish_time_ns) % 10_000_000
+                lag = (m.publish_time_ns - pairs[0][0].publish_time_ns) % 10_000_000  # right after left
+                stamp = t0 + k * 2_000_000_000 + lag
                 msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
                 w.write(m.topic, serialize_message(msg), stamp + 2_000_000, stamp, m.type_name)
     bag = BagReader(path)

@@ -41,7 +41,6 @@ import queue
 import re
 import struct
 import threading
-import time
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -1015,8 +1014,8 @@ class BagReader:
                         ch = _parse_channel(body)
                         self._channels.setdefault(ch.id, ch)
                 except _Malformed as exc:
-                    self._report(BagDamage(p, 9 + length, f"damaged {'schema' if op == _SCHEMA else 'channel'}"
-                                           f" record ({exc})", 0))
+                    kind = "schema" if op == _SCHEMA else "channel"
+                    self._report(BagDamage(p, 9 + length, f"damaged {kind} record ({exc})", 0))
             elif op == _MESSAGE:
                 if resynced:  # after a framing break only CRC-checked chunks are believed
                     self._report(BagDamage(p, 9 + length, "message record after damaged framing", 1))
