@@ -173,7 +173,7 @@ def test_bag_play_executable_publishes_with_remap(tmp_path):
         close = _spin_in_thread(ctx, node)
         try:
             code = "import sys; from canopy_stereo.ros.player import main; sys.exit(main())"
-            res = subprocess.run([sys.executable, "-c", code, str(bag.path), "--rate", "5", "--delay", "2",
+            res = subprocess.run([sys.executable, "-c", code, str(bag.path), "--rate", "5", "--delay", "15",
                                   "--topics", "/cam/images", "--remap", "/cam/images:=/played"],
                                  env=env, capture_output=True, text=True, timeout=60)
             assert res.returncode == 0, res.stderr

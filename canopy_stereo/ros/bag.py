@@ -39,8 +39,11 @@ the cut and says so (:attr:`BagReader.truncated`). Every failure is a
 """
 from __future__ import annotations
 
+import _thread
+import atexit
 import heapq
 import os
+import queue
 import re
 import struct
 import threading
@@ -194,9 +197,13 @@ class BagWriter:
         self.message_count = 0
         self.closed = False
         self._file = self._writer = None
-        self._open_next()
+        self._started = False
         self._flush_stop = threading.Event()
         self._flusher = None
+        self._jobs = None
+        # (a Ctrl-C/SIGTERM landing while the file is being created waits until the writer
+        # is registered; interpreter exit then completes the file)
+        _run_to_end(self._open_locked)
         if flush_period_s > 0:
             self._flusher = threading.Thread(target=self._flush_loop, args=(float(flush_period_s),),
                                              name=f"bag_flush:{self.base_path.name}", daemon=True)
@@ -211,19 +218,18 @@ class BagWriter:
         """The file being written (the last one once closed)."""
         return self.paths[-1]
 
+    def _open_locked(self) -> None:
+        with self._lock:
+            self._open_next()
+
+    def _rotate(self) -> None:
+        self._finish_file()
+        self._open_next()
+
     def _open_next(self) -> None:
         path = split_file_path(self.base_path, len(self.paths)) if self.splitting else self.base_path
         if path.exists() and not self._overwrite:
             raise BagError(f"{path} exists (choose another name)")
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            self._file = open(path, "wb")
-        except OSError as exc:
-            raise BagError(f"cannot write bag {path}: {exc.strerror or exc}") from None
-        self.paths.append(path)
-        self._writer = Writer(self._file, chunk_size=self._chunk_size, compression=self._compression,
-                              enable_data_crcs=True)
-        self._io(self._writer.start, profile="ros2", library="canopy_stereo")
         self._schemas, self._channels = {}, {}
         self._file_counts: dict[str, int] = {}
         self._file_start_ns: int | None = None
@@ -231,6 +237,18 @@ class BagWriter:
         self._file_messages = 0
         self._pending = 0
         self._dirty = False
+        self._started = False
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self._file = open(path, "wb")
+        except OSError as exc:
+            raise BagError(f"cannot write bag {path}: {exc.strerror or exc}") from None
+        self.paths.append(path)
+        _OPEN_WRITERS.add(self)  # from here on, interpreter exit completes the file
+        self._writer = Writer(self._file, chunk_size=self._chunk_size, compression=self._compression,
+                              enable_data_crcs=True)
+        self._io(self._writer.start, profile="ros2", library="canopy_stereo")
+        self._started = True
         for info in self.topics.values():
             self._register(info)
         for name, data in self._metadata:
@@ -253,6 +271,12 @@ class BagWriter:
         self._file_counts[info.name] = 0
 
     def _finish_file(self) -> None:
+        if not self._started:  # interrupted while opening: make the file a valid empty bag
+            self._file.seek(0)
+            self._file.truncate()
+            self._writer = Writer(self._file, compression=self._compression, enable_data_crcs=True)
+            self._writer.start(profile="ros2", library="canopy_stereo")
+            self._started = True
         self._io(self._writer.add_metadata, "rosbag2",
                  {"serialized_metadata": self._bag_information()})
         self._io(self._writer.finish)
@@ -272,8 +296,11 @@ class BagWriter:
         ``definition``: the ``ros2msg`` schema text to store (default: the installed
         type's); with it the type need not be installed (copying foreign bags).
         """
-        with self._lock:
-            self._add_topic(topic, msg_type, qos_yaml, definition)
+        def add():
+            with self._lock:
+                self._add_topic(topic, msg_type, qos_yaml, definition)
+
+        self._uninterrupted(add)
 
     def _add_topic(self, topic, msg_type, qos_yaml=None, definition=None):
         if topic in self.topics:
@@ -320,14 +347,41 @@ class BagWriter:
                 publish_time_ns = _stamp_of(msg)
         log_time_ns = int(log_time_ns)
         publish_time_ns = log_time_ns if publish_time_ns is None else int(publish_time_ns)
+        self._uninterrupted(self._append, topic, data, log_time_ns, publish_time_ns, msg_type)
+
+    def _uninterrupted(self, fn, *args):
+        """``fn(*args)``, from the main thread by way of the writer's own thread so that a
+        Ctrl-C/SIGTERM (a KeyboardInterrupt there) cannot stop it half-way and leave the
+        chunk in progress inconsistent; the interrupt is raised again afterwards. Other
+        threads (ROS executors) never see KeyboardInterrupt and call ``fn`` directly."""
+        if threading.current_thread() is not threading.main_thread():
+            return fn(*args)
+        if self._jobs is None:
+            self._jobs = queue.SimpleQueue()
+            _thread.start_new_thread(self._work, (self._jobs,))
+        done = _thread.allocate_lock()
+        done.acquire()
+        box: list = []
+        self._jobs.put((fn, args, done, box))
+        return _wait_done(done, box)
+
+    @staticmethod
+    def _work(jobs) -> None:
+        while True:
+            job = jobs.get()
+            if job is None:
+                return
+            fn, args, done, box = job
+            _run_into(fn, args, done, box)
+
+    def _append(self, topic, data, log_time_ns, publish_time_ns, msg_type) -> None:
         with self._lock:
             if self.closed:
                 raise BagError(f"bag {self.path} is closed")
             if topic not in self.topics:
                 self._add_topic(topic, msg_type)
             if self._file_messages and self._should_split(log_time_ns, len(data)):
-                self._finish_file()
-                self._open_next()
+                self._rotate()
             info = self.topics[topic]
             self._io(self._writer.add_message, channel_id=self._channels[topic], log_time=log_time_ns,
                      data=data, publish_time=publish_time_ns, sequence=info.message_count)
@@ -407,37 +461,79 @@ class BagWriter:
         if self.closed:
             return self.path
         self._flush_stop.set()
-        errors: list = []
-
-        def finish():
-            try:
-                with self._lock:
-                    if self.closed:
-                        return
-                    self.closed = True
-                    self._finish_file()
-            except BaseException as exc:  # noqa: BLE001 - handed to the caller below
-                errors.append(exc)
-
-        worker = threading.Thread(target=finish, name=f"bag_close:{self.base_path.name}")
-        worker.start()
-        interrupted = False
-        while worker.is_alive():
-            try:
-                worker.join()
-            except KeyboardInterrupt:
-                interrupted = True
-        if errors:
-            raise errors[0]
-        if interrupted:
-            raise KeyboardInterrupt
+        _run_to_end(self._close_now)
         return self.path
+
+    def _close_now(self) -> None:
+        with self._lock:
+            if self.closed:
+                return
+            self.closed = True
+            _OPEN_WRITERS.discard(self)
+            if self._jobs is not None:
+                self._jobs.put(None)
+            if self._file is not None:
+                self._finish_file()
 
     def __enter__(self):
         return self
 
     def __exit__(self, *exc):
         self.close()
+
+
+def _run_into(fn, args, done, box) -> None:
+    try:
+        box.append((True, fn(*args)))
+    except BaseException as exc:  # noqa: BLE001 - handed to the waiting caller
+        box.append((False, exc))
+    finally:
+        done.release()
+
+
+def _wait_done(done, box):
+    """Wait (a KeyboardInterrupt meanwhile is held back) for a job; its result or exception."""
+    interrupted = False
+    while not box:  # (the job fills box before it releases done; an interrupt may land anywhere)
+        try:
+            done.acquire(timeout=0.05)
+        except KeyboardInterrupt:
+            interrupted = True
+    ok, value = box[0]
+    if not ok:
+        raise value
+    if interrupted:
+        raise KeyboardInterrupt
+    return value
+
+
+def _run_to_end(fn, *args):
+    """Run ``fn(*args)`` in a helper thread and wait for it: a KeyboardInterrupt (Ctrl-C, or
+    SIGTERM/SIGHUP turned into one) arriving meanwhile cannot cut it short; it is raised
+    again once ``fn`` is done. Exceptions of ``fn`` are raised in the caller. (Raw locks
+    and ``_thread``: the threading module's waits are not safe against interrupts.)"""
+    done = _thread.allocate_lock()
+    done.acquire()
+    box: list = []
+    try:
+        _thread.start_new_thread(_run_into, (fn, args, done, box))
+    except RuntimeError:  # no new threads at interpreter shutdown: run it here
+        return fn(*args)
+    return _wait_done(done, box)
+
+
+#: Writers not closed yet: closed at interpreter exit, so that an interrupt landing between a
+#: writer's creation and the caller's ``try``/``with`` still leaves a complete file.
+_OPEN_WRITERS: set = set()
+
+
+@atexit.register
+def _close_open_writers() -> None:
+    for writer in list(_OPEN_WRITERS):
+        try:
+            writer._close_now()
+        except BaseException:  # noqa: BLE001 - exiting anyway; the next writer still gets closed
+            pass
 
 
 def _normal_type(name: str) -> str:
@@ -942,8 +1038,8 @@ class BagReader:
                         ch = _parse_channel(body)
                         self._channels.setdefault(ch.id, ch)
                 except _Malformed as exc:
-                    self._report(BagDamage(p, 9 + length, f"damaged {'schema' if op == _SCHEMA else 'channel'}"
-                                           f" record ({exc})", 0))
+                    kind = "schema" if op == _SCHEMA else "channel"
+                    self._report(BagDamage(p, 9 + length, f"damaged {kind} record ({exc})", 0))
             elif op == _MESSAGE:
                 if resynced:  # after a framing break only CRC-checked chunks are believed
                     self._report(BagDamage(p, 9 + length, "message record after damaged framing", 1))
