@@ -252,6 +252,11 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _print_pass(passes: int, frames_in: int, frames_out: int) -> None:
+    """One line per pass of ``--loop`` (the totals so far)."""
+    print(f"frames in: {frames_in}, frames out: {frames_out} (after pass {passes})", flush=True)
+
+
 def _run_bag_until_interrupted(opts, rig, options: GraphOptions, context, record=None):
     """Play ``opts.bag`` (``--loop``: until Ctrl-C) through one graph; the playback runs in a
     worker thread so that the main thread takes the signal and stops it cleanly."""
@@ -263,7 +268,7 @@ def _run_bag_until_interrupted(opts, rig, options: GraphOptions, context, record
     def work():
         try:
             outcome["result"] = run_bag(opts.bag, rig, rate=opts.rate, record=record, options=options,
-                                        context=context, loop=opts.loop, stop=stop)
+                                        context=context, loop=opts.loop, stop=stop, on_pass=_print_pass)
         except BaseException as exc:  # noqa: BLE001 - re-raised in the main thread
             outcome["error"] = exc
         finally:

@@ -131,7 +131,7 @@ class BagPlayer:
         return ok
 
     def play(self, stop: threading.Event | None = None, before_publish=None,
-             on_published=None) -> PlayStats:
+             on_published=None, on_pass=None) -> PlayStats:
         """Publish until the end (or forever with ``loop``) or until ``stop`` is set.
 
         Args:
@@ -139,6 +139,7 @@ class BagPlayer:
             before_publish: ``f(BagMessage)`` called before each message (may block
                 for flow control; returning False skips the message).
             on_published: ``f(BagMessage, wall_time_s)`` called after each message.
+            on_pass: ``f(passes_done)`` called at the end of each complete pass of ``loop``.
         """
         stop = stop or threading.Event()
         stats = PlayStats(published={t: 0 for t in self.topics})
@@ -165,6 +166,8 @@ class BagPlayer:
             if not self.loop or stop.is_set():
                 break
             stats.loops += 1
+            if on_pass is not None:
+                on_pass(stats.loops)
             # the next pass starts one mean message interval after the last message
             n = max(1, self.bag.message_count)
             offset_wall += (span_s + span_s / n) / self.rate if self.rate > 0 else 0.0

@@ -184,7 +184,7 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
             startup_timeout_s: float = 30.0, progress=None, compression: str = "lz4",
             context=None, loop: bool = False, stop: threading.Event | None = None,
             split_size: int = 0, split_duration_s: float = 0.0, extra_outputs: dict | None = None,
-            on_output=None) -> RunResult:
+            on_output=None, on_pass=None) -> RunResult:
     """Replay ``bag_path`` through the graph for ``rig``; see the module docstring.
 
     Args:
@@ -209,6 +209,8 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
             private one on ``domain_id``, shut down at the end).
         loop: play the bag again at its end, until ``stop`` is set (the graph is built once).
         stop: event that ends playback early (the frames in flight are still awaited).
+        on_pass: with ``loop``, ``f(passes_done, frames_in, frames_out)`` at the end of each pass
+            (counts so far; frames of the last pass may still be in flight).
         split_size, split_duration_s: split the recording into ``<name>_0.mcap``, ... by
             size (bytes) or log-time span (s), as rosbag2 does (0 = never).
         extra_outputs: further graph topics to receive (relative name -> message class,
@@ -256,7 +258,7 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
     try:
         _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, remap, startup_timeout_s,
              progress, context, play_topics, left_topics, ns, outputs, result, book, writer, loop, stop,
-             on_output)
+             on_output, on_pass)
     finally:
         if own_writer:
             result.recorded = writer.close()
@@ -282,7 +284,7 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
 
 def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, remap, startup_timeout_s,
          progress, context, play_topics, left_topics, ns, outputs, result, book, writer, loop=False,
-         stop=None, on_output_cb=None) -> None:
+         stop=None, on_output_cb=None, on_pass=None) -> None:
     """Build the graph, play, drain and tear down (the body of :func:`run_bag`)."""
     reliability = options.reliability
     with (_given(context) if context is not None else ros_context(domain_id)) as ctx:
@@ -349,7 +351,9 @@ def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, r
                 if stamp is not None:
                     book.published(m.topic in left_topics, stamp, t)
 
-            player.play(stop=stop, before_publish=before_publish, on_published=on_published)
+            player.play(stop=stop, before_publish=before_publish, on_published=on_published,
+                        on_pass=None if on_pass is None else
+                        (lambda n: on_pass(n, book.frames_in, book.frames_out)))
             start_wait = time.monotonic()
             while book.in_flight:
                 if time.monotonic() - start_wait > timeout_s or graph_idle_for(idle_s):
