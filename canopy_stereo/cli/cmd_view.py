@@ -66,13 +66,13 @@ def run(args) -> int:
 
 def wait_until_interrupted(web) -> None:
     """Serve until Ctrl-C / SIGTERM (or until the viewer server dies)."""
-    print(f"serving the viewer at {web.url} (localhost only); Ctrl-C to stop", flush=True)
 
     def stop(signum, frame):
         raise KeyboardInterrupt
 
     old = signal.signal(signal.SIGTERM, stop)
     try:
+        print(f"serving the viewer at {web.url} (localhost only); Ctrl-C to stop", flush=True)
         while web.process.poll() is None:
             time.sleep(0.2)
     except KeyboardInterrupt:

@@ -422,9 +422,20 @@ def open_recording(*, save=None, web: WebViewer | None = None, spawn: bool = Fal
     return rec
 
 
-def close_recording(rec) -> None:
-    """Flush and close the recording's sink (the .rrd file is complete afterwards)."""
+def close_recording(rec, *, timeout_s: float = 120.0) -> None:
+    """Flush and close the recording's sink (the .rrd file is complete afterwards); a viewer
+    that stopped listening does not hold the caller longer than ``timeout_s``."""
     try:
-        rec.flush()
+        rec.flush(timeout_sec=timeout_s)
     finally:
         rec.disconnect()
+
+
+def port_free(port: int, host: str = "127.0.0.1") -> bool:
+    """Nothing listens on ``host:port`` and it can be bound."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        try:
+            s.bind((host, int(port)))
+        except OSError:
+            return False
+    return True

@@ -143,7 +143,7 @@ class FrameStreamer:
         else:
             self.queue.put(item)
 
-    def close(self, timeout_s: float = 600.0) -> None:
+    def close(self, timeout_s: float = 300.0) -> None:
         """Log the frames still pending (those with a cloud), then stop the worker."""
         with self.lock:
             rest = sorted(self.pending.items())
@@ -280,10 +280,12 @@ class LiveView:
                  printer=print):
         from sensor_msgs.msg import Image
 
-        from canopy_stereo.viz.rerun_log import has_display, open_recording, serve_web
+        from canopy_stereo.viz.rerun_log import has_display, open_recording, port_free, serve_web
 
         self.printer = printer
-        self.web = None if has_display() else serve_web(port=port or 9090)
+        if port is None:
+            port = 9090 if port_free(9090) else None  # else any free port: the address is printed
+        self.web = None if has_display() else serve_web(port=port)
         if self.web is not None:
             printer(f"viewer: {self.web.url} (no display here: open it in a browser)")
         self.rec = open_recording(web=self.web, spawn=self.web is None, name=name, with_measurements=False)
