@@ -288,33 +288,45 @@ class LiveView:
         self.web = None if has_display() else serve_web(port=port)
         if self.web is not None:
             printer(f"viewer: {self.web.url} (no display here: open it in a browser)")
+        self.need_mask = need_mask
+        self.extra_outputs = {"left/image_rect_color": Image}
+        self.shown = self.skipped = 0
+        self.rec = self.streamer = None
+        self.start_recording(name, rig)
+
+    def start_recording(self, name: str, rig=None) -> None:
+        """A new recording (its own entry in the viewer) for the frames that follow, e.g. the
+        next scene of the demo: scenes do not share a timeline or a camera."""
+        from canopy_stereo.viz.rerun_log import open_recording
+
+        self._close_recording()
         self.rec = open_recording(web=self.web, spawn=self.web is None, name=name, with_measurements=False)
         self.logger = FrameLogger(self.rec, with_measurements=False)
-        self.streamer = FrameStreamer(self.logger, rig, need_mask=need_mask, measure=False,
+        self.streamer = FrameStreamer(self.logger, rig, need_mask=self.need_mask, measure=False,
                                       drop_when_busy=True)
-        self.extra_outputs = {"left/image_rect_color": Image}
+
+    def _close_recording(self) -> None:
+        from canopy_stereo.viz.rerun_log import close_recording
+
+        if self.streamer is not None:
+            self.streamer.close()
+            self.shown += self.streamer.logged
+            self.skipped += self.streamer.skipped
+            self.streamer = None
+        if self.rec is not None:
+            close_recording(self.rec)
+            self.rec = None
 
     def on_output(self, rel: str, stamp: int, data: bytes) -> None:
         self.streamer.on_output(rel, stamp, data)
 
-    def set_rig(self, rig) -> None:
-        """The rig of the frames that follow (places the camera in the world)."""
-        self.streamer.set_rig(rig)
-
-    def add_frame(self, stamp: int, entry: dict) -> None:
-        """Log one frame given as relative topic -> CDR bytes (e.g. kept run outputs)."""
-        self.streamer.log_messages(stamp, entry)
-
     def finish(self, *, wait: bool = True) -> None:
         """Log what is pending, close the recording; with a web viewer, serve until Ctrl-C
         (``wait``) and stop it."""
-        from canopy_stereo.viz.rerun_log import close_recording
-
         try:
-            self.streamer.close()
-            close_recording(self.rec)
-            self.printer(f"viewer: showed {self.streamer.logged} frames"
-                         + (f", skipped {self.streamer.skipped} while busy" if self.streamer.skipped else ""))
+            self._close_recording()
+            self.printer(f"viewer: showed {self.shown} frames"
+                         + (f", skipped {self.skipped} while busy" if self.skipped else ""))
             if self.web is not None and wait:
                 from canopy_stereo.cli.cmd_view import wait_until_interrupted
 
