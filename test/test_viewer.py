@@ -191,7 +191,7 @@ def test_view_takes_the_rig_from_the_bag_metadata(tmp_path):
     pytest.importorskip("rerun")
     pytest.importorskip("rclpy")
     from canopy_stereo.io.rig import load_rig
-    from canopy_stereo.viz.sources import rig_from_bag
+    from canopy_stereo.ros.viewer import rig_from_bag
 
     bag = tmp_path / "with_rig.mcap"
     _copy_with_rig_metadata(CROTON_BAG, bag, CROTON_RIG)

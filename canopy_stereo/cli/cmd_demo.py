@@ -41,7 +41,7 @@ def run(args) -> int:
     scenes = SCENES if args.scene == "all" else (args.scene,)
     view = None
     if args.view:
-        from canopy_stereo.viz.sources import LiveView
+        from canopy_stereo.ros.viewer import LiveView
 
         from canopy_stereo.io.rig import load_rig
         from canopy_stereo.ros.bundled import bundled_rig

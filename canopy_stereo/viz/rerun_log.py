@@ -341,7 +341,24 @@ class WebViewer:
     grpc_url: str
     process: subprocess.Popen
 
+    def serve_until_interrupted(self) -> None:
+        """Keep serving until Ctrl-C / SIGTERM (or until the server process ends)."""
+
+        def stop(signum, frame):
+            raise KeyboardInterrupt
+
+        old = signal.signal(signal.SIGTERM, stop)
+        try:
+            print(f"serving the viewer at {self.url} (localhost only); Ctrl-C to stop", flush=True)
+            while self.process.poll() is None:
+                time.sleep(0.2)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            signal.signal(signal.SIGTERM, old)
+
     def stop(self) -> None:
+        """Stop the server process."""
         if self.process.poll() is None:
             self.process.terminate()
             try:

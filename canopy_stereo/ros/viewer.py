@@ -1,11 +1,11 @@
-"""What the viewer shows: a bag (raw frames through the graph, or recorded outputs), a live graph.
+"""What the viewer shows from ROS: a bag (raw frames through the graph, or recorded outputs), a live graph.
 
 Graph outputs arrive per topic; :class:`FrameStreamer` gathers the messages of
 one stamp (``points2``, ``disparity``, ``left/mask``, ``left/image_rect_color``,
 ``left/camera_info``), converts them and logs the frame from a worker thread
 (optionally measuring leaves and canopy first), so that the graph's receiving
-thread never waits for the viewer. ROS message classes are imported only here,
-when a bag or graph is used.
+thread never waits for the viewer. The logging itself is
+:mod:`canopy_stereo.viz.rerun_log` (no ROS).
 """
 from __future__ import annotations
 
@@ -89,10 +89,11 @@ class FrameStreamer:
         measure: measure leaves and canopy of each frame (needs organized clouds and masks).
         drop_when_busy: live use: when the logger is still busy with earlier frames,
             skip frames instead of queueing them (the graph never waits).
+        on_logged: optional ``f()`` called after each frame is logged (progress).
     """
 
     def __init__(self, logger: FrameLogger, rig=None, *, need_mask: bool = True, measure: bool = False,
-                 drop_when_busy: bool = False):
+                 drop_when_busy: bool = False, on_logged=None):
         self.logger = logger
         self.set_rig(rig)
         self.required = {"points2", "disparity", "left/image_rect_color"} | ({"left/mask"} if need_mask else set())
@@ -104,6 +105,7 @@ class FrameStreamer:
         self.skipped = 0
         self.logged = 0
         self.errors: list[str] = []
+        self.on_logged = on_logged
         self.worker = threading.Thread(target=self._work, name="canopy_viewer", daemon=True)
         self.worker.start()
 
@@ -143,8 +145,9 @@ class FrameStreamer:
         else:
             self.queue.put(item)
 
-    def close(self, timeout_s: float = 300.0) -> None:
-        """Log the frames still pending (those with a cloud), then stop the worker."""
+    def close(self, timeout_s: float | None = None) -> None:
+        """Log the frames still pending (those with a cloud), then stop the worker (waiting
+        for every queued frame unless ``timeout_s``)."""
         with self.lock:
             rest = sorted(self.pending.items())
             self.pending.clear()
@@ -178,6 +181,8 @@ class FrameStreamer:
                               image_bgr=frame.get("image"), depth_m=frame.get("depth"),
                               mask=frame.get("mask"), camera=pose, measurement=measurement)
         self.logged += 1
+        if self.on_logged is not None:
+            self.on_logged()
 
 
 def decode_frame(entry: dict) -> dict:
@@ -245,7 +250,7 @@ def show_recorded_outputs(bag, namespace: str, logger: FrameLogger, rig=None, me
 
 
 def run_raw_bag(path, rig, logger: FrameLogger, *, measure: bool = True, matcher=None,
-                domain_id=None, progress=None):
+                domain_id=None, progress=None, on_logged=None):
     """Run a bag of raw frames through the graph (organized clouds, plant masks) and log
     every frame as it comes out; returns the :class:`~canopy_stereo.ros.runner.RunResult`."""
     from sensor_msgs.msg import Image
@@ -253,7 +258,7 @@ def run_raw_bag(path, rig, logger: FrameLogger, *, measure: bool = True, matcher
     from canopy_stereo.ros.graph import GraphOptions
     from canopy_stereo.ros.runner import run_bag
 
-    streamer = FrameStreamer(logger, rig, need_mask=True, measure=measure)
+    streamer = FrameStreamer(logger, rig, need_mask=True, measure=measure, on_logged=on_logged)
     options = GraphOptions(matcher=matcher, segment=True, organized=True, parameter_services=False)
     try:
         result = run_bag(Path(path), rig, rate=0, options=options, domain_id=domain_id,
@@ -309,7 +314,7 @@ class LiveView:
         from canopy_stereo.viz.rerun_log import close_recording
 
         if self.streamer is not None:
-            self.streamer.close()
+            self.streamer.close(timeout_s=120.0)
             self.shown += self.streamer.logged
             self.skipped += self.streamer.skipped
             self.streamer = None
@@ -328,9 +333,7 @@ class LiveView:
             self.printer(f"viewer: showed {self.shown} frames"
                          + (f", skipped {self.skipped} while busy" if self.skipped else ""))
             if self.web is not None and wait:
-                from canopy_stereo.cli.cmd_view import wait_until_interrupted
-
-                wait_until_interrupted(self.web)
+                self.web.serve_until_interrupted()
         finally:
             if self.web is not None:
                 self.web.stop()
