@@ -5,6 +5,9 @@ from setuptools import find_packages, setup
 
 PACKAGE = "canopy_stereo"
 
+#: The viewer's one dependency, pinned (canopy_stereo.viz.RERUN_REQUIREMENT says the same).
+RERUN = "rerun-sdk==0.41.0; python_version >= '3.11'"
+
 # ROS 2 executables (`ros2 run canopy_stereo <name>`): name -> module:function.
 ROS_EXECUTABLES = {
     "camera_node": "canopy_stereo.ros.nodes.camera:main",
@@ -52,13 +55,13 @@ setup(
     ],
     extras_require={
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-common-interfaces"],
-        # the viewer (canopy-stereo view, run/demo --view): rerun-sdk pinned, its web viewer and
-        # `rerun` tool ship inside the wheel. Also in "test": CI checks recordings and the web
-        # viewer (a 170 MB wheel plus pyarrow; seconds to install from a
-        # warm cache, well under a minute otherwise).
-        "test": ["pytest>=7", "rosbags>=0.9", "matplotlib>=3.6", "rerun-sdk==0.41.0"],
+        # the viewer (canopy-stereo view, run/demo --view): rerun-sdk pinned (its web viewer and
+        # `rerun` tool ship inside the wheel; the wheel is CPython >= 3.11). Also in "test": CI
+        # checks recordings and the web viewer (a 170 MB wheel plus pyarrow; seconds to install
+        # from a warm cache, well under a minute otherwise).
+        "test": ["pytest>=7", "rosbags>=0.9", "matplotlib>=3.6", RERUN],
         "plot": ["matplotlib>=3.6"],
-        "viz": ["rerun-sdk==0.41.0"],
+        "viz": [RERUN],
     },
     zip_safe=True,
     tests_require=["pytest"],

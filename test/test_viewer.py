@@ -240,3 +240,15 @@ def test_run_view_streams_live_and_serves_until_ctrl_c(tmp_path):
         proc.send_signal(signal.SIGINT)
         proc.wait(60)
     assert proc.returncode == 0
+
+
+def test_rerun_pin_is_one_version_everywhere():
+    """setup.py's extras, the install hint and the installed rerun-sdk agree."""
+    import re
+
+    from canopy_stereo.viz import INSTALL_HINT, RERUN_REQUIREMENT
+
+    pins = set(re.findall(r"rerun-sdk==([\d.]+)", (REPO / "setup.py").read_text()))
+    assert pins == {RERUN_REQUIREMENT.split("==")[1]} and RERUN_REQUIREMENT in INSTALL_HINT
+    rr = pytest.importorskip("rerun")
+    assert rr.__version__ == RERUN_REQUIREMENT.split("==")[1]
