@@ -136,9 +136,12 @@ def test_view_reopens_saved_recording(croton_recording, tmp_path):
 def test_view_raw_bag_without_rig_asks_for_rig(tmp_path):
     pytest.importorskip("rerun")
     pytest.importorskip("rclpy")
-    res = run_cli_subprocess("view", CROTON_BAG, "--save", tmp_path / "x.rrd", timeout=120)
+    bare = tmp_path / "bare.mcap"
+    _copy_bag(CROTON_BAG, bare, rig_path=None)  # without any rig record
+    res = run_cli_subprocess("view", bare, "--save", tmp_path / "x.rrd", timeout=120)
     assert res.returncode == 2
     assert "--rig" in res.stderr and len(res.stderr.strip().splitlines()) == 1, res.stderr
+    assert not (tmp_path / "x.rrd").exists()
 
 
 @pytest.mark.slow
@@ -160,8 +163,9 @@ def test_view_recorded_outputs_bag_as_recorded(tmp_path):
     assert "/world/camera/image" not in ents  # not recorded by `run --record`: not invented
 
 
-def _copy_with_rig_metadata(src, dst, rig_path):
-    """A copy of bag ``src`` with the rig in a ``canopy_stereo`` MCAP metadata record."""
+def _copy_bag(src, dst, rig_path):
+    """A copy of bag ``src`` without its ``canopy_stereo`` metadata record, and with the rig
+    file ``rig_path`` in a new one (None: none)."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
@@ -180,8 +184,10 @@ def _copy_with_rig_metadata(src, dst, rig_path):
             writer.add_message(channels[channel.id], message.log_time, message.data, message.publish_time,
                                message.sequence)
         for record in reader.iter_metadata():
-            writer.add_metadata(record.name, record.metadata)
-        writer.add_metadata("canopy_stereo", {"rig": rig_path.read_text()})
+            if record.name != "canopy_stereo":
+                writer.add_metadata(record.name, record.metadata)
+        if rig_path is not None:
+            writer.add_metadata("canopy_stereo", {"rig": rig_path.read_text()})
         writer.finish()
 
 
@@ -193,9 +199,10 @@ def test_view_takes_the_rig_from_the_bag_metadata(tmp_path):
     from canopy_stereo.io.rig import load_rig
     from canopy_stereo.ros.viewer import rig_from_bag
 
-    bag = tmp_path / "with_rig.mcap"
-    _copy_with_rig_metadata(CROTON_BAG, bag, CROTON_RIG)
-    assert rig_from_bag(CROTON_BAG) is None
+    bag, bare = tmp_path / "with_rig.mcap", tmp_path / "bare.mcap"
+    _copy_bag(CROTON_BAG, bag, CROTON_RIG)
+    _copy_bag(CROTON_BAG, bare, None)
+    assert rig_from_bag(bare) is None
     rig = rig_from_bag(bag)
     assert np.allclose(rig.P_left, load_rig(CROTON_RIG).P_left)
     rrd = tmp_path / "x.rrd"

@@ -29,7 +29,9 @@ def rig_from_bag(path):
     """The rig stored in the bag's ``canopy_stereo`` MCAP metadata record, or None.
 
     The record's values are read as a rig file (ROS 2 parameter YAML, or a bare
-    ``ros__parameters`` mapping); the first value that is a rig wins.
+    ``ros__parameters`` mapping); the first value that is a rig wins. A record whose keys
+    are the parameters themselves (``P_left``, ``image_width``, ..., values in YAML) is read
+    as one rig too.
     """
     import yaml
     from mcap.reader import make_reader
@@ -58,6 +60,14 @@ def rig_from_bag(path):
                     break
             if isinstance(params, dict) and "P_left" in params:
                 return rig_from_parameters(params, source=f"{path} metadata {RIG_METADATA_NAME}/{key}")
+        if "P_left" in record.metadata:
+            params = {}
+            for key, text in record.metadata.items():
+                try:
+                    params[key] = yaml.safe_load(text)
+                except yaml.YAMLError:
+                    params[key] = text
+            return rig_from_parameters(params, source=f"{path} metadata {RIG_METADATA_NAME}")
     return None
 
 
