@@ -5,6 +5,9 @@ from setuptools import find_packages, setup
 
 PACKAGE = "canopy_stereo"
 
+#: The viewer's one dependency, pinned (canopy_stereo.viz.RERUN_REQUIREMENT says the same).
+RERUN = "rerun-sdk==0.41.0; python_version >= '3.11'"
+
 # ROS 2 executables (`ros2 run canopy_stereo <name>`): name -> module:function.
 ROS_EXECUTABLES = {
     "camera_node": "canopy_stereo.ros.nodes.camera:main",
@@ -53,16 +56,16 @@ setup(
     extras_require={
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-common-interfaces"],
         # catkin_pkg: rosidl_adapter (.msg -> .idl) for the test that builds tf2_msgs from its .msg;
-        # rerun-sdk: CI checks viewer recordings and the web viewer (a 170 MB wheel)
+        # rerun-sdk: the viewer (canopy-stereo view, run/demo --view), pinned (its web viewer and
+        # `rerun` tool ship inside the wheel; the wheel is CPython >= 3.11); CI checks recordings
+        # and the web viewer (a 170 MB wheel plus pyarrow)
         "test": ["pytest>=7", "rosbags>=0.9", "matplotlib>=3.6", "catkin_pkg", "dask[distributed]>=2023.1",
-                 "pyarrow>=12", "rerun-sdk==0.41.0"],
+                 "pyarrow>=12", RERUN],
         "plot": ["matplotlib>=3.6"],
         # canopy-stereo batch: Dask distributed (LocalCluster or a cluster); Parquet with pyarrow
         "batch": ["dask[distributed]>=2023.1", "matplotlib>=3.6"],
         "parquet": ["pyarrow>=12"],
-        # the viewer (canopy-stereo view, run/demo --view): rerun-sdk pinned, its web viewer and
-        # `rerun` tool ship inside the wheel
-        "viz": ["rerun-sdk==0.41.0"],
+        "viz": [RERUN],
     },
     zip_safe=True,
     tests_require=["pytest"],

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -135,9 +136,12 @@ def test_view_reopens_saved_recording(croton_recording, tmp_path):
 def test_view_raw_bag_without_rig_asks_for_rig(tmp_path):
     pytest.importorskip("rerun")
     pytest.importorskip("rclpy")
-    res = run_cli_subprocess("view", CROTON_BAG, "--save", tmp_path / "x.rrd", timeout=120)
+    bare = tmp_path / "bare.mcap"
+    _copy_bag(CROTON_BAG, bare, rig_path=None)  # without any rig record
+    res = run_cli_subprocess("view", bare, "--save", tmp_path / "x.rrd", timeout=120)
     assert res.returncode == 2
     assert "--rig" in res.stderr and len(res.stderr.strip().splitlines()) == 1, res.stderr
+    assert not (tmp_path / "x.rrd").exists()
 
 
 @pytest.mark.slow
@@ -157,3 +161,101 @@ def test_view_recorded_outputs_bag_as_recorded(tmp_path):
     assert len(ents["/world/cloud"]) == 4
     assert len(ents["/world/camera/depth"]) == 4 and len(ents["/world/camera/mask"]) == 4
     assert "/world/camera/image" not in ents  # not recorded by `run --record`: not invented
+
+
+def _copy_bag(src, dst, rig_path):
+    """A copy of bag ``src`` without its ``canopy_stereo`` metadata record, and with the rig
+    file ``rig_path`` in a new one (None: none)."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with open(src, "rb") as fin, open(dst, "wb") as fout:
+        reader = make_reader(fin)
+        header = reader.get_header()
+        writer = Writer(fout)
+        writer.start(profile=header.profile, library=header.library)
+        schemas, channels = {}, {}
+        for schema, channel, message in reader.iter_messages():
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding,
+                                                               schemas[schema.id], channel.metadata)
+            writer.add_message(channels[channel.id], message.log_time, message.data, message.publish_time,
+                               message.sequence)
+        for record in reader.iter_metadata():
+            if record.name != "canopy_stereo":
+                writer.add_metadata(record.name, record.metadata)
+        if rig_path is not None:
+            writer.add_metadata("canopy_stereo", {"rig": rig_path.read_text()})
+        writer.finish()
+
+
+@pytest.mark.slow
+@pytest.mark.ros
+def test_view_takes_the_rig_from_the_bag_metadata(tmp_path):
+    pytest.importorskip("rerun")
+    pytest.importorskip("rclpy")
+    from canopy_stereo.io.rig import load_rig
+    from canopy_stereo.ros.viewer import rig_from_bag
+
+    bag, bare = tmp_path / "with_rig.mcap", tmp_path / "bare.mcap"
+    _copy_bag(CROTON_BAG, bag, CROTON_RIG)
+    _copy_bag(CROTON_BAG, bare, None)
+    assert rig_from_bag(bare) is None
+    rig = rig_from_bag(bag)
+    assert np.allclose(rig.P_left, load_rig(CROTON_RIG).P_left)
+    rrd = tmp_path / "x.rrd"
+    res = run_cli_subprocess("view", bag, "--save", rrd, "--no-measure", timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    ents = _rrd_entities(rrd)
+    assert len(ents["/world/cloud"]) == 4
+    assert any(r["Transform3D:translation"].is_valid for _, r in ents["/world/camera"]
+               if "Transform3D:translation" in r)  # the camera is placed in the world
+
+
+@pytest.mark.slow
+@pytest.mark.ros
+def test_run_view_streams_live_and_serves_until_ctrl_c(tmp_path):
+    """Headless (no DISPLAY): ``run --view`` serves the web viewer on localhost, streams every
+    frame to it while the graph runs, and keeps serving until Ctrl-C."""
+    import os
+    import signal
+    import threading
+
+    pytest.importorskip("rerun")
+    pytest.importorskip("rclpy")
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    env["PYTHONUNBUFFERED"] = "1"
+    proc = subprocess.Popen([sys.executable, "-m", "canopy_stereo.cli", "run", "--bag", str(CROTON_BAG),
+                             "--rig", str(CROTON_RIG), "--rate", "0", "--view"], stdout=subprocess.PIPE,
+                            stderr=subprocess.DEVNULL, text=True, cwd=REPO, env=env)
+    out = []
+    reader = threading.Thread(target=lambda: out.extend(iter(proc.stdout.readline, "")), daemon=True)
+    reader.start()
+    try:
+        deadline = time.monotonic() + 600
+        while time.monotonic() < deadline and not any("Ctrl-C to stop" in line for line in list(out)):
+            if proc.poll() is not None:
+                break
+            time.sleep(0.5)
+        text = "".join(out)
+        assert "viewer: http://127.0.0.1:" in text and "frames out: 4" in text, text
+        shown = int(text.split("viewer: showed ")[1].split()[0])
+        assert 1 <= shown <= 4, text  # frames the viewer could not keep up with are skipped, not queued
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(60)
+    assert proc.returncode == 0
+
+
+def test_rerun_pin_is_one_version_everywhere():
+    """setup.py's extras, the install hint and the installed rerun-sdk agree."""
+    import re
+
+    from canopy_stereo.viz import INSTALL_HINT, RERUN_REQUIREMENT
+
+    pins = set(re.findall(r"rerun-sdk==([\d.]+)", (REPO / "setup.py").read_text()))
+    assert pins == {RERUN_REQUIREMENT.split("==")[1]} and RERUN_REQUIREMENT in INSTALL_HINT
+    rr = pytest.importorskip("rerun")
+    assert rr.__version__ == RERUN_REQUIREMENT.split("==")[1]

@@ -17,6 +17,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import numpy as np
@@ -126,19 +127,20 @@ def mask_tint_fraction(bgr: np.ndarray) -> float:
 
 
 def _read_line(proc, pattern: str, timeout_s: float, seen: list) -> re.Match:
+    """Wait for a line of ``proc``'s output matching ``pattern`` (a reader thread fills ``seen``)."""
+    if not getattr(proc, "_line_reader", None):
+        proc._line_reader = threading.Thread(target=lambda: seen.extend(iter(proc.stdout.readline, "")),
+                                             daemon=True)
+        proc._line_reader.start()
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        if not select.select([proc.stdout], [], [], 1.0)[0]:
-            if proc.poll() is not None:
-                break
-            continue
-        line = proc.stdout.readline()
-        if not line:
+        for line in list(seen):
+            m = re.search(pattern, line)
+            if m:
+                return m
+        if proc.poll() is not None and not proc._line_reader.is_alive():
             break
-        seen.append(line)
-        m = re.search(pattern, line)
-        if m:
-            return m
+        time.sleep(0.2)
     raise AssertionError(f"no line matching {pattern!r}; output so far: {''.join(seen)[-2000:]}")
 
 

@@ -44,16 +44,16 @@ def run(args) -> int:
     scenes = SCENES if args.scene == "all" else (args.scene,)
     view = None
     if args.view:
-        from canopy_stereo.viz.sources import LiveView
+        from canopy_stereo.ros.viewer import LiveView
 
-        view = LiveView(None, name="demo", need_mask=True)
+        from canopy_stereo.io.rig import load_rig
+        from canopy_stereo.ros.bundled import bundled_rig
+
+        view = LiveView(load_rig(bundled_rig(scenes[0])), name=scenes[0], need_mask=True)
     try:
-        for scene in scenes:
-            if view is not None:
-                from canopy_stereo.io.rig import load_rig
-                from canopy_stereo.ros.bundled import bundled_rig
-
-                view.set_rig(load_rig(bundled_rig(scene)))
+        for k, scene in enumerate(scenes):
+            if view is not None and k > 0:
+                view.start_recording(scene, load_rig(bundled_rig(scene)))
             for line in run_scene(scene, out_dir, args.matcher, args.domain_id, view=view):
                 print(line, flush=True)
     finally:

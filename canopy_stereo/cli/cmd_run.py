@@ -84,7 +84,7 @@ def run(args) -> int:
     if args.view:
         from pathlib import Path
 
-        from canopy_stereo.viz.sources import LiveView
+        from canopy_stereo.ros.viewer import LiveView
 
         view = LiveView(rig, name=Path(args.bag).stem, need_mask=options.segment)
     try:

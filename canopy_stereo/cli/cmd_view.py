@@ -2,8 +2,6 @@
 from __future__ import annotations
 
 import shutil
-import signal
-import time
 from pathlib import Path
 
 from canopy_stereo.errors import CanopyStereoError
@@ -64,23 +62,6 @@ def run(args) -> int:
     return _show_bag(src, args)
 
 
-def wait_until_interrupted(web) -> None:
-    """Serve until Ctrl-C / SIGTERM (or until the viewer server dies)."""
-    print(f"serving the viewer at {web.url} (localhost only); Ctrl-C to stop", flush=True)
-
-    def stop(signum, frame):
-        raise KeyboardInterrupt
-
-    old = signal.signal(signal.SIGTERM, stop)
-    try:
-        while web.process.poll() is None:
-            time.sleep(0.2)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        signal.signal(signal.SIGTERM, old)
-
-
 def _show_rrd(src: Path, args) -> int:
     import subprocess
 
@@ -96,7 +77,7 @@ def _show_rrd(src: Path, args) -> int:
         web = serve_web(port=args.port or 9090, files=[src])
         print(f"viewer: {web.url}", flush=True)
         try:
-            wait_until_interrupted(web)
+            web.serve_until_interrupted()
         finally:
             web.stop()
         return 0
@@ -113,41 +94,49 @@ def _show_bag(src: Path, args) -> int:
     from canopy_stereo.io.rig import load_rig
     from canopy_stereo.ros.bag import BagReader
     from canopy_stereo.viz.rerun_log import FrameLogger, close_recording, open_recording, serve_web
-    from canopy_stereo.viz.sources import bag_kind, rig_from_bag, run_raw_bag, show_recorded_outputs
+    from canopy_stereo.ros.viewer import (RIG_METADATA_NAME, bag_kind, rig_from_bag, run_raw_bag,
+                                           show_recorded_outputs)
 
     bag = BagReader(src)
     kind, ns = bag_kind(bag)
     rig = load_rig(args.rig) if args.rig else rig_from_bag(src)
     if kind == "raw" and rig is None:
-        raise CanopyStereoError(f"{src} holds raw frames but no rig (no '{'canopy_stereo'}' metadata "
+        raise CanopyStereoError(f"{src} holds raw frames but no rig (no '{RIG_METADATA_NAME}' metadata "
                                 "record): give the rig with --rig RIG.yaml")
+    if kind == "raw" and ns != "/stereo":
+        raise CanopyStereoError(f"{src}: raw frames under {ns}/, the graph reads /stereo/left/image_raw "
+                                "and /stereo/right/image_raw")
     web = serve_web(port=args.port or 9090) if args.web else None
     if web is not None:
         print(f"viewer: {web.url}", flush=True)
+    done = False
     try:
         rec = open_recording(save=args.save, web=web, spawn=not (args.save or args.web),
                              name=src.stem, with_measurements=kind == "raw" and not args.no_measure)
         logger = FrameLogger(rec, with_measurements=kind == "raw" and not args.no_measure)
         try:
             if kind == "raw":
-                from canopy_stereo.cli.progress import warm_up_kernels
+                from canopy_stereo.cli.progress import Progress, warm_up_kernels
 
                 warm_up_kernels()
-                if ns != "/stereo":
-                    raise CanopyStereoError(f"{src}: raw frames under {ns}, the graph reads /stereo")
-                result = run_raw_bag(src, rig, logger, measure=not args.no_measure, matcher=args.matcher,
-                                     domain_id=args.domain_id)
+                total = bag.topics[f"{ns}/left/image_raw"].message_count
+                with Progress(total, "frames shown") as bar:  # on a terminal only
+                    result = run_raw_bag(src, rig, logger, measure=not args.no_measure, matcher=args.matcher,
+                                         domain_id=args.domain_id, on_logged=lambda: bar.step())
                 print(f"{src}: {result.frames_in} frames through the graph, {logger.frames} shown")
             else:
                 n = show_recorded_outputs(bag, ns, logger, rig=rig)
                 print(f"{src}: {n} recorded frames shown" + ("" if rig else " (no rig: camera pose unknown)"))
         finally:
             close_recording(rec)
+        done = True
         if args.save:
             print(f"wrote {args.save}")
         elif web is not None:
-            wait_until_interrupted(web)
+            web.serve_until_interrupted()
     finally:
         if web is not None:
             web.stop()
+        if args.save and not done:
+            Path(args.save).unlink(missing_ok=True)  # no half-written recording is left behind
     return 0 if logger.frames > 0 else 1

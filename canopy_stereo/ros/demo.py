@@ -99,7 +99,7 @@ def canopy_lines(report: dict) -> list[str]:
 def run_scene(scene: str, out_dir, matcher=None, domain_id=None, view=None) -> list[str]:
     """Run one bundled scene; write its files and return the summary lines.
 
-    ``view``: an optional :class:`~canopy_stereo.viz.sources.LiveView` the graph's outputs
+    ``view``: an optional :class:`~canopy_stereo.ros.viewer.LiveView` the graph's outputs
     are streamed to as they arrive."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

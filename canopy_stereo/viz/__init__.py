@@ -7,9 +7,8 @@
   Rerun, the saved blueprint, and the sinks (``.rrd`` file, native viewer, the
   web viewer served on localhost). Needs the optional extra ``viz``
   (``pip install 'canopy_stereo[viz]'``, rerun-sdk); no ROS import.
-* :mod:`canopy_stereo.viz.sources`: what to show from a bag (run its raw frames
-  through the graph, or show its recorded outputs), a live graph or an ``.rrd``
-  (ROS imported only when a bag or a graph is used).
+* :mod:`canopy_stereo.ros.viewer` (the ROS side): what to show from a bag (run its
+  raw frames through the graph, or show its recorded outputs) or a live graph.
 """
 from __future__ import annotations
 

@@ -341,7 +341,24 @@ class WebViewer:
     grpc_url: str
     process: subprocess.Popen
 
+    def serve_until_interrupted(self) -> None:
+        """Keep serving until Ctrl-C / SIGTERM (or until the server process ends)."""
+
+        def stop(signum, frame):
+            raise KeyboardInterrupt
+
+        old = signal.signal(signal.SIGTERM, stop)
+        try:
+            print(f"serving the viewer at {self.url} (localhost only); Ctrl-C to stop", flush=True)
+            while self.process.poll() is None:
+                time.sleep(0.2)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            signal.signal(signal.SIGTERM, old)
+
     def stop(self) -> None:
+        """Stop the server process."""
         if self.process.poll() is None:
             self.process.terminate()
             try:
@@ -422,9 +439,20 @@ def open_recording(*, save=None, web: WebViewer | None = None, spawn: bool = Fal
     return rec
 
 
-def close_recording(rec) -> None:
-    """Flush and close the recording's sink (the .rrd file is complete afterwards)."""
+def close_recording(rec, *, timeout_s: float = 120.0) -> None:
+    """Flush and close the recording's sink (the .rrd file is complete afterwards); a viewer
+    that stopped listening does not hold the caller longer than ``timeout_s``."""
     try:
-        rec.flush()
+        rec.flush(timeout_sec=timeout_s)
     finally:
         rec.disconnect()
+
+
+def port_free(port: int, host: str = "127.0.0.1") -> bool:
+    """Nothing listens on ``host:port`` and it can be bound."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        try:
+            s.bind((host, int(port)))
+        except OSError:
+            return False
+    return True

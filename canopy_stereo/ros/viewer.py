@@ -1,11 +1,11 @@
-"""What the viewer shows: a bag (raw frames through the graph, or recorded outputs), a live graph.
+"""What the viewer shows from ROS: a bag (raw frames through the graph, or recorded outputs), a live graph.
 
 Graph outputs arrive per topic; :class:`FrameStreamer` gathers the messages of
 one stamp (``points2``, ``disparity``, ``left/mask``, ``left/image_rect_color``,
 ``left/camera_info``), converts them and logs the frame from a worker thread
 (optionally measuring leaves and canopy first), so that the graph's receiving
-thread never waits for the viewer. ROS message classes are imported only here,
-when a bag or graph is used.
+thread never waits for the viewer. The logging itself is
+:mod:`canopy_stereo.viz.rerun_log` (no ROS).
 """
 from __future__ import annotations
 
@@ -29,7 +29,9 @@ def rig_from_bag(path):
     """The rig stored in the bag's ``canopy_stereo`` MCAP metadata record, or None.
 
     The record's values are read as a rig file (ROS 2 parameter YAML, or a bare
-    ``ros__parameters`` mapping); the first value that is a rig wins.
+    ``ros__parameters`` mapping); the first value that is a rig wins. A record whose keys
+    are the parameters themselves (``P_left``, ``image_width``, ..., values in YAML) is read
+    as one rig too.
     """
     import yaml
     from mcap.reader import make_reader
@@ -58,6 +60,14 @@ def rig_from_bag(path):
                     break
             if isinstance(params, dict) and "P_left" in params:
                 return rig_from_parameters(params, source=f"{path} metadata {RIG_METADATA_NAME}/{key}")
+        if "P_left" in record.metadata:
+            params = {}
+            for key, text in record.metadata.items():
+                try:
+                    params[key] = yaml.safe_load(text)
+                except yaml.YAMLError:
+                    params[key] = text
+            return rig_from_parameters(params, source=f"{path} metadata {RIG_METADATA_NAME}")
     return None
 
 
@@ -89,10 +99,11 @@ class FrameStreamer:
         measure: measure leaves and canopy of each frame (needs organized clouds and masks).
         drop_when_busy: live use: when the logger is still busy with earlier frames,
             skip frames instead of queueing them (the graph never waits).
+        on_logged: optional ``f()`` called after each frame is logged (progress).
     """
 
     def __init__(self, logger: FrameLogger, rig=None, *, need_mask: bool = True, measure: bool = False,
-                 drop_when_busy: bool = False):
+                 drop_when_busy: bool = False, on_logged=None):
         self.logger = logger
         self.set_rig(rig)
         self.required = {"points2", "disparity", "left/image_rect_color"} | ({"left/mask"} if need_mask else set())
@@ -104,6 +115,7 @@ class FrameStreamer:
         self.skipped = 0
         self.logged = 0
         self.errors: list[str] = []
+        self.on_logged = on_logged
         self.worker = threading.Thread(target=self._work, name="canopy_viewer", daemon=True)
         self.worker.start()
 
@@ -143,8 +155,9 @@ class FrameStreamer:
         else:
             self.queue.put(item)
 
-    def close(self, timeout_s: float = 600.0) -> None:
-        """Log the frames still pending (those with a cloud), then stop the worker."""
+    def close(self, timeout_s: float | None = None) -> None:
+        """Log the frames still pending (those with a cloud), then stop the worker (waiting
+        for every queued frame unless ``timeout_s``)."""
         with self.lock:
             rest = sorted(self.pending.items())
             self.pending.clear()
@@ -178,6 +191,8 @@ class FrameStreamer:
                               image_bgr=frame.get("image"), depth_m=frame.get("depth"),
                               mask=frame.get("mask"), camera=pose, measurement=measurement)
         self.logged += 1
+        if self.on_logged is not None:
+            self.on_logged()
 
 
 def decode_frame(entry: dict) -> dict:
@@ -245,7 +260,7 @@ def show_recorded_outputs(bag, namespace: str, logger: FrameLogger, rig=None, me
 
 
 def run_raw_bag(path, rig, logger: FrameLogger, *, measure: bool = True, matcher=None,
-                domain_id=None, progress=None):
+                domain_id=None, progress=None, on_logged=None):
     """Run a bag of raw frames through the graph (organized clouds, plant masks) and log
     every frame as it comes out; returns the :class:`~canopy_stereo.ros.runner.RunResult`."""
     from sensor_msgs.msg import Image
@@ -253,7 +268,7 @@ def run_raw_bag(path, rig, logger: FrameLogger, *, measure: bool = True, matcher
     from canopy_stereo.ros.graph import GraphOptions
     from canopy_stereo.ros.runner import run_bag
 
-    streamer = FrameStreamer(logger, rig, need_mask=True, measure=measure)
+    streamer = FrameStreamer(logger, rig, need_mask=True, measure=measure, on_logged=on_logged)
     options = GraphOptions(matcher=matcher, segment=True, organized=True, parameter_services=False)
     try:
         result = run_bag(Path(path), rig, rate=0, options=options, domain_id=domain_id,
@@ -280,43 +295,55 @@ class LiveView:
                  printer=print):
         from sensor_msgs.msg import Image
 
-        from canopy_stereo.viz.rerun_log import has_display, open_recording, serve_web
+        from canopy_stereo.viz.rerun_log import has_display, open_recording, port_free, serve_web
 
         self.printer = printer
-        self.web = None if has_display() else serve_web(port=port or 9090)
+        if port is None:
+            port = 9090 if port_free(9090) else None  # else any free port: the address is printed
+        self.web = None if has_display() else serve_web(port=port)
         if self.web is not None:
             printer(f"viewer: {self.web.url} (no display here: open it in a browser)")
+        self.need_mask = need_mask
+        self.extra_outputs = {"left/image_rect_color": Image}
+        self.shown = self.skipped = 0
+        self.rec = self.streamer = None
+        self.start_recording(name, rig)
+
+    def start_recording(self, name: str, rig=None) -> None:
+        """A new recording (its own entry in the viewer) for the frames that follow, e.g. the
+        next scene of the demo: scenes do not share a timeline or a camera."""
+        from canopy_stereo.viz.rerun_log import open_recording
+
+        self._close_recording()
         self.rec = open_recording(web=self.web, spawn=self.web is None, name=name, with_measurements=False)
         self.logger = FrameLogger(self.rec, with_measurements=False)
-        self.streamer = FrameStreamer(self.logger, rig, need_mask=need_mask, measure=False,
+        self.streamer = FrameStreamer(self.logger, rig, need_mask=self.need_mask, measure=False,
                                       drop_when_busy=True)
-        self.extra_outputs = {"left/image_rect_color": Image}
+
+    def _close_recording(self) -> None:
+        from canopy_stereo.viz.rerun_log import close_recording
+
+        if self.streamer is not None:
+            self.streamer.close(timeout_s=120.0)
+            self.shown += self.streamer.logged
+            self.skipped += self.streamer.skipped
+            self.streamer = None
+        if self.rec is not None:
+            close_recording(self.rec)
+            self.rec = None
 
     def on_output(self, rel: str, stamp: int, data: bytes) -> None:
         self.streamer.on_output(rel, stamp, data)
 
-    def set_rig(self, rig) -> None:
-        """The rig of the frames that follow (places the camera in the world)."""
-        self.streamer.set_rig(rig)
-
-    def add_frame(self, stamp: int, entry: dict) -> None:
-        """Log one frame given as relative topic -> CDR bytes (e.g. kept run outputs)."""
-        self.streamer.log_messages(stamp, entry)
-
     def finish(self, *, wait: bool = True) -> None:
         """Log what is pending, close the recording; with a web viewer, serve until Ctrl-C
         (``wait``) and stop it."""
-        from canopy_stereo.viz.rerun_log import close_recording
-
         try:
-            self.streamer.close()
-            close_recording(self.rec)
-            self.printer(f"viewer: showed {self.streamer.logged} frames"
-                         + (f", skipped {self.streamer.skipped} while busy" if self.streamer.skipped else ""))
+            self._close_recording()
+            self.printer(f"viewer: showed {self.shown} frames"
+                         + (f", skipped {self.skipped} while busy" if self.skipped else ""))
             if self.web is not None and wait:
-                from canopy_stereo.cli.cmd_view import wait_until_interrupted
-
-                wait_until_interrupted(self.web)
+                self.web.serve_until_interrupted()
         finally:
             if self.web is not None:
                 self.web.stop()
