@@ -151,7 +151,7 @@ def test_view_recorded_outputs_bag_as_recorded(tmp_path):
     pytest.importorskip("rclpy")
     outputs = tmp_path / "outputs.mcap"
     res = run_cli_subprocess("run", "--bag", CROTON_BAG, "--rig", CROTON_RIG, "--rate", "0",
-                             "--record", outputs, timeout=600)
+                             "--organized", "--record", outputs, timeout=600)
     assert res.returncode == 0, res.stderr[-2000:]
     rrd = tmp_path / "outputs.rrd"
     res = run_cli_subprocess("view", outputs, "--save", rrd, timeout=300)
@@ -161,6 +161,8 @@ def test_view_recorded_outputs_bag_as_recorded(tmp_path):
     assert len(ents["/world/cloud"]) == 4
     assert len(ents["/world/camera/depth"]) == 4 and len(ents["/world/camera/mask"]) == 4
     assert "/world/camera/image" not in ents  # not recorded by `run --record`: not invented
+    # organized clouds and masks were recorded: leaves and canopy are measured per frame
+    assert len(ents["/world/canopy"]) == 4 and len(ents["/measurements/height_mm"]) == 4
 
 
 def _copy_bag(src, dst, rig_path):

@@ -30,7 +30,8 @@ def add_arguments(p):
     p.add_argument("--port", type=int, default=None, metavar="N",
                    help="with --web: HTTP port of the viewer page (default 9090)")
     p.add_argument("--no-measure", action="store_true",
-                   help="do not measure leaves and canopy per frame (raw bags; faster)")
+                   help="do not measure leaves and canopy per frame (faster; recorded bags are measured "
+                        "only when their clouds are organized and masks were recorded)")
     p.add_argument("--matcher", choices=("elas", "sgbm"), default=None,
                    help="disparity matcher for raw bags (default: elas)")
     p.add_argument("--domain-id", type=int, default=None, help="DDS domain of the graph (default: private)")
@@ -112,8 +113,8 @@ def _show_bag(src: Path, args) -> int:
     done = False
     try:
         rec = open_recording(save=args.save, web=web, spawn=not (args.save or args.web),
-                             name=src.stem, with_measurements=kind == "raw" and not args.no_measure)
-        logger = FrameLogger(rec, with_measurements=kind == "raw" and not args.no_measure)
+                             name=src.stem, with_measurements=not args.no_measure)
+        logger = FrameLogger(rec, with_measurements=not args.no_measure)
         try:
             if kind == "raw":
                 from canopy_stereo.cli.progress import Progress, warm_up_kernels
@@ -125,7 +126,7 @@ def _show_bag(src: Path, args) -> int:
                                          domain_id=args.domain_id, on_logged=lambda: bar.step())
                 print(f"{src}: {result.frames_in} frames through the graph, {logger.frames} shown")
             else:
-                n = show_recorded_outputs(bag, ns, logger, rig=rig)
+                n = show_recorded_outputs(bag, ns, logger, rig=rig, measure=not args.no_measure)
                 print(f"{src}: {n} recorded frames shown" + ("" if rig else " (no rig: camera pose unknown)"))
         finally:
             close_recording(rec)
