@@ -62,7 +62,7 @@ CASES = {
                             "95"], "--elevation"),
     # run (nothing is started: the options and the rig are checked first)
     "run-disp-max": (["run", "--bag", str(REPO / "bags/croton.mcap"), "--rig", "{rig_neg}"],
-                     "disp_max (-5) must be greater than disp_min (28)"),
+                     "disp_max (-5) must be greater than disp_min (12)"),
     "run-disp-min-neg": (["run", "--bag", str(REPO / "bags/croton.mcap"), "--rig", "{rig_min_neg}"],
                          "disp_min must be >= 0 pixels, got -3"),
     "run-disp-text": (["run", "--bag", str(REPO / "bags/croton.mcap"), "--rig", "{rig_text}"],
@@ -110,7 +110,7 @@ def test_reconstruct_and_disparity_node_share_the_range_check(cli, tmp_path, fil
     img = tmp_path / "full.png"
     cv2.imwrite(str(img), np.zeros((480, 640, 3), np.uint8))
     code, _, err = cli("reconstruct", img, img, "--rig", rig, "-o", tmp_path / "c.ply")
-    assert code == 2 and "disp_max (-5) must be greater than disp_min (28)" in err
+    assert code == 2 and "disp_max (-5) must be greater than disp_min (12)" in err
     pytest.importorskip("rclpy")
     from rclpy.parameter import Parameter
 
@@ -122,7 +122,7 @@ def test_reconstruct_and_disparity_node_share_the_range_check(cli, tmp_path, fil
 
     with ros_context() as ctx:
         overrides = rig_parameter_overrides(load_rig(rig)) + [Parameter("matcher", value="sgbm")]
-        with pytest.raises(CanopyStereoError, match="disp_max must be >= 0 pixels, or -1"):
+        with pytest.raises(CanopyStereoError, match=r"disp_max out of range. Min: -1"):
             DisparityNode(context=ctx, parameter_overrides=overrides, start_parameter_services=False)
 
 
