@@ -28,6 +28,7 @@ from numba import njit
 
 from canopy_stereo.errors import RigError
 from canopy_stereo.geometry.camera import decompose_projection
+from canopy_stereo.geometry.triangulation import kernel_mask
 
 #: The rig's world frame (metres).
 WORLD_FRAME = "canopy_world"
@@ -310,14 +311,7 @@ def reproject_disparity_points(disp, Q, T=None, *, mask=None, organized: bool = 
     d = np.ascontiguousarray(disp, np.float32)
     if d.ndim != 2:
         raise ValueError(f"disparity must be (H, W), got shape {d.shape}")
-    if mask is None:
-        m = np.zeros((0, 0), np.uint8)
-    else:
-        m = np.ascontiguousarray(mask)
-        if m.shape != d.shape:
-            raise ValueError(f"mask {m.shape} does not match disparity {d.shape}")
-        if m.dtype != np.uint8:
-            m = (m != 0).astype(np.uint8)
+    m = kernel_mask(mask, d.shape)
     T = np.eye(4) if T is None else np.asarray(T, np.float64)
     return _reproject_kernel(d, m, np.asarray(Q, np.float64), T, bool(organized))
 

@@ -179,6 +179,17 @@ def _rectified_points_kernel(disp, mask, Hl_inv, Hr_inv, P1, P2, scale, organize
     return pts[:n], index[:n]
 
 
+def kernel_mask(mask, shape) -> np.ndarray:
+    """``mask`` as the compiled kernels take it: uint8 of ``shape`` (non-zero = keep), or an
+    empty (0, 0) array for "no mask". Raises ValueError when the shapes differ."""
+    if mask is None:
+        return np.zeros((0, 0), np.uint8)
+    m = np.ascontiguousarray(mask)
+    if m.shape != tuple(shape):
+        raise ValueError(f"mask {m.shape} does not match disparity {tuple(shape)}")
+    return m if m.dtype == np.uint8 else (m != 0).astype(np.uint8)
+
+
 def triangulate_disparity_points(disp, rect, P_left, P_right, scale: float = 1.0, mask=None,
                                  organized: bool = False):
     """Points of the valid pixels of a rectified disparity, in one compiled pass.
@@ -202,14 +213,7 @@ def triangulate_disparity_points(disp, rect, P_left, P_right, scale: float = 1.0
         (N = Hr * Wr and ``index = arange`` when ``organized``).
     """
     disp = np.ascontiguousarray(disp, dtype=np.float32)
-    if mask is None:
-        mask_arr = np.zeros((0, 0), np.uint8)
-    else:
-        mask_arr = np.ascontiguousarray(mask)
-        if mask_arr.shape != disp.shape:
-            raise ValueError(f"mask {mask_arr.shape} does not match disparity {disp.shape}")
-        if mask_arr.dtype != np.uint8:
-            mask_arr = (mask_arr != 0).astype(np.uint8)
+    mask_arr = kernel_mask(mask, disp.shape)
     return _rectified_points_kernel(disp, mask_arr, np.asarray(rect.H_left_inv, np.float64),
                                     np.asarray(rect.H_right_inv, np.float64),
                                     normalize_projection(P_left), normalize_projection(P_right),
