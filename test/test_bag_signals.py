@@ -185,16 +185,19 @@ def _graph(args, domain):
                             env=_env(domain), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def _wait_for_passes(proc, n: int, timeout: float = 180.0) -> list[str]:
-    """Lines of stdout until ``n`` passes of --loop have printed their summaries."""
-    lines, passes = [], 0
+def _wait_for_passes(proc, n: int, timeout: float = 180.0, min_span_s: float = 0.0) -> list[str]:
+    """Lines of stdout until ``n`` passes of --loop have printed their summaries and at least
+    ``min_span_s`` seconds passed between the first pass's line and the last one read."""
+    lines, passes, first = [], 0, None
     deadline = time.monotonic() + timeout
-    while passes < n:
+    while passes < n or time.monotonic() - first < min_span_s:
         assert time.monotonic() < deadline, "\n".join(lines)
         line = proc.stdout.readline()
         assert line or proc.poll() is None, proc.stderr.read()
         lines.append(line)
-        passes += line.startswith("frames in:")
+        if line.startswith("frames in:"):
+            passes += 1
+            first = time.monotonic() if first is None else first
     return lines
 
 
@@ -227,7 +230,9 @@ def test_graph_loop_record_splits_like_rosbag2(tmp_path):
     proc = _graph(["--bag", bundled_bag("croton"), "--rate", "2", "--loop", "--record", out,
                    "--split-duration", "0.6"], private_domain_id())
     try:
-        _wait_for_passes(proc, 3)
+        # one graph loops the 0.3 s bag: at rate 2 three passes take ~0.45 s, less than one split
+        # duration; run until the outputs span more than two
+        _wait_for_passes(proc, 3, min_span_s=1.5)
         proc.send_signal(signal.SIGTERM)
         stdout, err = proc.communicate(timeout=60)
     finally:

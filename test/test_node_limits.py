@@ -372,6 +372,29 @@ def test_bounded_dds_memory_profile_unless_the_user_configures_fast_dds(tmp_path
     assert "XMLPARSER" not in out.stderr and "Error" not in out.stderr, out.stderr  # the profile parses
 
 
+@pytest.mark.skipif(not os.path.isdir("/dev/shm"), reason="no POSIX shared memory directory")
+def test_fast_dds_shared_memory_segment_holds_several_frames(tmp_path):
+    """A node process's participant gets the profile's 8 MiB shared-memory segment (Fast DDS's
+    512 kB default recycled a rectify_node frame's ~1.5 MB of images and camera_infos before the
+    readers took them: samples lost and repaired hundreds of ms later)."""
+    if os.environ.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp") != "rmw_fastrtps_cpp":
+        pytest.skip("another middleware")
+    code = ("import os, rclpy; from canopy_stereo.ros.context import use_bounded_dds_memory as u\n"
+            "assert u()\n"
+            "before = set(os.listdir('/dev/shm'))\n"
+            "rclpy.init(); n = rclpy.create_node('segment_check')\n"
+            "print(max(os.path.getsize('/dev/shm/' + f) for f in set(os.listdir('/dev/shm')) - before\n"
+            "          if f.startswith('fastrtps_') and 'port' not in f and not f.endswith('_el')))\n"
+            "n.destroy_node(); rclpy.shutdown()")
+    env = {k: v for k, v in os.environ.items()
+           if not k.startswith(("FASTRTPS_", "FASTDDS_", "RMW_FASTRTPS_"))}
+    env.update(ROS_DOMAIN_ID=str(private_domain_id()), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120,
+                         cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert int(out.stdout.split()[-1]) >= 8 << 20
+
+
 def test_no_fast_dds_profile_for_another_middleware(monkeypatch):
     from canopy_stereo.ros import context
 

@@ -2,6 +2,7 @@
 launch_ros are not on PyPI) and its nodes started as processes: bag mode and camera mode
 (image sequences standing in for webcams) both produce clouds; ``canopy_graph --loop``
 replays a bag through one graph without rebuilding it."""
+import re
 import time
 
 import numpy as np
@@ -110,6 +111,13 @@ def test_canopy_graph_loop_replays_without_rebuilding(ros_processes):
     assert log.count("rectifying 640x480 pairs") == 1  # the nodes were built once
     # 10 clouds of a 4-frame bag: several passes, each stamp again and again
     assert len(set(stamps)) <= 4 and len(stamps) >= 10
-    frames_in = int(log.split("frames in: ")[1].split(",")[0])
-    frames_out = int(log.split("frames out: ")[1].split(",")[0])
+    # the final summary ("frames in: X, frames out: Y, dropped: Z"), not the per-pass lines
+    # ("frames in: X, frames out: Y (after pass N)") printed before it
+    counts = [tuple(map(int, m.groups())) for m in re.finditer(
+        r"^frames in: (\d+), frames out: (\d+)(?!\d| \(after pass)", log, re.MULTILINE)]
+    assert counts, log
+    frames_in, frames_out = counts[-1]
     assert frames_in >= 10 and frames_in >= frames_out >= 5, log
+    passes = [tuple(map(int, m.groups())) for m in re.finditer(
+        r"^frames in: (\d+), frames out: (\d+) \(after pass \d+\)", log, re.MULTILINE)]
+    assert len(passes) >= 2 and all(i <= frames_in and o <= frames_out for i, o in passes), log

@@ -200,7 +200,10 @@ def use_bounded_dds_memory() -> bool:
     message ever received and never shrinks (``PREALLOCATED_WITH_REALLOC``): one
     hostile 8000x8000 image leaves 190 MB in each reader that saw it. The
     package's profile (:data:`FASTDDS_PROFILES`: rmw_fastrtps's settings with
-    ``DYNAMIC`` reader memory) is selected through ``FASTRTPS_DEFAULT_PROFILES_FILE``
+    ``DYNAMIC`` reader memory, and an 8 MiB shared-memory segment so that a frame's images
+    and camera_infos are not recycled before the local readers take them: with Fast DDS's
+    512 kB they were lost and came back by reliable repair hundreds of ms late) is selected
+    through ``FASTRTPS_DEFAULT_PROFILES_FILE``
     and ``RMW_FASTRTPS_USE_QOS_FROM_XML=1``; the QoS set in code and by
     ``qos_overrides`` parameters still applies over it. Takes effect when it runs before
     the process's first ``rclpy.init`` (:func:`tune_node_process` is called before it):
