@@ -22,6 +22,9 @@ Parameters (changeable at run time unless marked read-only):
 * ``disp_min``, ``disp_max``: search range in pixels (a rig file's ``disp_min``/``disp_max``
   set them); -1 = from the cameras: 0 to the disparity of a point 8 baselines away
   (``f / 8``), or 0 to 128 for an uncalibrated pair;
+* ``threads``: threads of the ELAS kernels (numba; 0 = numba's default, every core),
+  the node's share of the cores when other nodes run beside it (1 on a 2-core machine
+  running the whole graph keeps the matcher from competing with itself);
 * read-only: ``queue_size``, ``waiting_pairs``, ``reliability``, ``diagnostic_period``.
 
 This is the slowest stage: the matcher runs in a worker thread on the complete pairs
@@ -138,6 +141,8 @@ class DisparityNode(CanopyNode):
                             "when more arrive the oldest is dropped (the newest win, latency stays bounded)",
                             minimum=1, maximum=100, read_only=True)
         self.declare_text("matcher", default_matcher(), "disparity matcher", choices=("elas", "sgbm"))
+        self.declare_number("threads", 0, "threads of the ELAS kernels (0 = numba's default: every core)",
+                            minimum=0, maximum=1024)
         self.declare_text("preset", "robotics", "ELAS preset (defaults of the elas.* parameters)",
                           choices=tuple(_elas_presets()))
         self.declare_number("disp_min", -1, "smallest disparity searched (pixels); "
@@ -211,7 +216,7 @@ class DisparityNode(CanopyNode):
         else:
             delta_d = 1.0 / 16.0
         return {"matcher": matcher, "disp_min": dmin, "disp_max": dmax, "params": params,
-                "delta_d": delta_d}
+                "delta_d": delta_d, "threads": int(value("threads"))}
 
     def _on_set_parameters(self, parameters) -> SetParametersResult:
         changes = {p.name: p.value for p in parameters}
@@ -266,6 +271,7 @@ class DisparityNode(CanopyNode):
             self.get_logger().info(f"rectified cameras: f {f:.2f} px, t {t:.5f} m, "
                                    f"cx_left - cx_right {doffs:.2f} px")
         dmin, dmax = resolve_disparity_range(c["disp_min"], c["disp_max"], f, t, doffs)
+        apply_thread_budget(c["threads"])
         disp = compute_disparity(left, right, matcher=c["matcher"], disp_min=dmin,
                                  disp_max=dmax, **c["params"])
         msg = disparity_to_msg(disp, f, t, dmin, dmax, c["delta_d"], stamp_ns, frame_id, doffs)
@@ -274,6 +280,21 @@ class DisparityNode(CanopyNode):
 
 
 _STREAMS = ("left rectified image", "right rectified image", "left camera_info", "right camera_info")
+
+
+def apply_thread_budget(threads: int) -> int:
+    """Let the ELAS kernels called from this thread use ``threads`` threads (numba's setting is
+    per thread; 0 = numba's default, every core; capped at ``NUMBA_NUM_THREADS``); returns the
+    count in force. Without numba (SGBM only) nothing is set and 0 is returned."""
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - SGBM only
+        return 0
+    limit = int(numba.config.NUMBA_NUM_THREADS)
+    n = limit if int(threads) <= 0 else min(int(threads), limit)
+    if numba.get_num_threads() != n:
+        numba.set_num_threads(n)
+    return n
 
 
 def stereo_parameters(info_left, info_right) -> tuple[float, float, float]:
