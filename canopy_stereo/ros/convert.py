@@ -12,12 +12,14 @@
   in ROS conventions.
 * :func:`stamp_to_ns` / :func:`ns_to_stamp`: ``builtin_interfaces/Time`` <-> int ns.
 
-Large byte fields are filled from ``bytes`` (rclpy turns them into
-``array.array`` without inspecting every element) and read back with
-``np.frombuffer`` (no copy).
+Large byte fields are filled with one copy of the array's memory into the
+``array.array('B')`` rclpy keeps for a ``uint8[]`` field (:func:`message_bytes`; ``bytes``
+would be copied twice, once by ``tobytes`` and again by rclpy) and read back with
+``np.frombuffer`` (no copy: arrays returned by the readers are views into the message).
 """
 from __future__ import annotations
 
+import array
 from dataclasses import dataclass
 
 import cv2
@@ -43,6 +45,14 @@ ENCODINGS: dict[str, tuple[str, int]] = {
 COLOUR_ENCODINGS = ("bgr8", "rgb8", "bgra8", "rgba8", "mono8", "8UC1", "8UC3")
 
 _NS = 1_000_000_000
+
+
+def message_bytes(data: np.ndarray) -> array.array:
+    """The bytes of ``data`` (any dtype; made C-contiguous if it is not) as the
+    ``array.array('B')`` rclpy stores in a ``uint8[]`` message field: one copy."""
+    out = array.array("B")
+    out.frombytes(np.ascontiguousarray(data).reshape(-1).view(np.uint8))
+    return out
 
 
 def stamp_to_ns(stamp: Time) -> int:
@@ -98,8 +108,12 @@ def image_to_msg(image: np.ndarray, encoding: str | None = None, stamp_ns: int =
                          f"got {got_channels} of {image.dtype}")
     data = np.ascontiguousarray(image, dtype=np.dtype(dtype).newbyteorder("<"))
     h, w = image.shape[:2]
-    return Image(header=make_header(stamp_ns, frame_id), height=h, width=w, encoding=encoding,
-                 is_bigendian=0, step=w * channels * data.itemsize, data=data.tobytes())
+    msg = Image(header=make_header(stamp_ns, frame_id), height=h, width=w, encoding=encoding,
+                is_bigendian=0, step=w * channels * data.itemsize)
+    # assigned, not passed to the constructor: rclpy's generated __init__ copies a uint8[]
+    # field element by element (0.7 ms for a 640x480 bgr8 image), its setter in one block
+    msg.data = message_bytes(data)
+    return msg
 
 
 def msg_to_image(msg: Image, encodings=None, expected_size=None) -> np.ndarray:
@@ -358,7 +372,7 @@ def points_to_cloud2(points: np.ndarray, colors: np.ndarray | None = None, stamp
     msg.is_bigendian = False
     msg.point_step = point_step
     msg.row_step = point_step * int(width)
-    msg.data = rec.tobytes()
+    msg.data = message_bytes(rec)
     msg.is_dense = dense
     return msg
 
