@@ -384,8 +384,20 @@ class DiagnosticsTotals:
             return {k: dict(v) for k, v in self.latest.items()}
 
 
+def parse_node_parameter(text: str) -> tuple[str, str, object]:
+    """``NODE:NAME=VALUE`` (VALUE in YAML, as ``-p NAME:=VALUE``) -> ``(node, name, value)``."""
+    import yaml
+
+    node, sep, rest = text.partition(":")
+    name, eq, value = rest.partition("=")
+    if not sep or not eq or not node or not name:
+        raise ValueError(f"node parameter {text!r}: expected NODE:NAME=VALUE, "
+                         "e.g. disparity_node:elas.subsampling=true")
+    return node, name, yaml.safe_load(value)
+
+
 def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rate_hz: float = 30.0,
-               log_dir: Path, threads: int | None = None) -> dict:
+               log_dir: Path, threads: int | None = None, node_parameters: dict | None = None) -> dict:
     """Feed the graph of ``config`` ``n_frames`` pairs at ``rate_hz``; the figures (see the module
     docstring) as a dict. Runs in the calling process (``main`` gives each configuration a fresh one)."""
     import threading
@@ -410,6 +422,8 @@ def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rat
               "point_cloud_node": {"use_mask": config.mask}}
     if threads:
         params["disparity_node"]["threads"] = int(threads)
+    for node, values in (node_parameters or {}).items():
+        params.setdefault(node, {}).update(values)
     group = graph = probe = None
     arrivals: dict = {}
     lock = threading.Lock()
@@ -423,11 +437,12 @@ def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rat
         else:
             from canopy_stereo.ros.graph import CanopyGraph, GraphOptions
 
-            node_parameters = {"disparity_node": {k: v for k, v in params["disparity_node"].items()
-                                                  if k != "matcher"}}
+            in_graph = {node: {k: v for k, v in values.items() if (node, k) not in
+                               (("disparity_node", "matcher"), ("point_cloud_node", "use_mask"))}
+                        for node, values in params.items()}
             graph = CanopyGraph(rig, probe.context, GraphOptions(
                 matcher=config.matcher, segment=config.mask, use_mask=config.mask,
-                parameter_services=False, node_parameters=node_parameters))
+                parameter_services=False, node_parameters=in_graph))
             graph.spin_in_background()
             pids = {}
         diagnostics = DiagnosticsTotals(probe.node)
@@ -586,6 +601,9 @@ def main(argv=None) -> int:
                    help="pairs fed per configuration (default 90; the --replay/--processes modes: 40)")
     p.add_argument("--threads", type=int, default=None,
                    help="disparity_node's thread budget (default: the node's)")
+    p.add_argument("--param", action="append", default=[], metavar="NODE:NAME=VALUE",
+                   help="a node parameter for every configuration (repeatable), e.g. "
+                        "disparity_node:elas.subsampling=true, segment_node:recut_every=1")
     p.add_argument("--json", metavar="OUT.json", help="also write the results as JSON")
     p.add_argument("--one", metavar="CONFIG", help=argparse.SUPPRESS)  # one configuration, this process
     p.add_argument("--replay", action="store_true", help="the bag replay mode (frames/s as fast as possible)")
@@ -607,16 +625,22 @@ def main(argv=None) -> int:
         configs = [Config.parse(c) for c in (args.configs or (QUICK_CONFIGS if args.quick else all_configs()))]
         if args.one:
             configs = [Config.parse(args.one)]
+        node_parameters: dict = {}
+        for text in args.param:
+            node, name, value = parse_node_parameter(text)
+            node_parameters.setdefault(node, {})[name] = value
     except ValueError as exc:
         p.error(str(exc))
     if args.one:
         with tempfile.TemporaryDirectory() as tmp:
             result = run_config(configs[0], scene=args.scene, n_frames=n_frames, rate_hz=args.rate,
-                                log_dir=Path(tmp), threads=args.threads)
+                                log_dir=Path(tmp), threads=args.threads, node_parameters=node_parameters)
         Path(args.json).write_text(json.dumps(result))
         return 0
     print(f"machine: {os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.2f} at start; "
-          f"{args.scene} frames, {n_frames} pairs per configuration at {args.rate:g} pairs/s", flush=True)
+          f"{args.scene} frames, {n_frames} pairs per configuration at {args.rate:g} pairs/s"
+          + "".join(f"; {t}" for t in args.param) + (f"; disparity threads {args.threads}" if args.threads else ""),
+          flush=True)
     print(HEADER, flush=True)
     results = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -626,6 +650,8 @@ def main(argv=None) -> int:
                    "--scene", args.scene, "--rate", str(args.rate), "--frames", str(n_frames)]
             if args.threads:
                 cmd += ["--threads", str(args.threads)]
+            for text in args.param:
+                cmd += ["--param", text]
             proc = subprocess.run(cmd, capture_output=True, text=True)
             if proc.returncode != 0 or not out.is_file():
                 print(f"{str(config):32s} failed: {(proc.stderr or proc.stdout).strip().splitlines()[-1:]}",

@@ -30,6 +30,15 @@ def test_configs_parse_and_cover_the_matrix():
             bench_graph.Config.parse(bad)
 
 
+def test_node_parameters_from_the_command_line():
+    assert bench_graph.parse_node_parameter("disparity_node:elas.subsampling=true") == (
+        "disparity_node", "elas.subsampling", True)
+    assert bench_graph.parse_node_parameter("segment_node:recut_every=1") == ("segment_node", "recut_every", 1)
+    for bad in ("disparity_node", "disparity_node:threads", ":x=1"):
+        with pytest.raises(ValueError, match="NODE:NAME=VALUE"):
+            bench_graph.parse_node_parameter(bad)
+
+
 @pytest.mark.parametrize("size", ["320x240", "640x480", "1280x960"])
 def test_bench_frames_and_scaled_rig_agree(size):
     """The scaled, cropped rig projects a world point where the crop + resize puts its pixel."""
@@ -79,7 +88,8 @@ def test_cpu_accounting_sees_a_busy_thread():
 def test_one_configuration_reports_every_figure(tmp_path):
     """A short in-process run at 320x240: clouds arrive, and every node has CPU and outputs."""
     r = bench_graph.run_config(bench_graph.Config.parse("inprocess:sgbm:mask:320x240"), n_frames=10,
-                               rate_hz=10.0, log_dir=tmp_path)
+                               rate_hz=10.0, log_dir=tmp_path,
+                               node_parameters={"segment_node": {"recut_every": 3}})
     assert 8 < r["offered_per_s"] < 12
     assert r["delivered_fraction"] > 0 and r["latency_median_ms"] > 0
     assert r["latency_p95_ms"] >= r["latency_median_ms"]
