@@ -204,6 +204,27 @@ def test_rectify_node_drops_bad_input_and_keeps_running(harness, paper_rig):
     assert sum(drops.values()) == 5  # 32FC1 left, its right, two small frames, the orphan left
 
 
+def test_rectify_node_counts_frames_it_never_received(harness, paper_rig):
+    """Left stamps at 10 Hz with frames 4, 5, 6 and 9 missing: 4 drops 'missed', in the
+    node's counters and on /diagnostics; the pairs that came are all published."""
+    from canopy_stereo.ros.nodes.rectify import MISSED_REASON, RectifyNode
+
+    node = harness.add(RectifyNode(**node_kwargs(harness, paper_rig)))
+    out = harness.collect(Image, "left/image_rect_color")
+    pl, pr = harness.publisher(Image, "left/image_raw"), harness.publisher(Image, "right/image_raw")
+    harness.connect(pl, pr)
+    left, right = textured_pair(paper_rig)
+    sent = [k for k in range(12) if k not in (4, 5, 6, 9)]
+    for k in sent:
+        t = T0 + k * 100_000_000
+        pl.publish(convert.image_to_msg(left, "bgr8", t, "left_camera"))
+        pr.publish(convert.image_to_msg(right, "bgr8", t + 3_000_000, "right_camera"))
+        assert wait_for(lambda: len(out) == sent.index(k) + 1, TIMEOUT)
+    assert node.stats()["drops"] == {f"left frame: {MISSED_REASON}": 4}
+    values = {kv.key: kv.value for kv in node.diagnostics.status().values}
+    assert values[f"dropped: left frame: {MISSED_REASON}"] == "4"
+
+
 # --------------------------------------------------------------------------- disparity_node
 
 
