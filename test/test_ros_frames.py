@@ -16,6 +16,8 @@ import cv2
 import numpy as np
 import pytest
 
+from canopy_stereo.errors import ImageError  # noqa: E402
+
 pytest.importorskip("rclpy")
 pytest.importorskip("stereo_msgs.msg")
 
@@ -88,6 +90,46 @@ def test_camera_info_path_equals_back_mapping_and_dlt(paper_rig, rig_name):
     # depth is Z = f t / d of the rectified left camera
     z = depth.ravel()[index]
     np.testing.assert_allclose(z, msg.f * msg.t / msg.disparity.ravel()[index], rtol=1e-6)
+
+
+@pytest.mark.parametrize("organized", [False, True])
+@pytest.mark.parametrize("masked", [False, True])
+def test_cloud_records_path_gives_the_reference_cloud(paper_rig, organized, masked):
+    """point_cloud_node's fast path (the kernel writes x, y, z, rgb rows; records_to_cloud2)
+    makes the same PointCloud2, byte for byte, as the reference (points, gathered colours,
+    points_to_cloud2), dense or organized, with or without a mask."""
+    from canopy_stereo.geometry.frames import reproject_disparity_points, reproject_disparity_records
+    from canopy_stereo.ros.nodes.point_cloud import reprojection_from_messages
+
+    rig = verged_rig()
+    rect = fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
+    t = rect.baseline * rig.metres_per_unit
+    disp = smooth_disparity(rect, 15.0, 60.0)
+    msg = convert.msg_to_disparity(convert.disparity_to_msg(disp, rect.focal_length, t, 0, 100))
+    info = convert.rectified_camera_info(rect.K_rect_left, rect.size, t, "left", 0, "left_camera_rect_optical_frame")
+    geometry = parse_stereo_geometry(stereo_geometry_msg(rig, rect, FrameNames()))
+    T = geometry.lookup("canopy_world", info.header.frame_id)
+    Q = reprojection_from_messages(msg.f, msg.t, info)
+    rng = np.random.default_rng(1)
+    h, w = disp.shape
+    bgr = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    mask = (rng.random((h, w)) > 0.3).astype(np.uint8) * 255 if masked else None
+    rgb = convert.pack_bgr_image(bgr)
+    pts, index, depth = reproject_disparity_points(msg.disparity, Q, T, mask=mask, organized=organized)
+    colours = rgb if organized else rgb.reshape(-1)[index]
+    if organized:
+        pts = pts.reshape(h, w, 3)
+    ref = convert.points_to_cloud2(pts, None, 7, "canopy_world", organized=organized, rgb=colours)
+    records, depth2 = reproject_disparity_records(msg.disparity, Q, T, rgb=rgb, mask=mask, organized=organized)
+    fast = convert.records_to_cloud2(records, 7, "canopy_world", (h, w) if organized else None)
+    assert bytes(fast.data) == bytes(ref.data)
+    for field in ("height", "width", "point_step", "row_step", "is_dense", "is_bigendian", "fields", "header"):
+        assert getattr(fast, field) == getattr(ref, field), field
+    np.testing.assert_array_equal(depth2, depth)
+    with pytest.raises(ImageError):
+        convert.records_to_cloud2(records[:, :3].copy())
+    with pytest.raises(ImageError):
+        convert.records_to_cloud2(records, organized_shape=(h + 1, w))
 
 
 @pytest.mark.parametrize("rig_name", ["verged", "paper"])

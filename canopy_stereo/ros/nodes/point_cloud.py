@@ -40,11 +40,11 @@ from std_msgs.msg import String
 from stereo_msgs.msg import DisparityImage
 
 from canopy_stereo.errors import CanopyStereoError, ImageError
-from canopy_stereo.geometry.frames import apply_transform, reproject_disparity, reproject_disparity_points
+from canopy_stereo.geometry.frames import apply_transform, reproject_disparity, reproject_disparity_records
 from canopy_stereo.geometry.triangulation import triangulate_disparity_points
 from canopy_stereo.ros.convert import (COLOUR_ENCODINGS, camera_info_matrices, depth_to_msg, is_calibrated,
                                        msg_to_bgr, msg_to_disparity, msg_to_image, pack_bgr_image,
-                                       points_to_cloud2, stamp_to_ns)
+                                       points_to_cloud2, records_to_cloud2, stamp_to_ns)
 from canopy_stereo.ros.limits import check_disparity_msg, check_image_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.nodes.rectify import RECT_INFO_TOPICS
@@ -240,14 +240,14 @@ class PointCloudNode(CanopyNode):
                 target = self._target_frame(cloud_frame)
                 T = self.geometry.lookup(target, optical)
                 frame_id = self._world_frame() if cloud_frame == "world" else target
-            points, index, depth = reproject_disparity_points(frame.disparity, Q, T, mask=mask,
-                                                               organized=organized)
+            # x, y, z and rgb written by the kernel into the cloud's rows (one copy into the message)
+            records, depth = reproject_disparity_records(frame.disparity, Q, T, rgb=pack_bgr_image(bgr),
+                                                         mask=mask, organized=organized)
             self.pub_depth_info.publish(info)
             self.pub_depth.publish(depth_to_msg(depth, stamp_ns, optical))
-            rgb = pack_bgr_image(bgr)
-            colours = rgb if organized else rgb.reshape(-1)[index]
-            if organized:
-                points = points.reshape(h, w, 3)
+            self.pub.publish(records_to_cloud2(records, stamp_ns, frame_id, (h, w) if organized else None))
+            self.count("clouds_published")
+            return
         else:  # projective rectification: back-mapping + DLT with the world-frame P
             g = self.geometry
             disp = np.where(np.isfinite(frame.disparity), frame.disparity, np.float32(-1))
