@@ -45,12 +45,11 @@ def run(args) -> int:
         raise CanopyStereoError(f"output must be a .pfm file, got {args.output}")
     from canopy_stereo.disparity import compute_disparity
 
+    left, right = read_image(args.left), read_image(args.right)  # a bad file fails at once
     if args.matcher == "elas":
         from canopy_stereo.cli.progress import warm_up_kernels
 
         warm_up_kernels()  # the time printed below is then the matching alone
-
-    left, right = read_image(args.left), read_image(args.right)
     disp_max = args.disp_max if args.disp_max is not None else DEFAULT_DISP_MAX[args.matcher]
     params = {"preset": args.preset, "subpixel": args.subpixel} if args.matcher == "elas" else {}
     t0 = time.perf_counter()

@@ -51,14 +51,14 @@ def run(args) -> int:
         raise CanopyStereoError("--measure needs --report REPORT.json")
     if (args.leaf_ids or args.report or args.csv or args.plot) and not args.measure:
         raise CanopyStereoError("--leaf-ids/--report/--csv/--plot need --measure")
+    rig = load_rig(args.rig)  # inputs first: a bad file fails at once, in one line
+    left, right = read_image(args.left), read_image(args.right)
+    mask = read_image(args.mask, color=False) if args.mask else None
     if args.matcher == "elas":
         from canopy_stereo.cli.progress import warm_up_kernels
 
         warm_up_kernels()  # says so when numba compiles (first run); not in the stage times
     t0 = time.perf_counter()
-    rig = load_rig(args.rig)
-    left, right = read_image(args.left), read_image(args.right)
-    mask = read_image(args.mask, color=False) if args.mask else None
     rect = None
     if args.method == "hartley" and args.match_pairs:
         from canopy_stereo.cli.cmd_rectify import load_match_pairs

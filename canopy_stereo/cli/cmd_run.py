@@ -53,7 +53,7 @@ def run(args) -> int:
     from canopy_stereo.io.rig import load_rig
     from canopy_stereo.ros.graph import GraphOptions
     from canopy_stereo.ros.player import parse_remaps
-    from canopy_stereo.ros.runner import run_bag
+    from canopy_stereo.ros.runner import open_input_bag, run_bag
 
     import math
 
@@ -73,13 +73,15 @@ def run(args) -> int:
                                                    rig.extra.get("H_left"), rig.extra.get("H_right")))
     except CanopyStereoError as exc:
         raise CanopyStereoError(f"rig {args.rig}: {exc}") from None
+    options = GraphOptions(matcher=args.matcher, segment=not args.no_segment or args.use_mask,
+                           use_mask=args.use_mask, organized=args.organized,
+                           parameter_services=False)
+    # a bag the graph cannot play fails before the kernels are prepared (one line, no wait)
+    open_input_bag(args.bag, namespace=options.namespace, remap=parse_remaps(args.remap))
     if args.matcher in (None, "elas"):
         from canopy_stereo.cli.progress import warm_up_kernels
 
         warm_up_kernels()  # says so when numba compiles (first run)
-    options = GraphOptions(matcher=args.matcher, segment=not args.no_segment or args.use_mask,
-                           use_mask=args.use_mask, organized=args.organized,
-                           parameter_services=False)
     view = None
     if args.view:
         from pathlib import Path
