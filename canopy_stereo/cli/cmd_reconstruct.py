@@ -25,7 +25,9 @@ def add_arguments(p):
     p.add_argument("right", help="right image")
     add_rig_argument(p)
     p.add_argument("-o", "--output", required=True, metavar="cloud.ply")
-    p.add_argument("--method", choices=RECTIFICATION_METHODS, default="fusiello")
+    p.add_argument("--method", choices=RECTIFICATION_METHODS, default=None,
+                   help="rectification: fusiello or hartley (the rig's homographies when it has them, "
+                        "else from matches); default: the rig's method, else fusiello")
     p.add_argument("--match-pairs", nargs=2, metavar=("LEFT_GLOB", "RIGHT_GLOB"),
                    help="hartley: pool matches from more pairs taken by the same rig")
     p.add_argument("--matcher", choices=matcher_names(), default="elas",
@@ -60,17 +62,17 @@ def run(args) -> int:
     left, right = read_image(args.left), read_image(args.right)
     mask = read_image(args.mask, color=False) if args.mask else None
     rect = None
-    if args.method == "hartley" and args.match_pairs:
+    if args.match_pairs:
         from canopy_stereo.cli.cmd_rectify import load_match_pairs
         from canopy_stereo.pipeline.reconstruct import rectify_rig
 
-        rect = rectify_rig(rig, "hartley", left, right, match_pairs=load_match_pairs(args.match_pairs))
+        rect = rectify_rig(rig, args.method, left, right, match_pairs=load_match_pairs(args.match_pairs))
     rec = reconstruct_pair(left, right, rig, method=args.method, matcher=args.matcher, mask=mask,
                            disp_min=args.disp_min, disp_max=args.disp_max, rectification=rect)
     t = time.perf_counter()
     # PLYs are millimetres whatever the rig's unit (canopy_stereo.io.ply.PLY_UNIT)
     write_ply(args.output, rec.points * (rig.metres_per_unit * 1000.0), rec.colors, unit="mm",
-              comments=[f"canopy-stereo reconstruct method={args.method} matcher={args.matcher}"])
+              comments=[f"canopy-stereo reconstruct method={rec.rectification.method} matcher={args.matcher}"])
     if args.organized:
         from pathlib import Path
 

@@ -58,7 +58,7 @@ def run(args) -> int:
     import math
 
     from canopy_stereo.pipeline.reconstruct import disparity_range_for
-    from canopy_stereo.ros.params import rectification_for
+    from canopy_stereo.geometry.rig_rectification import rectification_for_rig
 
     if not (math.isfinite(args.rate) and args.rate >= 0):
         raise CanopyStereoError(f"--rate must be a finite number >= 0, got {args.rate}")
@@ -69,8 +69,7 @@ def run(args) -> int:
     # the nodes read the rig's method and disparity range: check them here with the same
     # code as 'reconstruct' (one line and exit 2 instead of a graph that silently ignores them)
     try:
-        disparity_range_for(rig, rectification_for(rig, str(rig.extra.get("method") or "fusiello"),
-                                                   rig.extra.get("H_left"), rig.extra.get("H_right")))
+        disparity_range_for(rig, rectification_for_rig(rig))
     except CanopyStereoError as exc:
         raise CanopyStereoError(f"rig {args.rig}: {exc}") from None
     if args.matcher in (None, "elas"):
