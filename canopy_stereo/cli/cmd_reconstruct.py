@@ -6,7 +6,7 @@ import time
 import numpy as np
 
 from canopy_stereo.cli.common import add_rig_argument
-from canopy_stereo.disparity import matcher_names
+from canopy_stereo.disparity import DEFAULT_MATCHER, matcher_names, matcher_spec
 from canopy_stereo.io.images import read_image
 from canopy_stereo.io.ply import write_ply
 from canopy_stereo.io.rig import load_rig
@@ -30,8 +30,8 @@ def add_arguments(p):
                         "else from matches); default: the rig's method, else fusiello")
     p.add_argument("--match-pairs", nargs=2, metavar=("LEFT_GLOB", "RIGHT_GLOB"),
                    help="hartley: pool matches from more pairs taken by the same rig")
-    p.add_argument("--matcher", choices=matcher_names(), default="elas",
-                   help="dense matcher (default elas, as in the paper)")
+    p.add_argument("--matcher", choices=matcher_names(), default=DEFAULT_MATCHER,
+                   help=f"dense matcher (default {DEFAULT_MATCHER}, as in the paper)")
     p.add_argument("--mask", metavar="MASK.png", help="foreground mask on the left image (non-zero = keep)")
     p.add_argument("--disp-min", type=int, default=None, help="smallest disparity searched (px)")
     p.add_argument("--disp-max", type=int, default=None, help="largest disparity searched (px)")
@@ -53,7 +53,7 @@ def run(args) -> int:
         raise CanopyStereoError("--measure needs --report REPORT.json")
     if (args.leaf_ids or args.report or args.csv or args.plot) and not args.measure:
         raise CanopyStereoError("--leaf-ids/--report/--csv/--plot need --measure")
-    if args.matcher == "elas":
+    if matcher_spec(args.matcher).compiled:
         from canopy_stereo.cli.progress import warm_up_kernels
 
         warm_up_kernels()  # says so when numba compiles (first run); not in the stage times

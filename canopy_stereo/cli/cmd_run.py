@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from canopy_stereo.cli.common import add_rig_argument, check_at_least
+from canopy_stereo.disparity import DEFAULT_MATCHER, default_matcher, matcher_names, matcher_spec
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.ros.bag import add_split_arguments, split_options
 
@@ -24,8 +25,8 @@ def add_arguments(p):
     p.add_argument("--rate", type=float, default=1.0,
                    help="playback speed factor; 0 = as fast as the graph goes (default 1)")
     p.add_argument("--record", metavar="OUT.mcap", help="record the graph's outputs to this bag")
-    p.add_argument("--matcher", choices=("elas", "sgbm"), default=None,
-                   help="disparity matcher (default: elas)")
+    p.add_argument("--matcher", choices=matcher_names(), default=None,
+                   help=f"disparity matcher (default: {DEFAULT_MATCHER})")
     p.add_argument("--no-segment", action="store_true", help="do not run segment_node (no masks)")
     p.add_argument("--use-mask", action="store_true", help="keep only plant pixels in the clouds")
     p.add_argument("--organized", action="store_true", help="publish organized clouds (NaN = none)")
@@ -72,7 +73,7 @@ def run(args) -> int:
         disparity_range_for(rig, rectification_for_rig(rig))
     except CanopyStereoError as exc:
         raise CanopyStereoError(f"rig {args.rig}: {exc}") from None
-    if args.matcher in (None, "elas"):
+    if matcher_spec(args.matcher or default_matcher()).compiled:
         from canopy_stereo.cli.progress import warm_up_kernels
 
         warm_up_kernels()  # says so when numba compiles (first run)
