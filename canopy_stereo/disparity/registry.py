@@ -258,7 +258,7 @@ def _elas_spec() -> MatcherSpec:
     from dataclasses import asdict, fields
 
     from canopy_stereo.elas.matcher import elas_matcher
-    from canopy_stereo.elas.params import PRESETS, ElasParams, make_params
+    from canopy_stereo.elas.params import DEFAULT_PRESET, PRESETS, ElasParams, make_params
 
     declared = {
         "support_threshold": declare("ELAS: a support candidate is kept when its best matching cost is "
@@ -305,15 +305,14 @@ def _elas_spec() -> MatcherSpec:
 
     def check_combination(params, disp_min, disp_max):
         values = {k: v for k, v in params.items() if k != "preset"}
-        make_params(params.get("preset", "robotics"), disp_min=disp_min, disp_max=disp_max, **values)
+        make_params(params.get("preset", DEFAULT_PRESET), disp_min=disp_min, disp_max=disp_max, **values)
 
-    sig = inspect.signature(elas_matcher).parameters
     return MatcherSpec(
         name="elas", function=elas_matcher,
         summary="ELAS (Geiger et al., ACCV 2010), the paper's matcher, in numba",
         parameters=schema(defaults, declared, "elas"),
         default_disp_max=int(base.disp_max), resolution=1.0, refined=("subpixel", 1.0 / 16.0),
-        presets=presets, default_preset=str(sig["preset"].default),
+        presets=presets, default_preset=DEFAULT_PRESET,
         check_combination=check_combination, compiled=True)
 
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from canopy_stereo.disparity import compute_disparity
+from canopy_stereo.disparity import DEFAULT_MATCHER, compute_disparity
 from canopy_stereo.errors import CanopyStereoError, ImageError
 from canopy_stereo.geometry.rectification import (
     Rectification,
@@ -135,7 +135,7 @@ def disparity_range_for(rig, rect: Rectification, disp_min=None, disp_max=None) 
     return dmin, dmax
 
 
-def reconstruct_pair(left_bgr, right_bgr, rig, method: str | None = None, matcher: str = "elas",
+def reconstruct_pair(left_bgr, right_bgr, rig, method: str | None = None, matcher: str = DEFAULT_MATCHER,
                      mask=None, disp_min=None, disp_max=None, matcher_params=None,
                      rectification: Rectification | None = None) -> Reconstruction:
     """Reconstruct one stereo pair into world coordinates.
