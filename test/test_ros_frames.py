@@ -341,6 +341,41 @@ def test_point_cloud_node_frames_optical_and_z_up(harness, paper_rig):
     assert np.all(zup[ok][:, 0] > 0)
 
 
+def test_point_cloud_node_holds_frames_until_stereo_geometry_arrives(harness, paper_rig):
+    """A frame synced before rectify_node's latched stereo_geometry reaches point_cloud_node (a
+    start-up race between topics) is held, not dropped: its world-frame cloud comes out when the
+    geometry arrives, with the points of a frame sent after it."""
+    from canopy_stereo.ros.nodes.point_cloud import PointCloudNode
+
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    node = harness.add(PointCloudNode(**node_kwargs(harness, organized=True)))
+    out = harness.collect(PointCloud2, "points2")
+    pd, pc = harness.publisher(DisparityImage, "disparity"), harness.publisher(Image, "left/image_rect_color")
+    il, ir = rect_info_publishers(harness)
+    harness.connect(pd, pc, il)
+    disp = smooth_disparity(rect, 20.0, 50.0)
+    t = rect.baseline * 1e-3
+
+    def send(stamp):
+        publish_rect_infos(il, ir, paper_rig, rect, stamp)
+        pc.publish(convert.image_to_msg(np.zeros((480, 640, 3), np.uint8), "bgr8", stamp, "x"))
+        pd.publish(convert.disparity_to_msg(disp, rect.focal_length, t, 0, 100, stamp_ns=stamp,
+                                            frame_id="left_camera_rect_optical_frame"))
+
+    send(T0)
+    assert pytest_wait(lambda: len(node.waiting_for_geometry) == 1)
+    assert out == [] and not node.drops
+    geometry_publisher(harness, paper_rig, rect)
+    assert pytest_wait(lambda: len(out) == 1)
+    assert out[0].header.frame_id == "canopy_world" and node.waiting_for_geometry == []
+    send(T0 + 1)
+    assert pytest_wait(lambda: len(out) == 2)
+    held, _ = convert.cloud2_to_points(out[0], organized=True)
+    later, _ = convert.cloud2_to_points(out[1], organized=True)
+    np.testing.assert_array_equal(held, later)
+    assert np.isfinite(held[..., 2]).sum() == np.isfinite(disp).sum()
+
+
 def pytest_wait(cond, timeout=TIMEOUT):
     from canopy_stereo.ros.context import wait_for
 

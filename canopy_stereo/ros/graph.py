@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
 
+from canopy_stereo.disparity import DEFAULT_MATCHER, matcher_names
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.rig import Rig
 from canopy_stereo.ros.context import tune_node_process
@@ -250,7 +251,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--metadata", nargs="+", action="extend", default=[], metavar="KEY=VALUE",
                    help="with --cameras --record: describe the recording (plant_id=A12 plot=row1 ...); "
                         "stored with the rig file as the bag's metadata records")
-    p.add_argument("--matcher", choices=("elas", "sgbm"), default=None)
+    p.add_argument("--matcher", choices=matcher_names(), default=None,
+                   help=f"disparity matcher (default: {DEFAULT_MATCHER})")
     p.add_argument("--use-mask", action="store_true", help="keep only plant pixels in the clouds")
     p.add_argument("--no-segment", action="store_true", help="do not run segment_node")
     p.add_argument("--organized", action="store_true", help="organized clouds")
