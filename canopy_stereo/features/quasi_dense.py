@@ -1141,7 +1141,8 @@ def sift_seeds(left_gray, right_gray, ratio=0.8, mutual=True, f_method="ransac",
 def qdmatch(left_gray: np.ndarray, right_gray: np.ndarray, *, ratio: float = 0.8,
             mutual: bool = True, f_method: str = "ransac", threshold_px: float = 1.0,
             half_window: int = 2, radius: int = 1, eps: int = 1, zncc_min: float = 0.8,
-            texture_min: float = 2.0, epipolar_band_px: float | None = 1.0,
+            texture_min: float = 2.0, epipolar_band_px: float | None = 0.6,
+            few_seeds: int = 100, few_seeds_band_px: float = 1.0,
             directional_texture: bool = True, reseed_rounds: int = 2,
             reseed_zncc_min: float = 0.9, reseed_margin: float = 0.1,
             cell_px: int = DISTRIBUTION_CELL_PX, model: str = "affine", resample_iters: int = 32,
@@ -1156,11 +1157,17 @@ def qdmatch(left_gray: np.ndarray, right_gray: np.ndarray, *, ratio: float = 0.8
         left_gray, right_gray: uint8 (H, W) images of the same size.
         ratio, mutual, f_method, threshold_px: seed matching and verification; the
             final F check of the resampled matches uses ``f_method``/``threshold_px``.
-        half_window, radius, eps, zncc_min, texture_min, epipolar_band_px,
+        half_window, radius, eps, zncc_min, texture_min,
         directional_texture: propagation (see :func:`propagate`); the band and the
             directional texture use the seeds' F.
         reseed_rounds, reseed_zncc_min, reseed_margin: extra propagation passes from
             epipolar-search seeds in unreached textured regions (see :func:`propagate`).
+        epipolar_band_px: half-width (pixels) of the band around the seeds' epipolar
+            lines that propagated matches must lie in. 0.6 px keeps the integer
+            candidates of a nearly rectified pair to the row nearest the line: a band of
+            1 px lets a slanted edge match one row off, pixels off in disparity.
+        few_seeds, few_seeds_band_px: with fewer than ``few_seeds`` verified seeds the
+            F is less certain and the band is widened to ``few_seeds_band_px``.
         aperture_max: propagation only through windows whose aperture coupling (see
             :func:`aperture_coupling`) is at most this (None: no limit); it keeps integer
             matches off edges nearly along the epipolar lines, where a fraction of a pixel
@@ -1193,16 +1200,20 @@ def qdmatch(left_gray: np.ndarray, right_gray: np.ndarray, *, ratio: float = 0.8
                            note=f"no seeds for propagation ({why}; image without texture?)",
                            extras={"num_seeds": 0, "num_propagated": 0}, **common)
     t0 = time.perf_counter()
+    F_prop = seeds["F"]
+    band = epipolar_band_px
+    if band is not None and len(seeds["x_left"]) < few_seeds:
+        band = max(band, few_seeds_band_px)
     prop = propagate(left_gray, right_gray, seeds["x_left"], seeds["x_right"],
                      half_window=half_window, radius=radius, eps=eps, zncc_min=zncc_min,
-                     texture_min=texture_min, F=seeds["F"], epipolar_band_px=epipolar_band_px,
+                     texture_min=texture_min, F=F_prop, epipolar_band_px=band,
                      directional_texture=directional_texture, reseed_rounds=reseed_rounds,
                      reseed_zncc_min=reseed_zncc_min, reseed_margin=reseed_margin,
                      aperture_max=aperture_max)
     t1 = time.perf_counter()
     amask, e_l = None, None
-    if seeds["F"] is not None:
-        e_l, _ = epipoles(np.asarray(seeds["F"], np.float64))
+    if F_prop is not None:
+        e_l, _ = epipoles(np.asarray(F_prop, np.float64))
         if anchor_aperture_max is not None:
             amask = aperture_coupling(left_gray, half_window, e_l) <= anchor_aperture_max
     xl, xr, support = resample(prop, cell_px=cell_px, model=model, iters=resample_iters,
