@@ -1146,8 +1146,8 @@ def qdmatch(left_gray: np.ndarray, right_gray: np.ndarray, *, ratio: float = 0.8
             directional_texture: bool = True, reseed_rounds: int = 2,
             reseed_zncc_min: float = 0.9, reseed_margin: float = 0.1,
             cell_px: int = DISTRIBUTION_CELL_PX, model: str = "affine", resample_iters: int = 32,
-            resample_tol_px: float = 1.0, min_support: int = 12, min_inlier_share: float = 0.85,
-            min_spread_px: float = 1.4, thin_spread_px: float = 0.0, anchor: str = "centroid",
+            resample_tol_px: float = 1.0, min_support: int = 8, min_inlier_share: float = 0.75,
+            min_spread_px: float = 1.0, thin_spread_px: float = 0.0, anchor: str = "centroid",
             interior_px: int = 3, interior_tol_px: float = 1.0, interior_shape: str = "line",
             aperture_max: float | None = 2.0, anchor_aperture_max: float | None = 1.0,
             sift_params: dict | None = None, keep_propagation: bool = False) -> MatchResult:
