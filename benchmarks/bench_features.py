@@ -63,7 +63,7 @@ for _s in ("Adirondack", "ArtL", "Motorcycle", "Piano", "Playtable", "Recycle", 
 #: qdmatch without issue 18's correctness checks (no aperture limit, no interior check,
 #: 1-px epipolar band, the earlier resampling thresholds).
 _NO_CHECKS = dict(aperture_max=None, anchor_aperture_max=None, interior_px=0, epipolar_band_px=1.0,
-                  few_seeds_band_px=1.0, min_support=12, min_inlier_share=0.85)
+                  few_seeds_band_px=1.0, texture_min=2.0, min_support=12, min_inlier_share=0.85)
 #: qdmatch as it was before issue 18: SIFT seeds only, Lhuillier & Quan's resampling
 #: (cell centre only when surrounded, every region spread >= 1.8 px).
 QDMATCH_BEFORE = dict(_NO_CHECKS, reseed_rounds=0, anchor="centre", min_spread_px=1.8,

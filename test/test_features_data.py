@@ -43,12 +43,14 @@ def test_study_without_gt_on_the_plants_scene(shared_data):
 def test_qdmatch_reaches_the_paper_spread_on_plant_pairs(shared_data):
     """Issue 18: qdmatch covered 13.4 % of the cells of Plants and 47.5 % of Aloe; the
     paper's qdmatch covers 27-31 %. Reseeding + centroid resampling reach the leaves;
-    the interior and aperture checks that keep Middlebury >= 95 % correct cost a part."""
+    the aperture and interior checks keep Middlebury >= 95 % correct while a lower texture
+    threshold lets the propagation cover weakly textured leaves and pots."""
     folder = shared_data / "middlebury_MiddEval3_testQ" / "Plants"
     left, right = read_image(folder / "im0.png"), read_image(folder / "im1.png")
     rows = run_study(left, right, ["sift", "qdmatch"])
     sift, qd = rows
-    assert qd.result.distribution >= 0.22
+    assert qd.result.distribution >= 0.26                    # paper: 27-31 %
+    assert 1300 <= qd.result.num <= 1800                      # paper: 1400-1600 matches
     assert qd.result.distribution > 3 * sift.result.distribution
     assert qd.correct >= 0.95
     assert qd.result.extras["num_propagated"] > 60000
@@ -78,7 +80,8 @@ MIDDLEBURY_GT = {
 def test_qdmatch_is_95_percent_correct_on_the_middlebury_scenes(shared_data):
     """Issue 18: reseeding and relaxed resampling had let qdmatch fall to 90.7 % correct
     on average (73.7 % on Playtable); the aperture and interior checks bring the mean
-    back above 95 % with every scene above 90 % and wider spread than SIFT everywhere."""
+    back above 95 % (96.5 %; 13 of 15 scenes >= 95 %, Playtable 91 %) with every scene
+    above 90 % and wider spread than SIFT everywhere."""
     shares = {}
     for name, (folder, l, r, g, scale) in MIDDLEBURY_GT.items():
         left = read_image(shared_data / folder / l)
@@ -91,4 +94,4 @@ def test_qdmatch_is_95_percent_correct_on_the_middlebury_scenes(shared_data):
         assert qd.distribution > sift.distribution, name
     assert sum(shares.values()) / len(shares) >= 0.95, shares
     assert min(shares.values()) >= 0.90, shares
-    assert sum(s >= 0.95 for s in shares.values()) >= 9, shares
+    assert sum(s >= 0.95 for s in shares.values()) >= 12, shares
