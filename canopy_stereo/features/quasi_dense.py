@@ -69,6 +69,24 @@ def epipoles(F: np.ndarray):
     return e_left / np.linalg.norm(e_left), e_right / np.linalg.norm(e_right)
 
 
+def _epipolar_gradients(img: np.ndarray, epipole):
+    """Intensity gradient (Sobel, grey levels per pixel) of a float (H, W) image along and
+    across the epipolar line through each pixel (direction from the epipole, homogeneous
+    3-vector, to the pixel; either sign): ``(g_along, g_across)``, float64 (H, W) each."""
+    h, w = img.shape
+    gx = cv2.Sobel(img, cv2.CV_64F, 1, 0, ksize=3) / 8.0
+    gy = cv2.Sobel(img, cv2.CV_64F, 0, 1, ksize=3) / 8.0
+    ex, ey, ew = (float(c) for c in np.asarray(epipole, np.float64).ravel())
+    u = np.arange(w, dtype=np.float64)[None, :]
+    v = np.arange(h, dtype=np.float64)[:, None]
+    dx = ew * u - ex
+    dy = ew * v - ey
+    norm = np.hypot(dx, dy)
+    norm[norm < 1e-12] = 1.0
+    dx, dy = dx / norm, dy / norm
+    return gx * dx + gy * dy, gy * dx - gx * dy
+
+
 def texture_map(gray: np.ndarray, half_window: int, epipole=None) -> np.ndarray:
     """Texture of each pixel's matching window, grey levels per pixel, float64 (H, W).
 
@@ -89,17 +107,8 @@ def texture_map(gray: np.ndarray, half_window: int, epipole=None) -> np.ndarray:
         texture[:-1, :] = np.maximum(texture[:-1, :], dy)
         texture[1:, :] = np.maximum(texture[1:, :], dy)
         return texture
-    h, w = img.shape
-    gx = cv2.Sobel(img, cv2.CV_64F, 1, 0, ksize=3) / 8.0
-    gy = cv2.Sobel(img, cv2.CV_64F, 0, 1, ksize=3) / 8.0
-    ex, ey, ew = (float(c) for c in np.asarray(epipole, np.float64).ravel())
-    u = np.arange(w, dtype=np.float64)[None, :]
-    v = np.arange(h, dtype=np.float64)[:, None]
-    dx = ew * u - ex            # direction from the epipole to the pixel (either sign)
-    dy = ew * v - ey
-    norm = np.hypot(dx, dy)
-    norm[norm < 1e-12] = 1.0
-    along = np.abs(gx * dx + gy * dy) / norm
+    g_a, _ = _epipolar_gradients(img, epipole)
+    along = np.abs(g_a)
     k = 2 * half_window + 1
     return cv2.boxFilter(along, cv2.CV_64F, (k, k), normalize=True, borderType=cv2.BORDER_REFLECT)
 
@@ -119,19 +128,7 @@ def aperture_coupling(gray: np.ndarray, half_window: int, epipole) -> np.ndarray
     window has no gradient along the line the value is ``inf``.
     """
     img = np.asarray(gray, dtype=np.float64)
-    h, w = img.shape
-    gx = cv2.Sobel(img, cv2.CV_64F, 1, 0, ksize=3) / 8.0
-    gy = cv2.Sobel(img, cv2.CV_64F, 0, 1, ksize=3) / 8.0
-    ex, ey, ew = (float(c) for c in np.asarray(epipole, np.float64).ravel())
-    u = np.arange(w, dtype=np.float64)[None, :]
-    v = np.arange(h, dtype=np.float64)[:, None]
-    dx = ew * u - ex
-    dy = ew * v - ey
-    norm = np.hypot(dx, dy)
-    norm[norm < 1e-12] = 1.0
-    dx, dy = dx / norm, dy / norm
-    g_a = gx * dx + gy * dy
-    g_n = gy * dx - gx * dy
+    g_a, g_n = _epipolar_gradients(img, epipole)
     k = 2 * half_window + 1
     saa = cv2.boxFilter(g_a * g_a, cv2.CV_64F, (k, k), normalize=False, borderType=cv2.BORDER_REFLECT)
     san = cv2.boxFilter(g_a * g_n, cv2.CV_64F, (k, k), normalize=False, borderType=cv2.BORDER_REFLECT)
