@@ -363,3 +363,59 @@ def test_resampling_places_cut_regions_at_the_inliers_centroid():
     cells = np.floor(cl2[:, 0] / 8).astype(int)
     assert len(cl2) > 0 and np.all(cells % 2 == 1)
     assert np.allclose(cl2 % 8, 3.5) and np.allclose(cr2, cl2 - [3, 0])
+
+
+def test_aperture_coupling_measures_edges_along_the_epipolar_line():
+    from canopy_stereo.features.quasi_dense import aperture_coupling
+
+    rows = np.array([1.0, 0.0, 0.0])                   # rectified: epipolar lines = rows
+    v, u = np.mgrid[0:60, 0:80].astype(np.float64)
+
+    def edge(theta_deg):
+        """Step edge making theta degrees with the image rows."""
+        t = np.deg2rad(theta_deg)
+        side = (u - 40.3) * np.sin(t) - (v - 30.3) * np.cos(t)
+        return np.where(side > 0, 200.0, 50.0)
+
+    def at_centre(img):
+        return aperture_coupling(cv2.GaussianBlur(img, (0, 0), 2.0), 2, rows)[30, 40]
+
+    assert at_centre(edge(90)) == pytest.approx(0.0, abs=1e-6)     # across the rows
+    assert at_centre(edge(45)) == pytest.approx(1.0, rel=0.05)
+    assert at_centre(edge(15)) == pytest.approx(1 / np.tan(np.deg2rad(15)), rel=0.1)
+    texture = np.random.default_rng(3).uniform(0, 255, (60, 80))
+    assert np.median(aperture_coupling(cv2.GaussianBlur(texture, (0, 0), 1.0), 2, rows)) < 0.5
+    assert np.isinf(aperture_coupling(np.full((20, 20), 9.0), 2, rows)).all()
+
+
+def test_interior_check_keeps_matches_off_the_band_smeared_past_a_depth_edge():
+    from canopy_stereo.features.quasi_dense import Propagation
+
+    # a foreground (u < 24, displacement +10) whose windows smeared its displacement 3 px
+    # into the untextured background beside it (u 24..26): a thin band, one surface
+    u, v = np.meshgrid(np.arange(64), np.arange(48))
+    keep = u < 27
+    xl = np.column_stack([u[keep], v[keep]]).astype(np.int32)
+    xr = xl.copy()
+    xr[:, 0] += 10
+    prop = Propagation(xl, xr, np.ones(len(xl), np.float32), np.full(len(xl), -1), len(xl),
+                       (64, 48), {})
+    kw = dict(anchor="centroid", thin_spread_px=0.0, min_spread_px=1.0, min_support=8,
+              min_inlier_share=0.75)
+    cl, cr, _ = resample(prop, interior_px=0, **kw)
+    assert np.any(cl[:, 0] >= 24)                              # the band emits a match
+    cl, cr, _ = resample(prop, interior_px=3, **kw)
+    assert len(cl) == 3 * 6 and np.all(cl[:, 0] < 24)          # only the foreground's cells
+    assert np.allclose(cr, cl + [10, 0])
+    # the check runs along the epipolar lines: with vertical ones the band is interior
+    cl, _, _ = resample(prop, interior_px=3, epipole=[0.0, 1.0, 0.0], **kw)
+    assert np.any(cl[:, 0] >= 24)
+    # the anchor mask restricts where a match may be placed
+    mask = np.ones((48, 64), bool)
+    mask[:, :8] = False
+    cl, _, _ = resample(prop, interior_px=3, anchor_mask=mask, **kw)
+    assert len(cl) == 2 * 6 and np.all(cl[:, 0] >= 8)
+    with pytest.raises(CanopyStereoError, match="interior_shape"):
+        resample(prop, interior_px=3, interior_shape="circle")
+    with pytest.raises(CanopyStereoError, match="anchor_mask"):
+        resample(prop, anchor_mask=np.ones((4, 4), bool))

@@ -198,3 +198,20 @@ def test_paper_bad_output_and_methods_fail_with_one_line(tmp_path):
     proc = run_cli_subprocess("paper", "-o", tmp_path / "x", "--methods", "sift,nope")
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1
     assert "unknown matching method 'nope'" in proc.stderr
+
+
+def test_spread_summary_repeats_the_feature_tables(paper_run):
+    """Issue 18: the report shows qdmatch's spread per scene next to SIFT's (and ASIFT's
+    when it ran), the same numbers as the scene's table."""
+    _, _, md, numbers = paper_run
+    tables = _md_tables(md)
+    (summary,) = tables["Quasi-dense spread per scene"]
+    assert [r["scene"] for r in summary] == list(numbers["features"])
+    for r in summary:
+        rows = {v["method"]: v for v in numbers["features"][r["scene"]]["rows"]}
+        for m in ("sift", "qdmatch"):
+            assert _num(r[f"{m} distribution"]) == pytest.approx(rows[m]["distribution_pct"], abs=0.006)
+            assert int(r[f"{m} num"]) == rows[m]["num"]
+        assert _num(r["qdmatch correct"]) == pytest.approx(rows["qdmatch"]["correct_pct"], abs=0.051)
+        assert _num(r["qdmatch distribution"]) > _num(r["sift distribution"])
+        assert "asift distribution" not in r                      # not run with --methods sift,qdmatch

@@ -26,6 +26,13 @@
    an occlusion edge) emits one match: its centre (when the inliers surround it)
    or the inliers' centroid, and that point's image under the map. A final robust
    F over the resampled matches removes the inconsistent ones.
+   Two checks keep the matches correct (>= 95 % within 1 px of Middlebury's ground
+   truth): windows whose only structure is an edge nearly along the epipolar line
+   are not propagated into and carry no match (:func:`aperture_coupling`: with rows a
+   fraction of a pixel apart an integer match there is pixels off), and a region's
+   match is placed on an inlier whose neighbours along the epipolar line are matched
+   consistently further than the ZNCC window reaches (``interior_px``): the band a
+   window smears a foreground's displacement into past a depth edge emits nothing.
 
 The propagation and the resampling are numba kernels (single thread: the
 propagation is inherently sequential); the propagation caches each left pixel's
@@ -62,6 +69,24 @@ def epipoles(F: np.ndarray):
     return e_left / np.linalg.norm(e_left), e_right / np.linalg.norm(e_right)
 
 
+def _epipolar_gradients(img: np.ndarray, epipole):
+    """Intensity gradient (Sobel, grey levels per pixel) of a float (H, W) image along and
+    across the epipolar line through each pixel (direction from the epipole, homogeneous
+    3-vector, to the pixel; either sign): ``(g_along, g_across)``, float64 (H, W) each."""
+    h, w = img.shape
+    gx = cv2.Sobel(img, cv2.CV_64F, 1, 0, ksize=3) / 8.0
+    gy = cv2.Sobel(img, cv2.CV_64F, 0, 1, ksize=3) / 8.0
+    ex, ey, ew = (float(c) for c in np.asarray(epipole, np.float64).ravel())
+    u = np.arange(w, dtype=np.float64)[None, :]
+    v = np.arange(h, dtype=np.float64)[:, None]
+    dx = ew * u - ex
+    dy = ew * v - ey
+    norm = np.hypot(dx, dy)
+    norm[norm < 1e-12] = 1.0
+    dx, dy = dx / norm, dy / norm
+    return gx * dx + gy * dy, gy * dx - gx * dy
+
+
 def texture_map(gray: np.ndarray, half_window: int, epipole=None) -> np.ndarray:
     """Texture of each pixel's matching window, grey levels per pixel, float64 (H, W).
 
@@ -82,19 +107,35 @@ def texture_map(gray: np.ndarray, half_window: int, epipole=None) -> np.ndarray:
         texture[:-1, :] = np.maximum(texture[:-1, :], dy)
         texture[1:, :] = np.maximum(texture[1:, :], dy)
         return texture
-    h, w = img.shape
-    gx = cv2.Sobel(img, cv2.CV_64F, 1, 0, ksize=3) / 8.0
-    gy = cv2.Sobel(img, cv2.CV_64F, 0, 1, ksize=3) / 8.0
-    ex, ey, ew = (float(c) for c in np.asarray(epipole, np.float64).ravel())
-    u = np.arange(w, dtype=np.float64)[None, :]
-    v = np.arange(h, dtype=np.float64)[:, None]
-    dx = ew * u - ex            # direction from the epipole to the pixel (either sign)
-    dy = ew * v - ey
-    norm = np.hypot(dx, dy)
-    norm[norm < 1e-12] = 1.0
-    along = np.abs(gx * dx + gy * dy) / norm
+    g_a, _ = _epipolar_gradients(img, epipole)
+    along = np.abs(g_a)
     k = 2 * half_window + 1
     return cv2.boxFilter(along, cv2.CV_64F, (k, k), normalize=True, borderType=cv2.BORDER_REFLECT)
+
+
+def aperture_coupling(gray: np.ndarray, half_window: int, epipole) -> np.ndarray:
+    """How strongly a window's displacement along the epipolar line depends on an error
+    across it, per pixel, float64 (H, W) (dimensionless; 0 = independent).
+
+    With ``g_a`` / ``g_n`` the intensity gradient along / across the epipolar line through
+    the pixel (direction from the image's epipole, homogeneous 3-vector), summed over the
+    ``(2 half_window + 1)``-pixel window: ``|sum g_a g_n| / sum g_a^2``. Matching a window
+    with a vertical offset ``dv`` (an integer-pixel match of a pair whose rows differ by a
+    fraction of a pixel) shifts the best horizontal position by about ``coupling * dv``: a
+    window whose only structure is an edge slanted ``theta`` from the epipolar line has
+    coupling ``1 / tan(theta)`` (0 for an edge across the line, 1 at 45 degrees, large for
+    edges nearly along it); windows with texture in two directions stay near 0. Where the
+    window has no gradient along the line the value is ``inf``.
+    """
+    img = np.asarray(gray, dtype=np.float64)
+    g_a, g_n = _epipolar_gradients(img, epipole)
+    k = 2 * half_window + 1
+    saa = cv2.boxFilter(g_a * g_a, cv2.CV_64F, (k, k), normalize=False, borderType=cv2.BORDER_REFLECT)
+    san = cv2.boxFilter(g_a * g_n, cv2.CV_64F, (k, k), normalize=False, borderType=cv2.BORDER_REFLECT)
+    out = np.full_like(img, np.inf)
+    ok = saa > 1e-9
+    out[ok] = np.abs(san[ok]) / saa[ok]
+    return out
 
 
 def window_statistics(gray: np.ndarray, half_window: int, epipole=None):
@@ -514,7 +555,8 @@ def propagate(left_gray: np.ndarray, right_gray: np.ndarray, seeds_left, seeds_r
               epipolar_band_px: float | None = 1.0, directional_texture: bool = True,
               reseed_rounds: int = 2, reseed_step_px: int = 4, reseed_gap_px: int = 3,
               reseed_half_window: int = 3, reseed_zncc_min: float = 0.9,
-              reseed_margin: float = 0.1, stats=None) -> Propagation:
+              reseed_margin: float = 0.1, aperture_max: float | None = None,
+              stats=None) -> Propagation:
     """Grow pixel matches from seeds, best ZNCC first (Lhuillier & Quan's propagation).
 
     Args:
@@ -539,6 +581,9 @@ def propagate(left_gray: np.ndarray, right_gray: np.ndarray, seeds_left, seeds_r
             along their epipolar line within the displacements seen so far (window
             ``2 reseed_half_window + 1``, best >= ``reseed_zncc_min``, ahead of any
             other peak by ``reseed_margin``, left-right consistent). 0: SIFT seeds only.
+        aperture_max: with F, pixels (left and right) whose window's
+            :func:`aperture_coupling` exceeds this are treated as untextured (not
+            propagated into); None: no limit.
         stats: precomputed ``(window_statistics(left), window_statistics(right))``.
 
     Returns:
@@ -558,6 +603,10 @@ def propagate(left_gray: np.ndarray, right_gray: np.ndarray, seeds_left, seeds_r
         stats = (window_statistics(left_gray, half_window, e_l),
                  window_statistics(right_gray, half_window, e_r))
     (L, mean_l, inv_l, tex_l), (R, mean_r, inv_r, tex_r) = stats
+    if aperture_max is not None and F is not None:
+        e_l, e_r = epipoles(np.asarray(F, np.float64))
+        tex_l = np.where(aperture_coupling(L, half_window, e_l) <= aperture_max, tex_l, 0.0)
+        tex_r = np.where(aperture_coupling(R, half_window, e_r) <= aperture_max, tex_r, 0.0)
     sl = np.rint(np.asarray(seeds_left, np.float64).reshape(-1, 2)).astype(np.int64)
     sr = np.rint(np.asarray(seeds_right, np.float64).reshape(-1, 2)).astype(np.int64)
     seeds = np.column_stack([sl, sr]).astype(np.int64) if len(sl) else np.zeros((0, 4), np.int64)
@@ -766,8 +815,50 @@ def _map_point(model, use_h, x, y):
 
 
 @njit(cache=True)
+def _consistent(match_map, model, use_h, u, v, tol):
+    """Pixel (u, v) is inside the image, matched, and its match within ``tol`` of the map."""
+    H, W = match_map.shape[0], match_map.shape[1]
+    if u < 0 or u >= W or v < 0 or v >= H or match_map[v, u, 0] < 0:
+        return False
+    mx, my = _map_point(model, use_h, u, v)
+    return abs(mx - match_map[v, u, 0]) <= tol and abs(my - match_map[v, u, 1]) <= tol
+
+
+@njit(cache=True)
+def _interior(match_map, model, use_h, u, v, r, tol, shape, epipole):
+    """Every pixel within ``r`` of (u, v) -- along the epipolar line through it (shape 0;
+    ``epipole`` homogeneous, (0, 0, 0) = the image rows), along the line and the image
+    column (1: cross) or in the square (2) -- is matched consistently with the map."""
+    if shape == 0:
+        ex, ey, ew = epipole[0], epipole[1], epipole[2]
+        dx, dy = 1.0, 0.0
+        if ex != 0.0 or ey != 0.0 or ew != 0.0:
+            dx = ew * u - ex
+            dy = ew * v - ey
+            n = np.sqrt(dx * dx + dy * dy)
+            if n < 1e-12:
+                return False
+            dx /= n
+            dy /= n
+        for k in range(-r, r + 1):
+            uu = int(np.floor(u + k * dx + 0.5))
+            vv = int(np.floor(v + k * dy + 0.5))
+            if not _consistent(match_map, model, use_h, uu, vv, tol):
+                return False
+        return True
+    for jj in range(-r, r + 1):
+        for ii in range(-r, r + 1):
+            if shape == 1 and jj != 0 and ii != 0:
+                continue
+            if not _consistent(match_map, model, use_h, u + ii, v + jj, tol):
+                return False
+    return True
+
+
+@njit(cache=True)
 def _resample_kernel(match_map, cell, use_h, iters, tol, min_support, min_share, min_spread, seed,
-                     anchor_centroid, thin_spread, conflict_pad, conflict_px):
+                     anchor_centroid, thin_spread, conflict_pad, conflict_px, interior, interior_tol,
+                     interior_shape, anchor_ok, epipole):
     """One match per cell of the left image from a local affine/homography RANSAC fit.
 
     Returns (K, 4) float64 rows (u_left, v_left, u_right, v_right) and (K,) inlier counts.
@@ -907,6 +998,26 @@ def _resample_kernel(match_map, cell, use_h, iters, tol, min_support, min_share,
             ax, ay = ccx, ccy
             if not surrounded:
                 ax, ay = sx, sy                 # the inliers' centroid: inside their support
+            if interior > 0:
+                # the inlier nearest that point whose neighbourhood is matched consistently
+                # with the fit (see resample's interior_px)
+                bd = 1e30
+                found = False
+                bx = by = 0.0
+                for k in range(best):
+                    i = best_idx[k]
+                    iu, iv = int(px[i]), int(py[i])
+                    dd = (px[i] - ax) ** 2 + (py[i] - ay) ** 2
+                    if dd >= bd or not anchor_ok[iv, iu]:
+                        continue
+                    if _interior(match_map, model, use_h, iu, iv, interior, interior_tol,
+                                 interior_shape, epipole):
+                        bd = dd
+                        found = True
+                        bx, by = px[i], py[i]
+                if not found:
+                    continue
+                ax, ay = bx, by
             mx, my = _map_point(model, use_h, ax, ay)
             if not (-0.5 <= mx < W - 0.5 and -0.5 <= my < H - 0.5):
                 continue
@@ -923,7 +1034,9 @@ def resample(prop: Propagation, *, cell_px: int = DISTRIBUTION_CELL_PX, model: s
              iters: int = 32, tol_px: float = 1.0, min_support: int = 12,
              min_inlier_share: float = 0.85, min_spread_px: float = 1.8, seed: int = 12345,
              anchor: str = "centre", thin_spread_px: float | None = None,
-             conflict_pad_px: int = 4, conflict_px: float = 2.0):
+             conflict_pad_px: int = 4, conflict_px: float = 2.0, interior_px: int = 0,
+             interior_tol_px: float = 1.0, interior_shape: str = "line", anchor_mask=None,
+             epipole=None):
     """One match per ``cell_px`` x ``cell_px`` left region from a local RANSAC fit.
 
     Args:
@@ -948,6 +1061,21 @@ def resample(prop: Propagation, *, cell_px: int = DISTRIBUTION_CELL_PX, model: s
             the region disagrees with its map by more than ``conflict_px`` (one
             surface, not an occlusion edge); None: same as ``min_spread_px``.
         conflict_pad_px, conflict_px: that neighbourhood (pixels) and tolerance (pixels).
+        interior_px: > 0: a region's match is placed on the inlier nearest its centre
+            (or centroid) whose neighbours within ``interior_px`` pixels are all matched
+            within ``interior_tol_px`` of the region's map; a region without such an
+            inlier emits nothing. With ``interior_px`` above the ZNCC half-window this
+            keeps matches off the band a window-based match smears past a depth edge
+            (the foreground's displacement given to background pixels next to it), the
+            main source of wrong matches on Middlebury. 0: off (Lhuillier & Quan).
+        interior_tol_px: that tolerance, pixels (each coordinate).
+        interior_shape: the neighbours checked: ``"line"`` (along the epipolar line
+            through the inlier, the direction a depth edge smears matches; the image row
+            without ``epipole``), ``"cross"`` (that line and the image column) or
+            ``"square"`` (the whole square).
+        anchor_mask: optional (H, W) bool: pixels allowed as the placed match (e.g.
+            windows that are not aperture-ambiguous, see :func:`aperture_coupling`).
+        epipole: the left epipole (homogeneous 3-vector, ``F e = 0``) for ``"line"``.
 
     Returns:
         ``(x_left, x_right, support)``: (K, 2) float64 region anchors (centres or
@@ -959,12 +1087,26 @@ def resample(prop: Propagation, *, cell_px: int = DISTRIBUTION_CELL_PX, model: s
         raise CanopyStereoError(f"unknown resampling anchor {anchor!r}; choose centre or centroid")
     if cell_px < 2:
         raise CanopyStereoError(f"cell_px must be >= 2, got {cell_px}")
+    shapes = {"line": 0, "cross": 1, "square": 2}
+    if interior_shape not in shapes:
+        raise CanopyStereoError(f"unknown interior_shape {interior_shape!r}; choose line, cross or square")
+    if interior_px < 0 or interior_tol_px < 0:
+        raise CanopyStereoError("interior_px and interior_tol_px must be >= 0")
     mm = prop.match_map()
+    if anchor_mask is None:
+        anchor_mask = np.ones(mm.shape[:2], np.bool_)
+    anchor_mask = np.ascontiguousarray(anchor_mask, dtype=np.bool_)
+    if anchor_mask.shape != mm.shape[:2]:
+        raise CanopyStereoError(f"anchor_mask is {anchor_mask.shape[1]}x{anchor_mask.shape[0]} "
+                                f"but the image is {mm.shape[1]}x{mm.shape[0]}")
+    e = np.zeros(3) if epipole is None else np.asarray(epipole, np.float64).ravel()[:3]
     rows, support = _resample_kernel(mm, int(cell_px), model == "homography", int(iters),
                                      float(tol_px), int(min_support), float(min_inlier_share),
                                      float(min_spread_px), int(seed), anchor == "centroid",
                                      float(min_spread_px if thin_spread_px is None else thin_spread_px),
-                                     int(conflict_pad_px), float(conflict_px))
+                                     int(conflict_pad_px), float(conflict_px), int(interior_px),
+                                     float(interior_tol_px), shapes[interior_shape], anchor_mask,
+                                     np.ascontiguousarray(e))
     return rows[:, :2].copy(), rows[:, 2:].copy(), support
 
 
@@ -996,12 +1138,15 @@ def sift_seeds(left_gray, right_gray, ratio=0.8, mutual=True, f_method="ransac",
 def qdmatch(left_gray: np.ndarray, right_gray: np.ndarray, *, ratio: float = 0.8,
             mutual: bool = True, f_method: str = "ransac", threshold_px: float = 1.0,
             half_window: int = 2, radius: int = 1, eps: int = 1, zncc_min: float = 0.8,
-            texture_min: float = 2.0, epipolar_band_px: float | None = 1.0,
+            texture_min: float = 0.7, epipolar_band_px: float | None = 0.6,
+            few_seeds: int = 100, few_seeds_band_px: float = 1.0,
             directional_texture: bool = True, reseed_rounds: int = 2,
             reseed_zncc_min: float = 0.9, reseed_margin: float = 0.1,
             cell_px: int = DISTRIBUTION_CELL_PX, model: str = "affine", resample_iters: int = 32,
-            resample_tol_px: float = 1.0, min_support: int = 12, min_inlier_share: float = 0.85,
-            min_spread_px: float = 1.4, thin_spread_px: float = 0.0, anchor: str = "centroid",
+            resample_tol_px: float = 1.0, min_support: int = 8, min_inlier_share: float = 0.8,
+            min_spread_px: float = 1.0, thin_spread_px: float = 0.0, anchor: str = "centroid",
+            interior_px: int = 3, interior_tol_px: float = 1.0, interior_shape: str = "line",
+            aperture_max: float | None = 2.0, anchor_aperture_max: float | None = 1.0,
             sift_params: dict | None = None, keep_propagation: bool = False) -> MatchResult:
     """Quasi-dense matches of a grey pair (SIFT seeds -> propagation -> resampling).
 
@@ -1009,14 +1154,30 @@ def qdmatch(left_gray: np.ndarray, right_gray: np.ndarray, *, ratio: float = 0.8
         left_gray, right_gray: uint8 (H, W) images of the same size.
         ratio, mutual, f_method, threshold_px: seed matching and verification; the
             final F check of the resampled matches uses ``f_method``/``threshold_px``.
-        half_window, radius, eps, zncc_min, texture_min, epipolar_band_px,
+        half_window, radius, eps, zncc_min, texture_min,
         directional_texture: propagation (see :func:`propagate`); the band and the
-            directional texture use the seeds' F.
+            directional texture use the seeds' F. ``texture_min`` is 0.7 grey levels
+            per pixel (propagate's own default is 2): with the aperture and interior
+            checks, weakly textured leaf and pot surfaces propagate without letting
+            wrong matches through (Plants 23.6 -> 27 % of the cells, Middlebury mean
+            95.5 -> 96.5 % correct).
         reseed_rounds, reseed_zncc_min, reseed_margin: extra propagation passes from
             epipolar-search seeds in unreached textured regions (see :func:`propagate`).
+        epipolar_band_px: half-width (pixels) of the band around the seeds' epipolar
+            lines that propagated matches must lie in. 0.6 px keeps the integer
+            candidates of a nearly rectified pair to the row nearest the line: a band of
+            1 px lets a slanted edge match one row off, pixels off in disparity.
+        few_seeds, few_seeds_band_px: with fewer than ``few_seeds`` verified seeds the
+            F is less certain and the band is widened to ``few_seeds_band_px``.
+        aperture_max: propagation only through windows whose aperture coupling (see
+            :func:`aperture_coupling`) is at most this (None: no limit); it keeps integer
+            matches off edges nearly along the epipolar lines, where a fraction of a pixel
+            of row offset becomes pixels of disparity error.
         cell_px, model, resample_iters, resample_tol_px, min_support,
-        min_inlier_share, min_spread_px, thin_spread_px, anchor: resampling (see
-            :func:`resample`).
+        min_inlier_share, min_spread_px, thin_spread_px, anchor, interior_px,
+        interior_tol_px, interior_shape: resampling (see :func:`resample`).
+        anchor_aperture_max: a region's match is placed only on a pixel whose aperture
+            coupling is at most this (None: anywhere).
         sift_params: arguments of ``cv2.SIFT_create``.
         keep_propagation: store the :class:`Propagation` in ``extras["propagation"]``.
 
@@ -1040,16 +1201,28 @@ def qdmatch(left_gray: np.ndarray, right_gray: np.ndarray, *, ratio: float = 0.8
                            note=f"no seeds for propagation ({why}; image without texture?)",
                            extras={"num_seeds": 0, "num_propagated": 0}, **common)
     t0 = time.perf_counter()
+    F_prop = seeds["F"]
+    band = epipolar_band_px
+    if band is not None and len(seeds["x_left"]) < few_seeds:
+        band = max(band, few_seeds_band_px)
     prop = propagate(left_gray, right_gray, seeds["x_left"], seeds["x_right"],
                      half_window=half_window, radius=radius, eps=eps, zncc_min=zncc_min,
-                     texture_min=texture_min, F=seeds["F"], epipolar_band_px=epipolar_band_px,
+                     texture_min=texture_min, F=F_prop, epipolar_band_px=band,
                      directional_texture=directional_texture, reseed_rounds=reseed_rounds,
-                     reseed_zncc_min=reseed_zncc_min, reseed_margin=reseed_margin)
+                     reseed_zncc_min=reseed_zncc_min, reseed_margin=reseed_margin,
+                     aperture_max=aperture_max)
     t1 = time.perf_counter()
+    amask, e_l = None, None
+    if F_prop is not None:
+        e_l, _ = epipoles(np.asarray(F_prop, np.float64))
+        if anchor_aperture_max is not None:
+            amask = aperture_coupling(left_gray, half_window, e_l) <= anchor_aperture_max
     xl, xr, support = resample(prop, cell_px=cell_px, model=model, iters=resample_iters,
                                tol_px=resample_tol_px, min_support=min_support,
                                min_inlier_share=min_inlier_share, min_spread_px=min_spread_px,
-                               thin_spread_px=thin_spread_px, anchor=anchor)
+                               thin_spread_px=thin_spread_px, anchor=anchor,
+                               interior_px=interior_px, interior_tol_px=interior_tol_px,
+                               interior_shape=interior_shape, anchor_mask=amask, epipole=e_l)
     F, note = seeds["F"], ""
     if len(xl) >= MIN_MATCHES_F:
         try:

@@ -636,6 +636,31 @@ def _feature_table_md(info: dict) -> list[str]:
     return lines
 
 
+def _spread_summary_md(features: dict) -> list[str]:
+    """Quasi-dense spread per scene next to the sparse methods of the run (from Tables 2-4)."""
+    methods = [m for m in ("sift", "asift", "qdmatch")
+               if any(v["method"] == m for info in features.values() for v in info["rows"])]
+    L = ["### Quasi-dense spread per scene", "",
+         "Distribution (share of 8x8-pixel cells holding a match) and matches of each method, "
+         "from the tables above; qdmatch's share correct beside it; the paper's qdmatch on its "
+         "own pair of the same kind.", "",
+         "| scene | " + " | ".join(f"{m} distribution | {m} num" for m in methods)
+         + " | qdmatch correct | paper qdmatch distribution | paper qdmatch num |",
+         "|---|" + "---|---|" * len(methods) + "---|---|---|"]
+    for scene, info in features.items():
+        rows = {v["method"]: v for v in info["rows"]}
+        cells = [scene]
+        for m in methods:
+            v = rows.get(m)
+            cells += (["-", "-"] if v is None else [_f(v["distribution_pct"], 2, " %"), _f(v["num"])])
+        qd = rows.get("qdmatch")
+        cells.append(_f(qd["correct_pct"], 1, " %") if qd and qd["correct_pct"] is not None else "-")
+        p = PAPER_FEATURE_TABLES[info["paper_table"]]["qdmatch"]
+        cells += [_f(p[8], 2, " %"), _f(p[7])]
+        L.append("| " + " | ".join(cells) + " |")
+    return L + [""]
+
+
 def format_report(numbers: dict) -> str:
     """The Markdown report of a run (every figure of this run next to the paper's)."""
     L = []
@@ -691,6 +716,8 @@ def format_report(numbers: dict) -> str:
         if notes:
             L += ["", "Notes: " + "; ".join(notes)]
         L += ["", f"![spread of the matches, Table {info['table']}]({info['figure']})", ""]
+    if numbers["features"]:
+        L += _spread_summary_md(numbers["features"])
 
     # Figure 11
     r = numbers["rectification"]
