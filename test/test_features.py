@@ -16,7 +16,7 @@ from canopy_stereo.features import (METHODS, MatchResult, distribution, epipolar
 from canopy_stereo.features.quasi_dense import propagate, resample, sift_seeds
 from canopy_stereo.features.study import gt_correctness, run_study
 
-from canopy_stereo.features.synthetic import slanted_plane_pair
+from canopy_stereo.sim.stereo_pair import slanted_plane_pair
 
 
 @pytest.fixture(scope="module")

@@ -20,6 +20,7 @@ from canopy_stereo.ros import convert  # noqa: E402
 from canopy_stereo.ros.context import ros_context, wait_for, wait_for_subscribers  # noqa: E402
 from canopy_stereo.ros.params import rig_parameter_overrides  # noqa: E402
 from canopy_stereo.ros.qos import publisher_qos, recording_qos  # noqa: E402
+from canopy_stereo.sim.stereo_pair import synthetic_pair  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -96,13 +97,11 @@ def node_kwargs(harness, rig=None, **params):
 
 
 def textured_pair(rig, shift_px=20, seed=0):
-    """Left/right images of a random texture, the right one shifted so that every
+    """Left/right colour images of a random texture, the right one shifted so that every
     left pixel ``u`` matches the right pixel ``u - shift_px`` (disparity ``shift_px``)."""
-    rng = np.random.default_rng(seed)
     w, h = rig.image_size
-    tex = cv2.resize(rng.integers(0, 256, (h // 2 + 1, (w + shift_px) // 2 + 1, 3), dtype=np.uint8),
-                     None, fx=2, fy=2, interpolation=cv2.INTER_LINEAR)
-    return tex[:h, :w].copy(), tex[:h, shift_px:shift_px + w].copy()
+    left, right, _ = synthetic_pair(w, h, plane=(0, 0, shift_px), texture="blocks", colour=True, seed=seed)
+    return left, right
 
 
 def rect_info_publishers(harness):

@@ -13,11 +13,13 @@ import numpy as np
 
 #: The colour map of every disparity/depth picture (and of the viewer's depth images).
 COLORMAP = getattr(cv2, "COLORMAP_TURBO", cv2.COLORMAP_JET)
+#: Its name, for viewers that colour depth themselves (Rerun's ``DepthImage(colormap=...)``).
+COLORMAP_NAME = "turbo" if hasattr(cv2, "COLORMAP_TURBO") else "jet"
 
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 
 
-def colour_range(values: np.ndarray, lo: float | None = None, hi: float | None = None,
+def colour_range(values: np.ndarray, lo: float | None = None, hi: float | None = None, *,
                  percentiles=(1.0, 99.0)) -> tuple[float, float]:
     """``(lo, hi)`` of the finite values: given bounds, else the 1st/99th percentiles."""
     v = np.asarray(values, np.float64)
