@@ -169,8 +169,10 @@ def test_cloud_reader_handles_foreign_layouts():
 
 def test_rectified_camera_info_ros_conventions():
     K = np.array([[640.0, 0, 320.5], [0, 640.0, 240.25], [0, 0, 1]])
-    left = _wire(convert.rectified_camera_info(K, (640, 480), 0.0296, "left", 5, "l"), CameraInfo)
-    right = _wire(convert.rectified_camera_info(K, (640, 480), 0.0296, "right", 5, "r"), CameraInfo)
+    left = _wire(convert.rectified_camera_info(K, (640, 480), 0.0296, "left", stamp_ns=5, frame_id="l"),
+                 CameraInfo)
+    right = _wire(convert.rectified_camera_info(K, (640, 480), 0.0296, "right", stamp_ns=5, frame_id="r"),
+                  CameraInfo)
     assert (left.width, left.height) == (640, 480)
     np.testing.assert_allclose(np.reshape(left.k, (3, 3)), K)
     np.testing.assert_allclose(np.reshape(left.r, (3, 3)), np.eye(3))

@@ -113,8 +113,10 @@ def publish_rect_infos(il, ir, rig, rect, stamp, frames=("left_camera_rect_optic
                                                           "right_camera_rect_optical_frame")):
     """What rectify_node publishes beside a rectified pair (Fusiello)."""
     t = rect.baseline * rig.metres_per_unit
-    il.publish(convert.rectified_camera_info(rect.K_rect_left, rect.size, t, "left", stamp, frames[0]))
-    ir.publish(convert.rectified_camera_info(rect.K_rect_right, rect.size, t, "right", stamp, frames[1]))
+    il.publish(convert.rectified_camera_info(rect.K_rect_left, rect.size, t, "left", stamp_ns=stamp,
+                                             frame_id=frames[0]))
+    ir.publish(convert.rectified_camera_info(rect.K_rect_right, rect.size, t, "right", stamp_ns=stamp,
+                                             frame_id=frames[1]))
 
 
 def geometry_publisher(harness, rig, rect):
@@ -148,8 +150,9 @@ def test_rectify_node_pairs_by_approximate_time_and_publishes_ros_camera_info(ha
     left, right = textured_pair(paper_rig)
     for k in range(3):
         t = T0 + k * 66_000_000
-        pl.publish(convert.image_to_msg(left, "bgr8", t, "left_camera"))
-        pr.publish(convert.image_to_msg(right, "bgr8", t + 7_000_000, "right_camera"))  # 7 ms late
+        pl.publish(convert.image_to_msg(left, "bgr8", stamp_ns=t, frame_id="left_camera"))
+        pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=t + 7_000_000,
+                                        frame_id="right_camera"))  # 7 ms late
     assert wait_for(lambda: len(info_r) == 3 and len(rect_r) == 3 and len(color) == 3, TIMEOUT)
     rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
     want_l, want_r = StereoRectifier(paper_rig, rect).rectify(left, right)
@@ -183,15 +186,15 @@ def test_rectify_node_drops_bad_input_and_keeps_running(harness, paper_rig):
     harness.connect(pl, pr)
     left, right = textured_pair(paper_rig)
     # 1: wrong encoding (a depth image) on the left
-    pl.publish(convert.image_to_msg(np.ones((480, 640), np.float32), "32FC1", T0))
-    pr.publish(convert.image_to_msg(right, "bgr8", T0))
+    pl.publish(convert.image_to_msg(np.ones((480, 640), np.float32), "32FC1", stamp_ns=T0))
+    pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=T0))
     # 2: wrong size pair
-    pl.publish(convert.image_to_msg(left[:240, :320].copy(), "bgr8", T0 + 100_000_000))
-    pr.publish(convert.image_to_msg(right[:240, :320].copy(), "bgr8", T0 + 100_000_000))
+    pl.publish(convert.image_to_msg(left[:240, :320].copy(), "bgr8", stamp_ns=T0 + 100_000_000))
+    pr.publish(convert.image_to_msg(right[:240, :320].copy(), "bgr8", stamp_ns=T0 + 100_000_000))
     # 3: an unpaired left frame (its right partner lost), then a good pair
-    pl.publish(convert.image_to_msg(left, "bgr8", T0 + 200_000_000))
-    pl.publish(convert.image_to_msg(left, "bgr8", T0 + 300_000_000))
-    pr.publish(convert.image_to_msg(right, "bgr8", T0 + 301_000_000))
+    pl.publish(convert.image_to_msg(left, "bgr8", stamp_ns=T0 + 200_000_000))
+    pl.publish(convert.image_to_msg(left, "bgr8", stamp_ns=T0 + 300_000_000))
+    pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=T0 + 301_000_000))
     assert wait_for(lambda: len(out) == 1, TIMEOUT)
     time.sleep(0.3)
     assert len(out) == 1 and convert.stamp_to_ns(out[0].header.stamp) == T0 + 300_000_000
@@ -218,8 +221,8 @@ def test_disparity_node_fields_match_the_rig(harness, paper_rig):
     shift = 30
     left, right = textured_pair(paper_rig, shift)
     gl, gr = cv2.cvtColor(left, cv2.COLOR_BGR2GRAY), cv2.cvtColor(right, cv2.COLOR_BGR2GRAY)
-    pl.publish(convert.image_to_msg(gl, "mono8", T0, "rect"))
-    pr.publish(convert.image_to_msg(gr, "mono8", T0, "rect"))
+    pl.publish(convert.image_to_msg(gl, "mono8", stamp_ns=T0, frame_id="rect"))
+    pr.publish(convert.image_to_msg(gr, "mono8", stamp_ns=T0, frame_id="rect"))
     time.sleep(0.1)
     assert out == []  # no camera_info yet: nothing to tell f and t
     rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
@@ -298,7 +301,7 @@ def test_point_cloud_node_triangulates_in_world_metres(harness, paper_rig, organ
     colour[..., 0], colour[..., 1], colour[..., 2] = 10, 200, 30  # BGR
     pd.publish(convert.disparity_to_msg(disp, rect.focal_length, rect.baseline * 1e-3, 0, 100,
                                         stamp_ns=T0, frame_id="rect", doffs=rect.doffs))
-    pc.publish(convert.image_to_msg(colour, "bgr8", T0, "rect"))
+    pc.publish(convert.image_to_msg(colour, "bgr8", stamp_ns=T0, frame_id="rect"))
     assert wait_for(lambda: len(out) == 1, TIMEOUT)
     msg = out[0]
     assert msg.header.frame_id == "canopy_world" and convert.stamp_to_ns(msg.header.stamp) == T0
@@ -335,8 +338,8 @@ def test_point_cloud_node_applies_the_mask(harness, paper_rig):
     mask = np.zeros((480, 640), np.uint8)
     mask[100:150, 200:300] = 255
     # the mask arrives first, the disparity last: exact-time pairing in any order
-    pm.publish(convert.image_to_msg(mask, "mono8", T0))
-    pc.publish(convert.image_to_msg(np.zeros((480, 640, 3), np.uint8), "bgr8", T0))
+    pm.publish(convert.image_to_msg(mask, "mono8", stamp_ns=T0))
+    pc.publish(convert.image_to_msg(np.zeros((480, 640, 3), np.uint8), "bgr8", stamp_ns=T0))
     time.sleep(0.1)
     assert out == []
     pd.publish(convert.disparity_to_msg(disp, rect.focal_length, 0.03, 0, 100, stamp_ns=T0, doffs=rect.doffs))
@@ -359,16 +362,16 @@ def test_segment_node_grabcut_rect_and_auto(harness):
     truth = np.zeros((240, 320), bool)
     cv2.ellipse(truth.view(np.uint8), (160, 120), (60, 40), 0, 0, 360, 1, -1)
     img[truth] = np.clip(rng.normal((40, 160, 50), 10, (truth.sum(), 3)), 0, 255).astype(np.uint8)
-    pub.publish(convert.image_to_msg(img, "bgr8", T0, "rect"))  # automatic (saturation)
+    pub.publish(convert.image_to_msg(img, "bgr8", stamp_ns=T0, frame_id="rect"))  # automatic (saturation)
     assert wait_for(lambda: len(out) == 1, TIMEOUT)
     res = node.set_parameters([Parameter("rect", value=[90, 70, 140, 100]), Parameter("iterations", value=2)])
     assert all(r.successful for r in res)
     assert not node.set_parameters([Parameter("scale", value=2.0)])[0].successful
-    pub.publish(convert.image_to_msg(img, "bgr8", T0 + 1, "rect"))
+    pub.publish(convert.image_to_msg(img, "bgr8", stamp_ns=T0 + 1, frame_id="rect"))
     assert wait_for(lambda: len(out) == 2, TIMEOUT)
     res = node.set_parameters([Parameter("rect", value=[0, 0, 0, 0]), Parameter("auto_init", value="exg")])
     assert all(r.successful for r in res) and node.settings["rect"] is None
-    pub.publish(convert.image_to_msg(img, "bgr8", T0 + 2, "rect"))
+    pub.publish(convert.image_to_msg(img, "bgr8", stamp_ns=T0 + 2, frame_id="rect"))
     assert wait_for(lambda: len(out) == 3, TIMEOUT)
     for msg in out:
         mask = convert.msg_to_image(msg, ("mono8",)) > 0
@@ -435,8 +438,8 @@ def test_hartley_homographies_from_parameters_give_the_same_cloud(harness, paper
     pd = harness.publisher(DisparityImage, "disparity")
     harness.connect(pl, pr, pd)
     left, right = textured_pair(paper_rig)
-    pl.publish(convert.image_to_msg(left, "bgr8", T0))
-    pr.publish(convert.image_to_msg(right, "bgr8", T0))
+    pl.publish(convert.image_to_msg(left, "bgr8", stamp_ns=T0))
+    pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=T0))
     assert wait_for(lambda: len(color) == 1, TIMEOUT)
     want, _ = StereoRectifier(paper_rig, rect).rectify(left, right)
     np.testing.assert_array_equal(convert.msg_to_image(color[0]), want)
@@ -488,8 +491,8 @@ def test_node_executable_reads_the_rig_file(repo_root, tmp_path):
                 rig = load_rig(rig_file)
                 publish_rect_infos(il, ir, rig, fusiello_rectify(rig.P_left, rig.P_right, rig.image_size), T0)
                 left, right = textured_pair(rig, 40)
-                pl.publish(convert.image_to_msg(cv2.cvtColor(left, cv2.COLOR_BGR2GRAY), "mono8", T0))
-                pr.publish(convert.image_to_msg(cv2.cvtColor(right, cv2.COLOR_BGR2GRAY), "mono8", T0))
+                pl.publish(convert.image_to_msg(cv2.cvtColor(left, cv2.COLOR_BGR2GRAY), "mono8", stamp_ns=T0))
+                pr.publish(convert.image_to_msg(cv2.cvtColor(right, cv2.COLOR_BGR2GRAY), "mono8", stamp_ns=T0))
                 assert wait_for(lambda: len(out) == 1, 30.0)
             finally:
                 h.close()

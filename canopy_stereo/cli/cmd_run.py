@@ -70,7 +70,7 @@ def run(args) -> int:
     # code as 'reconstruct' (one line and exit 2 instead of a graph that silently ignores them)
     try:
         disparity_range_for(rig, rectification_for(rig, str(rig.extra.get("method") or "fusiello"),
-                                                   rig.extra.get("H_left"), rig.extra.get("H_right")))
+                                                   H_left=rig.extra.get("H_left"), H_right=rig.extra.get("H_right")))
     except CanopyStereoError as exc:
         raise CanopyStereoError(f"rig {args.rig}: {exc}") from None
     if args.matcher in (None, "elas"):

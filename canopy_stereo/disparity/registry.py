@@ -66,7 +66,7 @@ def get_matcher(name: str) -> Matcher:
     return fn
 
 
-def compute_disparity(left: np.ndarray, right: np.ndarray, matcher: str = "sgbm",
+def compute_disparity(left: np.ndarray, right: np.ndarray, *, matcher: str = "sgbm",
                       disp_min: int = 0, disp_max: int = 128, **params) -> np.ndarray:
     """Left disparity (float32 (H, W), pixels, invalid = -1) of a rectified pair.
 

@@ -110,11 +110,11 @@ def rig_from_node(node) -> Rig:
 def rectification_from_node(node, rig: Rig) -> Rectification:
     """Rectification named by ``method`` (Fusiello from the rig, Hartley from ``H_left``/``H_right``)."""
     method = node.get_parameter("method").value or rig.extra.get("method", "fusiello")
-    return rectification_for(rig, method, _value(node, "H_left") or rig.extra.get("H_left"),
-                             _value(node, "H_right") or rig.extra.get("H_right"))
+    return rectification_for(rig, method, H_left=_value(node, "H_left") or rig.extra.get("H_left"),
+                             H_right=_value(node, "H_right") or rig.extra.get("H_right"))
 
 
-def rectification_for(rig: Rig, method: str = "fusiello", H_left=None, H_right=None) -> Rectification:
+def rectification_for(rig: Rig, method: str = "fusiello", *, H_left=None, H_right=None) -> Rectification:
     """Fusiello rectification of ``rig``, or the Hartley one given its two homographies."""
     if method == "fusiello":
         return fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)

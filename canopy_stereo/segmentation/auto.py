@@ -484,7 +484,7 @@ def _seed(img, disparity, depth, settings: SeederSettings, rect):
                              f"need {MIN_SAMPLES} each)")
         return labels, None
     llr, plant_gmm, background_gmm = colour_log_ratio(img, plant, background)
-    return relabel_by_colour(labels, llr, SURE_LOG_RATIO), (plant_gmm, background_gmm)
+    return relabel_by_colour(labels, llr, sure=SURE_LOG_RATIO), (plant_gmm, background_gmm)
 
 
 def seed_labels(image_bgr, settings: SeederSettings = IMAGE_SEEDER, *, disparity=None, depth=None,
@@ -530,7 +530,7 @@ def plant_mask(image_bgr, settings: SeederSettings = IMAGE_SEEDER, *, disparity=
     elif models is not None:
         labels = grabcut_with_models(img, seed, *models)
     else:
-        labels = grabcut_labels(img, seed, int(settings.iterations))
+        labels = grabcut_labels(img, seed, iterations=int(settings.iterations))
     mask = labels_to_mask(labels)
     if mask.shape != (h, w):
         mask = cv2.resize(mask, (w, h), interpolation=cv2.INTER_LINEAR)

@@ -151,7 +151,8 @@ class SegmentNode(CanopyNode):
             raise CanopyStereoError(f"disparity is {disparity.shape[1]}x{disparity.shape[0]} but the "
                                     f"image is {bgr.shape[1]}x{bgr.shape[0]}")
         mask = plant_mask(bgr, s["seeder"], rect=s["rect"], disparity=disparity)
-        self.pub.publish(image_to_msg(mask, "mono8", stamp_to_ns(header.stamp), header.frame_id))
+        self.pub.publish(image_to_msg(mask, "mono8", stamp_ns=stamp_to_ns(header.stamp),
+                                      frame_id=header.frame_id))
         self.count("masks_published")
 
 
