@@ -73,3 +73,28 @@ def test_segment_node_process_uses_the_disparity_cue(ros_processes):
             assert _iou(mask, truth) > 0.9, _iou(mask, truth)
     finally:
         probe.close()
+
+
+@pytest.mark.slow
+def test_graph_masks_follow_the_disparity_with_the_depth_cue():
+    """The in-process graph (GraphOptions.segment_depth_cue, canopy_graph --segment-depth-cue)
+    on the croton bag: every frame gets a mask, and the masked pixels are the near ones."""
+    from canopy_stereo.io.rig import load_rig
+    from canopy_stereo.ros.bundled import bundled_bag, bundled_rig
+    from canopy_stereo.ros.graph import GraphOptions
+    from canopy_stereo.ros.runner import run_bag
+
+    result = run_bag(bundled_bag("croton"), load_rig(bundled_rig("croton")), rate=0,
+                     keep=("disparity", "left/mask"),
+                     options=GraphOptions(use_mask=True, segment_depth_cue=True, parameter_services=False))
+    assert result.frames_in == result.frames_out == 4
+    masks = dict(result.outputs["left/mask"])
+    disparities = dict(result.outputs["disparity"])
+    assert len(masks) == 4 and set(masks) == set(disparities)
+    for stamp, data in masks.items():
+        mask = convert.msg_to_image(deserialize_message(data, Image), ("mono8",)) > 0
+        d = convert.msg_to_disparity(deserialize_message(disparities[stamp], DisparityImage)).disparity
+        valid = np.isfinite(d)
+        assert 0.05 < mask.mean() < 0.95
+        near, far = np.median(d[mask & valid]), np.median(d[~mask & valid])
+        assert near > far + 3.0, (near, far)  # the croton stands about 0.3 m before its backdrop
