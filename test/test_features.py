@@ -1,6 +1,6 @@
 """Feature matching study and quasi-dense matching (issue 6), on generated pairs.
 
-The pairs are generated (:mod:`canopy_stereo.features.synthetic`): a textured
+The pairs are generated (:mod:`canopy_stereo.sim.stereo_pair`): a textured
 left image and a right image warped from it with a known disparity (a slanted
 plane), so every match can be checked against the truth without shared data.
 """

@@ -35,7 +35,8 @@ def positional_options(tree: ast.Module) -> list[tuple[str | None, str, int, lis
                     continue  # private, dunder, node callbacks (_on_*)
                 positional = child.args.posonlyargs + child.args.args
                 static = any(isinstance(d, ast.Name) and d.id == "staticmethod" for d in child.decorator_list)
-                skip = 1 if cls is not None and not static and positional and positional[0].arg in ("self", "cls") else 0
+                bound = cls is not None and not static and positional and positional[0].arg in ("self", "cls")
+                skip = 1 if bound else 0
                 first_default = len(positional) - len(child.args.defaults)
                 bad = [a.arg for i, a in enumerate(positional) if i >= first_default and i - skip >= 2]
                 if bad:

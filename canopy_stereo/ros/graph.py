@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
 
+from canopy_stereo.disparity import DEFAULT_MATCHER, matcher_names
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.rig import Rig
 from canopy_stereo.ros.context import tune_node_process
@@ -60,6 +61,10 @@ class GraphOptions:
         executor: ``"per-node"`` (one single-threaded executor and thread per node)
             or ``"multi"`` (one rclpy ``MultiThreadedExecutor`` for all nodes).
         threads: threads of the ``multi`` executor.
+        recut_every: segment_node's full-GrabCut period (frames; None: the node's default, 10;
+            1 = every frame; :mod:`canopy_stereo.segmentation.propagate`).
+        propagate_scale: segment_node's scale of the frames between full cuts (None: its ``scale``).
+        disparity_threads: disparity_node's thread budget (None: the node's default).
     """
 
     namespace: str = "/stereo"
@@ -73,6 +78,9 @@ class GraphOptions:
     parameter_services: bool = True
     threads: int = DEFAULT_THREADS
     executor: str = "per-node"
+    recut_every: int | None = None
+    propagate_scale: float | None = None
+    disparity_threads: int | None = None
 
 
 class CanopyGraph:
@@ -110,10 +118,13 @@ class CanopyGraph:
         common = {"reliability": o.reliability}
         per_node = {
             "rectify_node": {},
-            "disparity_node": {} if o.matcher is None else {"matcher": o.matcher},
+            "disparity_node": ({} if o.matcher is None else {"matcher": o.matcher})
+            | ({} if o.disparity_threads is None else {"threads": int(o.disparity_threads)}),
             # nothing waits for every mask unless use_mask: let GrabCut skip frames under load
             "segment_node": ({} if o.use_mask else {"queue_size": 1})
-                            | ({"depth_cue": True} if o.segment_depth_cue else {}),
+            | ({"depth_cue": True} if o.segment_depth_cue else {})
+            | ({} if o.recut_every is None else {"recut_every": int(o.recut_every)})
+            | ({} if o.propagate_scale is None else {"propagate_scale": float(o.propagate_scale)}),
             "point_cloud_node": {"use_mask": bool(o.use_mask), "organized": bool(o.organized)},
         }
         if cameras is not None:
@@ -244,7 +255,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--metadata", nargs="+", action="extend", default=[], metavar="KEY=VALUE",
                    help="with --cameras --record: describe the recording (plant_id=A12 plot=row1 ...); "
                         "stored with the rig file as the bag's metadata records")
-    p.add_argument("--matcher", choices=("elas", "sgbm"), default=None)
+    p.add_argument("--matcher", choices=matcher_names(), default=None,
+                   help=f"disparity matcher (default: {DEFAULT_MATCHER})")
     p.add_argument("--use-mask", action="store_true", help="keep only plant pixels in the clouds")
     p.add_argument("--no-segment", action="store_true", help="do not run segment_node")
     p.add_argument("--segment-depth-cue", action="store_true",
@@ -255,6 +267,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="one single-threaded executor per node (default) or one multi-threaded one")
     p.add_argument("--threads", type=int, default=DEFAULT_THREADS,
                    help="threads of the multi-threaded executor")
+    p.add_argument("--recut-every", type=int, default=None, metavar="N",
+                   help="segment_node: a full GrabCut every N frames, the plant model propagated between "
+                        "(default 10; 1 = every frame)")
+    p.add_argument("--disparity-threads", type=int, default=None, metavar="N",
+                   help="disparity_node: threads of the matcher (default: the node's)")
     return p
 
 
@@ -315,8 +332,8 @@ def main(args=None) -> int:
     options = GraphOptions(namespace=opts.namespace, matcher=opts.matcher,
                            segment=not opts.no_segment or opts.use_mask, use_mask=opts.use_mask,
                            segment_depth_cue=opts.segment_depth_cue, organized=opts.organized,
-                           threads=opts.threads,
-                           executor=opts.executor)
+                           threads=opts.threads, executor=opts.executor, recut_every=opts.recut_every,
+                           disparity_threads=opts.disparity_threads)
     if opts.cameras:
         # free-running cameras: the pairing tolerance is half a frame period at the camera rate
         if not opts.fps > 0:

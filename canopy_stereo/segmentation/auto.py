@@ -292,7 +292,8 @@ VIDEO_SEEDER = SeederSettings(colour_cue="saturation", depth_cue=False, sure_mar
 def seeder_fields(preset: SeederSettings = IMAGE_SEEDER) -> list[dict]:
     """The settings a node declares as parameters, derived from :class:`SeederSettings`.
 
-    Each entry: ``name`` (the parameter's), ``field`` (the settings field's), ``kind`` (``"number"``, ``"text"`` or ``"flag"``), ``default``
+    Each entry: ``name`` (the parameter's), ``field`` (the settings field's), ``kind``
+    (``"number"``, ``"text"`` or ``"flag"``), ``default``
     (``preset``'s value encoded with :func:`encode_setting`), ``description`` (with the
     unit), and ``minimum``/``maximum`` (numbers) or ``choices`` (text). The range fields
     (per image, not per node) are left out.
@@ -305,7 +306,8 @@ def seeder_fields(preset: SeederSettings = IMAGE_SEEDER) -> list[dict]:
         default = encode_setting(f.name, getattr(preset, f.name))
         kind = "flag" if isinstance(default, bool) else "text" if isinstance(default, str) else "number"
         desc = meta["description"] + (f" ({meta['unit']})" if meta["unit"] else "")
-        out.append({"name": meta["parameter"] or f.name, "field": f.name, "kind": kind, "default": default, "description": desc,
+        out.append({"name": meta["parameter"] or f.name, "field": f.name, "kind": kind, "default": default,
+                    "description": desc,
                     "minimum": meta["minimum"], "maximum": meta["maximum"], "choices": meta["choices"]})
     return out
 
