@@ -36,7 +36,7 @@ def make_bag(path: Path, n_images: int, compression: str) -> tuple[Path, int]:
     with BagWriter(path, compression=compression, flush_period_s=0) as w:
         for k in range(n_images):
             m = src[k % len(src)]
-            w.write(m.topic, m.data, 1_000_000_000 + k * 33_000_000, None, m.type_name)
+            w.write(m.topic, m.data, 1_000_000_000 + k * 33_000_000, publish_time_ns=None, msg_type=m.type_name)
             payload += len(m.data)
     return path, payload
 
@@ -117,7 +117,7 @@ def bench_record(tmp: Path, repeat: int) -> None:
         def ours():
             with BagWriter(tmp / "rec.mcap", compression="lz4") as w:
                 for k in range(n):
-                    w.write("/t", data, k, k, "sensor_msgs/msg/CameraInfo")
+                    w.write("/t", data, k, publish_time_ns=k, msg_type="sensor_msgs/msg/CameraInfo")
 
         def ours_thread():
             t = threading.Thread(target=ours)

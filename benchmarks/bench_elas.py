@@ -216,7 +216,7 @@ def main(argv=None) -> int:
         for name, (left, right, gt) in loaded.items():
             size = f"{left.shape[1]}x{left.shape[0]}"
             for preset, sub in ELAS_CONFIGS:
-                disp, sec = timed(lambda: elas_disparity(left, right, preset, subpixel=sub,
+                disp, sec = timed(lambda: elas_disparity(left, right, preset=preset, subpixel=sub,
                                                          right_map=False)[0], args.reps)
                 label = f"elas {preset}" + (" +subpix" if sub else "")
                 rows.append((name, size, label, 1000 * sec, evaluate_disparity(disp, gt)))
@@ -225,7 +225,7 @@ def main(argv=None) -> int:
                     disp, ms = libelas[f"{name}/{preset}"]
                     rows.append((name, size, f"libelas {preset}", ms,
                                  evaluate_disparity(disp, gt)))
-            linear = elas_disparity(left, right, "robotics", adaptive_mean_weights="linear",
+            linear = elas_disparity(left, right, preset="robotics", adaptive_mean_weights="linear",
                                     right_map=False)[0]
             rows.append((name, size, "elas robotics linear-w", float("nan"),
                          evaluate_disparity(linear, gt)))

@@ -126,11 +126,11 @@ def bench_speed(pairs):
     print("1. qdmatch on one core (median of 3 after a warm-up)")
     cv2.setNumThreads(1)
     for name, (left, right) in pairs.items():
-        match_pair(left, right, "qdmatch")
+        match_pair(left, right, method="qdmatch")
         runs = []
         for _ in range(3):
             t, c = time.perf_counter(), time.process_time()
-            res = match_pair(left, right, "qdmatch", min_matches=0)
+            res = match_pair(left, right, method="qdmatch", min_matches=0)
             runs.append((time.process_time() - c, time.perf_counter() - t, res))
         cpu, total, res = sorted(runs, key=lambda x: x[0])[1]
         h, w = left.shape[:2]
@@ -155,7 +155,7 @@ def bench_spread(plant_pairs, asift=True):
                 ("qdmatch", "qdmatch", {})] + ([("asift", "asift", {})] if asift else [])
     for name, (left, right, kind, truth) in plant_pairs.items():
         cells = textured_cells(to_gray(left))
-        results = [(label, match_pair(left, right, m, min_matches=0, **kw)) for label, m, kw in variants]
+        results = [(label, match_pair(left, right, method=m, min_matches=0, **kw)) for label, m, kw in variants]
         if kind is None:
             shares, _ = epipolar_correctness([r for _, r in results])
         parts = []
@@ -178,10 +178,10 @@ def bench_correctness(data: Path, croton_pair):
     shares, before_shares, reseed_shares = [], [], []
     for name in GT_SCENES:
         left, right, gt = load_gt_scene(data, name)
-        s = match_pair(left, right, "sift")
-        q = match_pair(left, right, "qdmatch")
-        b = match_pair(left, right, "qdmatch", min_matches=0, **QDMATCH_BEFORE)
-        o = match_pair(left, right, "qdmatch", min_matches=0, **QDMATCH_RESEED_ONLY)
+        s = match_pair(left, right, method="sift")
+        q = match_pair(left, right, method="qdmatch")
+        b = match_pair(left, right, method="qdmatch", min_matches=0, **QDMATCH_BEFORE)
+        o = match_pair(left, right, method="qdmatch", min_matches=0, **QDMATCH_RESEED_ONLY)
         cs, _ = gt_correctness(s.x_left, s.x_right, gt)
         cq, n = gt_correctness(q.x_left, q.x_right, gt)
         cb, _ = gt_correctness(b.x_left, b.x_right, gt)
@@ -199,7 +199,7 @@ def bench_correctness(data: Path, croton_pair):
               f"min {100 * np.min(sh):.1f} %, scenes >= 95 %: {sum(c >= 0.95 for c in sh)}/{len(sh)}")
     left, right, truth = croton_pair
     for m in ("sift", "qdmatch"):
-        res = match_pair(left, right, m)
+        res = match_pair(left, right, method=m)
         c, n = croton_correctness(res, truth)
         print(f"   croton (simulated, unrectified) {m}: {100 * c:.1f} % of {n} within 1 px of the "
               f"true right pixel")
@@ -232,7 +232,7 @@ def bench_hartley(data: Path):
     def und(x, K, D):
         return cv2.undistortPoints(np.asarray(x, np.float64).reshape(-1, 1, 2), K, D, P=K).reshape(-1, 2)
 
-    matches = [match_pair(L, R, "qdmatch") for L, R in pairs]
+    matches = [match_pair(L, R, method="qdmatch") for L, R in pairs]
     for undistort in (False, True):
         def pts(x, K, D):
             return und(x, K, D) if undistort else np.asarray(x, np.float64).reshape(-1, 2)

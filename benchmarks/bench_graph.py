@@ -463,7 +463,8 @@ def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rat
         if not wait_for(lambda: sub.get_publisher_count() >= 1 and pub_l.get_subscription_count() >= 1
                         and pub_r.get_subscription_count() >= 1, 60.0, group=group):
             raise RuntimeError("the graph did not connect" + (":\n" + group.logs() if group else ""))
-        msgs = [(image_to_msg(left, "bgr8", 0, "left_camera"), image_to_msg(right, "bgr8", 0, "right_camera"))
+        msgs = [(image_to_msg(left, "bgr8", stamp_ns=0, frame_id="left_camera"),
+                 image_to_msg(right, "bgr8", stamp_ns=0, frame_id="right_camera"))
                 for left, right in frames]
 
         def publish(k: int) -> int:

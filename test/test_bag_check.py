@@ -163,7 +163,7 @@ def test_cli_run_says_truncated_and_rejects_garbage_cdr(cli, tmp_path):
     with BagWriter(garbage) as w:
         for m in src.messages():
             data = os.urandom(len(m.data)) if m.topic.endswith("image_raw") else m.data
-            w.write(m.topic, data, m.log_time_ns, m.publish_time_ns, m.type_name)
+            w.write(m.topic, data, m.log_time_ns, publish_time_ns=m.publish_time_ns, msg_type=m.type_name)
     code, out, err = cli("run", "--bag", garbage, "--rig", bundled_rig("croton"), "--rate", "0",
                          "--matcher", "sgbm", "--no-segment")
     assert code == 2, out + err

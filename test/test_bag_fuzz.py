@@ -70,7 +70,7 @@ def build_sources(tmp: Path) -> dict:
     lz4_path = Path(tmp) / "croton_lz4.mcap"
     with BagWriter(lz4_path, compression="lz4", chunk_size=400_000, flush_period_s=0) as w:
         for m in BagReader(bundled_bag("croton")).messages():
-            w.write(m.topic, m.data, m.log_time_ns, m.publish_time_ns, m.type_name)
+            w.write(m.topic, m.data, m.log_time_ns, publish_time_ns=m.publish_time_ns, msg_type=m.type_name)
     out = {}
     for name, path in (("croton", bundled_bag("croton")), ("plants", bundled_bag("plants")),
                        ("croton_lz4", lz4_path)):

@@ -26,14 +26,18 @@ def _messages(n=4):
     for k in range(n):
         stamp = T0 + k * 33_000_000
         img = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
-        out.append(("/stereo/left/image_raw", convert.image_to_msg(img, "bgr8", stamp, "left"), stamp))
+        out.append(("/stereo/left/image_raw", convert.image_to_msg(img, "bgr8", stamp_ns=stamp,
+                                                                   frame_id="left"), stamp))
         d = rng.uniform(-1, 40, (48, 64)).astype(np.float32)
         out.append(("/stereo/disparity",
-                    convert.disparity_to_msg(d, 600.0, 0.03125, 0, 48, 1 / 16, stamp, "rect"), stamp + 1000))
+                    convert.disparity_to_msg(d, 600.0, 0.03125, 0, 48, delta_d=1 / 16, stamp_ns=stamp,
+                                             frame_id="rect"), stamp + 1000))
         pts = rng.normal(size=(48, 64, 3)).astype(np.float32)
-        out.append(("/stereo/points2", convert.points_to_cloud2(pts, img[..., ::-1], stamp), stamp + 2000))
+        out.append(("/stereo/points2", convert.points_to_cloud2(pts, img[..., ::-1], stamp_ns=stamp),
+                    stamp + 2000))
         out.append(("/stereo/left/camera_info",
-                    convert.rectified_camera_info(K, (64, 48), 0.03, "left", stamp, "rect"), stamp + 3000))
+                    convert.rectified_camera_info(K, (64, 48), 0.03, "left", stamp_ns=stamp,
+                                                  frame_id="rect"), stamp + 3000))
     return out
 
 
@@ -48,7 +52,8 @@ def _write(path, messages, **kw):
         for topic, msg, t in messages:
             raw = serialize_message(msg)
             stored.append(raw)
-            bag.write(topic, raw, t, convert.stamp_to_ns(msg.header.stamp), msgdefs.type_name(msg))
+            bag.write(topic, raw, t, publish_time_ns=convert.stamp_to_ns(msg.header.stamp),
+                      msg_type=msgdefs.type_name(msg))
     return path, stored
 
 

@@ -105,7 +105,7 @@ def test_bag_record_writes_metadata_and_rig(tmp_path):
             assert wait_for(lambda: pub.get_subscription_count() >= 1, 30.0), "recorder did not subscribe"
             time.sleep(0.2)
             for k in range(3):
-                pub.publish(convert.image_to_msg(np.full((4, 4, 3), k, np.uint8), "bgr8", T0 + k))
+                pub.publish(convert.image_to_msg(np.full((4, 4, 3), k, np.uint8), "bgr8", stamp_ns=T0 + k))
                 time.sleep(0.05)
             time.sleep(0.5)
             node.destroy_node()

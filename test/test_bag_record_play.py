@@ -27,7 +27,8 @@ T0 = 1_700_000_000_000_000_000
 
 
 def _images(n):
-    return [convert.image_to_msg(np.full((6, 8, 3), 10 * k, np.uint8), "bgr8", T0 + k * 1000, f"f{k}")
+    return [convert.image_to_msg(np.full((6, 8, 3), 10 * k, np.uint8), "bgr8", stamp_ns=T0 + k * 1000,
+                                 frame_id=f"f{k}")
             for k in range(n)]
 
 

@@ -68,7 +68,8 @@ def slow_bag(tmp_path_factory) -> Path:
                 lag = (m.publish_time_ns - pairs[0][0].publish_time_ns) % 10_000_000  # right after left
                 stamp = t0 + k * 2_000_000_000 + lag
                 msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
-                w.write(m.topic, serialize_message(msg), stamp + 2_000_000, stamp, m.type_name)
+                w.write(m.topic, serialize_message(msg), stamp + 2_000_000, publish_time_ns=stamp,
+                        msg_type=m.type_name)
     bag = BagReader(path)
     assert (bag.end_ns - bag.start_ns) / 1e9 == pytest.approx(30.0, abs=0.1)
     return path

@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from canopy_stereo.elas.synthetic import shifted_pair
+from canopy_stereo.sim.stereo_pair import shifted_pair
 from canopy_stereo.io.pfm import read_pfm, write_pfm
 
 

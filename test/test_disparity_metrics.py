@@ -38,7 +38,7 @@ def test_mask_restricts_every_statistic():
     mask = np.zeros(disp.shape, bool)
     mask[0, :3] = True
     mask[1, 0] = True
-    s = evaluate_disparity(disp, gt, mask)
+    s = evaluate_disparity(disp, gt, mask=mask)
     assert s.evaluated == 3 and s.known == 4
     assert s.bad[0.5] == pytest.approx(100 / 3)
     assert s.density == pytest.approx(75.0)
@@ -62,7 +62,7 @@ def test_shape_mismatch_raises():
     with pytest.raises(CanopyStereoError, match="same size"):
         evaluate_disparity(np.zeros((3, 4)), np.zeros((4, 3)))
     with pytest.raises(CanopyStereoError, match="mask"):
-        evaluate_disparity(np.zeros((3, 4)), np.zeros((3, 4)), np.ones((2, 2), bool))
+        evaluate_disparity(np.zeros((3, 4)), np.zeros((3, 4)), mask=np.ones((2, 2), bool))
 
 
 def test_format_and_dict():

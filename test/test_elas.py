@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from canopy_stereo.elas import ElasWarning, elas_disparity, elas_run, make_params
-from canopy_stereo.elas.synthetic import plane_pair, shifted_pair
+from canopy_stereo.sim.stereo_pair import plane_pair, shifted_pair
 from canopy_stereo.errors import CanopyStereoError, ImageError
 
 PRESETS = ("robotics", "middlebury")
@@ -38,7 +38,7 @@ def slanted():
 @pytest.mark.parametrize("preset", PRESETS)
 def test_constant_shift_is_recovered(shifted, preset):
     left, right, gt = shifted
-    dl, dr = elas_disparity(left, right, preset, disp_max=63)
+    dl, dr = elas_disparity(left, right, preset=preset, disp_max=63)
     assert dl.dtype == np.float32 and dl.shape == left.shape
     assert dr.dtype == np.float32 and dr.shape == left.shape
     assert _share_within(dl, gt, 10) >= 0.95
@@ -51,7 +51,7 @@ def test_constant_shift_is_recovered(shifted, preset):
 @pytest.mark.parametrize("subpixel", [False, True])
 def test_slanted_plane_is_recovered(slanted, preset, subpixel):
     left, right, gt = slanted
-    dl, _ = elas_disparity(left, right, preset, disp_max=63, subpixel=subpixel)
+    dl, _ = elas_disparity(left, right, preset=preset, disp_max=63, subpixel=subpixel)
     assert _share_within(dl, gt, 10) >= 0.95
 
 
@@ -61,7 +61,7 @@ def test_subpixel_refinement_lowers_the_error_on_a_slanted_plane(slanted):
     region[10:-10, 30:-10] = True
 
     def epe(**kw):
-        d, _ = elas_disparity(left, right, "middlebury", disp_max=63, **kw)
+        d, _ = elas_disparity(left, right, preset="middlebury", disp_max=63, **kw)
         return np.abs(d - gt)[region & (d >= 0)].mean()
 
     plain, refined = epe(), epe(subpixel=True)
@@ -71,7 +71,7 @@ def test_subpixel_refinement_lowers_the_error_on_a_slanted_plane(slanted):
 
 def test_outputs_are_negative_one_where_invalid(shifted):
     left, right, _ = shifted
-    dl, dr = elas_disparity(left, right, "robotics", disp_max=63)
+    dl, dr = elas_disparity(left, right, preset="robotics", disp_max=63)
     for d in (dl, dr):
         bad = d < 0
         assert bad.any()                     # borders outside the support hull
@@ -91,8 +91,8 @@ def test_bgr_input_equals_grey_input(shifted):
 
 def test_right_map_can_be_skipped(shifted):
     left, right, _ = shifted
-    full_l, _ = elas_disparity(left, right, "middlebury", disp_max=63)
-    only_l, none = elas_disparity(left, right, "middlebury", disp_max=63, right_map=False)
+    full_l, _ = elas_disparity(left, right, preset="middlebury", disp_max=63)
+    only_l, none = elas_disparity(left, right, preset="middlebury", disp_max=63, right_map=False)
     assert none is None
     assert np.array_equal(full_l, only_l)
 
@@ -131,10 +131,10 @@ def test_identical_across_runs_and_thread_counts(slanted):
     before = numba.get_num_threads()
     try:
         numba.set_num_threads(1)
-        one = elas_disparity(left, right, "middlebury", disp_max=63, subpixel=True)
-        again = elas_disparity(left, right, "middlebury", disp_max=63, subpixel=True)
+        one = elas_disparity(left, right, preset="middlebury", disp_max=63, subpixel=True)
+        again = elas_disparity(left, right, preset="middlebury", disp_max=63, subpixel=True)
         numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
-        two = elas_disparity(left, right, "middlebury", disp_max=63, subpixel=True)
+        two = elas_disparity(left, right, preset="middlebury", disp_max=63, subpixel=True)
     finally:
         numba.set_num_threads(before)
     for a, b in ((one, again), (one, two)):
@@ -218,4 +218,4 @@ def test_bad_parameters_raise(shifted, kw, match):
 def test_unknown_preset_raises(shifted):
     left, right, _ = shifted
     with pytest.raises(CanopyStereoError, match="preset"):
-        elas_disparity(left, right, "fastest")
+        elas_disparity(left, right, preset="fastest")

@@ -41,7 +41,7 @@ def pairs(shared_data):
 @pytest.mark.parametrize("name", list(PAIRS))
 def test_matches_the_libelas_reference(pairs, name, preset):
     left, right, gt = pairs[name]
-    disp, _ = elas_disparity(left, right, preset)          # defaults: disp 0..255
+    disp, _ = elas_disparity(left, right, preset=preset)          # defaults: disp 0..255
     scores = evaluate_disparity(disp, gt)
     ref_bad2, ref_density = REFERENCE[(name, preset)]
     assert abs(scores.bad[2.0] - ref_bad2) <= 1.0, scores.format()

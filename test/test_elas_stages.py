@@ -7,7 +7,7 @@ import pytest
 from canopy_stereo.elas import delaunay, descriptor, grid, matching, postprocess, support
 from canopy_stereo.elas.params import make_params
 from canopy_stereo.elas.simd import sad16, sad64, sad_reference
-from canopy_stereo.elas.synthetic import shifted_pair
+from canopy_stereo.sim.stereo_pair import shifted_pair
 
 
 # ---------------------------------------------------------------- descriptor

@@ -1,6 +1,6 @@
 """Feature matching study and quasi-dense matching (issue 6), on generated pairs.
 
-The pairs are generated (:mod:`canopy_stereo.features.synthetic`): a textured
+The pairs are generated (:mod:`canopy_stereo.sim.stereo_pair`): a textured
 left image and a right image warped from it with a known disparity (a slanted
 plane), so every match can be checked against the truth without shared data.
 """
@@ -16,7 +16,7 @@ from canopy_stereo.features import (METHODS, MatchResult, distribution, epipolar
 from canopy_stereo.features.quasi_dense import propagate, resample, sift_seeds
 from canopy_stereo.features.study import gt_correctness, run_study
 
-from canopy_stereo.features.synthetic import slanted_plane_pair
+from canopy_stereo.sim.stereo_pair import slanted_plane_pair
 
 
 @pytest.fixture(scope="module")
@@ -105,7 +105,7 @@ def _share_correct(res, d):
 
 def test_sift_matches_are_verified_and_correct(slanted_pair):
     left, right, d = slanted_pair
-    res = match_pair(left, right, "sift")
+    res = match_pair(left, right, method="sift")
     assert isinstance(res, MatchResult) and res.method == "sift"
     assert res.x_left.dtype == np.float64 and res.x_left.shape == res.x_right.shape
     assert res.num >= 50 and res.num_left >= res.num and res.num_right >= res.num
@@ -120,15 +120,15 @@ def test_sift_matches_are_verified_and_correct(slanted_pair):
 def test_other_methods_match_correctly(slanted_pair, method):
     left, right, d = slanted_pair
     kw = {"max_tilt": 2.0} if method == "asift" else {}
-    res = match_pair(left, right, method, min_matches=0, **kw)
+    res = match_pair(left, right, method=method, min_matches=0, **kw)
     assert res.num >= 10, res.note
     assert _share_correct(res, d) >= 0.9
 
 
 def test_asift_pools_more_features_than_sift(slanted_pair):
     left, right, _ = slanted_pair
-    sift = match_pair(left, right, "sift")
-    asift = match_pair(left, right, "asift", max_tilt=2.0)
+    sift = match_pair(left, right, method="sift")
+    asift = match_pair(left, right, method="asift", max_tilt=2.0)
     assert asift.num_left > 2 * sift.num_left
     assert asift.extras["num_views"] == 1 + 4 + 5
 
@@ -159,7 +159,7 @@ def test_hessian_affine_recovers_the_shape_of_an_elongated_blob():
     q = np.einsum("...i,ij,...j->...", p, np.linalg.inv(C), p)
     img = np.clip(200 - 150 * np.exp(-0.5 * q), 0, 255).astype(np.uint8)
     pts, sig, _ = scale_adapted_points(img, "hessian")
-    X, U, _ = affine_adapt(img, pts, sig, "hessian")
+    X, U, _ = affine_adapt(img, pts, sig, kind="hessian")
     k = np.argmin(np.hypot(X[:, 0] - 64, X[:, 1] - 64))
     assert np.hypot(*(X[k] - 64)) < 1.5
     # the region shape U U^T is proportional to the blob covariance
@@ -175,8 +175,8 @@ def test_hessian_affine_recovers_the_shape_of_an_elongated_blob():
 
 def test_qdmatch_is_correct_and_better_spread_than_sift(slanted_pair):
     left, right, d = slanted_pair
-    sift = match_pair(left, right, "sift")
-    qd = match_pair(left, right, "qdmatch")
+    sift = match_pair(left, right, method="sift")
+    qd = match_pair(left, right, method="qdmatch")
     assert qd.method == "qdmatch"
     assert qd.t_propagation > 0 and qd.t_resample > 0
     assert qd.extras["num_propagated"] > 10 * qd.extras["num_seeds"]
@@ -238,11 +238,11 @@ def test_resampling_fits_local_maps_to_an_exact_affine_field():
 
 def test_qdmatch_on_textureless_images_gives_a_clear_message():
     flat = np.full((120, 160), 90, np.uint8)
-    res = match_pair(flat, flat.copy(), "qdmatch", min_matches=0)
+    res = match_pair(flat, flat.copy(), method="qdmatch", min_matches=0)
     assert res.num == 0 and "no seeds" in res.note and "texture" in res.note
     with pytest.raises(MatchingError, match="no seeds"):
-        match_pair(flat, flat.copy(), "qdmatch")
-    rows = run_study(flat, flat.copy(), ["sift", "qdmatch"])
+        match_pair(flat, flat.copy(), method="qdmatch")
+    rows = run_study(flat, flat.copy(), methods=["sift", "qdmatch"])
     assert [r.result.num for r in rows] == [0, 0]
     assert "no seeds" in rows[1].result.note
 
@@ -250,11 +250,11 @@ def test_qdmatch_on_textureless_images_gives_a_clear_message():
 def test_bad_input_is_reported():
     a = np.zeros((100, 120), np.uint8)
     with pytest.raises(ImageError, match="sizes differ"):
-        match_pair(a, np.zeros((100, 121), np.uint8), "sift")
+        match_pair(a, np.zeros((100, 121), np.uint8), method="sift")
     with pytest.raises(CanopyStereoError, match="unknown matching method 'sirf'"):
-        match_pair(a, a, "sirf")
+        match_pair(a, a, method="sirf")
     with pytest.raises(ImageError, match="uint8"):
-        match_pair(a.astype(np.float32), a, "sift")
+        match_pair(a.astype(np.float32), a, method="sift")
 
 
 def test_unavailable_methods_say_why_and_are_not_faked(slanted_pair):
@@ -263,8 +263,8 @@ def test_unavailable_methods_say_why_and_are_not_faked(slanted_pair):
     if not ok:
         assert "patented" in reason
         with pytest.raises(CanopyStereoError, match="patented"):
-            match_pair(left, right, "surf")
-    rows = run_study(left, right, ["surf", "sift"])
+            match_pair(left, right, method="surf")
+    rows = run_study(left, right, methods=["surf", "sift"])
     if not ok:
         assert rows[0].result.num == 0 and "patented" in rows[0].result.note
     assert set(METHODS) >= {"sift", "asift", "orb", "akaze", "kaze", "surf", "harris-affine",

@@ -21,8 +21,8 @@ def test_qdmatch_is_correct_and_spreads_wider_than_sift(shared_data, name):
     left = read_image(shared_data / folder / l)
     right = read_image(shared_data / folder / r)
     gt = read_disparity(shared_data / folder / g, scale)
-    qd = match_pair(left, right, "qdmatch")
-    sift = match_pair(left, right, "sift")
+    qd = match_pair(left, right, method="qdmatch")
+    sift = match_pair(left, right, method="sift")
     share, n = gt_correctness(qd.x_left, qd.x_right, gt)
     assert n > 0.9 * qd.num and qd.num > 500
     assert share >= 0.95
@@ -32,7 +32,7 @@ def test_qdmatch_is_correct_and_spreads_wider_than_sift(shared_data, name):
 def test_study_without_gt_on_the_plants_scene(shared_data):
     folder = shared_data / "middlebury_MiddEval3_testQ" / "Plants"
     left, right = read_image(folder / "im0.png"), read_image(folder / "im1.png")
-    rows = run_study(left, right, ["sift", "qdmatch"])
+    rows = run_study(left, right, methods=["sift", "qdmatch"])
     assert [r.correct_basis for r in rows] == ["epipolar", "epipolar"]
     sift, qd = rows
     assert qd.result.num > sift.result.num
@@ -47,7 +47,7 @@ def test_qdmatch_reaches_the_paper_spread_on_plant_pairs(shared_data):
     threshold lets the propagation cover weakly textured leaves and pots."""
     folder = shared_data / "middlebury_MiddEval3_testQ" / "Plants"
     left, right = read_image(folder / "im0.png"), read_image(folder / "im1.png")
-    rows = run_study(left, right, ["sift", "qdmatch"])
+    rows = run_study(left, right, methods=["sift", "qdmatch"])
     sift, qd = rows
     assert qd.result.distribution >= 0.26                    # paper: 27-31 %
     assert 1300 <= qd.result.num <= 1800                      # paper: 1400-1600 matches
@@ -58,7 +58,7 @@ def test_qdmatch_reaches_the_paper_spread_on_plant_pairs(shared_data):
     left = read_image(shared_data / folder / l)
     right = read_image(shared_data / folder / r)
     gt = read_disparity(shared_data / folder / g, scale)
-    qd = match_pair(left, right, "qdmatch")
+    qd = match_pair(left, right, method="qdmatch")
     share, _ = gt_correctness(qd.x_left, qd.x_right, gt)
     assert qd.distribution >= 0.55 and share >= 0.98
 

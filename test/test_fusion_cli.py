@@ -41,7 +41,7 @@ def make_cloud_views(root, n=3, unit="mm", with_pose=False):
         d = root / f"v{k}"
         d.mkdir(parents=True)
         scale = 0.001 if unit == "m" else 1.0
-        write_ply(d / "cloud.ply", transform_points(invert_transform(T), pts) * scale, cols, unit=unit)
+        write_ply(d / "cloud.ply", transform_points(invert_transform(T), pts) * scale, colors=cols, unit=unit)
         if with_pose:
             write_pose(d / "pose.yaml", T, unit)
         poses[d.name] = T
@@ -112,7 +112,7 @@ def test_fuse_views_that_do_not_overlap_fail_clearly(tmp_path, cli):
     pts, cols = patch_cloud(seed=0)
     for name, shift in (("near", 0.0), ("far", 3000.0)):
         (tmp_path / name).mkdir()
-        write_ply(tmp_path / name / "cloud.ply", pts + [shift, 0, 0], cols, unit="mm")
+        write_ply(tmp_path / name / "cloud.ply", pts + [shift, 0, 0], colors=cols, unit="mm")
     out = tmp_path / "f.ply"
     code, _, stderr = cli("fuse", tmp_path / "near", tmp_path / "far", "-o", out)
     assert code == 2

@@ -126,7 +126,7 @@ def test_voxel_keys_round_trip_and_downsample_means(rng):
     assert np.array_equal(unpack_keys(pack_keys(ijk)), ijk)
     pts = np.array([[0.1, 0.1, 0.1], [0.9, 0.9, 0.9], [1.5, 0.2, 0.2], [-0.5, 0.0, 0.0]])
     cols = np.array([[0, 0, 0], [200, 100, 50], [10, 10, 10], [255, 255, 255]], np.uint8)
-    means, mc, counts = voxel_downsample(pts, 1.0, cols)
+    means, mc, counts = voxel_downsample(pts, 1.0, colors=cols)
     order = np.argsort(means[:, 0])
     assert np.allclose(means[order], [[-0.5, 0, 0], [0.5, 0.5, 0.5], [1.5, 0.2, 0.2]])
     assert counts[order].tolist() == [1, 2, 1]
@@ -140,8 +140,8 @@ def test_icp_recovers_known_transform_with_partial_overlap(rng):
     src = cloud[cloud[:, 0] < 40] + rng.normal(0, 0.3, (int((cloud[:, 0] < 40).sum()), 3))
     tgt_pts = cloud[cloud[:, 0] > -40]
     tgt = transform_points(T, tgt_pts) + rng.normal(0, 0.3, tgt_pts.shape)
-    wide = icp_point_to_plane(src, tgt, np.eye(4), max_distance=30.0)
-    fine = icp_point_to_plane(src, tgt, wide.transform, max_distance=3.0)
+    wide = icp_point_to_plane(src, tgt, T_init=np.eye(4), max_distance=30.0)
+    fine = icp_point_to_plane(src, tgt, T_init=wide.transform, max_distance=3.0)
     dt, dr = transform_error(fine.transform, T, centre=src.mean(axis=0))
     assert dt < 0.1 and dr < 0.05
     assert fine.converged
@@ -165,16 +165,16 @@ def test_register_pair_of_clouds_and_no_overlap_error(rng):
     T = make_transform(rotation_about_axis([0, 1, 0], np.radians(3)), [2.0, 1.0, -1.5])
     a = _cloud_view("a", cloud[cloud[:, 1] < 50])
     b = _cloud_view("b", transform_points(invert_transform(T), cloud[cloud[:, 1] > -50]))
-    pr = register_pair(a, b, RegistrationSettings(voxel=2.0))   # no images: ICP from identity
+    pr = register_pair(a, b, settings=RegistrationSettings(voxel=2.0))   # no images: ICP from identity
     assert pr.initial == "identity"
     dt, dr = transform_error(pr.transform, T, centre=b.points.mean(axis=0))
     assert dt < 0.05 and dr < 0.02
     far = _cloud_view("far", cloud + [0.0, 0.0, 2000.0])
     with pytest.raises(RegistrationError, match="'a' and 'far'"):
-        register_pair(a, far, RegistrationSettings(voxel=2.0))
+        register_pair(a, far, settings=RegistrationSettings(voxel=2.0))
     other = _cloud_view("other", leafy_cloud(np.random.default_rng(99)))
     with pytest.raises(RegistrationError, match="do not overlap|register poorly|could not be registered"):
-        register_pair(a, other, RegistrationSettings(voxel=2.0))
+        register_pair(a, other, settings=RegistrationSettings(voxel=2.0))
 
 
 def test_mismatched_units_are_an_error(rng):

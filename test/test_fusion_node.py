@@ -101,7 +101,8 @@ def harness():
 
 
 def _send(pub, pts, cols, k):
-    pub.publish(points_to_cloud2(pts, cols, T0 + k * 100_000_000, "canopy_world", organized=False))
+    pub.publish(points_to_cloud2(pts, cols, stamp_ns=T0 + k * 100_000_000, frame_id="canopy_world",
+                                 organized=False))
 
 
 def _latest_model(models, n_before):

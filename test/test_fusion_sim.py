@@ -81,7 +81,7 @@ def test_registration_recovers_known_transform_between_two_views(turntable):
     then ICP; compared with the true relative pose at the plant."""
     seq, views, _ = turntable
     a, b = views[0][0], views[1][0]
-    pr = register_pair(a, b, RegistrationSettings(voxel=3.0))
+    pr = register_pair(a, b, settings=RegistrationSettings(voxel=3.0))
     T_true = invert_transform(views[0][1].pose) @ views[1][1].pose
     dt, dr = transform_error(pr.transform, T_true, centre=b.points.mean(axis=0))
     assert pr.initial == "features" and pr.features.inliers >= 20
@@ -94,7 +94,7 @@ def test_views_without_overlap_fail_clearly(turntable):
     lures the matcher into "no motion", but the check refuses the result."""
     _, views, _ = turntable
     with pytest.raises(RegistrationError, match="'view_00' and 'view_04' do not overlap"):
-        register_pair(views[0][0], views[4][0], RegistrationSettings(voxel=3.0))
+        register_pair(views[0][0], views[4][0], settings=RegistrationSettings(voxel=3.0))
 
 
 def test_fused_coverage_beats_single_views(turntable):

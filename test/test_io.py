@@ -40,7 +40,7 @@ def test_missing_rig_file(tmp_path):
 def test_ply_round_trip(tmp_path, rng):
     pts = rng.normal(size=(1000, 3)) * 100
     cols = rng.integers(0, 256, (1000, 3)).astype(np.uint8)
-    path = write_ply(tmp_path / "c.ply", pts, cols, unit="mm")
+    path = write_ply(tmp_path / "c.ply", pts, colors=cols, unit="mm")
     cloud = read_ply(path)
     assert cloud.unit == "mm" and len(cloud) == 1000
     assert np.allclose(cloud.points, pts.astype(np.float32))

@@ -99,7 +99,7 @@ def test_register_matcher_derives_its_schema(monkeypatch):
         return np.zeros(np.asarray(left).shape[:2], np.float32)
 
     monkeypatch.setitem(registry._MATCHERS, "box", None)  # removed again after the test
-    register_matcher("box", box, declared={"radius": declare("box: half side (pixels)", 0, 10),
+    register_matcher("box", box, declared={"radius": declare("box: half side (pixels)", minimum=0, maximum=10),
                                            "smooth": declare("box: smooth the result")})
     assert "box" in matcher_names() and "box" in available_matchers()
     spec = matcher_spec("box")
@@ -109,7 +109,8 @@ def test_register_matcher_derives_its_schema(monkeypatch):
     with pytest.raises(CanopyStereoError, match=r"radius: 11 is out of range"):
         compute_disparity(img, img, matcher="box", radius=11)
     with pytest.raises(CanopyStereoError, match="schema and implementation disagree"):
-        register_matcher("box", box, declared={"radius": declare("box: half side (pixels)", 0, 10)})
+        register_matcher("box", box, declared={"radius": declare("box: half side (pixels)", minimum=0,
+                                                                 maximum=10)})
         matcher_spec("box")
 
 

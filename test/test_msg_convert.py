@@ -169,8 +169,10 @@ def test_cloud_reader_handles_foreign_layouts():
 
 def test_rectified_camera_info_ros_conventions():
     K = np.array([[640.0, 0, 320.5], [0, 640.0, 240.25], [0, 0, 1]])
-    left = _wire(convert.rectified_camera_info(K, (640, 480), 0.0296, "left", 5, "l"), CameraInfo)
-    right = _wire(convert.rectified_camera_info(K, (640, 480), 0.0296, "right", 5, "r"), CameraInfo)
+    left = _wire(convert.rectified_camera_info(K, (640, 480), 0.0296, "left", stamp_ns=5, frame_id="l"),
+                 CameraInfo)
+    right = _wire(convert.rectified_camera_info(K, (640, 480), 0.0296, "right", stamp_ns=5, frame_id="r"),
+                  CameraInfo)
     assert (left.width, left.height) == (640, 480)
     np.testing.assert_allclose(np.reshape(left.k, (3, 3)), K)
     np.testing.assert_allclose(np.reshape(left.r, (3, 3)), np.eye(3))
@@ -197,7 +199,7 @@ def test_message_buffers_one_copy_in_views_out():
 
     rng = np.random.default_rng(0)
     img = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
-    msg = convert.image_to_msg(img, "bgr8", 5, "cam")
+    msg = convert.image_to_msg(img, "bgr8", stamp_ns=5, frame_id="cam")
     assert isinstance(msg.data, array.array) and msg.data.typecode == "B"
     view = convert.msg_to_image(msg)
     np.testing.assert_array_equal(view, img)
@@ -205,6 +207,7 @@ def test_message_buffers_one_copy_in_views_out():
     strided = np.asfortranarray(rng.random((7, 5)).astype(np.float32))
     assert message_bytes(strided).tobytes() == np.ascontiguousarray(strided).tobytes()
     pts = rng.random((10, 3)).astype(np.float32)
-    cloud = convert.points_to_cloud2(pts, None, 1, "w", organized=False, rgb=rng.random(10).astype(np.float32))
+    cloud = convert.points_to_cloud2(pts, None, stamp_ns=1, frame_id="w", organized=False,
+                                     rgb=rng.random(10).astype(np.float32))
     assert isinstance(cloud.data, array.array)
     np.testing.assert_array_equal(convert.cloud2_to_points(cloud)[0], pts)

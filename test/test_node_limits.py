@@ -178,10 +178,10 @@ def _start_node(name, rig_file, env, log_path):
 def _hostile_messages(stamp):
     """(topic, message) pairs: an oversize and a 1x1 image for every input, a NaN disparity."""
     w, h = OVERSIZE
-    big_bgr = convert.image_to_msg(np.zeros((h, w, 3), np.uint8), "bgr8", stamp)
-    big_mono = convert.image_to_msg(np.zeros((h, w), np.uint8), "mono8", stamp)
-    tiny_bgr = convert.image_to_msg(np.zeros((1, 1, 3), np.uint8), "bgr8", stamp + 1)
-    tiny_mono = convert.image_to_msg(np.zeros((1, 1), np.uint8), "mono8", stamp + 1)
+    big_bgr = convert.image_to_msg(np.zeros((h, w, 3), np.uint8), "bgr8", stamp_ns=stamp)
+    big_mono = convert.image_to_msg(np.zeros((h, w), np.uint8), "mono8", stamp_ns=stamp)
+    tiny_bgr = convert.image_to_msg(np.zeros((1, 1, 3), np.uint8), "bgr8", stamp_ns=stamp + 1)
+    tiny_mono = convert.image_to_msg(np.zeros((1, 1), np.uint8), "mono8", stamp_ns=stamp + 1)
     big_disp = convert.disparity_to_msg(np.zeros((h, w), np.float32), 600.0, 0.03, 0, 60, stamp_ns=stamp)
     tiny_disp = convert.disparity_to_msg(np.zeros((1, 1), np.float32), 600.0, 0.03, 0, 60, stamp_ns=stamp + 1)
     nan_disp = convert.disparity_to_msg(np.zeros((480, 640), np.float32), 600.0, 0.03, 0, 60, stamp_ns=stamp + 2)
@@ -245,8 +245,10 @@ def test_hostile_burst_into_node_processes_is_dropped_logged_and_memory_returns(
             def send_good_pair(k):
                 stamp = T0 + k * 100_000_000
                 n = len(clouds)
-                pubs["left/image_raw"].publish(convert.image_to_msg(left, "bgr8", stamp, "left_camera"))
-                pubs["right/image_raw"].publish(convert.image_to_msg(right, "bgr8", stamp, "right_camera"))
+                pubs["left/image_raw"].publish(convert.image_to_msg(left, "bgr8", stamp_ns=stamp,
+                                                                    frame_id="left_camera"))
+                pubs["right/image_raw"].publish(convert.image_to_msg(right, "bgr8", stamp_ns=stamp,
+                                                                     frame_id="right_camera"))
                 assert spin_until(lambda: len(clouds) > n, 90.0), f"no cloud for good pair {k}: " + _tails(logs)
                 return clouds[-1]
 
@@ -259,8 +261,10 @@ def test_hostile_burst_into_node_processes_is_dropped_logged_and_memory_returns(
             # the nodes discover each other on their own: resend the first pair until it comes through
             def first_cloud(k):
                 stamp = T0 + k * 100_000_000
-                pubs["left/image_raw"].publish(convert.image_to_msg(left, "bgr8", stamp, "left_camera"))
-                pubs["right/image_raw"].publish(convert.image_to_msg(right, "bgr8", stamp, "right_camera"))
+                pubs["left/image_raw"].publish(convert.image_to_msg(left, "bgr8", stamp_ns=stamp,
+                                                                    frame_id="left_camera"))
+                pubs["right/image_raw"].publish(convert.image_to_msg(right, "bgr8", stamp_ns=stamp,
+                                                                     frame_id="right_camera"))
                 return spin_until(lambda: len(clouds) > 0, 10.0)
 
             assert any(first_cloud(k) for k in range(12)), "no first cloud: " + _tails(logs)
@@ -314,9 +318,10 @@ def test_fusion_node_drops_hostile_clouds_and_keeps_fusing(fusion_harness):
     from test_fusion_node import _latest_model, _send, patch_cloud_m
 
     node, clouds, poses, reset, models = fusion_harness
-    huge = convert.points_to_cloud2(np.zeros((4, 3), np.float32), None, T0, "canopy_world")
+    huge = convert.points_to_cloud2(np.zeros((4, 3), np.float32), None, stamp_ns=T0, frame_id="canopy_world")
     huge.width, huge.height, huge.row_step = 5000, 4000, 5000 * huge.point_step  # claims 20 Mpx, carries 48 B
-    short = convert.points_to_cloud2(np.zeros((100, 3), np.float32), None, T0 + 1, "canopy_world")
+    short = convert.points_to_cloud2(np.zeros((100, 3), np.float32), None, stamp_ns=T0 + 1,
+                                     frame_id="canopy_world")
     short.data = bytes(12)
     for msg in (huge, short):
         clouds.publish(msg)

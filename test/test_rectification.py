@@ -65,7 +65,8 @@ def test_real_chessboard_rig(shared_data):
     from canopy_stereo.geometry.chessboard import calibrate_stereo_chessboard, detect_stereo_chessboards
 
     d = shared_data / "opencv_stereo_calib_chessboard"
-    cal = calibrate_stereo_chessboard(str(d / "left*.jpg"), str(d / "right*.jpg"), (9, 6), 25.0)
+    cal = calibrate_stereo_chessboard(str(d / "left*.jpg"), str(d / "right*.jpg"), pattern=(9, 6),
+                                      square_size=25.0)
     assert cal.rms_stereo <= 0.5
     rect = fusiello_rectify(cal.P_left, cal.P_right, (640, 480))
     views = detect_stereo_chessboards(str(d / "left*.jpg"), str(d / "right*.jpg"))
@@ -87,7 +88,8 @@ def test_hartley_from_pooled_qdmatch_on_raw_chessboard_pairs(shared_data):
     from canopy_stereo.pipeline.reconstruct import rectify_rig
 
     d = shared_data / "opencv_stereo_calib_chessboard"
-    cal = calibrate_stereo_chessboard(str(d / "left*.jpg"), str(d / "right*.jpg"), (9, 6), 25.0)
+    cal = calibrate_stereo_chessboard(str(d / "left*.jpg"), str(d / "right*.jpg"), pattern=(9, 6),
+                                      square_size=25.0)
     rig = Rig(cal.P_left, cal.P_right, (640, 480), D_left=cal.D_left, D_right=cal.D_right)
     names = ["01", "02", "03", "04", "05", "06", "07", "08", "09", "11", "12", "13", "14"]
     pairs = [(read_image(d / f"left{n}.jpg"), read_image(d / f"right{n}.jpg")) for n in names]

@@ -65,12 +65,12 @@ def test_camera_info_path_equals_back_mapping_and_dlt(paper_rig, rig_name):
     t = rect.baseline * rig.metres_per_unit
     disp = smooth_disparity(rect, 15.0, 60.0)
     msg = convert.msg_to_disparity(convert.disparity_to_msg(disp, rect.focal_length, t, 0, 100))
-    info = convert.rectified_camera_info(rect.K_rect_left, rect.size, t, "left", 0,
-                                         "left_camera_rect_optical_frame")
+    info = convert.rectified_camera_info(rect.K_rect_left, rect.size, t, "left", stamp_ns=0,
+                                         frame_id="left_camera_rect_optical_frame")
     geometry = parse_stereo_geometry(stereo_geometry_msg(rig, rect, FrameNames()))
     T = geometry.lookup("canopy_world", info.header.frame_id)
     Q = reprojection_from_messages(msg.f, msg.t, info)
-    pts, index, depth = reproject_disparity_points(msg.disparity, Q, T)
+    pts, index, depth = reproject_disparity_points(msg.disparity, Q, T=T)
     bgr = np.zeros((*disp.shape, 3), np.uint8)
     ref, _ = cloud_from_disparity(np.where(np.isfinite(disp), disp, -1), bgr, rig, rect, organized=False)
     assert len(pts) == len(ref) == np.isfinite(disp).sum()
@@ -106,7 +106,8 @@ def test_cloud_records_path_gives_the_reference_cloud(paper_rig, organized, mask
     t = rect.baseline * rig.metres_per_unit
     disp = smooth_disparity(rect, 15.0, 60.0)
     msg = convert.msg_to_disparity(convert.disparity_to_msg(disp, rect.focal_length, t, 0, 100))
-    info = convert.rectified_camera_info(rect.K_rect_left, rect.size, t, "left", 0, "left_camera_rect_optical_frame")
+    info = convert.rectified_camera_info(rect.K_rect_left, rect.size, t, "left", stamp_ns=0,
+                                         frame_id="left_camera_rect_optical_frame")
     geometry = parse_stereo_geometry(stereo_geometry_msg(rig, rect, FrameNames()))
     T = geometry.lookup("canopy_world", info.header.frame_id)
     Q = reprojection_from_messages(msg.f, msg.t, info)
@@ -115,13 +116,16 @@ def test_cloud_records_path_gives_the_reference_cloud(paper_rig, organized, mask
     bgr = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
     mask = (rng.random((h, w)) > 0.3).astype(np.uint8) * 255 if masked else None
     rgb = convert.pack_bgr_image(bgr)
-    pts, index, depth = reproject_disparity_points(msg.disparity, Q, T, mask=mask, organized=organized)
+    pts, index, depth = reproject_disparity_points(msg.disparity, Q, T=T, mask=mask, organized=organized)
     colours = rgb if organized else rgb.reshape(-1)[index]
     if organized:
         pts = pts.reshape(h, w, 3)
-    ref = convert.points_to_cloud2(pts, None, 7, "canopy_world", organized=organized, rgb=colours)
-    records, depth2 = reproject_disparity_records(msg.disparity, Q, T, rgb=rgb, mask=mask, organized=organized)
-    fast = convert.records_to_cloud2(records, 7, "canopy_world", (h, w) if organized else None)
+    ref = convert.points_to_cloud2(pts, None, stamp_ns=7, frame_id="canopy_world", organized=organized,
+                                   rgb=colours)
+    records, depth2 = reproject_disparity_records(msg.disparity, Q, T=T, rgb=rgb, mask=mask,
+                                                  organized=organized)
+    fast = convert.records_to_cloud2(records, 7, frame_id="canopy_world",
+                                     organized_shape=(h, w) if organized else None)
     assert bytes(fast.data) == bytes(ref.data)
     for field in ("height", "width", "point_step", "row_step", "is_dense", "is_bigendian", "fields", "header"):
         assert getattr(fast, field) == getattr(ref, field), field
@@ -146,7 +150,8 @@ def test_raw_camera_info_rectifies_like_rectify_node(paper_rig, rig_name):
     grid = np.stack([uu.ravel(), vv.ravel()], axis=1).astype(np.float64)
     for side, P, D, H_inv in (("left", rig.P_left, rig.D_left, rect.H_left_inv),
                               ("right", rig.P_right, rig.D_right, rect.H_right_inv)):
-        info = convert.camera_info_msg(raw_camera_calibration(rig, side), T0, f"{side}_camera_optical_frame")
+        info = convert.camera_info_msg(raw_camera_calibration(rig, side), T0,
+                                       frame_id=f"{side}_camera_optical_frame")
         K, Dm, R, Pm = (np.asarray(info.k).reshape(3, 3), np.asarray(info.d), np.asarray(info.r).reshape(3, 3),
                         np.asarray(info.p).reshape(3, 4))
         assert info.distortion_model == "plumb_bob" and np.allclose(R @ R.T, np.eye(3))
@@ -310,7 +315,8 @@ def test_point_cloud_node_frames_optical_and_z_up(harness, paper_rig):
 
     def send(stamp):
         publish_rect_infos(il, ir, paper_rig, rect, stamp)
-        pc.publish(convert.image_to_msg(np.zeros((480, 640, 3), np.uint8), "bgr8", stamp, "x"))
+        pc.publish(convert.image_to_msg(np.zeros((480, 640, 3), np.uint8), "bgr8", stamp_ns=stamp,
+                                        frame_id="x"))
         pd.publish(convert.disparity_to_msg(disp, rect.focal_length, t, 0, 100, stamp_ns=stamp,
                                             frame_id="left_camera_rect_optical_frame"))
 
@@ -358,7 +364,8 @@ def test_point_cloud_node_holds_frames_until_stereo_geometry_arrives(harness, pa
 
     def send(stamp):
         publish_rect_infos(il, ir, paper_rig, rect, stamp)
-        pc.publish(convert.image_to_msg(np.zeros((480, 640, 3), np.uint8), "bgr8", stamp, "x"))
+        pc.publish(convert.image_to_msg(np.zeros((480, 640, 3), np.uint8), "bgr8", stamp_ns=stamp,
+                                        frame_id="x"))
         pd.publish(convert.disparity_to_msg(disp, rect.focal_length, t, 0, 100, stamp_ns=stamp,
                                             frame_id="left_camera_rect_optical_frame"))
 
@@ -473,6 +480,6 @@ def test_disparity_node_default_range_is_the_pipelines(paper_rig):
                  for K, side in ((rect.K_rect_left, "left"), (rect.K_rect_right, "right"))]
         f, t_info, doffs = stereo_parameters(*infos)
         assert (f, doffs) == (pytest.approx(rect.focal_length), 0.0) and t_info == pytest.approx(t)
-        assert resolve_disparity_range(None, None, f, t_info, doffs) == default_disparity_range(rect)
+        assert resolve_disparity_range(None, None, f, t=t_info, doffs=doffs) == default_disparity_range(rect)
     assert resolve_disparity_range(None, None, 0.0) == (0, 128)  # uncalibrated (Hartley)
     assert resolve_disparity_range(5, None, 0.0) == (5, 128)

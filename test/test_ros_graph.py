@@ -108,8 +108,9 @@ def _bad_input_bag(path, croton_bag):
                 left, enc = left.astype(np.uint16) * 256, "bgr16"
             if k == 2:
                 left, right = left[::2, ::2].copy(), right[::2, ::2].copy()
-            bag.write("/stereo/left/image_raw", convert.image_to_msg(left, enc, t, "l"), t)
-            bag.write("/stereo/right/image_raw", convert.image_to_msg(right, "bgr8", t + 4_000_000, "r"),
+            bag.write("/stereo/left/image_raw", convert.image_to_msg(left, enc, stamp_ns=t, frame_id="l"), t)
+            bag.write("/stereo/right/image_raw", convert.image_to_msg(right, "bgr8", stamp_ns=t + 4_000_000,
+                                                                      frame_id="r"),
                       t + 4_000_000)
     return path
 
@@ -148,7 +149,8 @@ def test_run_keeps_recorded_timing(croton, tmp_path):
 
     with BagWriter(remapped) as w:
         for m in BagReader(src).messages():
-            w.write(m.topic.replace("/stereo/", "/cam/"), m.data, m.log_time_ns, m.publish_time_ns, m.type_name)
+            w.write(m.topic.replace("/stereo/", "/cam/"), m.data, m.log_time_ns,
+                    publish_time_ns=m.publish_time_ns, msg_type=m.type_name)
     options = GraphOptions(matcher="sgbm", segment=False, parameter_services=False)
     result = run_bag(remapped, rig, rate=2.0, options=options, remap={
         "/cam/left/image_raw": "/stereo/left/image_raw", "/cam/right/image_raw": "/stereo/right/image_raw"})

@@ -20,6 +20,7 @@ from canopy_stereo.ros import convert  # noqa: E402
 from canopy_stereo.ros.context import ros_context, wait_for, wait_for_subscribers  # noqa: E402
 from canopy_stereo.ros.params import rig_parameter_overrides  # noqa: E402
 from canopy_stereo.ros.qos import publisher_qos, recording_qos  # noqa: E402
+from canopy_stereo.sim.stereo_pair import synthetic_pair  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -96,13 +97,11 @@ def node_kwargs(harness, rig=None, **params):
 
 
 def textured_pair(rig, shift_px=20, seed=0):
-    """Left/right images of a random texture, the right one shifted so that every
+    """Left/right colour images of a random texture, the right one shifted so that every
     left pixel ``u`` matches the right pixel ``u - shift_px`` (disparity ``shift_px``)."""
-    rng = np.random.default_rng(seed)
     w, h = rig.image_size
-    tex = cv2.resize(rng.integers(0, 256, (h // 2 + 1, (w + shift_px) // 2 + 1, 3), dtype=np.uint8),
-                     None, fx=2, fy=2, interpolation=cv2.INTER_LINEAR)
-    return tex[:h, :w].copy(), tex[:h, shift_px:shift_px + w].copy()
+    left, right, _ = synthetic_pair(w, h, plane=(0, 0, shift_px), texture="blocks", colour=True, seed=seed)
+    return left, right
 
 
 def rect_info_publishers(harness):
@@ -114,8 +113,10 @@ def publish_rect_infos(il, ir, rig, rect, stamp, frames=("left_camera_rect_optic
                                                           "right_camera_rect_optical_frame")):
     """What rectify_node publishes beside a rectified pair (Fusiello)."""
     t = rect.baseline * rig.metres_per_unit
-    il.publish(convert.rectified_camera_info(rect.K_rect_left, rect.size, t, "left", stamp, frames[0]))
-    ir.publish(convert.rectified_camera_info(rect.K_rect_right, rect.size, t, "right", stamp, frames[1]))
+    il.publish(convert.rectified_camera_info(rect.K_rect_left, rect.size, t, "left", stamp_ns=stamp,
+                                             frame_id=frames[0]))
+    ir.publish(convert.rectified_camera_info(rect.K_rect_right, rect.size, t, "right", stamp_ns=stamp,
+                                             frame_id=frames[1]))
 
 
 def geometry_publisher(harness, rig, rect):
@@ -149,8 +150,9 @@ def test_rectify_node_pairs_by_approximate_time_and_publishes_ros_camera_info(ha
     left, right = textured_pair(paper_rig)
     for k in range(3):
         t = T0 + k * 66_000_000
-        pl.publish(convert.image_to_msg(left, "bgr8", t, "left_camera"))
-        pr.publish(convert.image_to_msg(right, "bgr8", t + 7_000_000, "right_camera"))  # 7 ms late
+        pl.publish(convert.image_to_msg(left, "bgr8", stamp_ns=t, frame_id="left_camera"))
+        pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=t + 7_000_000,
+                                        frame_id="right_camera"))  # 7 ms late
     assert wait_for(lambda: len(info_r) == 3 and len(rect_r) == 3 and len(color) == 3, TIMEOUT)
     rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
     want_l, want_r = StereoRectifier(paper_rig, rect).rectify(left, right)
@@ -184,15 +186,15 @@ def test_rectify_node_drops_bad_input_and_keeps_running(harness, paper_rig):
     harness.connect(pl, pr)
     left, right = textured_pair(paper_rig)
     # 1: wrong encoding (a depth image) on the left
-    pl.publish(convert.image_to_msg(np.ones((480, 640), np.float32), "32FC1", T0))
-    pr.publish(convert.image_to_msg(right, "bgr8", T0))
+    pl.publish(convert.image_to_msg(np.ones((480, 640), np.float32), "32FC1", stamp_ns=T0))
+    pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=T0))
     # 2: wrong size pair
-    pl.publish(convert.image_to_msg(left[:240, :320].copy(), "bgr8", T0 + 100_000_000))
-    pr.publish(convert.image_to_msg(right[:240, :320].copy(), "bgr8", T0 + 100_000_000))
+    pl.publish(convert.image_to_msg(left[:240, :320].copy(), "bgr8", stamp_ns=T0 + 100_000_000))
+    pr.publish(convert.image_to_msg(right[:240, :320].copy(), "bgr8", stamp_ns=T0 + 100_000_000))
     # 3: an unpaired left frame (its right partner lost), then a good pair
-    pl.publish(convert.image_to_msg(left, "bgr8", T0 + 200_000_000))
-    pl.publish(convert.image_to_msg(left, "bgr8", T0 + 300_000_000))
-    pr.publish(convert.image_to_msg(right, "bgr8", T0 + 301_000_000))
+    pl.publish(convert.image_to_msg(left, "bgr8", stamp_ns=T0 + 200_000_000))
+    pl.publish(convert.image_to_msg(left, "bgr8", stamp_ns=T0 + 300_000_000))
+    pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=T0 + 301_000_000))
     assert wait_for(lambda: len(out) == 1, TIMEOUT)
     time.sleep(0.3)
     assert len(out) == 1 and convert.stamp_to_ns(out[0].header.stamp) == T0 + 300_000_000
@@ -217,8 +219,8 @@ def test_rectify_node_counts_frames_it_never_received(harness, paper_rig):
     sent = [k for k in range(12) if k not in (4, 5, 6, 9)]
     for k in sent:
         t = T0 + k * 100_000_000
-        pl.publish(convert.image_to_msg(left, "bgr8", t, "left_camera"))
-        pr.publish(convert.image_to_msg(right, "bgr8", t + 3_000_000, "right_camera"))
+        pl.publish(convert.image_to_msg(left, "bgr8", stamp_ns=t, frame_id="left_camera"))
+        pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=t + 3_000_000, frame_id="right_camera"))
         assert wait_for(lambda: len(out) == sent.index(k) + 1, TIMEOUT)
     assert node.stats()["drops"] == {f"left frame: {MISSED_REASON}": 4}
     values = {kv.key: kv.value for kv in node.diagnostics.status().values}
@@ -240,8 +242,8 @@ def test_disparity_node_fields_match_the_rig(harness, paper_rig):
     shift = 30
     left, right = textured_pair(paper_rig, shift)
     gl, gr = cv2.cvtColor(left, cv2.COLOR_BGR2GRAY), cv2.cvtColor(right, cv2.COLOR_BGR2GRAY)
-    pl.publish(convert.image_to_msg(gl, "mono8", T0, "rect"))
-    pr.publish(convert.image_to_msg(gr, "mono8", T0, "rect"))
+    pl.publish(convert.image_to_msg(gl, "mono8", stamp_ns=T0, frame_id="rect"))
+    pr.publish(convert.image_to_msg(gr, "mono8", stamp_ns=T0, frame_id="rect"))
     time.sleep(0.1)
     assert out == []  # no camera_info yet: nothing to tell f and t
     rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
@@ -320,7 +322,7 @@ def test_point_cloud_node_triangulates_in_world_metres(harness, paper_rig, organ
     colour[..., 0], colour[..., 1], colour[..., 2] = 10, 200, 30  # BGR
     pd.publish(convert.disparity_to_msg(disp, rect.focal_length, rect.baseline * 1e-3, 0, 100,
                                         stamp_ns=T0, frame_id="rect", doffs=rect.doffs))
-    pc.publish(convert.image_to_msg(colour, "bgr8", T0, "rect"))
+    pc.publish(convert.image_to_msg(colour, "bgr8", stamp_ns=T0, frame_id="rect"))
     assert wait_for(lambda: len(out) == 1, TIMEOUT)
     msg = out[0]
     assert msg.header.frame_id == "canopy_world" and convert.stamp_to_ns(msg.header.stamp) == T0
@@ -357,8 +359,8 @@ def test_point_cloud_node_applies_the_mask(harness, paper_rig):
     mask = np.zeros((480, 640), np.uint8)
     mask[100:150, 200:300] = 255
     # the mask arrives first, the disparity last: exact-time pairing in any order
-    pm.publish(convert.image_to_msg(mask, "mono8", T0))
-    pc.publish(convert.image_to_msg(np.zeros((480, 640, 3), np.uint8), "bgr8", T0))
+    pm.publish(convert.image_to_msg(mask, "mono8", stamp_ns=T0))
+    pc.publish(convert.image_to_msg(np.zeros((480, 640, 3), np.uint8), "bgr8", stamp_ns=T0))
     time.sleep(0.1)
     assert out == []
     pd.publish(convert.disparity_to_msg(disp, rect.focal_length, 0.03, 0, 100, stamp_ns=T0, doffs=rect.doffs))
@@ -381,16 +383,16 @@ def test_segment_node_grabcut_rect_and_auto(harness):
     truth = np.zeros((240, 320), bool)
     cv2.ellipse(truth.view(np.uint8), (160, 120), (60, 40), 0, 0, 360, 1, -1)
     img[truth] = np.clip(rng.normal((40, 160, 50), 10, (truth.sum(), 3)), 0, 255).astype(np.uint8)
-    pub.publish(convert.image_to_msg(img, "bgr8", T0, "rect"))  # automatic (saturation)
+    pub.publish(convert.image_to_msg(img, "bgr8", stamp_ns=T0, frame_id="rect"))  # automatic (saturation)
     assert wait_for(lambda: len(out) == 1, TIMEOUT)
     res = node.set_parameters([Parameter("rect", value=[90, 70, 140, 100]), Parameter("iterations", value=2)])
     assert all(r.successful for r in res)
     assert not node.set_parameters([Parameter("scale", value=2.0)])[0].successful
-    pub.publish(convert.image_to_msg(img, "bgr8", T0 + 1, "rect"))
+    pub.publish(convert.image_to_msg(img, "bgr8", stamp_ns=T0 + 1, frame_id="rect"))
     assert wait_for(lambda: len(out) == 2, TIMEOUT)
     res = node.set_parameters([Parameter("rect", value=[0, 0, 0, 0]), Parameter("auto_init", value="exg")])
     assert all(r.successful for r in res) and node.settings["rect"] is None
-    pub.publish(convert.image_to_msg(img, "bgr8", T0 + 2, "rect"))
+    pub.publish(convert.image_to_msg(img, "bgr8", stamp_ns=T0 + 2, frame_id="rect"))
     assert wait_for(lambda: len(out) == 3, TIMEOUT)
     for msg in out:
         mask = convert.msg_to_image(msg, ("mono8",)) > 0
@@ -406,7 +408,7 @@ def test_segment_node_propagates_the_plant_model(harness):
     from canopy_stereo.ros.bag import BagReader
     from canopy_stereo.ros.bundled import bundled_bag
     from canopy_stereo.ros.nodes.segment import SegmentNode
-    from canopy_stereo.segmentation.video import segment_plant
+    from canopy_stereo.segmentation.auto import segment_plant
 
     frames = [convert.msg_to_image(m).copy()
               for _, m in BagReader(bundled_bag("croton")).read("/stereo/left/image_raw")] * 2
@@ -415,7 +417,7 @@ def test_segment_node_propagates_the_plant_model(harness):
     pub = harness.publisher(Image, "left/image_rect_color")
     harness.connect(pub)
     for k, img in enumerate(frames):
-        pub.publish(convert.image_to_msg(img, "bgr8", T0 + k, "rect"))
+        pub.publish(convert.image_to_msg(img, "bgr8", stamp_ns=T0 + k, frame_id="rect"))
         assert wait_for(lambda: len(out) == k + 1, TIMEOUT)
     propagator = node.settings["propagator"]
     assert (propagator.full_cuts, propagator.propagated) == (2, 6)
@@ -484,8 +486,8 @@ def test_hartley_homographies_from_parameters_give_the_same_cloud(harness, paper
     pd = harness.publisher(DisparityImage, "disparity")
     harness.connect(pl, pr, pd)
     left, right = textured_pair(paper_rig)
-    pl.publish(convert.image_to_msg(left, "bgr8", T0))
-    pr.publish(convert.image_to_msg(right, "bgr8", T0))
+    pl.publish(convert.image_to_msg(left, "bgr8", stamp_ns=T0))
+    pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=T0))
     assert wait_for(lambda: len(color) == 1, TIMEOUT)
     want, _ = StereoRectifier(paper_rig, rect).rectify(left, right)
     np.testing.assert_array_equal(convert.msg_to_image(color[0]), want)
@@ -537,8 +539,8 @@ def test_node_executable_reads_the_rig_file(repo_root, tmp_path):
                 rig = load_rig(rig_file)
                 publish_rect_infos(il, ir, rig, fusiello_rectify(rig.P_left, rig.P_right, rig.image_size), T0)
                 left, right = textured_pair(rig, 40)
-                pl.publish(convert.image_to_msg(cv2.cvtColor(left, cv2.COLOR_BGR2GRAY), "mono8", T0))
-                pr.publish(convert.image_to_msg(cv2.cvtColor(right, cv2.COLOR_BGR2GRAY), "mono8", T0))
+                pl.publish(convert.image_to_msg(cv2.cvtColor(left, cv2.COLOR_BGR2GRAY), "mono8", stamp_ns=T0))
+                pr.publish(convert.image_to_msg(cv2.cvtColor(right, cv2.COLOR_BGR2GRAY), "mono8", stamp_ns=T0))
                 assert wait_for(lambda: len(out) == 1, 30.0)
             finally:
                 h.close()

@@ -141,6 +141,32 @@ def test_segmentation_bad_input():
     assert issubclass(ImageError, CanopyStereoError)
 
 
+def test_seeder_presets_and_node_parameters_come_from_one_settings_object():
+    from canopy_stereo.segmentation import IMAGE_SEEDER, VIDEO_SEEDER, SeederSettings, plant_mask
+    from canopy_stereo.segmentation.auto import decode_setting, encode_setting, seeder_fields
+
+    assert (IMAGE_SEEDER.colour_cue, IMAGE_SEEDER.depth_cue, IMAGE_SEEDER.scale) == ("exg", True, 1.0)
+    assert (VIDEO_SEEDER.colour_cue, VIDEO_SEEDER.depth_cue, VIDEO_SEEDER.scale) == ("saturation", False, 0.25)
+    names = {f["name"]: f for f in seeder_fields(VIDEO_SEEDER)}
+    assert {"auto_init", "depth_cue", "iterations", "scale", "sure_margin", "edge_px", "colour_model",
+            "refine", "min_region"} == set(names)
+    assert names["scale"]["minimum"] == 0.01 and names["scale"]["maximum"] == 1.0
+    for f in seeder_fields(VIDEO_SEEDER):  # the encoding round-trips every default
+        assert decode_setting(f["field"], f["default"]) == getattr(VIDEO_SEEDER, f["field"])
+        assert encode_setting(f["field"], getattr(VIDEO_SEEDER, f["field"])) == f["default"]
+    with pytest.raises(ValueError, match="scale"):
+        SeederSettings(scale=0.0)
+    img, truth = _scene(leaf_bgr=(50, 60, 200))  # red leaves: excess green does not see them
+    disparity = np.where(truth, 40.0, 12.0) + np.random.default_rng(1).normal(0, 0.5, truth.shape)
+    # the video preset with the depth cue separates what colour cannot
+    no_depth = plant_mask(img, VIDEO_SEEDER.replace(colour_cue="exg")) > 0
+    with_depth = plant_mask(img, VIDEO_SEEDER.replace(depth_cue=True, colour_cue="none"),
+                            disparity=disparity) > 0
+    assert _iou(with_depth, truth) > 0.9 > _iou(no_depth, truth) + 0.3
+    with pytest.raises(ValueError, match="depth_cue is off"):
+        plant_mask(img, VIDEO_SEEDER, disparity=disparity)
+
+
 def test_mask_and_id_image_io(tmp_path):
     m = np.zeros((20, 30), bool)
     m[5:10, 5:25] = True

@@ -7,7 +7,7 @@ import pytest
 
 from canopy_stereo.errors import CanopyStereoError, ImageError
 from canopy_stereo.segmentation.propagate import MaskPropagator
-from canopy_stereo.segmentation.video import segment_plant
+from canopy_stereo.segmentation.auto import segment_plant
 
 pytest.importorskip("mcap")
 

@@ -119,7 +119,7 @@ def test_colour_models_and_relabelling(rng):
     labels = np.array([[GC_FGD, GC_FGD, GC_FGD, GC_PR_FGD, GC_PR_BGD, GC_PR_BGD, GC_PR_BGD, GC_BGD]],
                       np.uint8)
     llr = np.array([[5.0, 1.0, -1.0, -5.0, 5.0, 1.0, -5.0, 9.0]])
-    assert relabel_by_colour(labels, llr, 3.0).tolist() == [
+    assert relabel_by_colour(labels, llr, sure=3.0).tolist() == [
         [GC_FGD, GC_PR_FGD, GC_PR_BGD, GC_BGD, GC_PR_FGD, GC_PR_BGD, GC_BGD, GC_BGD]]
 
 

@@ -54,11 +54,11 @@ def test_correspondence_correctness_scores_exact_and_shifted_matches(croton):
 
 def test_study_rows_against_exact_correspondences(croton):
     sim, truth = croton
-    rows = run_study(sim.left, sim.right, ["sift", "qdmatch"], gt_right_pixels=truth)
+    rows = run_study(sim.left, sim.right, methods=["sift", "qdmatch"], gt_right_pixels=truth)
     assert [r.correct_basis for r in rows] == ["gt", "gt"]
     for r in rows:
         assert r.correct >= 0.95 and r.n_evaluated > 0.9 * r.result.num
     assert rows[1].result.distribution > 3 * rows[0].result.distribution
     with pytest.raises(CanopyStereoError):
-        run_study(sim.left, sim.right, ["sift"], gt_disparity=np.zeros(sim.left.shape[:2]),
+        run_study(sim.left, sim.right, methods=["sift"], gt_disparity=np.zeros(sim.left.shape[:2]),
                   gt_right_pixels=truth)

@@ -124,7 +124,7 @@ def image_to_bgr(img: RawImage) -> np.ndarray:
     return cv2.cvtColor(arr, code) if code is not None else arr
 
 
-def raw_stereo_pairs(bag, left_topic: str = LEFT_TOPIC, right_topic: str = RIGHT_TOPIC,
+def raw_stereo_pairs(bag, left_topic: str = LEFT_TOPIC, *, right_topic: str = RIGHT_TOPIC,
                      slop_s: float = 0.015) -> Iterator[tuple[int, RawImage, RawImage]]:
     """``(stamp_ns, left, right)`` :class:`RawImage` pairs of ``bag`` (a
     :class:`~canopy_stereo.ros.bag.BagReader`), paired by nearest header stamp within
@@ -148,8 +148,8 @@ def raw_stereo_pairs(bag, left_topic: str = LEFT_TOPIC, right_topic: str = RIGHT
             yield left.stamp_ns, left, right
 
 
-def stereo_pairs(bag, left_topic: str = LEFT_TOPIC, right_topic: str = RIGHT_TOPIC,
+def stereo_pairs(bag, left_topic: str = LEFT_TOPIC, *, right_topic: str = RIGHT_TOPIC,
                  slop_s: float = 0.015) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
     """``(stamp_ns, left_bgr, right_bgr)`` for each pair of :func:`raw_stereo_pairs`."""
-    for stamp, left, right in raw_stereo_pairs(bag, left_topic, right_topic, slop_s):
+    for stamp, left, right in raw_stereo_pairs(bag, left_topic, right_topic=right_topic, slop_s=slop_s):
         yield stamp, image_to_bgr(left), image_to_bgr(right)

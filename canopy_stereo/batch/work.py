@@ -88,10 +88,10 @@ def measure_frame(left_bgr, right_bgr, rig, *, index: str = "exg", matcher: str 
     distance = np.linalg.norm(rec.organized - camera_centre(rig.P_left), axis=-1)
     mask = auto_plant_mask(left_bgr, depth=distance, index=index) > 0
     res = measure_scene(rec.organized, mask=mask, ground="auto", unit=rig.world_unit, camera=rig.P_left)
-    return traits_of_report(res.report, rig.metres_per_unit * 1000.0, float(mask.mean()))
+    return traits_of_report(res.report, rig.metres_per_unit * 1000.0, plant_fraction=float(mask.mean()))
 
 
-def traits_of_report(report: dict, mm_per_unit: float, plant_fraction: float = float("nan")) -> dict:
+def traits_of_report(report: dict, mm_per_unit: float, *, plant_fraction: float = float("nan")) -> dict:
     """The :data:`TRAITS` of a measurement report (REPORT.json dict in world units)."""
     c = report["canopy"]
     leaves = report["leaves"]
@@ -169,8 +169,9 @@ def process_bag(path, options: BatchOptions | None = None) -> dict:
     keep = _spread(n_pairs, options.max_frames)
     last = max(keep, default=0)
     measured, failures, first_stamp = [], [], None
-    for k, (stamp, left, right) in enumerate(raw_stereo_pairs(bag, options.left_topic, options.right_topic,
-                                                              options.sync_slop_s)):
+    for k, (stamp, left, right) in enumerate(raw_stereo_pairs(bag, options.left_topic,
+                                                              right_topic=options.right_topic,
+                                                              slop_s=options.sync_slop_s)):
         if k > last:
             break  # the frames to measure are done: read no further
         if k not in keep:

@@ -116,7 +116,8 @@ def run(args) -> int:
             bar.step(name)
 
         try:
-            cal = calibrate_stereo_chessboard(args.chessboard[0], args.chessboard[1], pattern, args.square,
+            cal = calibrate_stereo_chessboard(args.chessboard[0], args.chessboard[1], pattern=pattern,
+                                              square_size=args.square,
                                               world_board=args.world_board, progress=progress)
         finally:
             if bar is not None:
@@ -134,7 +135,7 @@ def run(args) -> int:
     if args.plot:
         from canopy_stereo.geometry.chessboard import plot_triangulation_errors
 
-        plot_triangulation_errors(cal.check, args.plot, args.unit)
+        plot_triangulation_errors(cal.check, args.plot, unit=args.unit)
         print(f"wrote {args.plot}")
     return 0 if np.all(np.isfinite(cal.check.mean_abs)) else 1
 

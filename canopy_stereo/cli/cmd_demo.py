@@ -55,7 +55,7 @@ def run(args) -> int:
         for k, scene in enumerate(scenes):
             if view is not None and k > 0:
                 view.start_recording(scene, load_rig(bundled_rig(scene)))
-            for line in run_scene(scene, out_dir, args.matcher, args.domain_id, view=view):
+            for line in run_scene(scene, out_dir, matcher=args.matcher, domain_id=args.domain_id, view=view):
                 print(line, flush=True)
     finally:
         if view is not None:

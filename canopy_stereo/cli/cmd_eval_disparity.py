@@ -55,7 +55,7 @@ def run(args) -> int:
     if disp.shape != gt.shape:
         raise CanopyStereoError(f"DISP is {disp.shape[1]}x{disp.shape[0]} but GT is "
                                 f"{gt.shape[1]}x{gt.shape[0]}")
-    scores = evaluate_disparity(disp, gt, mask)
+    scores = evaluate_disparity(disp, gt, mask=mask)
     if args.json:
         print(json.dumps(scores.as_dict(), indent=2))
         return 0

@@ -55,7 +55,7 @@ def run(args) -> int:
     from canopy_stereo.cli.progress import Progress
 
     with Progress(len(methods), "matching with method") as bar:  # on a terminal only
-        rows = run_study(left, right, methods, gt_disparity=gt, progress=bar.step)
+        rows = run_study(left, right, methods=methods, gt_disparity=gt, progress=bar.step)
     print(format_table(rows))
     if args.csv:
         print(f"table written to {write_csv(rows, args.csv)}")

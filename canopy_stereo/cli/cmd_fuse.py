@@ -26,7 +26,7 @@ overlapping points, keeps colours and per-point view counts (PLY property 'views
 single-view points that another view sees through. Prints the registration residuals."""
 
 
-def parse_length(text: str, unit: str, name: str = "length") -> float:
+def parse_length(text: str, unit: str, *, name: str = "length") -> float:
     """``"2mm"``, ``"0.002 m"`` or ``"2"`` (already in ``unit``) -> a length in ``unit``."""
     m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*([a-zA-Z]*)\s*", str(text))
     if not m:
@@ -112,8 +112,8 @@ def run(args) -> int:
         print(f"view {view.name}: {len(view.points)} points ({view.unit})"
               f"{', pose from pose.yaml' if view.pose is not None else ''}  [{(time.perf_counter() - t):.1f} s]")
     unit = common_unit(views)
-    voxel = parse_length(args.voxel, unit, "--voxel")
-    reg_voxel = parse_length(args.reg_voxel, unit, "--reg-voxel") if args.reg_voxel else 1.5 * voxel
+    voxel = parse_length(args.voxel, unit, name="--voxel")
+    reg_voxel = parse_length(args.reg_voxel, unit, name="--reg-voxel") if args.reg_voxel else 1.5 * voxel
     settings = RegistrationSettings(voxel=reg_voxel, min_overlap=args.min_overlap)
     poses = _resolve_poses(views, args, unit)
     t = time.perf_counter()
@@ -139,7 +139,7 @@ def run(args) -> int:
             print(f"  {note}")
     else:
         print(f"poses given; residuals of neighbouring views in {unit}:")
-        for pc in check_given_poses(views, poses, settings):
+        for pc in check_given_poses(views, poses, settings=settings):
             print(f"  {views[pc.target].name} <- {views[pc.source].name}: rmse {pc.rmse:.3f}, "
                   f"overlap {pc.overlap:.0%} within {pc.radius:g}")
     t_reg = time.perf_counter() - t

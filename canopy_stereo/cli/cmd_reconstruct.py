@@ -66,12 +66,13 @@ def run(args) -> int:
         from canopy_stereo.cli.cmd_rectify import load_match_pairs
         from canopy_stereo.pipeline.reconstruct import rectify_rig
 
-        rect = rectify_rig(rig, args.method, left, right, match_pairs=load_match_pairs(args.match_pairs))
+        rect = rectify_rig(rig, args.method, left=left, right=right,
+                           match_pairs=load_match_pairs(args.match_pairs))
     rec = reconstruct_pair(left, right, rig, method=args.method, matcher=args.matcher, mask=mask,
                            disp_min=args.disp_min, disp_max=args.disp_max, rectification=rect)
     t = time.perf_counter()
     # PLYs are millimetres whatever the rig's unit (canopy_stereo.io.ply.PLY_UNIT)
-    write_ply(args.output, rec.points * (rig.metres_per_unit * 1000.0), rec.colors, unit="mm",
+    write_ply(args.output, rec.points * (rig.metres_per_unit * 1000.0), colors=rec.colors, unit="mm",
               comments=[f"canopy-stereo reconstruct method={rec.rectification.method} matcher={args.matcher}"])
     if args.organized:
         from pathlib import Path

@@ -70,8 +70,8 @@ def add_arguments(p):
 def run(args) -> int:
     rig = load_rig(args.rig)
     left, right = read_image(args.left), read_image(args.right)
-    check_pair(left, right, rig.image_size)
-    rect = rectify_rig(rig, args.method, left, right, match_pairs=load_match_pairs(args.match_pairs),
+    check_pair(left, right, expected_size=rig.image_size)
+    rect = rectify_rig(rig, args.method, left=left, right=right, match_pairs=load_match_pairs(args.match_pairs),
                        from_matches=True)
     method = rect.method
     lr, rr = StereoRectifier(rig, rect).rectify(left, right)

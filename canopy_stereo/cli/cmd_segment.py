@@ -39,10 +39,11 @@ def add_arguments(p):
                           "or an organized cloud ORG.npy (distance from its camera is used)")
     p.add_argument("--range", metavar="lo,hi", help="plant range of the disparity/depth cue "
                                                      "(default: automatic, Otsu)")
-    p.add_argument("--index", choices=["exg", "exgr", "none"], default="exg",
+    p.add_argument("--index", choices=["exg", "exgr", "none"], default=None,
                    help="colour cue of --auto (default exg; 'none' = no vegetation index: the "
                         "depth cue, with colour models learned from it)")
-    p.add_argument("--iterations", type=int, default=5, help="GrabCut iterations (default 5)")
+    p.add_argument("--iterations", type=int, default=None,
+                   help="GrabCut iterations (default 5, the seeder's; 5 for --rect/--seed too)")
     p.add_argument("--no-refine", action="store_true", help="--auto: skip GrabCut, keep the seed")
     p.add_argument("--no-colour-model", action="store_true",
                    help="--auto --index none: do not learn colour models from the depth cue")
@@ -90,17 +91,21 @@ def _parse_range(text):
 
 
 def run(args) -> int:
-    from canopy_stereo.segmentation import auto_plant_mask, grabcut_mask, grabcut_rect, parse_rect, write_mask
+    from canopy_stereo.segmentation import (IMAGE_SEEDER, grabcut_mask, grabcut_rect, parse_rect, plant_mask,
+                                            write_mask)
 
+    # the defaults are the one seeder's CLI preset (IMAGE_SEEDER)
+    index = IMAGE_SEEDER.colour_cue if args.index is None else args.index
+    iterations = IMAGE_SEEDER.iterations if args.iterations is None else args.iterations
     image = read_image(args.image)
     if args.rect:
         if args.disparity or args.depth:
             raise CanopyStereoError("--disparity/--depth are cues of --auto, not of --rect")
-        mask = grabcut_rect(image, parse_rect(args.rect), iterations=args.iterations)
+        mask = grabcut_rect(image, parse_rect(args.rect), iterations=iterations)
         how = f"GrabCut from rectangle {args.rect}"
     elif args.seed:
         seed = read_image(args.seed, color=False)
-        mask = grabcut_mask(image, seed, iterations=args.iterations)
+        mask = grabcut_mask(image, seed, iterations=iterations)
         how = f"GrabCut from {args.seed}"
     else:
         disparity = _load_map(args.disparity, "disparity") if args.disparity else None
@@ -108,15 +113,16 @@ def run(args) -> int:
         rng = _parse_range(args.range)
         if rng is not None and disparity is None and depth is None:
             raise CanopyStereoError("--range needs --disparity or --depth")
-        mask = auto_plant_mask(image, disparity=disparity, depth=depth, index=args.index,
-                               disparity_range=rng if disparity is not None else None,
-                               depth_range=rng if depth is not None else None,
-                               iterations=args.iterations, refine=not args.no_refine,
-                               colour_model=False if args.no_colour_model else None)
-        cues = [f"index {args.index}"] if args.index != "none" else []
+        settings = IMAGE_SEEDER.replace(colour_cue=index,
+                                        disparity_range=rng if disparity is not None else None,
+                                        depth_range=rng if depth is not None else None,
+                                        iterations=iterations, refine=not args.no_refine,
+                                        colour_model=False if args.no_colour_model else None)
+        mask = plant_mask(image, settings, disparity=disparity, depth=depth)
+        cues = [f"index {index}"] if index != "none" else []
         if disparity is not None or depth is not None:
             cues.append("disparity" if disparity is not None else "depth")
-            if args.index == "none" and not args.no_colour_model:
+            if index == "none" and not args.no_colour_model:
                 cues.append("learned colour")
         how = "automatic (" + ", ".join(cues) + ")"
     write_mask(args.output, mask)

@@ -6,7 +6,7 @@ import argparse
 from canopy_stereo.errors import CanopyStereoError
 
 
-def parse_int_list(text: str, count: int, name: str, sep: str = ",") -> list[int]:
+def parse_int_list(text: str, count: int, name: str, *, sep: str = ",") -> list[int]:
     """Parse ``"a,b,c"`` into ``count`` ints or raise :class:`CanopyStereoError`."""
     parts = [p for p in text.replace("x", sep).split(sep) if p.strip()]
     try:

@@ -59,7 +59,7 @@ def valid_disparity(disp: np.ndarray) -> np.ndarray:
         return np.isfinite(disp) & (disp >= 0)
 
 
-def evaluate_disparity(disp: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None,
+def evaluate_disparity(disp: np.ndarray, gt: np.ndarray, *, mask: np.ndarray | None = None,
                        thresholds=BAD_THRESHOLDS) -> DisparityScores:
     """Score an estimated disparity map against ground truth.
 

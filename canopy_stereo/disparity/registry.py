@@ -111,7 +111,7 @@ class Declared:
     choices: tuple = ()
 
 
-def declare(description: str, minimum=None, maximum=None, *, kind: type | None = None,
+def declare(description: str, *, minimum=None, maximum=None, kind: type | None = None,
             choices=()) -> Declared:
     """A parameter's description, inclusive range (numbers) or ``choices`` (strings);
     ``kind`` only where the default (None) cannot tell the type."""
@@ -203,7 +203,7 @@ class MatcherSpec:
         return str(preset)
 
     def check(self, params: Mapping[str, Any], disp_min: int | None = None,
-              disp_max: int | None = None) -> dict:
+              *, disp_max: int | None = None) -> dict:
         """``params`` with each value coerced and range-checked (``preset`` too, when the
         matcher has presets), then the combination checked for the search range;
         :class:`CanopyStereoError` naming the first problem."""
@@ -233,16 +233,19 @@ def _sgbm_spec() -> MatcherSpec:
     from canopy_stereo.disparity.sgbm import SGBM_MODES, sgbm_disparity
 
     declared = {
-        "block_size": declare("SGBM: side of the matched block (pixels, odd)", 1, 51),
+        "block_size": declare("SGBM: side of the matched block (pixels, odd)", minimum=1, maximum=51),
         "p1": declare("SGBM: penalty of a disparity change of 1 pixel between neighbours "
-                      "(unset: 8 * block_size^2)", 0, 10_000_000, kind=int),
+                      "(unset: 8 * block_size^2)", minimum=0, maximum=10_000_000, kind=int),
         "p2": declare("SGBM: penalty of a larger disparity change between neighbours, > p1 "
-                      "(unset: 32 * block_size^2)", 0, 10_000_000, kind=int),
-        "uniqueness": declare("SGBM: margin (%) by which the best cost must beat the second best", 0, 100),
-        "speckle_window": declare("SGBM: largest speckle removed (pixels; 0 = no filtering)", 0, 100000),
+                      "(unset: 32 * block_size^2)", minimum=0, maximum=10_000_000, kind=int),
+        "uniqueness": declare("SGBM: margin (%) by which the best cost must beat the second best", minimum=0,
+                              maximum=100),
+        "speckle_window": declare("SGBM: largest speckle removed (pixels; 0 = no filtering)", minimum=0,
+                                  maximum=100000),
         "speckle_range": declare("SGBM: largest disparity variation inside a connected speckle "
-                                 "(pixels x 16)", 0, 1000),
-        "disp12_max_diff": declare("SGBM: left-right consistency tolerance (pixels; -1 = off)", -1, 4096),
+                                 "(pixels x 16)", minimum=0, maximum=1000),
+        "disp12_max_diff": declare("SGBM: left-right consistency tolerance (pixels; -1 = off)", minimum=-1,
+                                   maximum=4096),
         "mode": declare("SGBM: cost aggregation", choices=tuple(SGBM_MODES)),
     }
     defaults = keyword_defaults(sgbm_disparity)
@@ -262,29 +265,36 @@ def _elas_spec() -> MatcherSpec:
 
     declared = {
         "support_threshold": declare("ELAS: a support candidate is kept when its best matching cost is "
-                                     "below this fraction of its second best (uniqueness ratio)", 0.0, 1.0),
-        "support_texture": declare("ELAS: least descriptor texture of a support candidate", 0, 255),
-        "candidate_stepsize": declare("ELAS: spacing of the support-candidate grid (pixels)", 1, 64),
-        "incon_window_size": declare("ELAS: window (candidate cells) of the support consistency check", 0, 64),
+                                     "below this fraction of its second best (uniqueness ratio)",
+                                     minimum=0.0, maximum=1.0),
+        "support_texture": declare("ELAS: least descriptor texture of a support candidate", minimum=0,
+                                   maximum=255),
+        "candidate_stepsize": declare("ELAS: spacing of the support-candidate grid (pixels)", minimum=1,
+                                      maximum=64),
+        "incon_window_size": declare("ELAS: window (candidate cells) of the support consistency check",
+                                     minimum=0, maximum=64),
         "incon_threshold": declare("ELAS: largest disparity difference (pixels) of consistent support "
-                                   "points", 0, 255),
+                                   "points", minimum=0, maximum=255),
         "incon_min_support": declare("ELAS: consistent support points a support point needs in its "
-                                     "window (itself included)", 0, 64),
+                                     "window (itself included)", minimum=0, maximum=64),
         "add_corners": declare("ELAS: add the 4 image corners as support points and extrapolate to the "
                                "borders"),
-        "grid_size": declare("ELAS: cell size of the disparity grid (pixels)", 1, 256),
-        "beta": declare("ELAS: beta of the prior P[D] = (ln g - ln(g + exp(-D^2 / 2 s^2))) / beta", 0.0, 100.0),
-        "gamma": declare("ELAS: gamma (g) of the prior", 0.0, 100.0),
-        "sigma": declare("ELAS: sigma (s) of the prior (pixels)", 0.0, 100.0),
+        "grid_size": declare("ELAS: cell size of the disparity grid (pixels)", minimum=1, maximum=256),
+        "beta": declare("ELAS: beta of the prior P[D] = (ln g - ln(g + exp(-D^2 / 2 s^2))) / beta",
+                        minimum=0.0, maximum=100.0),
+        "gamma": declare("ELAS: gamma (g) of the prior", minimum=0.0, maximum=100.0),
+        "sigma": declare("ELAS: sigma (s) of the prior (pixels)", minimum=0.0, maximum=100.0),
         "sradius": declare("ELAS: plane search radius, in sigmas (max(ceil(sigma * sradius), 2) pixels)",
-                           0.0, 100.0),
-        "match_texture": declare("ELAS: least descriptor texture of a densely matched pixel", 0, 255),
-        "lr_threshold": declare("ELAS: left-right consistency tolerance (pixels)", 0, 64),
+                           minimum=0.0, maximum=100.0),
+        "match_texture": declare("ELAS: least descriptor texture of a densely matched pixel", minimum=0,
+                                 maximum=255),
+        "lr_threshold": declare("ELAS: left-right consistency tolerance (pixels)", minimum=0, maximum=64),
         "speckle_sim_threshold": declare("ELAS: largest disparity step (pixels) inside one speckle "
-                                         "segment", 0.0, 255.0),
-        "speckle_size": declare("ELAS: segments smaller than this (pixels) are removed", 0, 100000),
+                                         "segment", minimum=0.0, maximum=255.0),
+        "speckle_size": declare("ELAS: segments smaller than this (pixels) are removed", minimum=0,
+                                maximum=100000),
         "ipol_gap_width": declare("ELAS: longest run of invalid pixels that gap interpolation fills "
-                                  "(pixels)", 0, 10000),
+                                  "(pixels)", minimum=0, maximum=10000),
         "filter_median": declare("ELAS: 7-tap separable median filter on the result"),
         "filter_adaptive_mean": declare("ELAS: 8-tap separable adaptive mean filter on the result"),
         "postprocess_only_left": declare("ELAS: skip speckle removal, interpolation and filters on the "
@@ -415,7 +425,7 @@ def get_matcher(name: str) -> Matcher:
     return matcher_spec(name).function
 
 
-def compute_disparity(left: np.ndarray, right: np.ndarray, matcher: str = "sgbm",
+def compute_disparity(left: np.ndarray, right: np.ndarray, *, matcher: str = "sgbm",
                       disp_min: int = 0, disp_max: int = 128, **params) -> np.ndarray:
     """Left disparity (float32 (H, W), pixels, invalid = -1) of a rectified pair.
 
@@ -433,7 +443,7 @@ def compute_disparity(left: np.ndarray, right: np.ndarray, matcher: str = "sgbm"
         raise ImageError(f"matcher input must be uint8 images, got {left.dtype}/{right.dtype}")
     if disp_max <= disp_min:
         raise CanopyStereoError(f"disp_max ({disp_max}) must be greater than disp_min ({disp_min})")
-    params = spec.check(params, disp_min, disp_max)
+    params = spec.check(params, disp_min, disp_max=disp_max)
     disp = spec.function(left, right, disp_min=int(disp_min), disp_max=int(disp_max), **params)
     disp = np.asarray(disp, dtype=np.float32)
     disp[~np.isfinite(disp)] = INVALID_DISPARITY

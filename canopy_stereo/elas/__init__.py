@@ -6,7 +6,7 @@ Main entry points: :func:`elas_disparity` (two maps), :func:`elas_run` (maps, su
 points, triangles, stage timings) and :func:`~canopy_stereo.elas.matcher.elas_matcher`
 (the registered ``elas`` matcher). Stages, one module each: :mod:`.descriptor`,
 :mod:`.support`, :mod:`.delaunay` (with :mod:`.sweephull`), :mod:`.grid`,
-:mod:`.matching`, :mod:`.postprocess`; :mod:`.synthetic` makes test pairs.
+:mod:`.matching`, :mod:`.postprocess`; :mod:`canopy_stereo.sim.stereo_pair` makes test pairs.
 
 Measured with ``benchmarks/bench_elas.py`` (16 Middlebury pairs, 0..255 disparities):
 

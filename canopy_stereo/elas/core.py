@@ -106,7 +106,7 @@ def _postprocess(disp: np.ndarray, offsets: np.ndarray, p: ElasParams, step: int
 
 
 def elas_run(left: np.ndarray, right: np.ndarray, params: ElasParams,
-             want_right: bool = True) -> ElasResult:
+             *, want_right: bool = True) -> ElasResult:
     """Run ELAS with fully specified ``params`` (see :func:`elas_disparity`)."""
     params = params.validate()
     gl, gr = _check_inputs(left, right)
@@ -141,8 +141,8 @@ def elas_run(left: np.ndarray, right: np.ndarray, params: ElasParams,
                           tri_l, tri_r, params, timings)
 
     t = time.perf_counter()
-    grid_l = disparity_grid(support, (w, h), p.grid_size, p.disp_min, p.disp_max, False)
-    grid_r = disparity_grid(support, (w, h), p.grid_size, p.disp_min, p.disp_max, True)
+    grid_l = disparity_grid(support, (w, h), p.grid_size, p.disp_min, p.disp_max, right_image=False)
+    grid_r = disparity_grid(support, (w, h), p.grid_size, p.disp_min, p.disp_max, right_image=True)
     timings["grid"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -163,7 +163,7 @@ def elas_run(left: np.ndarray, right: np.ndarray, params: ElasParams,
     timings["matching"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    disp_l, disp_r = left_right_check(disp_l, disp_r, p.lr_threshold, step)
+    disp_l, disp_r = left_right_check(disp_l, disp_r, p.lr_threshold, step=step)
     timings["lr_check"] = time.perf_counter() - t
 
     if want_right and not p.postprocess_only_left:
@@ -181,8 +181,8 @@ def elas_run(left: np.ndarray, right: np.ndarray, params: ElasParams,
     return ElasResult(disp_l, disp_r, support, tri_l, tri_r, params, timings)
 
 
-def elas_disparity(left: np.ndarray, right: np.ndarray, preset: str = "robotics", *,
-                   right_map: bool = True, **params):
+def elas_disparity(left: np.ndarray, right: np.ndarray, *, preset: str = "robotics", right_map: bool = True,
+                   **params):
     """ELAS disparity maps of a rectified pair.
 
     Args:

@@ -58,7 +58,7 @@ def _grid(points, right_image, width, height, grid_size, disp_min, disp_max):
 
 
 def disparity_grid(points: np.ndarray, image_size: tuple[int, int], grid_size: int,
-                   disp_min: int, disp_max: int, right_image: bool = False):
+                   disp_min: int, disp_max: int, *, right_image: bool = False):
     """Per-cell candidate disparities.
 
     Args:

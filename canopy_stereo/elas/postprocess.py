@@ -47,7 +47,7 @@ def _lr_check(d_left, d_right, threshold, step):
 
 
 def left_right_check(d_left: np.ndarray, d_right: np.ndarray, threshold: float,
-                     step: int = 1) -> tuple[np.ndarray, np.ndarray]:
+                     *, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Invalidate pixels whose match in the other map disagrees by more than ``threshold``.
 
     Left pixel ``u`` with disparity ``d`` is checked against the right map at
@@ -163,7 +163,7 @@ def _interpolate_gaps(disp, max_gap, discon, extrapolate):
     return np.ascontiguousarray(t.T)
 
 
-def interpolate_gaps(disp: np.ndarray, max_gap: int, extrapolate: bool = False,
+def interpolate_gaps(disp: np.ndarray, max_gap: int, *, extrapolate: bool = False,
                      discontinuity: float = DISCONTINUITY_THRESHOLD) -> np.ndarray:
     """Fill runs of at most ``max_gap`` invalid pixels between two valid ones, rows first,
     then columns.

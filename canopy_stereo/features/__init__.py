@@ -11,8 +11,8 @@
 Modules: :mod:`~canopy_stereo.features.quasi_dense` (propagation and resampling,
 numba), :mod:`~canopy_stereo.features.asift`,
 :mod:`~canopy_stereo.features.affine_regions` (Harris/Hessian-affine),
-:mod:`~canopy_stereo.features.detectors` (OpenCV keypoints),
-:mod:`~canopy_stereo.features.synthetic` (generated pairs with known disparity).
+:mod:`~canopy_stereo.features.detectors` (OpenCV keypoints); pairs with known disparity
+for checking them: :mod:`canopy_stereo.sim.stereo_pair`.
 """
 from canopy_stereo.features.api import (METHODS, available_methods, check_method, match_pair,
                                         method_available)

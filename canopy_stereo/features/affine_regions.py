@@ -65,7 +65,7 @@ def _local_maxima(resp: np.ndarray, threshold: float, border: int) -> np.ndarray
     return np.column_stack([u, v])
 
 
-def scale_adapted_points(gray: np.ndarray, kind: str = "harris", sigma0: float = 1.4,
+def scale_adapted_points(gray: np.ndarray, kind: str = "harris", *, sigma0: float = 1.4,
                          xi: float = 1.4, n_scales: int = 10, s_diff: float = 0.7,
                          alpha: float = 0.06, threshold: float | None = None,
                          max_points: int = 1500):
@@ -151,7 +151,7 @@ def _shifted_weights(half, sigma):
     return np.array(out)
 
 
-def affine_adapt(gray: np.ndarray, points: np.ndarray, sigmas: np.ndarray, kind: str = "harris",
+def affine_adapt(gray: np.ndarray, points: np.ndarray, sigmas: np.ndarray, *, kind: str = "harris",
                  max_iter: int = 10, isotropy: float = 0.95, max_elongation: float = 6.0):
     """Affine shape adaptation of scale-adapted points (all points iterated together).
 
@@ -245,7 +245,7 @@ def _dominant_orientation(patch: np.ndarray, radius: float) -> float:
     return float(0.5 * (edges[k] + edges[k + 1]))
 
 
-def describe_regions(gray: np.ndarray, points, shapes, sigmas, detector=None) -> np.ndarray:
+def describe_regions(gray: np.ndarray, points, shapes, sigmas, *, detector=None) -> np.ndarray:
     """SIFT descriptors (K, 128) float32 of the normalised, orientation-aligned regions."""
     k = len(points)
     if k == 0:
@@ -286,11 +286,11 @@ def describe_regions(gray: np.ndarray, points, shapes, sigmas, detector=None) ->
     return desc.astype(np.float32)
 
 
-def detect_affine_regions(gray: np.ndarray, kind: str = "harris", detector=None, **params) -> Features:
+def detect_affine_regions(gray: np.ndarray, kind: str = "harris", *, detector=None, **params) -> Features:
     """Harris-affine / Hessian-affine regions of a grey image with SIFT descriptors."""
     pts, sig, _ = scale_adapted_points(gray, kind, **params)
-    pts, shapes, sig = affine_adapt(gray, pts, sig, kind)
-    desc = describe_regions(gray, pts, shapes, sig, detector)
+    pts, shapes, sig = affine_adapt(gray, pts, sig, kind=kind)
+    desc = describe_regions(gray, pts, shapes, sig, detector=detector)
     return Features(pts, desc, False, 6.0 * sig)
 
 
@@ -298,13 +298,13 @@ def _affine_match(kind, left_gray, right_gray, ratio, mutual, f_method, threshol
     det = make_detector("sift")
     size = (left_gray.shape[1], left_gray.shape[0])
     t0 = time.perf_counter()
-    fl = detect_affine_regions(left_gray, kind, det, **params)
+    fl = detect_affine_regions(left_gray, kind, detector=det, **params)
     t1 = time.perf_counter()
-    fr = detect_affine_regions(right_gray, kind, det, **params)
+    fr = detect_affine_regions(right_gray, kind, detector=det, **params)
     t2 = time.perf_counter()
     il, ir = match_descriptors(fl.descriptors, fr.descriptors, ratio=ratio, mutual=mutual)
     xl, xr = fl.points[il], fr.points[ir]
-    F, keep, note = verify_matches(xl, xr, f_method, threshold_px)
+    F, keep, note = verify_matches(xl, xr, f_method=f_method, threshold_px=threshold_px)
     t3 = time.perf_counter()
     name = f"{kind}-affine"
     if len(fl) == 0 or len(fr) == 0:

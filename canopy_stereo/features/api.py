@@ -70,7 +70,7 @@ def _prepare_pair(left, right):
     return to_gray(left, "left"), to_gray(right, "right")
 
 
-def match_pair(left: np.ndarray, right: np.ndarray, method: str = "sift", *, ratio: float = 0.8,
+def match_pair(left: np.ndarray, right: np.ndarray, *, method: str = "sift", ratio: float = 0.8,
                mutual: bool = True, f_method: str = "ransac", threshold_px: float = 1.0,
                min_matches: int = MIN_MATCHES_F, **params) -> MatchResult:
     """Verified point matches of a stereo pair with one method of the study.

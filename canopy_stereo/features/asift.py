@@ -78,7 +78,7 @@ def simulate_view(gray: np.ndarray, tilt: float, phi_deg: float):
     return img, mask, A
 
 
-def detect_asift(gray: np.ndarray, views=None, detector=None) -> Features:
+def detect_asift(gray: np.ndarray, views=None, *, detector=None) -> Features:
     """Pooled SIFT features of all simulated views, positions in original pixels."""
     det = detector if detector is not None else make_detector("sift")
     views = views if views is not None else simulated_views()
@@ -98,7 +98,7 @@ def detect_asift(gray: np.ndarray, views=None, detector=None) -> Features:
     return Features(np.vstack(pts), np.vstack(descs).astype(np.float32), False, np.concatenate(sizes))
 
 
-def match_pooled(feat_left: Features, feat_right: Features, ratio: float = 0.8,
+def match_pooled(feat_left: Features, feat_right: Features, *, ratio: float = 0.8,
                  mutual: bool = True, same_point_px: float = 3.0, k: int = 8):
     """Location-aware ratio test and mutual check for pooled multi-view features.
 
@@ -156,13 +156,13 @@ def asift_match(left_gray: np.ndarray, right_gray: np.ndarray, *, ratio: float =
     views = simulated_views(max_tilt, longitude_step_deg)
     size = (left_gray.shape[1], left_gray.shape[0])
     t0 = time.perf_counter()
-    fl = detect_asift(left_gray, views, det)
+    fl = detect_asift(left_gray, views, detector=det)
     t1 = time.perf_counter()
-    fr = detect_asift(right_gray, views, det)
+    fr = detect_asift(right_gray, views, detector=det)
     t2 = time.perf_counter()
     il, ir = match_pooled(fl, fr, ratio=ratio, mutual=mutual, same_point_px=same_point_px)
     xl, xr = fl.points[il], fr.points[ir]
-    F, keep, note = verify_matches(xl, xr, f_method, threshold_px)
+    F, keep, note = verify_matches(xl, xr, f_method=f_method, threshold_px=threshold_px)
     t3 = time.perf_counter()
     if len(fl) == 0 or len(fr) == 0:
         note = f"no asift features in the {'left' if len(fl) == 0 else 'right'} image (no texture?)"

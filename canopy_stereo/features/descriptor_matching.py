@@ -33,7 +33,7 @@ def _knn(query: np.ndarray, train: np.ndarray, k: int, binary: bool):
     return dist, idx
 
 
-def match_descriptors(desc_left: np.ndarray, desc_right: np.ndarray, ratio: float = 0.8,
+def match_descriptors(desc_left: np.ndarray, desc_right: np.ndarray, *, ratio: float = 0.8,
                       mutual: bool = True, binary: bool = False):
     """Putative matches ``(idx_left, idx_right)`` (int64 arrays of equal length).
 

@@ -101,7 +101,7 @@ def make_detector(name: str, **params):
         raise CanopyStereoError(f"bad {name} parameters {params}: {exc}") from None
 
 
-def detect_and_describe(gray: np.ndarray, name: str, detector=None, mask=None, **params) -> Features:
+def detect_and_describe(gray: np.ndarray, name: str, *, detector=None, mask=None, **params) -> Features:
     """Keypoints and descriptors of a grey uint8 image with the OpenCV detector ``name``."""
     det = detector if detector is not None else make_detector(name, **params)
     kps, desc = det.detectAndCompute(gray, mask)

@@ -28,7 +28,7 @@ def _as_points(x, name: str) -> np.ndarray:
     return x
 
 
-def estimate_fundamental(x_left, x_right, method: str = "ransac", threshold_px: float = 1.0,
+def estimate_fundamental(x_left, x_right, *, method: str = "ransac", threshold_px: float = 1.0,
                          confidence: float = 0.999, max_iters: int = 5000):
     """Robustly fit F to matches: ``(F, inlier_mask)``.
 
@@ -101,7 +101,7 @@ def _refine_on_inliers(F, inliers, x_left, x_right, threshold_px, rounds: int = 
     return F, epipolar_distance(F, x_left, x_right, symmetric=True) <= threshold_px
 
 
-def epipolar_distance(F: np.ndarray, x_left, x_right, symmetric: bool = False) -> np.ndarray:
+def epipolar_distance(F: np.ndarray, x_left, x_right, *, symmetric: bool = False) -> np.ndarray:
     """Distance (pixels) of each ``x_right`` from the epipolar line ``F x_left``.
 
     With ``symmetric=True`` returns the larger of that and the distance of

@@ -87,7 +87,7 @@ def _epipolar_gradients(img: np.ndarray, epipole):
     return gx * dx + gy * dy, gy * dx - gx * dy
 
 
-def texture_map(gray: np.ndarray, half_window: int, epipole=None) -> np.ndarray:
+def texture_map(gray: np.ndarray, half_window: int, *, epipole=None) -> np.ndarray:
     """Texture of each pixel's matching window, grey levels per pixel, float64 (H, W).
 
     Without an epipole: the largest absolute difference to a 4-neighbour
@@ -138,7 +138,7 @@ def aperture_coupling(gray: np.ndarray, half_window: int, epipole) -> np.ndarray
     return out
 
 
-def window_statistics(gray: np.ndarray, half_window: int, epipole=None):
+def window_statistics(gray: np.ndarray, half_window: int, *, epipole=None):
     """Per-pixel window mean, inverse window norm and texture of a grey image.
 
     Args:
@@ -166,7 +166,7 @@ def window_statistics(gray: np.ndarray, half_window: int, epipole=None):
     inv_norm[-half_window:, :] = 0.0
     inv_norm[:, :half_window] = 0.0
     inv_norm[:, -half_window:] = 0.0
-    return img, mean, inv_norm, texture_map(img, half_window, epipole)
+    return img, mean, inv_norm, texture_map(img, half_window, epipole=epipole)
 
 
 @njit(cache=True)
@@ -600,8 +600,8 @@ def propagate(left_gray: np.ndarray, right_gray: np.ndarray, seeds_left, seeds_r
         e_l = e_r = None
         if F is not None and directional_texture:
             e_l, e_r = epipoles(np.asarray(F, np.float64))
-        stats = (window_statistics(left_gray, half_window, e_l),
-                 window_statistics(right_gray, half_window, e_r))
+        stats = (window_statistics(left_gray, half_window, epipole=e_l),
+                 window_statistics(right_gray, half_window, epipole=e_r))
     (L, mean_l, inv_l, tex_l), (R, mean_r, inv_r, tex_r) = stats
     if aperture_max is not None and F is not None:
         e_l, e_r = epipoles(np.asarray(F, np.float64))
@@ -1114,7 +1114,7 @@ def resample(prop: Propagation, *, cell_px: int = DISTRIBUTION_CELL_PX, model: s
 # The whole matcher
 
 
-def sift_seeds(left_gray, right_gray, ratio=0.8, mutual=True, f_method="ransac",
+def sift_seeds(left_gray, right_gray, *, ratio=0.8, mutual=True, f_method="ransac",
                threshold_px=1.0, sift_params=None):
     """Verified SIFT matches for seeding, with timings.
 
@@ -1129,7 +1129,7 @@ def sift_seeds(left_gray, right_gray, ratio=0.8, mutual=True, f_method="ransac",
     t2 = time.perf_counter()
     il, ir = match_descriptors(fl.descriptors, fr.descriptors, ratio=ratio, mutual=mutual)
     xl, xr = fl.points[il], fr.points[ir]
-    F, keep, note = verify_matches(xl, xr, f_method, threshold_px)
+    F, keep, note = verify_matches(xl, xr, f_method=f_method, threshold_px=threshold_px)
     t3 = time.perf_counter()
     return dict(x_left=xl[keep], x_right=xr[keep], F=F, num_left=len(fl), num_right=len(fr),
                 t_left=t1 - t0, t_right=t2 - t1, t_match=t3 - t2, note=note)
@@ -1188,7 +1188,8 @@ def qdmatch(left_gray: np.ndarray, right_gray: np.ndarray, *, ratio: float = 0.8
         texture) the result is empty and ``note`` says why.
     """
     size = (left_gray.shape[1], left_gray.shape[0])
-    seeds = sift_seeds(left_gray, right_gray, ratio, mutual, f_method, threshold_px, sift_params)
+    seeds = sift_seeds(left_gray, right_gray, ratio=ratio, mutual=mutual, f_method=f_method,
+                       threshold_px=threshold_px, sift_params=sift_params)
     common = dict(method="qdmatch", image_size=size, num_left=seeds["num_left"],
                   num_right=seeds["num_right"], t_left=seeds["t_left"],
                   t_right=seeds["t_right"], t_match=seeds["t_match"])

@@ -9,7 +9,7 @@ import numpy as np
 DISTRIBUTION_CELL_PX = 8
 
 
-def distribution(x_left: np.ndarray, image_size, cell_px: int = DISTRIBUTION_CELL_PX) -> float:
+def distribution(x_left: np.ndarray, image_size, *, cell_px: int = DISTRIBUTION_CELL_PX) -> float:
     """Share of ``cell_px`` x ``cell_px``-pixel cells of the left image holding a matched point.
 
     The paper's definition: the left image is divided into square cells of 8 x 8
@@ -104,7 +104,7 @@ class MatchResult:
                 + (self.t_resample or 0.0))
 
     @classmethod
-    def empty(cls, method: str, image_size, note: str = "", **kw) -> "MatchResult":
+    def empty(cls, method: str, image_size, *, note: str = "", **kw) -> "MatchResult":
         """A result without matches (an empty table row), e.g. for an unavailable method."""
         return cls(method=method, x_left=np.zeros((0, 2)), x_right=np.zeros((0, 2)),
                    image_size=image_size, note=note, **kw)

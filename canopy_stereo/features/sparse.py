@@ -17,7 +17,7 @@ from canopy_stereo.features.fundamental import MIN_MATCHES_F, estimate_fundament
 from canopy_stereo.features.result import MatchResult
 
 
-def verify_matches(x_left: np.ndarray, x_right: np.ndarray, f_method: str = "ransac",
+def verify_matches(x_left: np.ndarray, x_right: np.ndarray, *, f_method: str = "ransac",
                    threshold_px: float = 1.0):
     """Keep the matches that agree with one robust F: ``(F or None, keep_mask, note)``.
 
@@ -36,7 +36,7 @@ def verify_matches(x_left: np.ndarray, x_right: np.ndarray, f_method: str = "ran
 
 
 def sparse_match(left_gray: np.ndarray, right_gray: np.ndarray, method: str,
-                 detect: Callable[[np.ndarray], Features], ratio: float = 0.8,
+                 detect: Callable[[np.ndarray], Features], *, ratio: float = 0.8,
                  mutual: bool = True, f_method: str = "ransac",
                  threshold_px: float = 1.0, match: Callable | None = None) -> MatchResult:
     """Detect, match and verify keypoints of a grey pair; one :class:`MatchResult` row.
@@ -62,7 +62,7 @@ def sparse_match(left_gray: np.ndarray, right_gray: np.ndarray, method: str,
     else:
         il, ir = match(feat_l, feat_r)
     xl, xr = feat_l.points[il], feat_r.points[ir]
-    F, keep, note = verify_matches(xl, xr, f_method, threshold_px)
+    F, keep, note = verify_matches(xl, xr, f_method=f_method, threshold_px=threshold_px)
     t3 = time.perf_counter()
     if len(feat_l) == 0 or len(feat_r) == 0:
         note = (f"no {method} features in the {'left' if len(feat_l) == 0 else 'right'} image "

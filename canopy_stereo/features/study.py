@@ -63,7 +63,7 @@ def parse_methods(text: str) -> list[str]:
     return list(dict.fromkeys(names))
 
 
-def gt_correctness(x_left, x_right, disparity: np.ndarray, tol_px: float = CORRECT_TOL_PX):
+def gt_correctness(x_left, x_right, disparity: np.ndarray, *, tol_px: float = CORRECT_TOL_PX):
     """Share of matches consistent with a ground-truth disparity map: ``(share, n_with_truth)``.
 
     A match ``(u, v) <-> (u', v')`` of a rectified pair is correct when
@@ -90,7 +90,7 @@ def gt_correctness(x_left, x_right, disparity: np.ndarray, tol_px: float = CORRE
 
 
 def correspondence_correctness(x_left, x_right, true_right: np.ndarray,
-                               tol_px: float = CORRECT_TOL_PX):
+                               *, tol_px: float = CORRECT_TOL_PX):
     """Share of matches within ``tol_px`` of the true right pixel: ``(share, n_with_truth)``.
 
     For pairs whose exact correspondences are known (rendered scenes, any geometry,
@@ -119,7 +119,7 @@ def correspondence_correctness(x_left, x_right, true_right: np.ndarray,
     return float(np.mean(err <= tol_px)), n
 
 
-def epipolar_correctness(results, threshold_px: float = CORRECT_TOL_PX, f_method: str = "ransac"):
+def epipolar_correctness(results, threshold_px: float = CORRECT_TOL_PX, *, f_method: str = "ransac"):
     """Per result, the share of matches within ``threshold_px`` of the epipolar line of
     one F fitted to all results' matches pooled: ``(shares list, F or None)``."""
     xl = [r.x_left for r in results if r.num]
@@ -140,9 +140,9 @@ def epipolar_correctness(results, threshold_px: float = CORRECT_TOL_PX, f_method
     return shares, F
 
 
-def run_study(left: np.ndarray, right: np.ndarray, methods=DEFAULT_METHODS,
+def run_study(left: np.ndarray, right: np.ndarray, *, methods=DEFAULT_METHODS,
               gt_disparity: np.ndarray | None = None, method_params: dict | None = None,
-              progress=None, *, gt_right_pixels: np.ndarray | None = None) -> list[StudyRow]:
+              progress=None, gt_right_pixels: np.ndarray | None = None) -> list[StudyRow]:
     """Match one pair with every method and score the rows.
 
     Args:
@@ -186,7 +186,7 @@ def run_study(left: np.ndarray, right: np.ndarray, methods=DEFAULT_METHODS,
             results.append(MatchResult.empty(m, size, note=reason))
             continue
         try:
-            results.append(match_pair(left, right, m, min_matches=0, **params.get(m, {})))
+            results.append(match_pair(left, right, method=m, min_matches=0, **params.get(m, {})))
         except ImageError:
             raise
         except MatchingError as exc:

@@ -51,7 +51,7 @@ class Keypoints3D:
     points: np.ndarray
 
 
-def lift_pixels(organized, pixels, max_spread: float | None = None) -> np.ndarray:
+def lift_pixels(organized, pixels, *, max_spread: float | None = None) -> np.ndarray:
     """3-D points (N, 3) of sub-pixel keypoints on an organized cloud (NaN where none).
 
     The point is the organized cloud at the nearest pixel; with ``max_spread``
@@ -104,7 +104,7 @@ def _simulated_view(gray, mask, tilt: float, angle_deg: float):
     return img, m, A
 
 
-def keypoints_3d(image, organized, max_spread: float | None = None, tilts=DEFAULT_TILTS,
+def keypoints_3d(image, organized, *, max_spread: float | None = None, tilts=DEFAULT_TILTS,
                  max_features: int = 0) -> Keypoints3D:
     """SIFT keypoints of a view's left image that have a 3-D point.
 
@@ -140,7 +140,7 @@ def keypoints_3d(image, organized, max_spread: float | None = None, tilts=DEFAUL
         pixels.append(feats.points @ Ai[:, :2].T + Ai[:, 2])
         descriptors.append(feats.descriptors.astype(np.float32))
     px, desc = np.concatenate(pixels), np.concatenate(descriptors)
-    pts3 = lift_pixels(org, px, max_spread)
+    pts3 = lift_pixels(org, px, max_spread=max_spread)
     keep = np.all(np.isfinite(pts3), axis=1)
     return Keypoints3D(pixels=px[keep], descriptors=desc[keep], points=pts3[keep])
 
@@ -176,7 +176,7 @@ def _best_rigid(src, dst, threshold, iterations, rng):
     return T, inl
 
 
-def ransac_rigid(source, target, threshold: float, iterations: int = 2000, seed: int = 0,
+def ransac_rigid(source, target, threshold: float, *, iterations: int = 2000, seed: int = 0,
                  min_inliers: int = 8, hypotheses: int = 1):
     """Robust rigid transforms ``target ~ T source`` from putative 3-D matches.
 
@@ -225,7 +225,7 @@ def ransac_rigid(source, target, threshold: float, iterations: int = 2000, seed:
     return out
 
 
-def align_keypoints(source: Keypoints3D, target: Keypoints3D, threshold: float, ratio: float = 0.8,
+def align_keypoints(source: Keypoints3D, target: Keypoints3D, threshold: float, *, ratio: float = 0.8,
                     min_inliers: int = 10, iterations: int = 2000, seed: int = 0,
                     hypotheses: int = 3) -> list[FeatureAlignment]:
     """Candidate rigid motions source -> target from two views' :class:`Keypoints3D`.

@@ -62,7 +62,8 @@ class CoverageReport:
                 "evaluated_points": self.evaluated_points}
 
 
-def evaluate_model(model_points, truth_points, radius: float, max_distance: float | None = None) -> CoverageReport:
+def evaluate_model(model_points, truth_points, radius: float, *,
+                   max_distance: float | None = None) -> CoverageReport:
     """Coverage of ``truth_points`` by the model and the model's distance to the truth.
 
     ``max_distance``: judge accuracy only on model points within this distance

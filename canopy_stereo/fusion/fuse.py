@@ -70,7 +70,7 @@ def _weighted_sums(inv, weights, values):
     return np.stack([np.bincount(inv, weights=weights * values[:, a]) for a in range(values.shape[1])], axis=1)
 
 
-def surface_average(points, weights, radius: float, k: int = 24, min_neighbours: int = 6):
+def surface_average(points, weights, radius: float, *, k: int = 24, min_neighbours: int = 6):
     """Move each point onto the plane fitted to its neighbours within ``radius``.
 
     The plane is the weighted least-squares plane of the (at most ``k``)
@@ -111,7 +111,7 @@ def surface_average(points, weights, radius: float, k: int = 24, min_neighbours:
     return out
 
 
-def fuse_point_sets(point_sets, voxel: float, unit: str, depth_views=None, free_space: bool = True,
+def fuse_point_sets(point_sets, voxel: float, unit: str, *, depth_views=None, free_space: bool = True,
                     margin_abs: float | None = None, margin_rel: float = 0.02,
                     min_views: int = 1, average_radius: float | None = None) -> FusedCloud:
     """Fuse world-frame point sets (one per view) into a :class:`FusedCloud`.
@@ -224,7 +224,8 @@ def depth_view_of(view, pose) -> DepthView | None:
     return DepthView.from_points(view.P_left, view.points, view.image_size, pose)
 
 
-def fuse_views(views, poses=None, voxel: float = 2.0, free_space: bool = True, margin_abs: float | None = None,
+def fuse_views(views, poses=None, *, voxel: float = 2.0, free_space: bool = True,
+               margin_abs: float | None = None,
                margin_rel: float = 0.02, min_views: int = 1, average_radius: float | None = None) -> FusedCloud:
     """Fuse :class:`~canopy_stereo.fusion.views.View` objects at their poses.
 

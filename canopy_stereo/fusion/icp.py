@@ -36,7 +36,7 @@ from canopy_stereo.fusion.transforms import exp_se3, transform_points
 KERNEL_CONSTANTS = {"tukey": 4.685, "huber": 1.345, "cauchy": 2.3849}
 
 
-def estimate_normals(points, k: int = 12, tree: cKDTree | None = None, viewpoint=None):
+def estimate_normals(points, k: int = 12, *, tree: cKDTree | None = None, viewpoint=None):
     """Unit surface normals (N, 3) and planarity (N,) of a cloud.
 
     Args:
@@ -122,7 +122,7 @@ class IcpTarget:
             raise CanopyStereoError(f"ICP target has only {len(self.points)} points (need >= 10)")
         self.tree = cKDTree(self.points)
         if normals is None:
-            normals, _ = estimate_normals(self.points, k_normals, self.tree)
+            normals, _ = estimate_normals(self.points, k_normals, tree=self.tree)
         self.normals = np.asarray(normals, np.float64)
 
 
@@ -133,7 +133,7 @@ def _linear_system(p, q, n, w):
     return r, J, Jw.T @ J, -(Jw.T @ r)
 
 
-def icp_point_to_plane(source, target, T_init=None, max_distance: float = 10.0, max_iterations: int = 50,
+def icp_point_to_plane(source, target, *, T_init=None, max_distance: float = 10.0, max_iterations: int = 50,
                        kernel: str = "tukey", kernel_scale: float | None = None, min_scale: float = 0.0,
                        tolerance_rotation: float = 1e-5, tolerance_translation: float | None = None,
                        target_normals=None) -> IcpResult:

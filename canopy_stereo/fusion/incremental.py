@@ -91,7 +91,7 @@ class IncrementalFusion:
         """Number of clouds currently fused."""
         return len(self._kept)
 
-    def add(self, points, colors=None, pose=None, P_left=None, image_size=None) -> AddResult:
+    def add(self, points, colors=None, *, pose=None, P_left=None, image_size=None) -> AddResult:
         """Add one rig-frame cloud.
 
         Args:
@@ -127,7 +127,7 @@ class IncrementalFusion:
             pair = _register(self._previous, prepared, settings, T_init=np.eye(4))
             T = self._previous_pose @ pair.transform
             rmse, overlap, registered = pair.icp.rmse, pair.icp.overlap, True
-        kept_pts, kept_cols, _ = voxel_downsample(pts, self.voxel, cols)
+        kept_pts, kept_cols, _ = voxel_downsample(pts, self.voxel, colors=cols)
         dv = None
         if P_left is not None and image_size is not None:
             dv = DepthView.from_points(P_left, pts, image_size, T)

@@ -16,10 +16,10 @@ import numpy as np
 from canopy_stereo.io.ply import write_ply
 
 
-def write_fused_ply(path, fused, comments=()) -> Path:
+def write_fused_ply(path, fused, *, comments=()) -> Path:
     """Write a :class:`~canopy_stereo.fusion.fuse.FusedCloud` to ``path``; returns the path."""
     props = {"views": np.clip(fused.view_count, 0, 255).astype(np.uint8),
              "points": np.clip(fused.point_count, 0, 2 ** 32 - 1).astype(np.uint32)}
-    return write_ply(path, fused.points, fused.colors, unit=fused.unit, properties=props,
+    return write_ply(path, fused.points, colors=fused.colors, unit=fused.unit, properties=props,
                      comments=["generator canopy_stereo fusion", f"voxel {fused.voxel:g} {fused.unit}",
                                *comments])

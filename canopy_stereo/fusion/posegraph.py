@@ -60,7 +60,7 @@ def _sqrt_information(info) -> np.ndarray:
         return (V * np.sqrt(np.clip(w, reg, None))).T
 
 
-def optimize_pose_graph(poses, edges, fixed: int = 0, max_evaluations: int = 200) -> list[np.ndarray]:
+def optimize_pose_graph(poses, edges, *, fixed: int = 0, max_evaluations: int = 200) -> list[np.ndarray]:
     """Poses (list of (4, 4)) that best agree with the edges; ``poses[fixed]`` is kept.
 
     Args:

@@ -146,7 +146,7 @@ def read_poses(path) -> PoseSet:
     return out
 
 
-def write_poses(path, poses: dict, unit: str, comment: str | None = None) -> Path:
+def write_poses(path, poses: dict, unit: str, *, comment: str | None = None) -> Path:
     """Write ``poses`` (name -> 4x4) as a ``poses.yaml``; returns the path."""
     path = Path(path)
     unit_to_metres(unit)

@@ -163,7 +163,7 @@ class _Prepared:
 
 
 def _icp(src_points, target, s: RegistrationSettings, T_init, distance, iterations):
-    return icp_point_to_plane(src_points, target, T_init, max_distance=distance, kernel=s.kernel,
+    return icp_point_to_plane(src_points, target, T_init=T_init, max_distance=distance, kernel=s.kernel,
                               min_scale=s.noise, max_iterations=iterations)
 
 
@@ -215,7 +215,7 @@ def _register(target: _Prepared, source: _Prepared, s: RegistrationSettings, T_i
                             features=feats, initial=how, candidates=len(candidates))
 
 
-def register_pair(target_view, source_view, settings: RegistrationSettings | None = None,
+def register_pair(target_view, source_view, *, settings: RegistrationSettings | None = None,
                   T_init=None, use_features: bool = True) -> PairRegistration:
     """Register ``source_view`` onto ``target_view``; returns the source -> target transform.
 
@@ -229,7 +229,7 @@ def register_pair(target_view, source_view, settings: RegistrationSettings | Non
     return _register(_Prepared(target_view, s), _Prepared(source_view, s), s, T_init, use_features)
 
 
-def register_views(views, settings: RegistrationSettings | None = None, loop="auto",
+def register_views(views, settings: RegistrationSettings | None = None, *, loop="auto",
                    use_features: bool = True, initial_poses=None) -> RegistrationResult:
     """Poses of all views by sequential pairwise registration and loop closure.
 
@@ -310,7 +310,7 @@ class PoseCheck:
     radius: float
 
 
-def check_given_poses(views, poses, settings: RegistrationSettings | None = None) -> list[PoseCheck]:
+def check_given_poses(views, poses, *, settings: RegistrationSettings | None = None) -> list[PoseCheck]:
     """Residuals of consecutive views placed by given poses (the ``fuse --poses`` report)."""
     from canopy_stereo.fusion.icp import robust_weights
 

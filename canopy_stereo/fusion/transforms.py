@@ -26,7 +26,7 @@ def make_transform(R=None, t=None) -> np.ndarray:
     return T
 
 
-def check_transform(T, name: str = "transform", tol: float = 1e-4) -> np.ndarray:
+def check_transform(T, name: str = "transform", *, tol: float = 1e-4) -> np.ndarray:
     """Return ``T`` as a float64 (4, 4) rigid transform or raise :class:`CanopyStereoError`.
 
     Accepts 16 numbers (row-major) or a 4x4 nested list. Rejects non-finite
@@ -136,7 +136,7 @@ def rotation_angle_deg(R) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(R[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))))
 
 
-def transform_error(T_est, T_true, centre=None) -> tuple[float, float]:
+def transform_error(T_est, T_true, *, centre=None) -> tuple[float, float]:
     """(translation error, rotation error in degrees) of an estimated transform.
 
     The translation error is measured at ``centre`` (3,) in the source frame
@@ -150,7 +150,7 @@ def transform_error(T_est, T_true, centre=None) -> tuple[float, float]:
     return dt, rotation_angle_deg(T_est[:3, :3] @ T_true[:3, :3].T)
 
 
-def rigid_fit(source, target, weights=None) -> np.ndarray:
+def rigid_fit(source, target, *, weights=None) -> np.ndarray:
     """Least-squares rigid transform ``T`` with ``target ~ T source`` (Kabsch / Umeyama, no scale).
 
     Args:

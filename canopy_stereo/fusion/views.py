@@ -93,7 +93,7 @@ class View:
         return transform_points(T, self.points)
 
 
-def far_point_mask(points, P_left, max_depth_factor: float = 5.0) -> np.ndarray:
+def far_point_mask(points, P_left, *, max_depth_factor: float = 5.0) -> np.ndarray:
     """(N,) bool: points deeper than ``max_depth_factor`` x the median depth in camera ``P_left``.
 
     Near-zero disparities triangulate to points kilometres away; they are no
@@ -108,7 +108,7 @@ def far_point_mask(points, P_left, max_depth_factor: float = 5.0) -> np.ndarray:
     return z > max_depth_factor * np.median(z)
 
 
-def view_from_reconstruction(name: str, rec, rig, left_bgr, pose=None, source: str = "",
+def view_from_reconstruction(name: str, rec, rig, left_bgr, *, pose=None, source: str = "",
                              max_depth_factor: float = 5.0) -> View:
     """A :class:`View` from a :class:`~canopy_stereo.pipeline.reconstruct.Reconstruction`.
 
@@ -116,7 +116,7 @@ def view_from_reconstruction(name: str, rec, rig, left_bgr, pose=None, source: s
     near-zero disparities) are dropped, here and in the organized cloud.
     """
     organized = np.array(rec.organized, np.float64, copy=True)
-    far = far_point_mask(rec.points, rig.P_left, max_depth_factor)
+    far = far_point_mask(rec.points, rig.P_left, max_depth_factor=max_depth_factor)
     if np.any(far):
         uv = np.asarray(rec.pixels)[far]
         organized[uv[:, 1], uv[:, 0]] = np.nan
@@ -152,7 +152,7 @@ def _read_pose(folder: Path, name: str):
     return next(iter(ps.poses.values())), ps.unit
 
 
-def load_view(folder, unit: str | None = None, method: str | None = None, matcher: str = "sgbm",
+def load_view(folder, unit: str | None = None, *, method: str | None = None, matcher: str = "sgbm",
               matcher_params=None) -> View:
     """Load (and, for a stereo pair, reconstruct) the view stored in ``folder``.
 

@@ -54,7 +54,7 @@ def group_by_key(keys):
     return np.unique(np.asarray(keys, np.int64), return_inverse=True)
 
 
-def voxel_downsample(points, size: float, colors=None):
+def voxel_downsample(points, size: float, *, colors=None):
     """Average the points (and colours) falling in each voxel.
 
     Args:

@@ -82,8 +82,7 @@ def reprojection_errors(P, X, x) -> np.ndarray:
     return np.linalg.norm(project(P, X) - np.asarray(x, np.float64), axis=1)
 
 
-def gold_standard_projection(X, x, max_iterations: int = 200, *,
-                             initial=None) -> tuple[np.ndarray, float]:
+def gold_standard_projection(X, x, *, max_iterations: int = 200, initial=None) -> tuple[np.ndarray, float]:
     """Gold Standard estimate of ``P`` (H&Z alg. 7.1).
 
     Normalised DLT, then Levenberg-Marquardt (``scipy.optimize.least_squares``,

@@ -62,7 +62,7 @@ def find_corners(gray: np.ndarray, pattern: tuple[int, int]) -> np.ndarray | Non
     return corners.reshape(-1, 2).astype(np.float64)
 
 
-def detect_stereo_chessboards(left_paths, right_paths, pattern=(9, 6), square_size=25.0,
+def detect_stereo_chessboards(left_paths, right_paths, *, pattern=(9, 6), square_size=25.0,
                               progress=None) -> ChessboardViews:
     """Detect the board in every pair; pairs where either image misses it are skipped.
     ``progress``: optional ``f(total, left image name)`` called before each pair."""
@@ -95,7 +95,7 @@ def detect_stereo_chessboards(left_paths, right_paths, pattern=(9, 6), square_si
     return ChessboardViews(obj, lefts, rights, names, size)
 
 
-def calibrate_stereo_chessboard(left_paths, right_paths, pattern=(9, 6), square_size=25.0,
+def calibrate_stereo_chessboard(left_paths, right_paths, *, pattern=(9, 6), square_size=25.0,
                                 world_board: int | None = None, progress=None) -> StereoCalibration:
     """Zhang calibration of both cameras plus stereo extrinsics, as world-frame ``P`` + ``D``.
 
@@ -110,7 +110,8 @@ def calibrate_stereo_chessboard(left_paths, right_paths, pattern=(9, 6), square_
         A :class:`StereoCalibration` with ``P``/``D`` per camera, the stereo
         RMS (``rms_stereo``, pixels) and the corner triangulation check.
     """
-    views = detect_stereo_chessboards(left_paths, right_paths, pattern, square_size, progress=progress)
+    views = detect_stereo_chessboards(left_paths, right_paths, pattern=pattern, square_size=square_size,
+                                      progress=progress)
     obj = [views.object_points.astype(np.float32).reshape(-1, 1, 3)] * len(views.left)
     il = [c.astype(np.float32).reshape(-1, 1, 2) for c in views.left]
     ir = [c.astype(np.float32).reshape(-1, 1, 2) for c in views.right]
@@ -149,7 +150,7 @@ def calibrate_stereo_chessboard(left_paths, right_paths, pattern=(9, 6), square_
                              check=check, D_left=D1, D_right=D2, rms_stereo=float(rms))
 
 
-def plot_triangulation_errors(check: TriangulationCheck, path, unit: str = "mm") -> None:
+def plot_triangulation_errors(check: TriangulationCheck, path, *, unit: str = "mm") -> None:
     """Per-axis error against distance (the paper's Figure 5) as a PNG."""
     import matplotlib
 

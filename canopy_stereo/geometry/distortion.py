@@ -41,7 +41,7 @@ def distort_pixels(P, D, xy) -> np.ndarray:
     return (out[:2] / out[2]).T
 
 
-def undistort_pixels(P, D, xy, iterations: int = 30) -> np.ndarray:
+def undistort_pixels(P, D, xy, *, iterations: int = 30) -> np.ndarray:
     """Distorted pixels (N, 2) -> ideal pixels: inverse of :func:`distort_pixels`.
 
     Fixed-point iteration on normalised coordinates (as OpenCV's

@@ -48,7 +48,7 @@ def optical_frame(camera: str) -> str:
 DEFAULT_FRAMES = {key: optical_frame(name) for key, name in CAMERA_NAMES.items()}
 
 
-def transform_from_pose(R_cam_world, C_world, scale: float = 1.0) -> np.ndarray:
+def transform_from_pose(R_cam_world, C_world, *, scale: float = 1.0) -> np.ndarray:
     """``T_world_cam`` (4x4): camera coordinates (metres) -> world coordinates (metres).
 
     Args:
@@ -165,9 +165,9 @@ def stereo_extrinsics(rig, rect=None) -> dict:
     out = {}
     cams = {"left": decompose_projection(rig.P_left), "right": decompose_projection(rig.P_right)}
     for side, cam in cams.items():
-        out[("raw", side)] = transform_from_pose(cam.R, cam.C, m)
+        out[("raw", side)] = transform_from_pose(cam.R, cam.C, scale=m)
         if rect is not None and rect.R_rect is not None:
-            out[("rect", side)] = transform_from_pose(rect.R_rect, cam.C, m)
+            out[("rect", side)] = transform_from_pose(rect.R_rect, cam.C, scale=m)
     return out
 
 
@@ -186,7 +186,7 @@ def world_z_up_transform(rig) -> np.ndarray:
     return T
 
 
-def raw_camera_calibration(rig, side: str, rect=None) -> CameraCalibration:
+def raw_camera_calibration(rig, side: str, *, rect=None) -> CameraCalibration:
     """REP 104 calibration of the raw ``side`` camera of ``rig``.
 
     ``K`` and ``D`` are the camera's own; ``R`` and ``P`` describe the rig's Fusiello
@@ -317,7 +317,7 @@ def _reproject(disp, Q, T, mask, organized, rgb):
     return out[:n], index, depth
 
 
-def reproject_disparity_points(disp, Q, T=None, *, mask=None, organized: bool = False):
+def reproject_disparity_points(disp, Q, *, T=None, mask=None, organized: bool = False):
     """One compiled pass of :func:`reproject_disparity` + a rigid transform, for a live node.
 
     Args:
@@ -334,7 +334,7 @@ def reproject_disparity_points(disp, Q, T=None, *, mask=None, organized: bool = 
     return _reproject(disp, Q, T, mask, organized, None)
 
 
-def reproject_disparity_records(disp, Q, T=None, *, rgb, mask=None, organized: bool = False):
+def reproject_disparity_records(disp, Q, *, T=None, rgb, mask=None, organized: bool = False):
     """:func:`reproject_disparity_points` writing PointCloud2 records directly: each row is
     float32 ``x, y, z`` (metres) and the packed ``rgb`` of its pixel, the layout of
     :func:`canopy_stereo.ros.convert.points_to_cloud2` (no gathering, stacking or copying
@@ -370,7 +370,7 @@ class FrameNames:
     rect_right: str = DEFAULT_FRAMES[("rect", "right")]
 
 
-def stereo_transforms(rig, rect=None, names: FrameNames | None = None) -> list[tuple[str, str, np.ndarray]]:
+def stereo_transforms(rig, rect=None, *, names: FrameNames | None = None) -> list[tuple[str, str, np.ndarray]]:
     """The static transforms of a rig as ``(parent, child, T_parent_child)`` (4x4, metres).
 
     One tree: ``world_z_up -> world -> {raw_left, raw_right, rect_left, rect_right}``

@@ -141,7 +141,7 @@ def fusiello_rectify(P_left, P_right, image_size) -> Rectification:
 
 
 def default_disparity_range(rect: Rectification, near_depth: float | None = None,
-                            far_depth: float | None = None) -> tuple[int, int]:
+                            *, far_depth: float | None = None) -> tuple[int, int]:
     """Disparity search range (pixels) for depths in ``[near_depth, far_depth]``.
 
     Fusiello: :func:`metric_disparity_range` of its focal length, baseline and ``doffs``;
@@ -153,12 +153,11 @@ def default_disparity_range(rect: Rectification, near_depth: float | None = None
         if rect.disparity_range is None:
             return 0, 128
         return rect.disparity_range
-    return metric_disparity_range(rect.focal_length, rect.baseline, rect.doffs,
+    return metric_disparity_range(rect.focal_length, rect.baseline, doffs=rect.doffs,
                                   near_depth=near_depth, far_depth=far_depth)
 
 
-def metric_disparity_range(f: float, baseline: float, doffs: float = 0.0, *,
-                           near_depth: float | None = None,
+def metric_disparity_range(f: float, baseline: float, *, doffs: float = 0.0, near_depth: float | None = None,
                            far_depth: float | None = None) -> tuple[int, int]:
     """``(disp_min, disp_max)`` (pixels) of a rectified pair for depths in
     ``[near_depth, far_depth]``: ``d = f B / Z + doffs``, one pixel of margin each side.
@@ -184,7 +183,7 @@ def _cross_matrix(e: np.ndarray) -> np.ndarray:
     return np.array([[0, -e[2], e[1]], [e[2], 0, -e[0]], [-e[1], e[0], 0]])
 
 
-def hartley_rectify(x_left, x_right, image_size, F=None, threshold_px: float = 1.0) -> Rectification:
+def hartley_rectify(x_left, x_right, image_size, *, F=None, threshold_px: float = 1.0) -> Rectification:
     """Projective rectification from point matches (Hartley 1999; H&Z sec. 11.12).
 
     1. ``F`` by RANSAC from the matches (unless given; see
@@ -206,7 +205,7 @@ def hartley_rectify(x_left, x_right, image_size, F=None, threshold_px: float = 1
     if F is None:
         from canopy_stereo.features.fundamental import estimate_fundamental
 
-        F, inl = estimate_fundamental(x1, x2, "ransac", threshold_px)
+        F, inl = estimate_fundamental(x1, x2, method="ransac", threshold_px=threshold_px)
     else:
         F = np.asarray(F, np.float64)
         inl = np.ones(len(x1), bool)
@@ -326,7 +325,7 @@ def _rectifier_key(rig, rect: Rectification, interpolation: int) -> bytes:
     return hashlib.sha1(b"".join(parts)).digest()
 
 
-def cached_rectifier(rig, rect: Rectification, interpolation: int = cv2.INTER_LINEAR) -> StereoRectifier:
+def cached_rectifier(rig, rect: Rectification, *, interpolation: int = cv2.INTER_LINEAR) -> StereoRectifier:
     """A :class:`StereoRectifier` for ``rig`` and ``rect``, reused while the same camera
     matrices, distortion, homographies and size come back (the maps take 25-40 ms to
     build for 640 x 480, as long as matching the pair). Thread-safe; keeps the

@@ -25,7 +25,7 @@ def apply_homography(H, xy) -> np.ndarray:
     return np.stack([x, y], axis=1)
 
 
-def triangulate_dlt(P_left, P_right, x_left, x_right, drop_behind: bool = True) -> np.ndarray:
+def triangulate_dlt(P_left, P_right, x_left, x_right, *, drop_behind: bool = True) -> np.ndarray:
     """Linear (DLT) triangulation of pixel correspondences, vectorised.
 
     Solves, for each match, the four equations ``u p3 - p1``, ``v p3 - p2`` of
@@ -190,7 +190,7 @@ def kernel_mask(mask, shape) -> np.ndarray:
     return m if m.dtype == np.uint8 else (m != 0).astype(np.uint8)
 
 
-def triangulate_disparity_points(disp, rect, P_left, P_right, scale: float = 1.0, mask=None,
+def triangulate_disparity_points(disp, rect, P_left, P_right, *, scale: float = 1.0, mask=None,
                                  organized: bool = False):
     """Points of the valid pixels of a rectified disparity, in one compiled pass.
 
@@ -287,7 +287,7 @@ def triangulate_disparity(disp, rect, P_left, P_right) -> np.ndarray:
                                   normalize_projection(P_left), normalize_projection(P_right))
 
 
-def organized_from_disparity(disp, rect, P_left, P_right, image_size, max_jump: float = 1.0,
+def organized_from_disparity(disp, rect, P_left, P_right, image_size, *, max_jump: float = 1.0,
                              D_left=None):
     """Organized cloud (H, W, 3) on the ORIGINAL left pixel grid from a rectified disparity.
 

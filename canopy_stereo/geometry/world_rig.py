@@ -927,5 +927,5 @@ def plot_world_rig_errors(calibration: WorldRigCalibration, path) -> Path:
     """
     from canopy_stereo.geometry.chessboard import plot_triangulation_errors
 
-    plot_triangulation_errors(calibration.table1, path, calibration.unit)
+    plot_triangulation_errors(calibration.table1, path, unit=calibration.unit)
     return Path(path)

@@ -68,7 +68,7 @@ def to_bgr(image: np.ndarray, name: str = "image") -> np.ndarray:
     raise ImageError(f"{name} must be grey (H, W) or colour (H, W, 3), got shape {image.shape}")
 
 
-def check_pair(left: np.ndarray, right: np.ndarray, expected_size=None) -> None:
+def check_pair(left: np.ndarray, right: np.ndarray, *, expected_size=None) -> None:
     """Raise :class:`ImageError` unless both images have the same (and expected) size.
 
     ``expected_size`` is ``(width, height)``, e.g. a rig's ``image_size``.

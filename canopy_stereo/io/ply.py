@@ -49,7 +49,7 @@ _NUMPY_TO_PLY = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4
                  "u4": "uint", "f4": "float", "f8": "double"}
 
 
-def write_ply(path, points, colors=None, unit: str = "mm", comments=(), properties=None) -> Path:
+def write_ply(path, points, *, colors=None, unit: str = "mm", comments=(), properties=None) -> Path:
     """Write a binary little-endian PLY.
 
     Args:

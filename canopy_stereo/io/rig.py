@@ -186,7 +186,7 @@ def rig_to_yaml(rig: Rig, comment: str | None = None) -> str:
     return header + body
 
 
-def save_rig(rig: Rig, path, comment: str | None = None) -> Path:
+def save_rig(rig: Rig, path, *, comment: str | None = None) -> Path:
     """Write ``rig`` as a ROS 2 parameter file usable by every node (``/**`` wildcard)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

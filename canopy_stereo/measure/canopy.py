@@ -73,7 +73,7 @@ def frame_from_up(up, right_hint, origin) -> np.ndarray:
     return np.stack([x, y, z])
 
 
-def ransac_plane(points: np.ndarray, threshold: float, iterations: int = 200, seed: int = 0,
+def ransac_plane(points: np.ndarray, threshold: float, *, iterations: int = 200, seed: int = 0,
                  normal_hint=None, max_tilt_deg: float | None = None):
     """Plane with the most points within ``threshold`` (world units), refined by least squares.
 
@@ -130,7 +130,7 @@ def ransac_plane(points: np.ndarray, threshold: float, iterations: int = 200, se
 
 
 def find_ground(background: np.ndarray, plant: np.ndarray, up_hint, threshold: float,
-                min_inliers: int = 200, max_planes: int = 4, seed: int = 0):
+                *, min_inliers: int = 200, max_planes: int = 4, seed: int = 0):
     """Ground plane among ``background`` points, or None.
 
     The dominant planes are peeled off one after another (a backdrop first,
@@ -202,7 +202,7 @@ def hull_volume(points: np.ndarray) -> float:
         return 0.0
 
 
-def canopy_dimensions(points: np.ndarray, frame: MeasuringFrame, voxel_size: float | None = None,
+def canopy_dimensions(points: np.ndarray, frame: MeasuringFrame, *, voxel_size: float | None = None,
                       leaf_area: float | None = None) -> dict:
     """Extents, volumes and leaf-area density of canopy points (N, 3) in ``frame``.
 

@@ -72,7 +72,7 @@ def geodesic_distances(points: np.ndarray, inside: np.ndarray, start: tuple[int,
     return _dijkstra(pts, ins, int(start[0]), int(start[1]), OFFSETS)
 
 
-def geodesic_diameter(points: np.ndarray, inside: np.ndarray, sweeps: int = 3):
+def geodesic_diameter(points: np.ndarray, inside: np.ndarray, *, sweeps: int = 3):
     """Approximate ends of the longest shortest path over a mask (double sweep).
 
     Starts at the pixel nearest the centroid of the mask, walks to the farthest

@@ -137,7 +137,7 @@ class LeafMeasurement:
         }
 
 
-def robust_inliers(organized: np.ndarray, valid: np.ndarray, sigma: float = 6.0,
+def robust_inliers(organized: np.ndarray, valid: np.ndarray, *, sigma: float = 6.0,
                    floor: float | None = None, iterations: int = 2) -> np.ndarray:
     """Drop points far from a smooth fit of their neighbours.
 
@@ -150,7 +150,7 @@ def robust_inliers(organized: np.ndarray, valid: np.ndarray, sigma: float = 6.0,
     for _ in range(iterations):
         if keep.sum() < 8:
             break
-        X, Xu, Xv = local_linear_fit(organized, keep, valid, sigma)
+        X, Xu, Xv = local_linear_fit(organized, keep, valid, sigma=sigma)
         n = np.cross(Xu, Xv)
         foot = np.linalg.norm(n, axis=-1)
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -193,7 +193,7 @@ LOCAL_NOISE_TARGET = 0.03
 MAX_LOCAL_SIGMA_PX = 16.0
 
 
-def roughness(organized: np.ndarray, valid: np.ndarray, sigma: float = 1.5) -> float:
+def roughness(organized: np.ndarray, valid: np.ndarray, *, sigma: float = 1.5) -> float:
     """Small-scale scatter of a surface, in pixel sizes.
 
     Robust standard deviation of the points' distances (along the local
@@ -201,7 +201,7 @@ def roughness(organized: np.ndarray, valid: np.ndarray, sigma: float = 1.5) -> f
     size (square root of the median pixel footprint). About 0 for exact
     (rendered) surfaces, 0.1 or more for stereo reconstructions.
     """
-    X, Xu, Xv = local_linear_fit(organized, valid, valid, sigma)
+    X, Xu, Xv = local_linear_fit(organized, valid, valid, sigma=sigma)
     n = np.cross(Xu, Xv)
     foot = np.linalg.norm(n, axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -213,7 +213,7 @@ def roughness(organized: np.ndarray, valid: np.ndarray, sigma: float = 1.5) -> f
     return float(1.4826 * np.median(np.abs(res[ok])) / pix)
 
 
-def measure_leaf(organized: np.ndarray, leaf_mask: np.ndarray, leaf_id: int = 1, camera=None,
+def measure_leaf(organized: np.ndarray, leaf_mask: np.ndarray, *, leaf_id: int = 1, camera=None,
                  model: str = "auto", degree: int = 2, smoothing_px: float = 2.0,
                  viewpoint=None, min_points: int = 3) -> LeafMeasurement:
     """Measure one leaf.
@@ -294,19 +294,19 @@ def measure_leaf(organized: np.ndarray, leaf_mask: np.ndarray, leaf_id: int = 1,
     if model == "auto":
         used = "exact" if rough < EXACT_ROUGHNESS else ("rays" if camera is not None else "local")
     if used == "rays":
-        surface, inl = fit_ray_surface(pts, val, domain, shift_projection(camera, v0, u0), degree)
+        surface, inl = fit_ray_surface(pts, val, domain, shift_projection(camera, v0, u0), degree=degree)
     elif used == "local":
         # noisier clouds need wider smoothing, else noise adds area and length
         sigma = smoothing_px
         if np.isfinite(rough):
             sigma = float(np.clip(rough / LOCAL_NOISE_TARGET, smoothing_px, MAX_LOCAL_SIGMA_PX))
         inl = robust_inliers(pts, val, sigma=max(sigma, 4.0), iterations=3) if n_valid >= 16 else val
-        surface = fit_grid_surface(pts, inl, domain, sigma)
+        surface = fit_grid_surface(pts, inl, domain, sigma=sigma)
     else:
         # exact points on the leaf; the rim and holes from a light fit
         inl = robust_inliers(pts, val, sigma=4.0) if n_valid >= 16 else val
-        surface = fit_grid_surface(pts, inl, domain, 1.0)
-        _merge_exact(surface, fit_grid_surface(pts, inl, domain, 0.0))
+        surface = fit_grid_surface(pts, inl, domain, sigma=1.0)
+        _merge_exact(surface, fit_grid_surface(pts, inl, domain, sigma=0.0))
     # express everything on the crop of the surface
     sv0, su0 = surface.origin
     sh, sw = surface.domain.shape

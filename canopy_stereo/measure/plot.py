@@ -26,7 +26,7 @@ def _dimension(ax, p0, p1, text, offset, color="k"):
             bbox=dict(boxstyle="round,pad=0.2", fc="white", ec="none", alpha=0.8))
 
 
-def plot_views(measurement, path, title: str | None = None, dpi: int = 120) -> Path:
+def plot_views(measurement, path, *, title: str | None = None, dpi: int = 120) -> Path:
     """Write a PNG with the top view (x-y) and side view (x-z) of the canopy.
 
     Args:

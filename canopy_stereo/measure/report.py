@@ -107,7 +107,7 @@ def _image_directions(organized, valid, camera):
     if camera is not None:
         R = decompose_projection(camera).R
         return R[0].copy(), R[1].copy(), R[2].copy()
-    _, Xu, Xv = local_linear_fit(organized, valid, valid, 2.0)
+    _, Xu, Xv = local_linear_fit(organized, valid, valid, sigma=2.0)
     ok = valid & np.all(np.isfinite(Xu), -1) & np.all(np.isfinite(Xv), -1)
     if ok.sum() < 3:
         return np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([0, 0, 1.0])
@@ -121,7 +121,7 @@ def _image_directions(organized, valid, camera):
 
 
 def measuring_frame(canopy: np.ndarray, background: np.ndarray, ground, right, down, view,
-                    scale: float, seed: int = 0) -> MeasuringFrame:
+                    scale: float, *, seed: int = 0) -> MeasuringFrame:
     """The frame for canopy extents.
 
     Args:
@@ -219,7 +219,7 @@ def _clean_canopy(organized, plant, background=None, viewpoint=None, jump_factor
     return keep if keep.sum() >= 3 else plant
 
 
-def median_along_rays(organized: np.ndarray, keep: np.ndarray, viewpoint, radius: int = 3) -> np.ndarray:
+def median_along_rays(organized: np.ndarray, keep: np.ndarray, viewpoint, *, radius: int = 3) -> np.ndarray:
     """Points of ``keep`` (N, 3) with their distance from ``viewpoint`` replaced
     by the median over their ``(2 radius + 1)^2`` neighbours in ``keep``.
 
@@ -239,7 +239,7 @@ def median_along_rays(organized: np.ndarray, keep: np.ndarray, viewpoint, radius
     return C + rel[vs, us] * (med / dist[vs, us])[:, None]
 
 
-def drop_isolated_points(points: np.ndarray, k: int = 8, factor: float = 4.0) -> np.ndarray:
+def drop_isolated_points(points: np.ndarray, k: int = 8, *, factor: float = 4.0) -> np.ndarray:
     """Points whose mean distance to their ``k`` nearest neighbours is at most
     ``factor`` times the median of that distance (statistical outlier removal)."""
     from scipy.spatial import cKDTree
@@ -252,7 +252,7 @@ def drop_isolated_points(points: np.ndarray, k: int = 8, factor: float = 4.0) ->
     return P[mean_d <= factor * np.median(mean_d)]
 
 
-def drop_detached_clusters(points: np.ndarray, cell: float, min_fraction: float = 0.002,
+def drop_detached_clusters(points: np.ndarray, cell: float, *, min_fraction: float = 0.002,
                            candidates: np.ndarray | None = None) -> np.ndarray:
     """Keep-mask (N,) of points not in small clusters detached from the rest.
 
@@ -286,7 +286,7 @@ def drop_detached_clusters(points: np.ndarray, cell: float, min_fraction: float 
     return ~small
 
 
-def measure_scene(organized, leaf_ids=None, mask=None, ground="auto", unit: str = "mm",
+def measure_scene(organized, leaf_ids=None, *, mask=None, ground="auto", unit: str = "mm",
                   camera="auto", voxel_size: float | None = None, separate: bool = True,
                   min_leaf_pixels: int = 100, model: str = "auto", degree: int = 2,
                   smoothing_px: float = 2.0) -> SceneMeasurement:
@@ -416,14 +416,14 @@ def measure_scene(organized, leaf_ids=None, mask=None, ground="auto", unit: str 
                             leaf_ids=None if ids is None else np.asarray(ids))
 
 
-def measure_organized(organized, leaf_ids=None, mask=None, ground="auto", unit: str = "mm",
+def measure_organized(organized, leaf_ids=None, *, mask=None, ground="auto", unit: str = "mm",
                       camera="auto", voxel_size: float | None = None, **options) -> dict:
     """The REPORT.json dict of an organized cloud (see :func:`measure_scene`)."""
     return measure_scene(organized, leaf_ids=leaf_ids, mask=mask, ground=ground, unit=unit,
                          camera=camera, voxel_size=voxel_size, **options).report
 
 
-def measure_points(points, ground="auto", unit: str = "mm", voxel_size: float | None = None,
+def measure_points(points, ground="auto", *, unit: str = "mm", voxel_size: float | None = None,
                    up=(0.0, -1.0, 0.0), right=(1.0, 0.0, 0.0)) -> SceneMeasurement:
     """Canopy size of an unorganized cloud (e.g. a PLY file); no per-leaf sizes.
 
@@ -505,7 +505,7 @@ def _to_builtin(obj):
     return obj
 
 
-def write_report(report: dict, path, csv=None) -> Path:
+def write_report(report: dict, path, *, csv=None) -> Path:
     """Write ``report`` as JSON to ``path`` (and the leaves as CSV to ``csv``).
 
     Non-finite numbers are written as ``null``. Returns the JSON path.

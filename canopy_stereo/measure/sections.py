@@ -152,7 +152,7 @@ def _walk(a: np.ndarray, phi: np.ndarray, P: np.ndarray, i0: int, step: int, max
 
 
 def measure_section(surface: GridSurface, phi: np.ndarray, origin: np.ndarray, plane_normal: np.ndarray,
-                    up_hint: np.ndarray, start: float = 0.0, along_hint: np.ndarray | None = None,
+                    up_hint: np.ndarray, *, start: float = 0.0, along_hint: np.ndarray | None = None,
                     max_gap: float | None = None, degree: int = SECTION_DEGREE) -> Section | None:
     """Length along the surface of the plane section through ``origin``.
 

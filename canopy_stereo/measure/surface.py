@@ -114,7 +114,7 @@ def _fit_at_scale(points: np.ndarray, valid: np.ndarray, sigma: float):
 
 
 def local_linear_fit(points: np.ndarray, valid: np.ndarray, domain: np.ndarray,
-                     sigma: float = 2.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     *, sigma: float = 2.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Gaussian-weighted local-linear fit of an organized (crop of a) cloud.
 
     Args:
@@ -174,7 +174,7 @@ def _raw_with_differences(points, valid, domain):
 
 
 def fit_grid_surface(organized: np.ndarray, valid: np.ndarray, domain: np.ndarray,
-                     sigma: float = 2.0) -> GridSurface:
+                     *, sigma: float = 2.0) -> GridSurface:
     """Fit a :class:`GridSurface` on the bounding box of ``domain`` (plus a margin).
 
     Args:
@@ -189,7 +189,7 @@ def fit_grid_surface(organized: np.ndarray, valid: np.ndarray, domain: np.ndarra
     v0, v1 = max(vs.min() - margin, 0), min(vs.max() + margin + 1, H)
     u0, u1 = max(us.min() - margin, 0), min(us.max() + margin + 1, W)
     crop = (slice(v0, v1), slice(u0, u1))
-    X, Xu, Xv = local_linear_fit(organized[crop], valid[crop], domain[crop], sigma)
+    X, Xu, Xv = local_linear_fit(organized[crop], valid[crop], domain[crop], sigma=sigma)
     dom = domain[crop] & np.all(np.isfinite(X), axis=-1) & np.all(np.isfinite(Xu), axis=-1) \
         & np.all(np.isfinite(Xv), axis=-1)
     return GridSurface(origin=(int(v0), int(u0)), X=X, X_u=Xu, X_v=Xv, domain=dom)
@@ -222,7 +222,7 @@ def _poly_terms_du(x: np.ndarray, y: np.ndarray, degree: int):
 
 
 def fit_ray_surface(organized: np.ndarray, valid: np.ndarray, domain: np.ndarray, P,
-                    degree: int = 3, iterations: int = 5) -> tuple[GridSurface, np.ndarray]:
+                    *, degree: int = 3, iterations: int = 5) -> tuple[GridSurface, np.ndarray]:
     """Leaf surface as a smooth inverse depth along the camera's rays.
 
     A stereo reconstruction errs mainly along the left camera's rays (its

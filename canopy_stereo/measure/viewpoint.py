@@ -18,7 +18,7 @@ from canopy_stereo.geometry.camera import validate_projection
 MAX_REPROJECTION_RMS = 0.5
 
 
-def estimate_camera(organized: np.ndarray, max_points: int = 600, seed: int = 0) -> np.ndarray | None:
+def estimate_camera(organized: np.ndarray, max_points: int = 600, *, seed: int = 0) -> np.ndarray | None:
     """Left camera ``P`` (3, 4) of an organized cloud, or None if it cannot be told.
 
     Uses up to ``max_points`` finite points spread over the grid; fails (None)

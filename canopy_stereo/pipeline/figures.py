@@ -54,7 +54,7 @@ def line_angle_deg(line) -> float:
     return float(ang)
 
 
-def label(img, text, org=(6, 6), scale=0.55):
+def label(img, text, *, org=(6, 6), scale=0.55):
     """Draw ``text`` in black on a white box whose top-left corner is ``org`` (in place)."""
     (tw, th), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
     x, y = org
@@ -126,7 +126,7 @@ def _pad_to(img, width):
     return np.hstack([img, pad])
 
 
-def panel_row(images, captions=None, gap: int = 6) -> np.ndarray:
+def panel_row(images, captions=None, *, gap: int = 6) -> np.ndarray:
     """Images (grey or BGR uint8) side by side at the height of the tallest, with
     optional captions drawn in their top-left corners."""
     imgs = [to_bgr(np.asarray(im), "panel").copy() for im in images]

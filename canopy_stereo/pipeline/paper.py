@@ -259,7 +259,7 @@ def section_features(out: Path, pairs: dict, methods, progress: Progress) -> dic
         pair = pairs[scene]
         truth = true_right_pixels(pair.sim) if pair.sim is not None else None
         progress.detail(f"Table {number} ({paper_key} -> {scene}): {', '.join(methods)}")
-        rows = run_study(pair.left, pair.right, methods, gt_right_pixels=truth,
+        rows = run_study(pair.left, pair.right, methods=methods, gt_right_pixels=truth,
                          progress=lambda m: progress.detail(f"  {scene}: {m}"))
         folder = out / "matches" / scene
         for row in rows:
@@ -319,7 +319,7 @@ def section_rectification(out: Path, pair: StereoPair, progress: Progress) -> di
     from canopy_stereo.sim.correspondence import true_right_pixels
 
     progress.detail("quasi-dense matches -> F (RANSAC) -> Hartley homographies")
-    m = match_pair(pair.left, pair.right, "qdmatch")
+    m = match_pair(pair.left, pair.right, method="qdmatch")
     rect = rectification_for_rig(pair.rig, method="hartley", matches=(m.x_left, m.x_right))
     left_r, right_r = StereoRectifier(pair.rig, rect).rectify(pair.left, pair.right)
     # residual vertical disparity after rectification, on the exact correspondences
@@ -406,7 +406,7 @@ def section_reconstruction(out: Path, pairs: dict, figure: str, keys, progress: 
                          f"3D result, {len(pts)} plant points, turned 30 deg"])
         rows.append(row)
         ply = out / "clouds" / f"{key}.ply"
-        write_ply(ply, pts, cols, unit=pair.rig.world_unit,
+        write_ply(ply, pts, colors=cols, unit=pair.rig.world_unit,
                   comments=[f"canopy-stereo paper: {pair.title}, plant points"])
         info = {"title": pair.title, "points": int(len(recon.points)), "plant_points": int(len(pts)),
                 "plant_mask": "auto" if mask is not None else "none (segmentation failed)",
@@ -477,7 +477,7 @@ def section_leaves(out: Path, pair: StereoPair, recon_cache: dict, progress: Pro
         crop = np.ascontiguousarray(img[y0:y1, x0:x1])
         scale = 360 / crop.shape[0]
         crop = cv2.resize(crop, (max(1, int(crop.shape[1] * scale)), 360), interpolation=cv2.INTER_CUBIC)
-        label(crop, f"leaf {lf['id']}: W {m.width:.1f} x L {m.length:.1f} mm", (4, 328))
+        label(crop, f"leaf {lf['id']}: W {m.width:.1f} x L {m.length:.1f} mm", org=(4, 328))
         crops.append(crop)
     path = out / "figures" / "fig21_marked_leaves.png"
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -64,9 +64,8 @@ class Reconstruction:
         return self.points.min(axis=0), self.points.max(axis=0)
 
 
-def rectify_rig(rig, method: str | None = None, left=None, right=None,
-                match_method: str = "qdmatch", match_pairs=(), *,
-                from_matches: bool | None = None) -> Rectification:
+def rectify_rig(rig, method: str | None = None, *, left=None, right=None, match_method: str = "qdmatch",
+                match_pairs=(), from_matches: bool | None = None) -> Rectification:
     """Rectification for ``rig``
     (:func:`~canopy_stereo.geometry.rig_rectification.rectification_for_rig`).
 
@@ -109,7 +108,7 @@ def _whole_pixels(value, name: str) -> int:
     return int(f)
 
 
-def disparity_range_for(rig, rect: Rectification, disp_min=None, disp_max=None) -> tuple[int, int]:
+def disparity_range_for(rig, rect: Rectification, *, disp_min=None, disp_max=None) -> tuple[int, int]:
     """Search range: explicit values win, then ``disp_min``/``disp_max`` in the rig
     file's extra parameters, then :func:`default_disparity_range`.
 
@@ -135,7 +134,7 @@ def disparity_range_for(rig, rect: Rectification, disp_min=None, disp_max=None) 
     return dmin, dmax
 
 
-def reconstruct_pair(left_bgr, right_bgr, rig, method: str | None = None, matcher: str = DEFAULT_MATCHER,
+def reconstruct_pair(left_bgr, right_bgr, rig, *, method: str | None = None, matcher: str = DEFAULT_MATCHER,
                      mask=None, disp_min=None, disp_max=None, matcher_params=None,
                      rectification: Rectification | None = None) -> Reconstruction:
     """Reconstruct one stereo pair into world coordinates.
@@ -157,7 +156,7 @@ def reconstruct_pair(left_bgr, right_bgr, rig, method: str | None = None, matche
     """
     timings: dict[str, float] = {}
     left, right = to_bgr(left_bgr, "left"), to_bgr(right_bgr, "right")
-    check_pair(left, right, rig.image_size)
+    check_pair(left, right, expected_size=rig.image_size)
     if mask is not None:
         mask = np.asarray(mask)
         if mask.shape[:2] != left.shape[:2]:
@@ -169,7 +168,7 @@ def reconstruct_pair(left_bgr, right_bgr, rig, method: str | None = None, matche
             raise ImageError("mask is empty: no foreground pixel to reconstruct")
 
     t = time.perf_counter()
-    rect = rectification or rectify_rig(rig, method, left, right)
+    rect = rectification or rectify_rig(rig, method, left=left, right=right)
     timings["rectification"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -177,7 +176,7 @@ def reconstruct_pair(left_bgr, right_bgr, rig, method: str | None = None, matche
     timings["warp"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    dmin, dmax = disparity_range_for(rig, rect, disp_min, disp_max)
+    dmin, dmax = disparity_range_for(rig, rect, disp_min=disp_min, disp_max=disp_max)
     disp = compute_disparity(to_gray(left_r), to_gray(right_r), matcher=matcher, disp_min=dmin,
                              disp_max=dmax, **(matcher_params or {}))
     timings["disparity"] = time.perf_counter() - t

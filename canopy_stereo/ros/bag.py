@@ -68,7 +68,7 @@ class BagError(CanopyStereoError):
 
 
 def qos_profiles_yaml(reliability: str = "reliable", depth: int = 1,
-                      durability: str = "volatile") -> str:
+                      *, durability: str = "volatile") -> str:
     """``offered_qos_profiles`` metadata (rosbag2 v9 YAML) for one publisher."""
     profile = {
         "history": "keep_last", "depth": int(depth), "reliability": reliability,
@@ -289,7 +289,7 @@ class BagWriter:
 
     # -- writing -----------------------------------------------------------------------------
 
-    def add_topic(self, topic: str, msg_type: str, qos_yaml: str | None = None, *,
+    def add_topic(self, topic: str, msg_type: str, *, qos_yaml: str | None = None,
                   definition: str | None = None) -> None:
         """Declare ``topic`` with type ``msg_type`` (``"sensor_msgs/msg/Image"``).
 
@@ -331,7 +331,7 @@ class BagWriter:
             if name == METADATA_RECORD:
                 self.custom_data.update(record)
 
-    def write(self, topic: str, msg, log_time_ns: int, publish_time_ns: int | None = None,
+    def write(self, topic: str, msg, log_time_ns: int, *, publish_time_ns: int | None = None,
               msg_type: str | None = None) -> None:
         """Append one message (a ROS message, or CDR bytes with ``msg_type``)."""
         if isinstance(msg, (bytes, bytearray, memoryview)):
@@ -1398,7 +1398,7 @@ class BagReader:
 
     # -- public reading --------------------------------------------------------------------------
 
-    def messages(self, topics=None, start_ns: int | None = None, end_ns: int | None = None, *,
+    def messages(self, topics=None, start_ns: int | None = None, *, end_ns: int | None = None,
                  log_time_order: bool = True) -> Iterator[BagMessage]:
         """Serialized messages, each from a chunk whose CRC was checked.
 
@@ -1465,10 +1465,10 @@ class BagReader:
         wins). A truncated or damaged file yields the records found intact."""
         return {name: dict(data) for name, data in self.metadata_records}
 
-    def read(self, topics=None, start_ns=None, end_ns=None):
+    def read(self, topics=None, start_ns=None, *, end_ns=None):
         """``(BagMessage, decoded message)`` pairs in log-time order (:class:`BagError` for a
         message that is not valid CDR)."""
-        for m in self.messages(topics, start_ns, end_ns):
+        for m in self.messages(topics, start_ns, end_ns=end_ns):
             yield m, m.decode()
 
     def verify(self) -> BagCheck:
@@ -1542,12 +1542,13 @@ def repair_bag(src, dst, *, compression: str | None = None, overwrite: bool = Fa
     writer = BagWriter(dst, compression=compression, overwrite=overwrite, flush_period_s=0)
     try:
         for topic, info in reader.topics.items():
-            writer.add_topic(topic, info.type_name, info.qos_yaml, definition=info.definition)
+            writer.add_topic(topic, info.type_name, qos_yaml=info.qos_yaml, definition=info.definition)
         for name, data in reader.metadata_records:
             if name != "rosbag2":
                 writer.add_metadata(name, data)
         for m in reader.messages(log_time_order=True):
-            writer.write(m.topic, m.data, m.log_time_ns, m.publish_time_ns, m.type_name)
+            writer.write(m.topic, m.data, m.log_time_ns, publish_time_ns=m.publish_time_ns,
+                         msg_type=m.type_name)
     finally:
         writer.close()
     return reader.verify()

@@ -74,7 +74,7 @@ def bundled_rig(scene: str) -> Path:
     return _find("config", BUNDLED[scene][1])
 
 
-def write_stereo_bag(path, frames, truth_depths=None, compression: str = "zstd",
+def write_stereo_bag(path, frames, *, truth_depths=None, compression: str = "zstd",
                      metadata: dict | None = None, rig: Rig | None = None) -> Path:
     """Write stereo frames (and optional truth depth maps) as a bag.
 
@@ -96,18 +96,20 @@ def write_stereo_bag(path, frames, truth_depths=None, compression: str = "zstd",
     with BagWriter(path, compression=compression,
                    metadata=recording_metadata(metadata, rig)) as bag:
         for k, (left, right, t_left, t_right) in enumerate(frames):
-            bag.write(LEFT_TOPIC, image_to_msg(left, "bgr8", t_left, "left_camera"), t_left + transport_ns)
-            bag.write(RIGHT_TOPIC, image_to_msg(right, "bgr8", t_right, "right_camera"),
+            bag.write(LEFT_TOPIC, image_to_msg(left, "bgr8", stamp_ns=t_left, frame_id="left_camera"),
+                      t_left + transport_ns)
+            bag.write(RIGHT_TOPIC, image_to_msg(right, "bgr8", stamp_ns=t_right, frame_id="right_camera"),
                       t_right + transport_ns)
             if truth_depths is not None:
                 depth_mm = np.rint(np.nan_to_num(np.asarray(truth_depths[k], np.float64) * 1000.0,
                                                  nan=0.0)).clip(0, 65535).astype(np.uint16)
-                bag.write(TRUTH_DEPTH_TOPIC, image_to_msg(depth_mm, "16UC1", t_left, "left_camera"),
+                bag.write(TRUTH_DEPTH_TOPIC, image_to_msg(depth_mm, "16UC1", stamp_ns=t_left,
+                                                          frame_id="left_camera"),
                           t_left + transport_ns + 1)
     return Path(path)
 
 
-def croton_frames(rig: Rig, n_frames: int = 4, seed: int = 0, fps: float = 10.0,
+def croton_frames(rig: Rig, n_frames: int = 4, *, seed: int = 0, fps: float = 10.0,
                   right_lag_s: float = 0.004):
     """Render the croton scene: ``(frames, truth depths (m), disparity range (px))``.
 
@@ -135,11 +137,11 @@ def croton_frames(rig: Rig, n_frames: int = 4, seed: int = 0, fps: float = 10.0,
     return frames, depths, (max(0, int(np.floor(dmin)) - 6), int(np.ceil(dmax)) + 6)
 
 
-def make_croton(bag_path, rig_path, paper_rig: Rig, n_frames: int = 4, seed: int = 0) -> tuple[Path, Path]:
+def make_croton(bag_path, rig_path, paper_rig: Rig, *, n_frames: int = 4, seed: int = 0) -> tuple[Path, Path]:
     """Render and write the croton bag and its rig file (the paper rig with the
     disparity range of the scene and sub-pixel ELAS)."""
-    frames, depths, (dmin, dmax) = croton_frames(paper_rig, n_frames, seed)
-    write_stereo_bag(bag_path, frames, depths)
+    frames, depths, (dmin, dmax) = croton_frames(paper_rig, n_frames, seed=seed)
+    write_stereo_bag(bag_path, frames, truth_depths=depths)
     rig = paper_rig.with_extra(disp_min=dmin, disp_max=dmax, elas={"subpixel": True})
     save_rig(rig, rig_path, comment=(
         "The paper's rig (config/paper_rig.yaml) for the bundled synthetic croton bag "

@@ -58,4 +58,4 @@ class RawCameraInfoPublisher:
             self.node.drop(f"frames are {w}x{h} but the rig's camera is {c.width}x{c.height}",
                            "camera_info")
             return
-        self.publisher.publish(camera_info_msg(c, stamp_ns, frame_id))
+        self.publisher.publish(camera_info_msg(c, stamp_ns, frame_id=frame_id))

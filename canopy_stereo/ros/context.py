@@ -77,7 +77,7 @@ def _libc():
 
 def tune_memory_allocator(mmap_threshold: int = PIPELINE_MALLOC_OPTIONS["mmap_threshold"],
                           trim_threshold: int = PIPELINE_MALLOC_OPTIONS["trim_threshold"],
-                          top_pad: int = PIPELINE_MALLOC_OPTIONS["top_pad"]) -> bool:
+                          *, top_pad: int = PIPELINE_MALLOC_OPTIONS["top_pad"]) -> bool:
     """Keep the frame-sized buffers of a node process on the heap, and nothing more (glibc only).
 
     Every frame allocates and frees images, disparity maps, serialized messages
@@ -236,7 +236,7 @@ def tune_node_process() -> None:
 
 
 @contextmanager
-def ros_context(domain_id: int | None = None, localhost_only: bool = True, args=None):
+def ros_context(domain_id: int | None = None, localhost_only: bool = True, *, args=None):
     """An initialised rclpy context, shut down on exit.
 
     Args:
@@ -259,7 +259,7 @@ def ros_context(domain_id: int | None = None, localhost_only: bool = True, args=
             context.try_shutdown()
 
 
-def wait_for(predicate, timeout_s: float, poll_s: float = 0.01) -> bool:
+def wait_for(predicate, timeout_s: float, *, poll_s: float = 0.01) -> bool:
     """Poll ``predicate()`` until it is true or ``timeout_s`` passes; returns its last value."""
     deadline = time.monotonic() + timeout_s
     while True:
@@ -270,6 +270,6 @@ def wait_for(predicate, timeout_s: float, poll_s: float = 0.01) -> bool:
         time.sleep(poll_s)
 
 
-def wait_for_subscribers(publishers, timeout_s: float = 10.0, count: int = 1) -> bool:
+def wait_for_subscribers(publishers, timeout_s: float = 10.0, *, count: int = 1) -> bool:
     """Wait until every publisher has at least ``count`` matched subscriptions."""
     return wait_for(lambda: all(p.get_subscription_count() >= count for p in publishers), timeout_s)

@@ -83,7 +83,7 @@ def _default_encoding(image: np.ndarray) -> str:
     return table[key]
 
 
-def image_to_msg(image: np.ndarray, encoding: str | None = None, stamp_ns: int = 0,
+def image_to_msg(image: np.ndarray, encoding: str | None = None, *, stamp_ns: int = 0,
                  frame_id: str = "") -> Image:
     """``sensor_msgs/Image`` holding ``image`` (copied, little-endian, no row padding).
 
@@ -117,7 +117,7 @@ def image_to_msg(image: np.ndarray, encoding: str | None = None, stamp_ns: int =
     return msg
 
 
-def msg_to_image(msg: Image, encodings=None, expected_size=None) -> np.ndarray:
+def msg_to_image(msg: Image, encodings=None, *, expected_size=None) -> np.ndarray:
     """Array view of a ``sensor_msgs/Image``: (H, W) for one channel, else (H, W, C).
 
     Args:
@@ -156,7 +156,7 @@ def msg_to_image(msg: Image, encodings=None, expected_size=None) -> np.ndarray:
 
 def msg_to_bgr(msg: Image, expected_size=None) -> np.ndarray:
     """uint8 BGR (H, W, 3) from an 8-bit colour or mono image message."""
-    img = msg_to_image(msg, COLOUR_ENCODINGS, expected_size)
+    img = msg_to_image(msg, COLOUR_ENCODINGS, expected_size=expected_size)
     enc = msg.encoding
     if img.ndim == 2:
         return cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
@@ -171,7 +171,7 @@ def msg_to_bgr(msg: Image, expected_size=None) -> np.ndarray:
 
 def msg_to_mono(msg: Image, expected_size=None) -> np.ndarray:
     """uint8 grey (H, W) from an 8-bit colour or mono image message."""
-    img = msg_to_image(msg, COLOUR_ENCODINGS, expected_size)
+    img = msg_to_image(msg, COLOUR_ENCODINGS, expected_size=expected_size)
     enc = msg.encoding
     if img.ndim == 2:
         return img
@@ -229,7 +229,7 @@ def valid_window(disp: np.ndarray, min_disparity: float = 0.0) -> tuple[int, int
 
 
 def disparity_to_msg(disp: np.ndarray, f: float, t: float, min_disparity: float,
-                     max_disparity: float, delta_d: float = 1.0 / 16.0, stamp_ns: int = 0,
+                     max_disparity: float, *, delta_d: float = 1.0 / 16.0, stamp_ns: int = 0,
                      frame_id: str = "", doffs: float = 0.0) -> DisparityImage:
     """``stereo_msgs/DisparityImage`` from a rectified disparity map of the core.
 
@@ -256,7 +256,7 @@ def disparity_to_msg(disp: np.ndarray, f: float, t: float, min_disparity: float,
     x, y, w, h = valid_window(np.where(invalid, -1.0, 1.0))
     msg = DisparityImage()
     msg.header = make_header(stamp_ns, frame_id)
-    msg.image = image_to_msg(out, "32FC1", stamp_ns, frame_id)
+    msg.image = image_to_msg(out, "32FC1", stamp_ns=stamp_ns, frame_id=frame_id)
     msg.f = float(f)
     msg.t = float(t)
     msg.valid_window = RegionOfInterest(x_offset=x, y_offset=y, width=w, height=h,
@@ -316,7 +316,7 @@ def unpack_rgb(rgb: np.ndarray) -> np.ndarray:
     return np.stack([(bits >> 16) & 255, (bits >> 8) & 255, bits & 255], axis=-1).astype(np.uint8)
 
 
-def points_to_cloud2(points: np.ndarray, colors: np.ndarray | None = None, stamp_ns: int = 0,
+def points_to_cloud2(points: np.ndarray, colors: np.ndarray | None = None, *, stamp_ns: int = 0,
                      frame_id: str = "canopy_world", organized: bool | None = None,
                      rgb: np.ndarray | None = None) -> PointCloud2:
     """``sensor_msgs/PointCloud2`` (float32 x, y, z [, packed rgb]) from points in metres.
@@ -383,7 +383,7 @@ def _cloud_message(rec: np.ndarray, fields, height: int, width: int, dense: bool
     return msg
 
 
-def records_to_cloud2(records: np.ndarray, stamp_ns: int = 0, frame_id: str = "canopy_world",
+def records_to_cloud2(records: np.ndarray, stamp_ns: int = 0, *, frame_id: str = "canopy_world",
                       organized_shape: tuple[int, int] | None = None) -> PointCloud2:
     """``PointCloud2`` from rows of float32 ``x, y, z, rgb`` as
     :func:`~canopy_stereo.geometry.frames.reproject_disparity_records` writes them: the same
@@ -452,7 +452,7 @@ def cloud2_to_points(msg: PointCloud2, organized: bool = False):
 
 
 def rectified_camera_info(K_rect: np.ndarray, size, baseline_m: float, side: str,
-                          stamp_ns: int = 0, frame_id: str = "") -> CameraInfo:
+                          *, stamp_ns: int = 0, frame_id: str = "") -> CameraInfo:
     """``sensor_msgs/CameraInfo`` of one rectified image, in ROS conventions.
 
     The image is already rectified, so ``D`` is zero and ``R`` the identity;
@@ -486,7 +486,7 @@ def rectified_camera_info(K_rect: np.ndarray, size, baseline_m: float, side: str
     return info
 
 
-def camera_info_msg(calibration, stamp_ns: int = 0, frame_id: str = "") -> CameraInfo:
+def camera_info_msg(calibration, stamp_ns: int = 0, *, frame_id: str = "") -> CameraInfo:
     """``sensor_msgs/CameraInfo`` of a raw camera from a
     :class:`~canopy_stereo.geometry.frames.CameraCalibration` (REP 104: ``K``, ``D`` of the
     raw image, ``R`` to the rectified camera, ``P`` of the rectified camera)."""
@@ -504,7 +504,7 @@ def camera_info_msg(calibration, stamp_ns: int = 0, frame_id: str = "") -> Camer
     return info
 
 
-def uncalibrated_camera_info(size, stamp_ns: int = 0, frame_id: str = "") -> CameraInfo:
+def uncalibrated_camera_info(size, stamp_ns: int = 0, *, frame_id: str = "") -> CameraInfo:
     """``CameraInfo`` of an image without a metric camera (a projective, Hartley,
     rectification): size only, ``D``, ``K``, ``R``, ``P`` zero, as the message
     definition prescribes for an uncalibrated camera."""
@@ -527,9 +527,9 @@ def is_calibrated(info: CameraInfo) -> bool:
     return float(info.p[0]) > 0.0
 
 
-def depth_to_msg(depth_m: np.ndarray, stamp_ns: int = 0, frame_id: str = "") -> Image:
+def depth_to_msg(depth_m: np.ndarray, stamp_ns: int = 0, *, frame_id: str = "") -> Image:
     """REP 118 depth image: 32FC1, metres along the optical axis, NaN where unknown."""
     d = np.asarray(depth_m, np.float32)
     if d.ndim != 2:
         raise ImageError(f"a depth image must be (H, W), got shape {d.shape}")
-    return image_to_msg(d, "32FC1", stamp_ns, frame_id)
+    return image_to_msg(d, "32FC1", stamp_ns=stamp_ns, frame_id=frame_id)

@@ -96,7 +96,7 @@ def canopy_lines(report: dict) -> list[str]:
     return lines
 
 
-def run_scene(scene: str, out_dir, matcher=None, domain_id=None, view=None) -> list[str]:
+def run_scene(scene: str, out_dir, *, matcher=None, domain_id=None, view=None) -> list[str]:
     """Run one bundled scene; write its files and return the summary lines.
 
     ``view``: an optional :class:`~canopy_stereo.ros.viewer.LiveView` the graph's outputs
@@ -117,7 +117,7 @@ def run_scene(scene: str, out_dir, matcher=None, domain_id=None, view=None) -> l
         raise CanopyStereoError(f"{scene}: the graph produced no point cloud")
     stamp, data = clouds[0]
     points, colors = cloud2_to_points(deserialize_message(data, PointCloud2))
-    ply = write_ply(out_dir / f"{scene}.ply", points * 1000.0, colors, unit="mm",
+    ply = write_ply(out_dir / f"{scene}.ply", points * 1000.0, colors=colors, unit="mm",
                     comments=[f"canopy-stereo demo scene={scene} frame_stamp_ns={stamp} (whole scene)"])
     files = [ply]
     disps = dict(result.outputs["disparity"])
@@ -138,7 +138,8 @@ def run_scene(scene: str, out_dir, matcher=None, domain_id=None, view=None) -> l
         lines.append(f"  plant mask: {(mask > 0).mean() * 100:.1f} % of the rectified left image")
         organized, org_colors = organize_on_rectified_grid(points, colors, rig, mask.shape[::-1])
         plant = (mask > 0) & np.all(np.isfinite(organized), axis=-1)
-        files.append(write_ply(out_dir / f"{scene}_plant.ply", organized[plant], org_colors[plant], unit="mm",
+        files.append(write_ply(out_dir / f"{scene}_plant.ply", organized[plant], colors=org_colors[plant],
+                               unit="mm",
                                comments=[f"canopy-stereo demo scene={scene} frame_stamp_ns={stamp} "
                                          "(plant mask only)"]))
         lines.append(f"  plant cloud: {int(plant.sum())} of {len(points)} points")

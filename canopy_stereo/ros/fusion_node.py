@@ -215,8 +215,8 @@ class FusionNode(CanopyNode):
             fused = self.fusion.fused()
             self._changed = False
             stamp = self._last_stamp
-        self.pub.publish(points_to_cloud2(fused.points, fused.colors, stamp,
-                                          self.get_parameter("frame_id").value, organized=False))
+        self.pub.publish(points_to_cloud2(fused.points, fused.colors, stamp_ns=stamp,
+                                          frame_id=self.get_parameter("frame_id").value, organized=False))
         self.count("models_published")
 
     def _on_reset(self, request, response):

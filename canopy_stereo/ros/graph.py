@@ -51,6 +51,8 @@ class GraphOptions:
         matcher: disparity matcher (None: the node's default, ELAS when available).
         segment: run ``segment_node``.
         use_mask: ``point_cloud_node`` keeps only masked pixels (implies ``segment``).
+        segment_depth_cue: ``segment_node`` seeds GrabCut with the disparity too (its
+            ``depth_cue`` parameter: near = plant, as ``canopy-stereo segment`` does).
         organized: organized clouds (NaN for invalid) instead of dense ones.
         reliability: publisher reliability of every node.
         node_parameters: node name -> extra parameters (e.g. ``{"disparity_node":
@@ -69,6 +71,7 @@ class GraphOptions:
     matcher: str | None = None
     segment: bool = True
     use_mask: bool = False
+    segment_depth_cue: bool = False
     organized: bool = False
     reliability: str = "reliable"
     node_parameters: dict = field(default_factory=dict)
@@ -119,6 +122,7 @@ class CanopyGraph:
             | ({} if o.disparity_threads is None else {"threads": int(o.disparity_threads)}),
             # nothing waits for every mask unless use_mask: let GrabCut skip frames under load
             "segment_node": ({} if o.use_mask else {"queue_size": 1})
+            | ({"depth_cue": True} if o.segment_depth_cue else {})
             | ({} if o.recut_every is None else {"recut_every": int(o.recut_every)})
             | ({} if o.propagate_scale is None else {"propagate_scale": float(o.propagate_scale)}),
             "point_cloud_node": {"use_mask": bool(o.use_mask), "organized": bool(o.organized)},
@@ -255,6 +259,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"disparity matcher (default: {DEFAULT_MATCHER})")
     p.add_argument("--use-mask", action="store_true", help="keep only plant pixels in the clouds")
     p.add_argument("--no-segment", action="store_true", help="do not run segment_node")
+    p.add_argument("--segment-depth-cue", action="store_true",
+                   help="segment_node seeds GrabCut with the disparity too (near = plant)")
     p.add_argument("--organized", action="store_true", help="organized clouds")
     p.add_argument("--namespace", default="/stereo")
     p.add_argument("--executor", choices=EXECUTOR_CHOICES, default="per-node",
@@ -325,8 +331,8 @@ def main(args=None) -> int:
         return 2
     options = GraphOptions(namespace=opts.namespace, matcher=opts.matcher,
                            segment=not opts.no_segment or opts.use_mask, use_mask=opts.use_mask,
-                           organized=opts.organized, threads=opts.threads,
-                           executor=opts.executor, recut_every=opts.recut_every,
+                           segment_depth_cue=opts.segment_depth_cue, organized=opts.organized,
+                           threads=opts.threads, executor=opts.executor, recut_every=opts.recut_every,
                            disparity_threads=opts.disparity_threads)
     if opts.cameras:
         # free-running cameras: the pairing tolerance is half a frame period at the camera rate

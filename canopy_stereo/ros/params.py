@@ -124,7 +124,7 @@ def rectification_from_node(node, rig: Rig) -> Rectification:
         raise RigError(f"{source}: {exc}") from None
 
 
-def rectification_for(rig: Rig, method: str = "fusiello", H_left=None, H_right=None) -> Rectification:
+def rectification_for(rig: Rig, method: str = "fusiello", *, H_left=None, H_right=None) -> Rectification:
     """Fusiello rectification of ``rig``, or the Hartley one given its two homographies
     (or the rig's); see :func:`~canopy_stereo.geometry.rig_rectification.rectification_for_rig`."""
     return rectification_for_rig(rig, method=method, H_left=H_left, H_right=H_right)

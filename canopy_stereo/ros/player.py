@@ -131,7 +131,7 @@ class BagPlayer:
         return ok
 
     def play(self, stop: threading.Event | None = None, before_publish=None,
-             on_published=None, on_pass=None) -> PlayStats:
+             *, on_published=None, on_pass=None) -> PlayStats:
         """Publish until the end (or forever with ``loop``) or until ``stop`` is set.
 
         Args:

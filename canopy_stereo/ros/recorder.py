@@ -117,7 +117,7 @@ class BagRecorder(Node):
                 self.get_logger().warning(f"not recording {topic}: {exc}")
                 self._pending.remove(topic)
                 continue
-            self.add_topic(topic, cls, self._publisher_reliability(topic))
+            self.add_topic(topic, cls, reliability=self._publisher_reliability(topic))
 
     def _watch_geometry(self, known: dict) -> None:
         """Subscribe (latched) to rectify_nodes' ``stereo_geometry`` to write /tf_static."""
@@ -148,7 +148,7 @@ class BagRecorder(Node):
                                 time.time_ns())
         self._tf_written = True
 
-    def add_topic(self, topic: str, msg_class, reliability: str = "reliable") -> None:
+    def add_topic(self, topic: str, msg_class, *, reliability: str = "reliable") -> None:
         """Start recording ``topic`` of type ``msg_class`` now (no graph lookup)."""
         topic = self.resolve_topic_name(topic)
         with self._lock:
@@ -157,7 +157,7 @@ class BagRecorder(Node):
             if topic in self._pending:
                 self._pending.remove(topic)
             tname = type_name(msg_class)
-            self.writer.add_topic(topic, tname, qos_profiles_yaml(reliability))
+            self.writer.add_topic(topic, tname, qos_yaml=qos_profiles_yaml(reliability))
             self.received[topic] = 0
             self.subscriptions_by_topic[topic] = self.create_subscription(
                 msg_class, topic, lambda data, t=topic, n=tname: self._on_message(t, n, data),
@@ -166,7 +166,7 @@ class BagRecorder(Node):
 
     def _on_message(self, topic: str, tname: str, data: bytes) -> None:
         now = time.time_ns()
-        self.writer.write(topic, data, now, header_stamp_from_cdr(data), tname)
+        self.writer.write(topic, data, now, publish_time_ns=header_stamp_from_cdr(data), msg_type=tname)
         with self._lock:
             self.received[topic] += 1
         if self.on_message is not None:

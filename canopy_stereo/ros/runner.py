@@ -205,7 +205,7 @@ def open_input_bag(bag_path, *, namespace: str = "stereo", remap: dict[str, str]
     return bag, play_topics, in_left
 
 
-def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOptions | None = None,
+def run_bag(bag_path, rig: Rig, *, rate: float = 1.0, record=None, options: GraphOptions | None = None,
             domain_id: int | None = None, max_in_flight: int = 2, idle_s: float = 2.0,
             timeout_s: float = 120.0, keep=(), remap: dict | None = None,
             startup_timeout_s: float = 30.0, progress=None, compression: str = "lz4",
@@ -315,8 +315,8 @@ def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, r
                 now = time.monotonic()
                 stamp = header_stamp_from_cdr(bytes(data))
                 if writer is not None:
-                    writer.write(f"{ns}/{rel}", bytes(data), time.time_ns(), stamp,
-                                 type_name(outputs[rel]))
+                    writer.write(f"{ns}/{rel}", bytes(data), time.time_ns(), publish_time_ns=stamp,
+                                 msg_type=type_name(outputs[rel]))
                 if rel in result.outputs:
                     result.outputs[rel].append((stamp, bytes(data)))
                 if on_output_cb is not None and stamp is not None:
@@ -328,7 +328,7 @@ def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, r
 
             for rel, cls in outputs.items():
                 if writer is not None:
-                    writer.add_topic(f"{ns}/{rel}", type_name(cls), qos_profiles_yaml(reliability))
+                    writer.add_topic(f"{ns}/{rel}", type_name(cls), qos_yaml=qos_profiles_yaml(reliability))
                 io_node.create_subscription(cls, f"{ns}/{rel}",
                                             io_node.guarded(lambda d, r=rel: on_output(r, d)),
                                             recording_qos(50, reliability), raw=True)

@@ -54,7 +54,7 @@ def stereo_geometry_msg(rig, rect: Rectification, names: FrameNames) -> String:
         "H_left": _floats(rect.H_left), "H_right": _floats(rect.H_right),
         "frames": {k: getattr(names, k) for k in FrameNames.__dataclass_fields__},
         "transforms": [{"parent": p, "child": c, "matrix": _floats(T)}
-                       for p, c, T in stereo_transforms(rig, rect, names)],
+                       for p, c, T in stereo_transforms(rig, rect, names=names)],
     }
     return String(data=json.dumps(data))
 

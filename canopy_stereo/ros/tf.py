@@ -41,7 +41,7 @@ def tf_message_class():
     return TFMessage
 
 
-def transform_msg(parent: str, child: str, T, stamp_ns: int = 0) -> TransformStamped:
+def transform_msg(parent: str, child: str, T, *, stamp_ns: int = 0) -> TransformStamped:
     """``geometry_msgs/TransformStamped`` of ``T_parent_child`` (4x4, metres)."""
     T = np.asarray(T, np.float64)
     msg = TransformStamped()
@@ -66,7 +66,7 @@ def msg_to_transform(msg) -> tuple[str, str, np.ndarray]:
 
 def transforms_to_msgs(transforms, stamp_ns: int = 0) -> list[TransformStamped]:
     """TransformStamped messages of ``[(parent, child, T), ...]``."""
-    return [transform_msg(p, c, T, stamp_ns) for p, c, T in transforms]
+    return [transform_msg(p, c, T, stamp_ns=stamp_ns) for p, c, T in transforms]
 
 
 def tf_message_definition() -> str:
@@ -114,7 +114,7 @@ def serialize_tf_message(transforms: list[TransformStamped]) -> bytes:
     return b"\x00\x01\x00\x00" + bytes(w.buf)
 
 
-def write_static_transforms(writer, transforms, log_time_ns: int, topic: str = TF_STATIC_TOPIC) -> None:
+def write_static_transforms(writer, transforms, log_time_ns: int, *, topic: str = TF_STATIC_TOPIC) -> None:
     """Write ``[(parent, child, T), ...]`` (or TransformStamped messages) as one
     ``tf2_msgs/msg/TFMessage`` on ``/tf_static`` into a :class:`BagWriter`, with the
     transient-local QoS a ``ros2 bag play`` needs to re-publish it as latched."""
@@ -122,10 +122,12 @@ def write_static_transforms(writer, transforms, log_time_ns: int, topic: str = T
 
     msgs = [m if isinstance(m, TransformStamped) else transform_msg(*m, stamp_ns=log_time_ns)
             for m in transforms]
-    writer.add_topic(topic, TF_MESSAGE_TYPE, qos_profiles_yaml("reliable", 1, "transient_local"),
+    writer.add_topic(topic, TF_MESSAGE_TYPE, qos_yaml=qos_profiles_yaml("reliable", 1,
+                                                                        durability="transient_local"),
                      definition=tf_message_definition())
     stamp = stamp_to_ns(msgs[0].header.stamp) if msgs else log_time_ns
-    writer.write(topic, serialize_tf_message(msgs), log_time_ns, stamp, TF_MESSAGE_TYPE)
+    writer.write(topic, serialize_tf_message(msgs), log_time_ns, publish_time_ns=stamp,
+                 msg_type=TF_MESSAGE_TYPE)
 
 
 class StaticTransformPublisher:

@@ -71,7 +71,7 @@ def rig_from_bag(path):
     return None
 
 
-def measure_frame(organized_m: np.ndarray, mask: np.ndarray, rig=None):
+def measure_frame(organized_m: np.ndarray, mask: np.ndarray, *, rig=None):
     """Leaves and canopy of one organized cloud (metres, rectified left grid) and its plant
     mask, measured in millimetres (:func:`canopy_stereo.measure.measure_scene`); None when
     there is nothing to measure."""
@@ -173,11 +173,12 @@ class FrameStreamer:
             if item is None:
                 return
             try:
-                self.log_messages(*item)
+                stamp, entry, pose, rig = item
+                self.log_messages(stamp, entry, pose=pose, rig=rig)
             except Exception as exc:  # noqa: BLE001 - a bad frame must not stop the viewer
                 self.errors.append(f"{type(exc).__name__}: {exc}")
 
-    def log_messages(self, stamp: int, entry: dict, pose: CameraPose | None = None, rig=None) -> None:
+    def log_messages(self, stamp: int, entry: dict, *, pose: CameraPose | None = None, rig=None) -> None:
         """Decode one stamp's CDR messages (relative topic -> bytes) and log the frame
         (``pose``: of its rectified left camera, default the current rig's)."""
         frame = decode_frame(entry)
@@ -186,7 +187,8 @@ class FrameStreamer:
             pose = CameraPose(K=frame["K"], size=frame["size"])
         measurement = None
         if self.measure and frame.get("organized") is not None and frame.get("mask") is not None:
-            measurement = measure_frame(frame["organized"], frame["mask"], rig if rig is not None else self.rig)
+            measurement = measure_frame(frame["organized"], frame["mask"],
+                                        rig=rig if rig is not None else self.rig)
         self.logger.log_frame(stamp, points_m=frame.get("points"), colors=frame.get("colors"),
                               image_bgr=frame.get("image"), depth_m=frame.get("depth"),
                               mask=frame.get("mask"), camera=pose, measurement=measurement)
@@ -242,7 +244,7 @@ def bag_kind(bag) -> tuple[str, str]:
                             f"{', '.join(sorted(topics)) or 'none'}")
 
 
-def show_recorded_outputs(bag, namespace: str, logger: FrameLogger, rig=None, measure: bool = False) -> int:
+def show_recorded_outputs(bag, namespace: str, logger: FrameLogger, *, rig=None, measure: bool = False) -> int:
     """Log a bag of recorded graph outputs frame by frame (grouped by header stamp); returns
     the number of frames (clouds) logged."""
     from canopy_stereo.ros.recorder import header_stamp_from_cdr

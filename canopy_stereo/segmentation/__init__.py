@@ -1,6 +1,16 @@
 """Plant segmentation: GrabCut from a rectangle or mask, automatic plant masks
-from vegetation indices and depth, and leaf instances from an organized cloud."""
-from canopy_stereo.segmentation.auto import auto_plant_mask, plant_seed
+from vegetation indices and depth (the one seeder: :mod:`.auto`), and leaf instances
+from an organized cloud."""
+from canopy_stereo.segmentation.auto import (
+    IMAGE_SEEDER,
+    VIDEO_SEEDER,
+    SeederSettings,
+    auto_plant_mask,
+    plant_mask,
+    plant_seed,
+    seed_labels,
+    segment_plant,
+)
 from canopy_stereo.segmentation.colour_model import ColourGMM, colour_log_ratio, fit_colour_gmm
 from canopy_stereo.segmentation.grabcut import grabcut_labels, grabcut_mask, grabcut_rect
 from canopy_stereo.segmentation.indices import (
@@ -21,6 +31,7 @@ from canopy_stereo.segmentation.masks import (
 )
 
 __all__ = [
+    "IMAGE_SEEDER", "SeederSettings", "VIDEO_SEEDER", "plant_mask", "seed_labels", "segment_plant",
     "ColourGMM", "auto_plant_mask", "chromaticity", "clean_mask_regions", "colour_log_ratio",
     "excess_green", "fit_colour_gmm",
     "excess_green_minus_red", "excess_red", "grabcut_labels", "grabcut_mask", "grabcut_rect",

@@ -141,7 +141,7 @@ def _kmeans(x: np.ndarray, k: int, rng: np.random.Generator, iterations: int) ->
     return lab
 
 
-def fit_colour_gmm(pixels: np.ndarray, components: int = COMPONENTS, max_samples: int = MAX_SAMPLES,
+def fit_colour_gmm(pixels: np.ndarray, components: int = COMPONENTS, *, max_samples: int = MAX_SAMPLES,
                    iterations: int = 8, seed: int = 0) -> ColourGMM:
     """Fit a GMM to colours by k-means++ then EM (deterministic for a given ``seed``).
 
@@ -197,7 +197,7 @@ def colour_log_ratio(image_bgr: np.ndarray, plant: np.ndarray, background: np.nd
     return llr[index].reshape(img.shape[:2]), plant_gmm, background_gmm
 
 
-def relabel_by_colour(labels: np.ndarray, llr: np.ndarray, sure: float = SURE_LOG_RATIO) -> np.ndarray:
+def relabel_by_colour(labels: np.ndarray, llr: np.ndarray, *, sure: float = SURE_LOG_RATIO) -> np.ndarray:
     """GrabCut labels of a depth seed corrected by the colour log ratio ``llr``.
 
     * sure background (far) stays so;

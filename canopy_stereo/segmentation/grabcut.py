@@ -36,7 +36,7 @@ def labels_to_mask(labels: np.ndarray) -> np.ndarray:
     return np.where((labels == GC_FGD) | (labels == GC_PR_FGD), 255, 0).astype(np.uint8)
 
 
-def grabcut_labels(image_bgr, labels: np.ndarray, iterations: int = 5) -> np.ndarray:
+def grabcut_labels(image_bgr, labels: np.ndarray, *, iterations: int = 5) -> np.ndarray:
     """Run GrabCut from initial labels; returns the final (H, W) uint8 labels.
 
     Args:
@@ -75,7 +75,7 @@ def grabcut_labels(image_bgr, labels: np.ndarray, iterations: int = 5) -> np.nda
     return lab
 
 
-def grabcut_rect(image_bgr, rect, iterations: int = 5) -> np.ndarray:
+def grabcut_rect(image_bgr, rect, *, iterations: int = 5) -> np.ndarray:
     """Plant mask from a rectangle around the plant (the paper's interaction).
 
     Args:
@@ -113,7 +113,7 @@ def grabcut_rect(image_bgr, rect, iterations: int = 5) -> np.ndarray:
     return labels_to_mask(labels)
 
 
-def grabcut_mask(image_bgr, mask, iterations: int = 5, margin_px: int = 0) -> np.ndarray:
+def grabcut_mask(image_bgr, mask, *, iterations: int = 5, margin_px: int = 0) -> np.ndarray:
     """Plant mask refined by GrabCut from an initial mask.
 
     Args:
@@ -148,4 +148,4 @@ def grabcut_mask(image_bgr, mask, iterations: int = 5, margin_px: int = 0) -> np
             outer = cv2.dilate(plant.astype(np.uint8), k).astype(bool)
             labels[inner] = GC_FGD
             labels[~outer] = GC_BGD
-    return labels_to_mask(grabcut_labels(image_bgr, labels, iterations))
+    return labels_to_mask(grabcut_labels(image_bgr, labels, iterations=iterations))

@@ -59,7 +59,7 @@ def vegetation_index(image_bgr: np.ndarray, name: str = "exg") -> np.ndarray:
     return funcs[name](image_bgr)
 
 
-def otsu_threshold(values: np.ndarray, bins: int = 256, clip_percent: float = 0.5) -> float:
+def otsu_threshold(values: np.ndarray, bins: int = 256, *, clip_percent: float = 0.5) -> float:
     """Otsu's threshold of real values (between-class variance maximised over ``bins`` levels).
 
     Non-finite values are ignored; values beyond the ``clip_percent`` and
@@ -93,7 +93,7 @@ def otsu_threshold(values: np.ndarray, bins: int = 256, clip_percent: float = 0.
     return float(0.5 * (edges[best[0] + 1] + edges[best[-1] + 1]))
 
 
-def class_means(values: np.ndarray, threshold: float, clip_percent: float = 0.5) -> tuple[float, float]:
+def class_means(values: np.ndarray, threshold: float, *, clip_percent: float = 0.5) -> tuple[float, float]:
     """Means of the finite values at or below and above ``threshold`` (clipped as in
     :func:`otsu_threshold`)."""
     v = np.asarray(values, np.float64).ravel()

@@ -85,7 +85,7 @@ def neighbour_spacing(organized: np.ndarray, valid: np.ndarray) -> float:
 
 
 def connected_surface_parts(organized: np.ndarray, valid: np.ndarray, max_jump: float,
-                            normals: np.ndarray | None = None, max_angle_deg: float | None = None):
+                            *, normals: np.ndarray | None = None, max_angle_deg: float | None = None):
     """(H, W) int32 labels 1..n of the parts of ``valid`` joined without breaks; 0 elsewhere.
 
     Args:
@@ -107,7 +107,7 @@ def connected_surface_parts(organized: np.ndarray, valid: np.ndarray, max_jump: 
     return _link_components(pts, nrm, ok, float(max_jump), min_cos)
 
 
-def largest_surface_part(organized: np.ndarray, valid: np.ndarray, jump_factor: float = 8.0,
+def largest_surface_part(organized: np.ndarray, valid: np.ndarray, *, jump_factor: float = 8.0,
                          keep_fraction: float = 0.25) -> np.ndarray:
     """Drop pieces of ``valid`` cut off from the main surface by depth jumps.
 
@@ -141,7 +141,7 @@ def _max_neighbour_angle(normals: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
-def separate_leaves(organized: np.ndarray, plant_mask: np.ndarray, max_jump: float | None = None,
+def separate_leaves(organized: np.ndarray, plant_mask: np.ndarray, *, max_jump: float | None = None,
                     max_angle_deg: float = 35.0, max_bend_deg: float = 8.0,
                     smoothing_px: float | None = None, min_pixels: int = 50,
                     jump_factor: float = 6.0, rim_px: int = 8, neck_px: int = 4) -> np.ndarray:
@@ -192,7 +192,7 @@ def separate_leaves(organized: np.ndarray, plant_mask: np.ndarray, max_jump: flo
     if smoothing_px is None:
         rough = roughness(organized, valid) if valid.sum() >= 16 else 0.0
         smoothing_px = float(np.clip(rough / 0.05, 2.0, 8.0)) if np.isfinite(rough) else 2.0
-    X, Xu, Xv = local_linear_fit(organized, valid, valid, smoothing_px)
+    X, Xu, Xv = local_linear_fit(organized, valid, valid, sigma=smoothing_px)
     n = -np.cross(Xu, Xv)
     with np.errstate(invalid="ignore", divide="ignore"):
         normals = n / np.linalg.norm(n, axis=-1, keepdims=True)
@@ -207,7 +207,7 @@ def separate_leaves(organized: np.ndarray, plant_mask: np.ndarray, max_jump: flo
 
         k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * neck_px + 1, 2 * neck_px + 1))
         sheet = cv2.erode(sheet.astype(np.uint8), k).astype(bool)
-    labels = connected_surface_parts(smooth, sheet, max_jump, normals, max_angle_deg)
+    labels = connected_surface_parts(smooth, sheet, max_jump, normals=normals, max_angle_deg=max_angle_deg)
     counts = np.bincount(labels.ravel())
     counts[0] = 0
     big = np.nonzero(counts >= min_pixels)[0]
@@ -254,7 +254,7 @@ def _absorb_small(organized, valid, labels, max_jump, rounds: int = 64):
     return labels
 
 
-def clean_mask_regions(mask: np.ndarray, min_pixels: int = 0, fill_holes_below: int = 0) -> np.ndarray:
+def clean_mask_regions(mask: np.ndarray, min_pixels: int = 0, *, fill_holes_below: int = 0) -> np.ndarray:
     """Binary mask without 8-connected regions smaller than ``min_pixels`` and with
     holes (4-connected, not touching the border) smaller than ``fill_holes_below``
     filled; returns (H, W) bool."""

@@ -1,20 +1,23 @@
 """Plant masks for video: the plant model propagated from frame to frame (GrabCut at camera rate).
 
-A full GrabCut (:func:`canopy_stereo.segmentation.video.segment_plant`: a seed, then
+A full GrabCut (the one seeder, :func:`canopy_stereo.segmentation.plant_mask` with the
+video preset :data:`~canopy_stereo.segmentation.VIDEO_SEEDER` or any :class:`SeederSettings`:
+a seed, then
 colour models learned by k-means and three iterations of model fitting and graph cuts,
 at the node's ``scale``) costs about 18 ms of CPU per 640x480 frame, a quarter of what a
 2-core machine has per frame at 30 frames/s. From one video frame to the next the plant
 and its background keep their colours, so the colour models (the plant model) need not
 be learned again. :class:`MaskPropagator` therefore
 
-* makes a **full cut** (``segment_plant``, the reference) on the first frame, every
+* makes a **full cut** (``plant_mask``, the reference) on the first frame, every
   ``recut_every`` frames, and whenever the propagated mask looks lost (empty, or its area
   changed by more than :data:`MAX_AREA_CHANGE` since the last full cut); then it fits the
   plant and background colour models to that mask
   (:func:`~canopy_stereo.segmentation.colour_model.fit_colour_gmm`, :data:`MODEL_SAMPLES`
   pixels each);
 * **propagates** on the other frames: the frame's own seed (the same rectangle or
-  automatic initialisation as the full cut: its sure pixels follow the plant as it moves)
+  automatic initialisation as the full cut, with the frame's disparity when the seeder has
+  a depth cue: its sure pixels follow the plant as it moves)
   and one graph cut with the propagated models kept fixed
   (:func:`~canopy_stereo.segmentation.colour_model.grabcut_with_models`, OpenCV's
   ``GC_EVAL_FREEZE_MODEL``), at ``propagate_scale`` (default: the full cut's ``scale``;
@@ -36,9 +39,9 @@ import cv2
 import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError, ImageError
+from canopy_stereo.segmentation.auto import AUTO_INITS, VIDEO_SEEDER, SeederSettings, plant_mask, seed_labels
 from canopy_stereo.segmentation.colour_model import MIN_SAMPLES, fit_colour_gmm, grabcut_with_models
 from canopy_stereo.segmentation.grabcut import labels_to_mask
-from canopy_stereo.segmentation.video import AUTO_INITS, segment_plant
 
 #: Default frames between two full cuts (1 = every frame is a full cut: no propagation).
 DEFAULT_RECUT_EVERY = 10
@@ -52,31 +55,19 @@ MAX_AREA_CHANGE = 0.3
 
 
 def frame_seed(small_bgr: np.ndarray, rect_small, auto_init: str) -> np.ndarray:
-    """GrabCut seed labels of one (already downscaled) frame: the full cut's own
-    initialisation (:func:`segment_plant`'s rectangle or automatic seed)."""
-    from canopy_stereo.segmentation.video import _initial_labels
-
-    return _initial_labels(small_bgr, rect_small, auto_init)
-
-
-def _scaled_rect(rect, size, small_size):
-    """``segment_plant``'s rectangle at the processing scale (None stays None)."""
-    if rect is None:
-        return None
-    (w, h), (sw, sh) = size, small_size
-    x, y, rw, rh = (int(v) for v in rect)
-    x0, y0, x1, y1 = max(0, x), max(0, y), min(w, x + rw), min(h, y + rh)
-    if x1 - x0 < 2 or y1 - y0 < 2:
-        raise CanopyStereoError(f"rectangle {list(rect)} does not overlap the {w}x{h} image")
-    fx, fy = sw / w, sh / h
-    return int(x0 * fx), int(y0 * fy), max(2, int((x1 - x0) * fx)), max(2, int((y1 - y0) * fy))
+    """GrabCut seed labels of one (already downscaled) frame: the video seeder's own
+    initialisation (a rectangle, or the automatic seed ``auto_init``) at that frame's size."""
+    return seed_labels(small_bgr, VIDEO_SEEDER.replace(colour_cue=auto_init, scale=1.0), rect=rect_small)
 
 
 class MaskPropagator:
     """Plant masks of consecutive video frames (see the module docstring).
 
     Keyword args:
-        rect, iterations, auto_init, scale: the full cut's settings (:func:`segment_plant`).
+        rect, iterations, auto_init, scale: the full cut's settings (:func:`segment_plant`),
+            when no ``settings`` are given.
+        settings: the seeder's :class:`SeederSettings` (e.g. ``VIDEO_SEEDER`` with
+            ``depth_cue``); overrides ``iterations``, ``auto_init`` and ``scale``.
         recut_every: frames between two full cuts (>= 1; 1 = every frame in full).
         propagate_scale: processing scale of the propagated frames in (0, 1] (default: ``scale``).
 
@@ -85,18 +76,24 @@ class MaskPropagator:
     """
 
     def __init__(self, *, rect=None, iterations: int = 3, auto_init: str = "saturation", scale: float = 0.25,
-                 recut_every: int = DEFAULT_RECUT_EVERY, propagate_scale: float | None = None):
+                 recut_every: int = DEFAULT_RECUT_EVERY, propagate_scale: float | None = None,
+                 settings: SeederSettings | None = None):
+        if settings is None:
+            if auto_init not in AUTO_INITS:
+                raise CanopyStereoError(f"auto_init must be one of {', '.join(AUTO_INITS)}, got {auto_init!r}")
+            settings = VIDEO_SEEDER.replace(colour_cue=auto_init, iterations=int(iterations), scale=float(scale))
+        self.settings = settings
+        iterations, auto_init, scale = settings.iterations, settings.colour_cue, settings.scale
         propagate_scale = scale if propagate_scale is None else propagate_scale
         if int(recut_every) < 1:
             raise CanopyStereoError(f"recut_every must be >= 1, got {recut_every}")
         if not 0 < propagate_scale <= 1:
             raise CanopyStereoError(f"propagate_scale must be in (0, 1], got {propagate_scale}")
-        if auto_init not in AUTO_INITS:
-            raise CanopyStereoError(f"auto_init must be one of {', '.join(AUTO_INITS)}, got {auto_init!r}")
         self.rect = None if rect is None else tuple(int(v) for v in rect)
         self.iterations, self.auto_init, self.scale = int(iterations), auto_init, float(scale)
         self.recut_every = int(recut_every)
         self.propagate_scale = float(propagate_scale)
+        self._seed_settings = settings.replace(scale=self.propagate_scale, colour_model=False)
         self.full_cuts = 0
         self.propagated = 0
         self.reset()
@@ -107,8 +104,10 @@ class MaskPropagator:
         self._since_full = 0
         self._full_area = 0.0  # plant share of the image at the last full cut
 
-    def segment(self, bgr: np.ndarray) -> np.ndarray:
-        """Plant mask of the next frame: uint8 (H, W), 255 = plant."""
+    def segment(self, bgr: np.ndarray, disparity: np.ndarray | None = None) -> np.ndarray:
+        """Plant mask of the next frame: uint8 (H, W), 255 = plant (``disparity``: the frame's
+        (H, W) disparity, pixels, high = near, NaN/negative = unknown, for a seeder with
+        ``depth_cue``)."""
         if bgr.ndim != 3 or bgr.shape[2] != 3 or bgr.dtype != np.uint8:
             raise ImageError(f"segmentation needs a uint8 BGR image, got {bgr.dtype} {bgr.shape}")
         h, w = bgr.shape[:2]
@@ -116,12 +115,13 @@ class MaskPropagator:
             bgr, (max(8, round(w * self.propagate_scale)), max(8, round(h * self.propagate_scale))),
             interpolation=cv2.INTER_AREA)
         if self._models is None or self._since_full >= self.recut_every:
-            return self._full(bgr, small)
-        seed = frame_seed(small, _scaled_rect(self.rect, (w, h), small.shape[1::-1]), self.auto_init)
+            return self._full(bgr, small, disparity)
+        # the frame's own seed at propagate_scale (the models are the propagated ones: none learned)
+        seed = seed_labels(bgr, self._seed_settings, disparity=disparity, rect=self.rect)
         plant = labels_to_mask(grabcut_with_models(small, seed, *self._models))
         share = float(np.count_nonzero(plant)) / plant.size
         if share == 0 or abs(share - self._full_area) > MAX_AREA_CHANGE * self._full_area:
-            return self._full(bgr, small)
+            return self._full(bgr, small, disparity)
         self._since_full += 1
         self.propagated += 1
         if plant.shape != (h, w):
@@ -131,8 +131,8 @@ class MaskPropagator:
 
     __call__ = segment
 
-    def _full(self, bgr: np.ndarray, small: np.ndarray) -> np.ndarray:
-        mask = segment_plant(bgr, self.rect, self.iterations, self.auto_init, self.scale)
+    def _full(self, bgr: np.ndarray, small: np.ndarray, disparity) -> np.ndarray:
+        mask = plant_mask(bgr, self.settings, disparity=disparity, rect=self.rect)
         self.full_cuts += 1
         self._since_full = 1
         inside = (cv2.resize(mask, small.shape[1::-1], interpolation=cv2.INTER_AREA) >= 128).reshape(-1)

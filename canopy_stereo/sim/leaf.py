@@ -104,7 +104,7 @@ def surface_height(x, y, droop: float, rise: float, cup: float) -> np.ndarray:
 
 
 def surface_area(span: float, half_width: float, base_exponent: float, tip_exponent: float,
-                 droop: float, rise: float, cup: float, nodes: int = 200) -> float:
+                 droop: float, rise: float, cup: float, *, nodes: int = 200) -> float:
     """One-sided area of the curved blade (world units squared), Gauss-Legendre quadrature.
 
     Integrates ``sqrt(1 + z_x^2 + z_y^2)`` over the outline; ``x`` is mapped

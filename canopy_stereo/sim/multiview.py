@@ -127,7 +127,7 @@ def plant_axis(scene: Scene, rig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.asarray(point, np.float64), direction, centre
 
 
-def sequence_poses(n_views: int, mode: str, centre, axis_direction, rig, elevation_deg: float = 0.0,
+def sequence_poses(n_views: int, mode: str, centre, axis_direction, rig, *, elevation_deg: float = 0.0,
                    start_deg: float = 0.0) -> list[np.ndarray]:
     """True rig poses (list of (4, 4), rig -> world) of an evenly spaced sequence.
 
@@ -168,7 +168,7 @@ def foreground_mask(sim: SimResult) -> np.ndarray:
     return np.where((lab != LABEL_BACKGROUND) & (lab != LABEL_NONE), 255, 0).astype(np.uint8)
 
 
-def render_views(scene="croton", rig=None, n_views: int = 8, mode: str = "turntable", seed: int = 0,
+def render_views(scene="croton", rig=None, *, n_views: int = 8, mode: str = "turntable", seed: int = 0,
                  elevation_deg: float | None = None, start_deg: float = 0.0, supersample: int = 2,
                  effects=None, indices=None, progress=None) -> MultiViewSequence:
     """Render a multi-view sequence of a plant with true poses.
@@ -201,7 +201,7 @@ def render_views(scene="croton", rig=None, n_views: int = 8, mode: str = "turnta
     else:
         elevation = 20.0 if elevation_deg is None else float(elevation_deg)
     point, direction, centre = plant_axis(placed, rig)
-    poses = sequence_poses(n_views, mode, centre, direction, rig, elevation, start_deg)
+    poses = sequence_poses(n_views, mode, centre, direction, rig, elevation_deg=elevation, start_deg=start_deg)
     views = []
     wanted = range(n_views) if indices is None else sorted({int(i) for i in indices})
     for i in wanted:
@@ -217,7 +217,7 @@ def render_views(scene="croton", rig=None, n_views: int = 8, mode: str = "turnta
                              axis_direction=direction, centre=centre, elevation_deg=elevation)
 
 
-def sample_leaf_surfaces(scene: Scene, spacing: float = 1.0, leaf_ids=None) -> tuple[np.ndarray, np.ndarray]:
+def sample_leaf_surfaces(scene: Scene, spacing: float = 1.0, *, leaf_ids=None) -> tuple[np.ndarray, np.ndarray]:
     """Samples of the true leaf blades on a grid of ``spacing`` in each blade's frame.
 
     Args:

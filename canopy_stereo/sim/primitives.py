@@ -167,7 +167,7 @@ class Leaf:
 
     @classmethod
     def with_dimensions(cls, leaf_id: int, base, midrib, normal_hint, length: float, width: float,
-                        material: Material, droop: float = 0.0, rise: float = 0.0,
+                        material: Material, *, droop: float = 0.0, rise: float = 0.0,
                         cup: float = 0.0, **kwargs) -> "Leaf":
         """A leaf whose true (arc) length and width are exactly ``length`` and ``width``.
 

@@ -378,7 +378,7 @@ def trace_rays(origins, directions, kinds, axes, origins_prim, geometry):
 # ----------------------------------------------------------------------------- culling
 
 
-def projected_boxes(P, corners, margin: float = 1.0) -> np.ndarray:
+def projected_boxes(P, corners, *, margin: float = 1.0) -> np.ndarray:
     """Ideal-pixel bounding boxes (P, 4) ``[u_min, u_max, v_min, v_max]`` of the
     primitives' bounding boxes seen through ``P`` (3, 4).
 
@@ -428,7 +428,7 @@ def tile_boxes(ideal_uv, offsets, width: int, height: int, tile_size: int) -> np
 
 
 def bin_primitives(tiles: np.ndarray, boxes: np.ndarray,
-                   near=None) -> tuple[np.ndarray, np.ndarray]:
+                   *, near=None) -> tuple[np.ndarray, np.ndarray]:
     """CSR candidate lists: primitives whose box overlaps each tile's box, in
     increasing order of ``near`` (P,) when given, else of index.
 

@@ -56,7 +56,7 @@ def _trace(scene: Scene, P, D5, size, offsets, weights, tile_size: int) -> ViewR
     boxes = projected_boxes(P, packed.corners)
     tiles = tile_boxes(ideal, offsets, w, h, tile_size)
     near = packed.near_distances(C)
-    start, prims = bin_primitives(tiles, boxes, near)
+    start, prims = bin_primitives(tiles, boxes, near=near)
     radiance = np.empty((h, w, 3), np.float32)
     xyz = np.empty((h, w, 3), np.float64)
     prim_index = np.empty((h, w), np.int32)
@@ -69,8 +69,8 @@ def _trace(scene: Scene, P, D5, size, offsets, weights, tile_size: int) -> ViewR
     return ViewRender(radiance=radiance, xyz=xyz, prim_index=prim_index)
 
 
-def render_view(scene: Scene, P, D, image_size, supersample: int = 2,
-                tile_size: int = TILE_SIZE, *, samples=None) -> ViewRender:
+def render_view(scene: Scene, P, D, image_size, *, supersample: int = 2,
+                tile_size: int = TILE_SIZE, samples=None) -> ViewRender:
     """Ray-cast one view of ``scene`` through the camera ``P`` (3, 4) with
     distortion ``D`` (None or OpenCV ``[k1, k2, p1, p2, k3]``).
 
@@ -148,7 +148,7 @@ class SimResult:
         return ids > 0
 
 
-def render_pair(scene: Scene, rig, supersample: int = 2, effects: CameraEffects | None = None,
+def render_pair(scene: Scene, rig, *, supersample: int = 2, effects: CameraEffects | None = None,
                 tile_size: int = TILE_SIZE) -> SimResult:
     """Render ``scene`` (already placed in ``rig``'s world frame) through both cameras.
 
@@ -169,7 +169,7 @@ def render_pair(scene: Scene, rig, supersample: int = 2, effects: CameraEffects 
     def view(camera):
         P, D = (rig.P_left, rig.D_left) if camera == "left" else (rig.P_right, rig.D_right)
         t0 = time.perf_counter()
-        out = render_view(scene, P, D, rig.image_size, supersample, tile_size)
+        out = render_view(scene, P, D, rig.image_size, supersample=supersample, tile_size=tile_size)
         timings[camera] = time.perf_counter() - t0
         return out
 
@@ -213,7 +213,7 @@ def first_hits(scene: Scene, origins, directions) -> tuple[np.ndarray, np.ndarra
     return trace_rays(o, d, packed.kinds, packed.axes, packed.origins, packed.geometry)
 
 
-def visible_from(scene: Scene, P, points, tolerance: float | None = None) -> np.ndarray:
+def visible_from(scene: Scene, P, points, *, tolerance: float | None = None) -> np.ndarray:
     """(N,) bool: world points (N, 3) not occluded from the camera centre of ``P``.
 
     A point is visible when the first hit along the ray from the camera centre

@@ -139,7 +139,7 @@ class Scene:
         return PackedScene.from_primitives(self.posed)
 
     # ------------------------------------------------------------------ editing
-    def transformed(self, Q, t, s: float, world_unit: str | None = None) -> "Scene":
+    def transformed(self, Q, t, s: float, *, world_unit: str | None = None) -> "Scene":
         """The scene moved by ``p -> t + s Q p`` (``Q`` a rotation, ``s`` > 0)."""
         Q = np.asarray(Q, np.float64)
         t = np.asarray(t, np.float64)

@@ -65,13 +65,13 @@ def rig_at_resolution(rig: Rig, scale: float) -> Rig:
                    image_size=(int(round(nw)), int(round(nh))))
 
 
-def scene_for_rig(name: str, rig=None, seed: int = 0, frame: int = 0) -> Scene:
+def scene_for_rig(name: str, rig=None, *, seed: int = 0, frame: int = 0) -> Scene:
     """The named scene at ``frame``, placed in front of ``rig`` (world frame and unit)."""
     return place_in_front_of(build_scene(name, seed).at_frame(frame), resolve_rig(rig))
 
 
-def render_scene(name: str, rig=None, seed: int = 0, frame: int = 0, *,
-                 effects: CameraEffects | None = None, supersample: int = 2) -> SimResult:
+def render_scene(name: str, rig=None, *, seed: int = 0, frame: int = 0, effects: CameraEffects | None = None,
+                 supersample: int = 2) -> SimResult:
     """Render the named scene through ``rig`` (a Rig, a rig path, or None for
     ``config/paper_rig.yaml``). Deterministic for given arguments."""
     rig = resolve_rig(rig)

@@ -13,11 +13,13 @@ import numpy as np
 
 #: The colour map of every disparity/depth picture (and of the viewer's depth images).
 COLORMAP = getattr(cv2, "COLORMAP_TURBO", cv2.COLORMAP_JET)
+#: Its name, for viewers that colour depth themselves (Rerun's ``DepthImage(colormap=...)``).
+COLORMAP_NAME = "turbo" if hasattr(cv2, "COLORMAP_TURBO") else "jet"
 
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 
 
-def colour_range(values: np.ndarray, lo: float | None = None, hi: float | None = None,
+def colour_range(values: np.ndarray, *, lo: float | None = None, hi: float | None = None,
                  percentiles=(1.0, 99.0)) -> tuple[float, float]:
     """``(lo, hi)`` of the finite values: given bounds, else the 1st/99th percentiles."""
     v = np.asarray(values, np.float64)
@@ -125,7 +127,7 @@ def disparity_picture(disp: np.ndarray, *, lo: float | None = None, hi: float | 
     bar in ``unit``: large disparity (near) red, invalid black."""
     d = np.asarray(disp, np.float64)
     d = np.where(np.isfinite(d) & (d >= 0), d, np.nan)
-    lo, hi = colour_range(d, lo, hi)
+    lo, hi = colour_range(d, lo=lo, hi=hi)
     return with_colour_bar(colorize(d, lo=lo, hi=hi), lo=lo, hi=hi, unit=unit, title=title,
                            note="near = red, black = no match")
 
@@ -136,6 +138,6 @@ def depth_picture(depth: np.ndarray, *, lo: float | None = None, hi: float | Non
     near blue, far red, none black (the map of :func:`disparity_picture`)."""
     z = np.asarray(depth, np.float64)
     z = np.where(np.isfinite(z) & (z > 0), z, np.nan)
-    lo, hi = colour_range(z, lo, hi)
+    lo, hi = colour_range(z, lo=lo, hi=hi)
     return with_colour_bar(colorize(z, lo=lo, hi=hi), lo=lo, hi=hi, unit=unit,
                            title=title, note="near = blue, black = none")

@@ -212,12 +212,13 @@ class FrameLogger:
             img = np.asarray(image_bgr)
             rec.log(IMAGE, rr.Image(img, color_model="BGR" if img.ndim == 3 else "L"))
         if depth_m is not None:
+            from canopy_stereo.viz.colour import COLORMAP_NAME, colour_range
+
             z = np.asarray(depth_m, np.float32)
             ok = np.isfinite(z) & (z > 0)
-            lo, hi = (np.percentile(z[ok], [1, 99]) if ok.any() else (0.0, 1.0))
+            lo, hi = colour_range(np.where(ok, z, np.nan))  # the package's map and range
             z = np.where(ok, z, 0).astype(np.float32)
-            rec.log(DEPTH, rr.DepthImage(z, meter=1.0, colormap="turbo",
-                                         depth_range=[float(lo), float(max(hi, lo + 1e-3))]))
+            rec.log(DEPTH, rr.DepthImage(z, meter=1.0, colormap=COLORMAP_NAME, depth_range=[lo, hi]))
         if mask is not None:
             rec.log(MASK, rr.SegmentationImage((np.asarray(mask) > 0).astype(np.uint8), opacity=0.35,
                                                draw_order=10.0))

@@ -162,7 +162,7 @@ class CanopyNode(Node):
                                     qos_overriding_options=QoSOverridingOptions.with_default_policies())
         return _CountedPublisher(pub, self.diagnostics)
 
-    def make_subscription(self, msg_type, topic: str, callback, depth: int | None = None, **kwargs):
+    def make_subscription(self, msg_type, topic: str, callback, *, depth: int | None = None, **kwargs):
         """Reliable keep-last subscription (:func:`~canopy_stereo.ros.qos.subscription_qos`)
         whose callback is :meth:`guarded` and counted in the node's diagnostics.
 
@@ -207,7 +207,7 @@ class CanopyNode(Node):
                 f"reset, {jump.dropped} queued message(s) from before the jump dropped{more}")
         return on_jump
 
-    def drop(self, reason: str, what: str = "message", log: bool = True) -> None:
+    def drop(self, reason: str, what: str = "message", *, log: bool = True) -> None:
         """Count and log a dropped input (rate-limited per reason; ``log=False``: count only)."""
         key = f"{what}: {reason}"
         now = time.monotonic()
@@ -271,7 +271,7 @@ class CanopyNode(Node):
         with self._idle:
             return 0.0 if self._busy > 0 else time.monotonic() - self.last_active
 
-    def latest_only(self, fn, what: str, depth: int = 1) -> "LatestOnly":
+    def latest_only(self, fn, what: str, *, depth: int = 1) -> "LatestOnly":
         """A worker thread that runs ``fn`` on the newest submitted jobs (see :class:`LatestOnly`)."""
         worker = LatestOnly(self, fn, what, depth)
         self._workers.append(worker)

@@ -70,7 +70,7 @@ def quiet_opencv_warnings() -> None:
         log.setLogLevel(log.LOG_LEVEL_ERROR)
 
 
-def open_capture(source: str, width: int = 0, height: int = 0, fps: float = 0.0,
+def open_capture(source: str, width: int = 0, *, height: int = 0, fps: float = 0.0,
                  fourcc: str = "") -> cv2.VideoCapture | None:
     """An opened ``cv2.VideoCapture`` for ``source`` with the requested settings, or None."""
     src = source.strip()
@@ -218,7 +218,8 @@ class CameraNode(CanopyNode):
         """Publish one captured frame (called on the session's thread); False stops the session."""
         if frame.ndim == 2:
             frame = cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
-        msg = image_to_msg(np.ascontiguousarray(frame[..., :3]), "bgr8", stamp_ns, self.frame_id)
+        msg = image_to_msg(np.ascontiguousarray(frame[..., :3]), "bgr8", stamp_ns=stamp_ns,
+                           frame_id=self.frame_id)
         with self._publish_lock:
             if self._stopping or session is not self.session:
                 return False

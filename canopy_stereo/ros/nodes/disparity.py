@@ -131,7 +131,7 @@ class DisparityNode(CanopyNode):
                                           on_jump=self.time_jump_handler(_STREAMS))
         self.pub = self.make_publisher(DisparityImage, "disparity")
         self.matching = self.latest_only(self._match, "rectified pair",
-                                         int(self.get_parameter("waiting_pairs").value))
+                                         depth=int(self.get_parameter("waiting_pairs").value))
         self.sub_left = self.make_subscription(Image, "left/image_rect", lambda m: self._on_image(0, m))
         self.sub_right = self.make_subscription(Image, "right/image_rect", lambda m: self._on_image(1, m))
         self.sub_info_left = self.make_subscription(CameraInfo, RECT_INFO_TOPICS[0],
@@ -170,7 +170,7 @@ class DisparityNode(CanopyNode):
             params["preset"] = value("preset")
         # validate with the given range, or a typical one where it comes from the cameras
         lo = 0 if dmin is None else dmin
-        params = spec.check(params, lo, dmax if dmax is not None else lo + TYPICAL_RANGE)
+        params = spec.check(params, lo, disp_max=dmax if dmax is not None else lo + TYPICAL_RANGE)
         return {"matcher": matcher, "disp_min": dmin, "disp_max": dmax, "params": params,
                 "delta_d": spec.resolution_for(params), "threads": int(value("threads"))}
 
@@ -226,11 +226,12 @@ class DisparityNode(CanopyNode):
             self.camera = (f, t, doffs)
             self.get_logger().info(f"rectified cameras: f {f:.2f} px, t {t:.5f} m, "
                                    f"cx_left - cx_right {doffs:.2f} px")
-        dmin, dmax = resolve_disparity_range(c["disp_min"], c["disp_max"], f, t, doffs)
+        dmin, dmax = resolve_disparity_range(c["disp_min"], c["disp_max"], f, t=t, doffs=doffs)
         apply_thread_budget(c["threads"])
         disp = compute_disparity(left, right, matcher=c["matcher"], disp_min=dmin,
                                  disp_max=dmax, **c["params"])
-        msg = disparity_to_msg(disp, f, t, dmin, dmax, c["delta_d"], stamp_ns, frame_id, doffs)
+        msg = disparity_to_msg(disp, f, t, dmin, dmax, delta_d=c["delta_d"], stamp_ns=stamp_ns,
+                               frame_id=frame_id, doffs=doffs)
         self.count("disparities_published")
         self.pub.publish(msg)
 
@@ -270,14 +271,14 @@ def stereo_parameters(info_left, info_right) -> tuple[float, float, float]:
     return f, t, float(Pl[0, 2] - Pr[0, 2])
 
 
-def resolve_disparity_range(disp_min, disp_max, f: float, t: float = 0.0,
+def resolve_disparity_range(disp_min, disp_max, f: float, *, t: float = 0.0,
                             doffs: float = 0.0) -> tuple[int, int]:
     """Search range (rectified pixels): the given values, else from the cameras
     (:func:`~canopy_stereo.geometry.rectification.metric_disparity_range`: infinity to
     8 baselines away, ``f / 8`` for ``doffs = 0``); 0 to 128 for an uncalibrated pair."""
     from canopy_stereo.geometry.rectification import metric_disparity_range
 
-    lo, hi = metric_disparity_range(f, t, doffs) if f > 0 and t > 0 else (0, 128)
+    lo, hi = metric_disparity_range(f, t, doffs=doffs) if f > 0 and t > 0 else (0, 128)
     lo = lo if disp_min is None else int(disp_min)
     hi = hi if disp_max is None else int(disp_max)
     if hi <= lo:

@@ -56,7 +56,7 @@ from canopy_stereo.ros.tf import latched_qos
 CLOUD_FRAMES = ("world", "world_z_up", "optical")
 
 
-def cloud_from_disparity(disp: np.ndarray, left_bgr: np.ndarray, rig, rect, mask=None,
+def cloud_from_disparity(disp: np.ndarray, left_bgr: np.ndarray, rig, rect, *, mask=None,
                          organized: bool = True):
     """World points (metres) and packed colours of the valid rectified left pixels, by
     back-mapping + DLT with the rig's ``P`` (the reference path; any rectification).
@@ -116,7 +116,7 @@ def reprojection_from_messages(disparity_f: float, disparity_t: float, info_left
 
 
 def optical_cloud_from_messages(disparity: np.ndarray, f: float, t: float, info_left: CameraInfo,
-                                mask=None) -> np.ndarray:
+                                *, mask=None) -> np.ndarray:
     """Organized points (H, W, 3), float64 metres, in the rectified left optical frame, from
     message-convention disparities (NaN = invalid) and the left rectified ``CameraInfo``."""
     Q = reprojection_from_messages(f, t, info_left)
@@ -263,11 +263,12 @@ class PointCloudNode(CanopyNode):
                 T = self.geometry.lookup(target, optical)
                 frame_id = self._world_frame() if cloud_frame == "world" else target
             # x, y, z and rgb written by the kernel into the cloud's rows (one copy into the message)
-            records, depth = reproject_disparity_records(frame.disparity, Q, T, rgb=pack_bgr_image(bgr),
+            records, depth = reproject_disparity_records(frame.disparity, Q, T=T, rgb=pack_bgr_image(bgr),
                                                          mask=mask, organized=organized)
             self.pub_depth_info.publish(info)
-            self.pub_depth.publish(depth_to_msg(depth, stamp_ns, optical))
-            self.pub.publish(records_to_cloud2(records, stamp_ns, frame_id, (h, w) if organized else None))
+            self.pub_depth.publish(depth_to_msg(depth, stamp_ns, frame_id=optical))
+            self.pub.publish(records_to_cloud2(records, stamp_ns, frame_id=frame_id,
+                                               organized_shape=(h, w) if organized else None))
             self.count("clouds_published")
             return
         else:  # projective rectification: back-mapping + DLT with the world-frame P
@@ -282,7 +283,8 @@ class PointCloudNode(CanopyNode):
                           else g.frames.get("raw_left", ""))
                 points = apply_transform(g.lookup(target, g.world_frame), points).astype(np.float32)
                 frame_id = target
-        self.pub.publish(points_to_cloud2(points, None, stamp_ns, frame_id, organized=organized, rgb=colours))
+        self.pub.publish(points_to_cloud2(points, None, stamp_ns=stamp_ns, frame_id=frame_id,
+                                          organized=organized, rgb=colours))
         self.count("clouds_published")
 
     def _target_frame(self, cloud_frame: str) -> str:

@@ -118,7 +118,7 @@ class RectifyNode(CanopyNode):
         # geometry for the nodes downstream and the static transforms, once, latched
         self.pub_geometry = self.create_publisher(String, STEREO_GEOMETRY_TOPIC, latched_qos())
         self.pub_geometry.publish(stereo_geometry_msg(self.rig, self.rect, self.frames))
-        self.transforms = stereo_transforms(self.rig, self.rect, self.frames)
+        self.transforms = stereo_transforms(self.rig, self.rect, names=self.frames)
         self.tf_static = StaticTransformPublisher(self, self.transforms)
         self.sub_left = self.make_subscription(Image, "left/image_raw", lambda m: self._on_image(0, m))
         self.sub_right = self.make_subscription(Image, "right/image_raw", lambda m: self._on_image(1, m))
@@ -171,12 +171,13 @@ class RectifyNode(CanopyNode):
         """The rectified ``CameraInfo`` pair stamped ``stamp_ns``."""
         fl, fr = self.frames.rect_left, self.frames.rect_right
         if self.rect.K_rect_left is None:
-            return (uncalibrated_camera_info(self.rect.size, stamp_ns, fl),
-                    uncalibrated_camera_info(self.rect.size, stamp_ns, fr))
+            return (uncalibrated_camera_info(self.rect.size, stamp_ns, frame_id=fl),
+                    uncalibrated_camera_info(self.rect.size, stamp_ns, frame_id=fr))
         baseline_m = self.rect.baseline * self.rig.metres_per_unit
-        return (rectified_camera_info(self.rect.K_rect_left, self.rect.size, baseline_m, "left", stamp_ns, fl),
+        return (rectified_camera_info(self.rect.K_rect_left, self.rect.size, baseline_m, "left",
+                                      stamp_ns=stamp_ns, frame_id=fl),
                 rectified_camera_info(self.rect.K_rect_right, self.rect.size, baseline_m, "right",
-                                      stamp_ns, fr))
+                                      stamp_ns=stamp_ns, frame_id=fr))
 
     def _follow_frame_rate(self, period_s: float | None) -> None:
         """Pairing tolerance = half the measured frame period (updated when it moves > 10 %)."""
@@ -195,9 +196,9 @@ class RectifyNode(CanopyNode):
         self.pub_info_left.publish(info_l)
         self.pub_info_right.publish(info_r)
         fl, fr = self.frames.rect_left, self.frames.rect_right
-        self.pub_color.publish(image_to_msg(left_r, "bgr8", stamp_ns, fl))
-        self.pub_left.publish(image_to_msg(to_gray(left_r), "mono8", stamp_ns, fl))
-        self.pub_right.publish(image_to_msg(to_gray(right_r), "mono8", stamp_ns, fr))
+        self.pub_color.publish(image_to_msg(left_r, "bgr8", stamp_ns=stamp_ns, frame_id=fl))
+        self.pub_left.publish(image_to_msg(to_gray(left_r), "mono8", stamp_ns=stamp_ns, frame_id=fl))
+        self.pub_right.publish(image_to_msg(to_gray(right_r), "mono8", stamp_ns=stamp_ns, frame_id=fr))
         self.count("pairs_published")
 
 

@@ -1,18 +1,31 @@
 """``segment_node``: GrabCut plant/background segmentation of the rectified left image.
 
-Subscribes ``left/image_rect_color`` (bgr8) and publishes ``left/mask`` (mono8,
-255 = plant, 0 = background) with the image's stamp and frame.
+Subscribes ``left/image_rect_color`` (bgr8) and, with ``depth_cue``, ``disparity``
+(``stereo_msgs/DisparityImage`` on the same rectified grid, paired by exact stamp), and
+publishes ``left/mask`` (mono8, 255 = plant, 0 = background) with the image's stamp and
+frame.
 
-Parameters (changeable at run time):
+The computation is the package's one plant seeder,
+:func:`canopy_stereo.segmentation.plant_mask` (full cuts; propagated between them by
+:class:`~canopy_stereo.segmentation.propagate.MaskPropagator`), with the node's preset
+:data:`~canopy_stereo.segmentation.VIDEO_SEEDER` (saturation, a quarter of the
+resolution). Its settings (:class:`~canopy_stereo.segmentation.SeederSettings`) are the
+node's parameters, with their ranges (changeable at run time unless noted):
 
 * ``rect``: ``[x, y, width, height]`` initial rectangle in rectified pixels (the
   paper's interaction: the plant lies inside it); ``[]``/zero size = automatic;
+* ``auto_init`` (the settings' ``colour_cue``): automatic initialisation when no
+  rectangle is given, from an index thresholded by Otsu's method: ``saturation``
+  (colourful plant in front of a neutral backdrop, as in the laboratory scenes;
+  default), ``exg`` (excess-green vegetation index, for green canopies against soil or
+  sky), ``exgr``, ``exr``, ``border`` (everything but a 5 % frame is probably plant) or
+  ``none`` (the depth cue alone; needs ``depth_cue``);
+* ``depth_cue`` (read-only, default false): also subscribe ``disparity`` and use it as
+  the CLI does (near = plant; the colour threshold is found among the near pixels);
+  a mask then waits for the disparity of its image;
+* ``sure_margin``, ``edge_px``, ``colour_model``, ``refine``, ``min_region``: see
+  :class:`~canopy_stereo.segmentation.SeederSettings` (-1 / ``auto`` = its None);
 * ``iterations``: GrabCut iterations;
-* ``auto_init``: automatic initialisation when no rectangle is given, from an
-  index thresholded by Otsu's method: ``saturation`` (colourful plant in front
-  of a neutral backdrop, as in the laboratory scenes; default), ``exg``
-  (excess-green vegetation index, for green canopies against soil or sky), or
-  ``border`` (everything but a 5 % frame is probably plant);
 * ``scale``: the image is segmented at this scale (GrabCut is costly) and the
   mask resized back;
 * ``recut_every`` (default 10): a full GrabCut every this many frames; the frames
@@ -29,23 +42,27 @@ Parameters (changeable at run time):
   dropped before decoding. Without them only the hard limits of
   :mod:`canopy_stereo.ros.limits` apply.
 
-The computation itself is
-:func:`canopy_stereo.segmentation.video.segment_plant` (full cuts), propagated by
-:class:`canopy_stereo.segmentation.propagate.MaskPropagator`. A change of ``rect``,
-``iterations``, ``auto_init``, ``scale`` or the propagation parameters starts again with a
-full cut.
+A change of any seeder parameter, ``rect`` or the propagation parameters starts again
+with a full cut.
 """
 from __future__ import annotations
 
+import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from sensor_msgs.msg import Image
+from stereo_msgs.msg import DisparityImage
 
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.ros.convert import COLOUR_ENCODINGS, image_to_msg, msg_to_bgr, stamp_to_ns
-from canopy_stereo.ros.limits import SEGMENT_MIN_SIZE, check_image_msg
+from canopy_stereo.ros.convert import COLOUR_ENCODINGS, image_to_msg, msg_to_bgr, msg_to_disparity, stamp_to_ns
+from canopy_stereo.ros.limits import SEGMENT_MIN_SIZE, check_disparity_msg, check_image_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
+from canopy_stereo.ros.sync import ExactTimeSynchronizer
+from canopy_stereo.segmentation.auto import VIDEO_SEEDER, decode_setting, seeder_fields
 from canopy_stereo.segmentation.propagate import DEFAULT_RECUT_EVERY, MaskPropagator
-from canopy_stereo.segmentation.video import AUTO_INITS
+
+#: Streams of the exact-time pairing with ``depth_cue``.
+_STREAMS = ("left/image_rect_color", "disparity")
+
 
 class SegmentNode(CanopyNode):
     """GrabCut on every rectified left colour image (see module docstring)."""
@@ -55,11 +72,16 @@ class SegmentNode(CanopyNode):
         self.declare_parameter("rect", [0, 0, 0, 0], ParameterDescriptor(
             description="initial rectangle [x, y, width, height] in rectified pixels; "
                         "zero size = automatic initialisation", dynamic_typing=True))
-        self.declare_number("iterations", 3, "GrabCut iterations", minimum=1, maximum=100)
-        self.declare_text("auto_init", "saturation", "automatic initialisation when rect is empty",
-                          choices=AUTO_INITS)
-        self.declare_number("scale", 0.25, "processing scale: images are segmented at this fraction "
-                            "of their size and the mask resized back", minimum=0.01, maximum=1.0)
+        self.seeder_fields = seeder_fields(VIDEO_SEEDER)
+        for f in self.seeder_fields:
+            if f["kind"] == "number":
+                self.declare_number(f["name"], f["default"], f["description"], minimum=f["minimum"],
+                                    maximum=f["maximum"])
+            elif f["kind"] == "text":
+                self.declare_text(f["name"], f["default"], f["description"], choices=f["choices"])
+            else:
+                self.declare_flag(f["name"], f["default"], f["description"],
+                                  read_only=f["field"] == "depth_cue")
         self.declare_number("recut_every", DEFAULT_RECUT_EVERY, "a full GrabCut every this many frames; "
                             "the frames between reuse its colour models (one graph cut); 1 = every frame",
                             minimum=1, maximum=10000)
@@ -77,10 +99,19 @@ class SegmentNode(CanopyNode):
         self.settings = self._settings({})
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.pub = self.make_publisher(Image, "left/mask")
-        self.sub = self.make_subscription(Image, "left/image_rect_color", self._on_image,
-                                          depth=max(1, int(self.get_parameter("queue_size").value)))
+        depth = max(1, int(self.get_parameter("queue_size").value))
+        self.depth_cue = bool(self.settings["seeder"].depth_cue)
+        self.sync = None
+        if self.depth_cue:
+            self.sync = ExactTimeSynchronizer(2, max(depth, 5), on_jump=self.time_jump_handler(_STREAMS))
+            self.sub_disp = self.make_subscription(DisparityImage, "disparity", lambda m: self._on(1, m),
+                                                   depth=depth)
+        self.sub = self.make_subscription(Image, "left/image_rect_color", lambda m: self._on(0, m),
+                                          depth=depth)
 
     def _settings(self, changes: dict) -> dict:
+        """``{"rect": (x, y, w, h) or None, "seeder": SeederSettings}`` of the parameters with
+        ``changes``; raises :class:`CanopyStereoError` on a bad combination."""
         def value(name):
             return changes[name] if name in changes else self.get_parameter(name).value
 
@@ -88,21 +119,19 @@ class SegmentNode(CanopyNode):
         rect = [int(v) for v in rect] if rect is not None and len(rect) else [0, 0, 0, 0]
         if len(rect) != 4:
             raise CanopyStereoError(f"rect must be [x, y, width, height], got {rect}")
-        settings = {"rect": tuple(rect) if rect[2] > 0 and rect[3] > 0 else None,
-                    "iterations": int(value("iterations")), "auto_init": str(value("auto_init")),
-                    "scale": float(value("scale")), "recut_every": int(value("recut_every")),
-                    "propagate_scale": float(value("propagate_scale"))}
-        if settings["iterations"] < 1:
-            raise CanopyStereoError("iterations must be >= 1")
-        if settings["auto_init"] not in AUTO_INITS:
-            raise CanopyStereoError(f"auto_init must be one of {', '.join(AUTO_INITS)}")
-        if not 0 < settings["scale"] <= 1:
-            raise CanopyStereoError("scale must be in (0, 1]")
-        settings["propagator"] = MaskPropagator(
-            rect=settings["rect"], iterations=settings["iterations"], auto_init=settings["auto_init"],
-            scale=settings["scale"], recut_every=settings["recut_every"],
-            propagate_scale=settings["propagate_scale"] or settings["scale"])
-        return settings
+        seeder = VIDEO_SEEDER.replace(**{f["field"]: decode_setting(f["field"], value(f["name"]))
+                                         for f in self.seeder_fields})
+        if not seeder.depth_cue and seeder.colour_cue == "none":
+            raise CanopyStereoError("auto_init none needs depth_cue (a disparity to seed from)")
+        if not seeder.depth_cue and seeder.colour_model:
+            raise CanopyStereoError("colour_model on needs depth_cue (it learns from the disparity)")
+        rect = tuple(rect) if rect[2] > 0 and rect[3] > 0 else None
+        recut_every, propagate_scale = int(value("recut_every")), float(value("propagate_scale"))
+        return {"rect": rect, "seeder": seeder, "recut_every": recut_every, "propagate_scale": propagate_scale,
+                "propagator": MaskPropagator(settings=seeder, rect=rect, recut_every=recut_every,
+                                             propagate_scale=propagate_scale or seeder.scale),
+                # the settings as they were named before SeederSettings, for readers of the node
+                "iterations": seeder.iterations, "auto_init": seeder.colour_cue, "scale": seeder.scale}
 
     def _on_set_parameters(self, parameters) -> SetParametersResult:
         try:
@@ -112,15 +141,41 @@ class SegmentNode(CanopyNode):
         self.settings = settings
         return SetParametersResult(successful=True)
 
-    def _on_image(self, msg: Image) -> None:
-        self.count("received")
-        check_image_msg(msg, expected_size=self.expected_size, encodings=COLOUR_ENCODINGS, min_size=SEGMENT_MIN_SIZE)
-        bgr = msg_to_bgr(msg)
-        propagator = self.settings["propagator"]
+    def _on(self, stream: int, msg) -> None:
+        if stream == 0:
+            self.count("received")
+            check_image_msg(msg, expected_size=self.expected_size, encodings=COLOUR_ENCODINGS,
+                            min_size=SEGMENT_MIN_SIZE)
+            item = msg_to_bgr(msg)
+        else:
+            self.count("disparity_received")
+            check_disparity_msg(msg, expected_size=self.expected_size)
+            frame = msg_to_disparity(msg)
+            # message disparities are reduced by the cameras' cx offset: measured from the
+            # search range's start they are >= 0 where valid, near = high (NaN = unknown)
+            item = frame.disparity - np.float32(frame.min_disparity)
+        if self.sync is None:
+            self._segment(msg.header, item, None)
+            return
+        items, dropped = self.sync.push(stream, stamp_to_ns(msg.header.stamp), (msg.header, item))
+        for d in dropped:
+            self.drop(d.reason, _STREAMS[d.stream], log=not d.reason.startswith("time jumped back"))
+        if items is not None:
+            (header, bgr), (_, disparity) = items
+            self._segment(header, bgr, disparity)
+
+    def _segment(self, header, bgr, disparity) -> None:
+        """Publish the mask of ``bgr`` (with the disparity cue when given) under ``header``."""
+        s = self.settings
+        if disparity is not None and disparity.shape != bgr.shape[:2]:
+            raise CanopyStereoError(f"disparity is {disparity.shape[1]}x{disparity.shape[0]} but the "
+                                    f"image is {bgr.shape[1]}x{bgr.shape[0]}")
+        propagator = s["propagator"]
         full_cuts = propagator.full_cuts
-        mask = propagator.segment(bgr)
+        mask = propagator.segment(bgr, disparity=disparity)
         self.diagnostics.sample("full cut share", float(propagator.full_cuts > full_cuts))
-        self.pub.publish(image_to_msg(mask, "mono8", stamp_to_ns(msg.header.stamp), msg.header.frame_id))
+        self.pub.publish(image_to_msg(mask, "mono8", stamp_ns=stamp_to_ns(header.stamp),
+                                      frame_id=header.frame_id))
         self.count("masks_published")
 
 
