@@ -18,6 +18,7 @@ from canopy_stereo.measure import (
     measure_points,
     measure_scene,
     plot_views,
+    separate_leaves,
     voxel_volume,
     write_report,
 )
@@ -25,7 +26,6 @@ from canopy_stereo.measure.analytic import EllipticLeaf, Plane, render
 from canopy_stereo.measure.canopy import MeasuringFrame, nice_voxel_size, ransac_plane
 from canopy_stereo.measure.sections import outline_field
 from canopy_stereo.measure.surface import local_linear_fit
-from canopy_stereo.segmentation import separate_leaves
 
 
 def _leaf(P, pixel, dist, theta_deg, normal, a=80.0, b=48.5, **kw):

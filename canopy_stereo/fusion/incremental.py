@@ -19,9 +19,9 @@ from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.fusion.freespace import DepthView
 from canopy_stereo.fusion.fuse import FusedCloud, fuse_point_sets
 from canopy_stereo.fusion.registration import RegistrationSettings, _Prepared, _register
-from canopy_stereo.fusion.transforms import check_transform, transform_points
 from canopy_stereo.fusion.views import View
 from canopy_stereo.fusion.voxel import voxel_downsample
+from canopy_stereo.geometry.transforms import check_transform, transform_points
 
 
 @dataclass

@@ -37,7 +37,7 @@ import numpy as np
 import yaml
 
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.fusion.transforms import check_transform, rotation_about_line
+from canopy_stereo.geometry.transforms import check_transform, rotation_about_line
 from canopy_stereo.io.rig import unit_to_metres
 
 

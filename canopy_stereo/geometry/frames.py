@@ -28,6 +28,7 @@ from numba import njit
 
 from canopy_stereo.errors import RigError
 from canopy_stereo.geometry.camera import decompose_projection
+from canopy_stereo.geometry.transforms import invert_transform, transform_points
 from canopy_stereo.geometry.triangulation import kernel_mask
 
 #: The rig's world frame (metres).
@@ -63,20 +64,8 @@ def transform_from_pose(R_cam_world, C_world, scale: float = 1.0) -> np.ndarray:
     return T
 
 
-def invert_transform(T) -> np.ndarray:
-    """Inverse of a rigid 4x4 transform."""
-    T = np.asarray(T, np.float64)
-    out = np.eye(4)
-    out[:3, :3] = T[:3, :3].T
-    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return out
-
-
-def apply_transform(T, points) -> np.ndarray:
-    """Apply a 4x4 transform to points (..., 3); NaN points stay NaN. Returns float64."""
-    T = np.asarray(T, np.float64)
-    p = np.asarray(points, np.float64)
-    return p @ T[:3, :3].T + T[:3, 3]
+#: Apply a 4x4 transform to points (..., 3) (:func:`~canopy_stereo.geometry.transforms.transform_points`).
+apply_transform = transform_points
 
 
 def rotation_to_quaternion(R) -> np.ndarray:

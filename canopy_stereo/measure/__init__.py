@@ -6,6 +6,7 @@ CSV); :func:`measure_leaf` measures one leaf; :func:`plot_views` draws top and
 side views with the measured dimensions.
 """
 from canopy_stereo.measure.canopy import MeasuringFrame, canopy_dimensions, hull_volume, voxel_volume
+from canopy_stereo.measure.instances import separate_leaves
 from canopy_stereo.measure.leaf import LeafMeasurement, measure_leaf
 from canopy_stereo.measure.plot import plot_views
 from canopy_stereo.measure.report import (
@@ -22,5 +23,5 @@ from canopy_stereo.measure.viewpoint import estimate_camera
 __all__ = [
     "LeafMeasurement", "MeasuringFrame", "SceneMeasurement", "canopy_dimensions", "estimate_camera",
     "hull_volume", "load_cloud", "measure_leaf", "measure_organized", "measure_points",
-    "measure_scene", "plot_views", "voxel_volume", "write_leaves_csv", "write_report",
+    "measure_scene", "plot_views", "separate_leaves", "voxel_volume", "write_leaves_csv", "write_report",
 ]

@@ -32,10 +32,10 @@ from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.geometry.camera import camera_centre, decompose_projection
 from canopy_stereo.io.ply import read_ply
 from canopy_stereo.measure.canopy import MeasuringFrame, canopy_dimensions, find_ground, frame_from_up
+from canopy_stereo.measure.instances import connected_surface_parts, neighbour_spacing, separate_leaves
 from canopy_stereo.measure.leaf import EXACT_ROUGHNESS, measure_leaf, roughness
 from canopy_stereo.measure.surface import local_linear_fit
 from canopy_stereo.measure.viewpoint import resolve_camera
-from canopy_stereo.segmentation.instances import connected_surface_parts, neighbour_spacing, separate_leaves
 
 #: Columns of the per-leaf CSV.
 CSV_COLUMNS = ["id", "length", "width", "area", "chord", "normal_x", "normal_y", "normal_z",
