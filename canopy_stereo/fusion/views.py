@@ -14,6 +14,7 @@ import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.fusion.errors import UnitMismatchError
+from canopy_stereo.geometry.clouds import check_cloud
 from canopy_stereo.geometry.transforms import check_transform, transform_points
 
 
@@ -46,7 +47,7 @@ class View:
     source: str = ""
 
     def __post_init__(self):
-        pts = np.asarray(self.points, np.float64).reshape(-1, 3)
+        pts = check_cloud(self.points, organized=None, name=f"points of view {self.name!r}").reshape(-1, 3)
         keep = np.all(np.isfinite(pts), axis=1)
         self.points = pts[keep]
         if self.colors is not None:

@@ -28,7 +28,6 @@ from numba import njit
 
 from canopy_stereo.errors import RigError
 from canopy_stereo.geometry.camera import decompose_projection
-from canopy_stereo.geometry.transforms import invert_transform, transform_points
 from canopy_stereo.geometry.triangulation import kernel_mask
 
 #: The rig's world frame (metres).
@@ -62,10 +61,6 @@ def transform_from_pose(R_cam_world, C_world, scale: float = 1.0) -> np.ndarray:
     T[:3, :3] = R.T
     T[:3, 3] = np.asarray(C_world, np.float64).reshape(3) * float(scale)
     return T
-
-
-#: Apply a 4x4 transform to points (..., 3) (:func:`~canopy_stereo.geometry.transforms.transform_points`).
-apply_transform = transform_points
 
 
 def rotation_to_quaternion(R) -> np.ndarray:

@@ -13,6 +13,7 @@ import numpy as np
 from numba import njit
 
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.geometry.clouds import check_cloud
 from canopy_stereo.measure.surface import local_linear_fit, roughness
 
 
@@ -175,10 +176,8 @@ def separate_leaves(organized: np.ndarray, plant_mask: np.ndarray, max_jump: flo
     Returns:
         (H, W) int32 leaf ids 1..n ordered by decreasing size; 0 = not a leaf.
     """
-    organized = np.asarray(organized, np.float64)
+    organized = check_cloud(organized)
     mask = np.asarray(plant_mask).astype(bool)
-    if organized.ndim != 3 or organized.shape[2] != 3:
-        raise CanopyStereoError(f"organized cloud must be (H, W, 3), got shape {organized.shape}")
     if mask.shape != organized.shape[:2]:
         raise CanopyStereoError(
             f"plant mask is {mask.shape[1]}x{mask.shape[0]} but the organized cloud is "

@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.geometry.clouds import check_cloud
 from canopy_stereo.measure.geodesic import geodesic_diameter
 from canopy_stereo.measure.instances import largest_surface_part
 from canopy_stereo.measure.sections import Section, measure_section, outline_field
@@ -225,10 +226,8 @@ def measure_leaf(organized: np.ndarray, leaf_mask: np.ndarray, leaf_id: int = 1,
         CanopyStereoError: mask of the wrong size, empty, or with fewer than
             ``min_points`` 3D points; unknown model; ``"rays"`` without camera.
     """
-    organized = np.asarray(organized, np.float64)
+    organized = check_cloud(organized)
     mask = np.asarray(leaf_mask).astype(bool)
-    if organized.ndim != 3 or organized.shape[2] != 3:
-        raise CanopyStereoError(f"organized cloud must be (H, W, 3), got shape {organized.shape}")
     if mask.shape != organized.shape[:2]:
         raise CanopyStereoError(
             f"leaf {leaf_id}: mask is {mask.shape[1]}x{mask.shape[0]} but the organized cloud is "
