@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from canopy_stereo.errors import CanopyStereoError, ImageError
-from canopy_stereo.geometry.clouds import check_cloud
+from canopy_stereo.geometry.clouds import check_cloud, check_on_grid
 
 
 def test_check_cloud_accepts_clouds_and_names_what_is_wrong():
@@ -32,6 +32,9 @@ def test_check_cloud_accepts_clouds_and_names_what_is_wrong():
         check_cloud([[1, 2, 3], [4, 5]], organized=None)
     with pytest.raises(ImageError):
         check_cloud(np.zeros(3), organized=None, error=ImageError)
+    check_on_grid(np.zeros((4, 5), bool), np.zeros((4, 5, 3)), "mask")
+    with pytest.raises(CanopyStereoError, match=r"^mask is 5x4 but the organized cloud is 6x4 \(draw it on the left\)$"):
+        check_on_grid(np.zeros((4, 5), bool), np.zeros((4, 6, 3)), "mask", hint="draw it on the left")
 
 
 def test_every_consumer_refuses_a_flat_point_list_with_the_same_words(tmp_path):

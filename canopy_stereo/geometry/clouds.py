@@ -53,3 +53,13 @@ def check_cloud(points, *, organized: bool | None = True, name: str = "organized
     elif raw.ndim not in (2, 3) or shape[-1] != 3:
         raise error(f"{name} must be an (N, 3) or (H, W, 3) array, got shape {shape}")
     return np.asarray(raw, dtype=dtype)
+
+
+def check_on_grid(image, organized, name: str, *, hint: str = "") -> None:
+    """Raise :class:`CanopyStereoError` unless the (H, W[, C]) ``image`` (a mask, leaf ids)
+    lies on the pixel grid of the (H, W, 3) ``organized`` cloud; ``hint`` is added to the message."""
+    h, w = np.shape(image)[:2]
+    H, W = np.shape(organized)[:2]
+    if (h, w) != (H, W):
+        raise CanopyStereoError(f"{name} is {w}x{h} but the organized cloud is {W}x{H}"
+                                + (f" ({hint})" if hint else ""))

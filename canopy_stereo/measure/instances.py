@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.geometry.clouds import check_cloud
+from canopy_stereo.geometry.clouds import check_cloud, check_on_grid
 from canopy_stereo.measure.surface import local_linear_fit, roughness
 
 
@@ -178,10 +178,7 @@ def separate_leaves(organized: np.ndarray, plant_mask: np.ndarray, max_jump: flo
     """
     organized = check_cloud(organized)
     mask = np.asarray(plant_mask).astype(bool)
-    if mask.shape != organized.shape[:2]:
-        raise CanopyStereoError(
-            f"plant mask is {mask.shape[1]}x{mask.shape[0]} but the organized cloud is "
-            f"{organized.shape[1]}x{organized.shape[0]}")
+    check_on_grid(mask, organized, "plant mask")
     valid = mask & np.all(np.isfinite(organized), axis=-1)
     if valid.sum() < 3:
         raise CanopyStereoError(f"the plant mask has only {int(valid.sum())} pixels with 3D points "

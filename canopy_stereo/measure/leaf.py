@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.geometry.clouds import check_cloud
+from canopy_stereo.geometry.clouds import check_cloud, check_on_grid
 from canopy_stereo.measure.geodesic import geodesic_diameter
 from canopy_stereo.measure.instances import largest_surface_part
 from canopy_stereo.measure.sections import Section, measure_section, outline_field
@@ -228,10 +228,7 @@ def measure_leaf(organized: np.ndarray, leaf_mask: np.ndarray, leaf_id: int = 1,
     """
     organized = check_cloud(organized)
     mask = np.asarray(leaf_mask).astype(bool)
-    if mask.shape != organized.shape[:2]:
-        raise CanopyStereoError(
-            f"leaf {leaf_id}: mask is {mask.shape[1]}x{mask.shape[0]} but the organized cloud is "
-            f"{organized.shape[1]}x{organized.shape[0]}")
+    check_on_grid(mask, organized, f"leaf {leaf_id}: mask")
     if model not in SURFACE_MODELS:
         raise CanopyStereoError(f"unknown surface model {model!r}; choose one of {', '.join(SURFACE_MODELS)}")
     if model == "rays" and camera is None:

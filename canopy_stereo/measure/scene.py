@@ -16,7 +16,7 @@ import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.geometry.camera import camera_centre
-from canopy_stereo.geometry.clouds import check_cloud
+from canopy_stereo.geometry.clouds import check_cloud, check_on_grid
 from canopy_stereo.measure.canopy import canopy_dimensions
 from canopy_stereo.measure.cleaning import (
     clean_canopy,
@@ -77,11 +77,7 @@ def _check_image_grid(img, organized: np.ndarray, name: str) -> np.ndarray:
             raise CanopyStereoError(f"{name} must be a single-channel image, got shape {arr.shape}")
     if arr.ndim != 2:
         raise CanopyStereoError(f"{name} must be an (H, W) image, got shape {arr.shape}")
-    h, w = organized.shape[:2]
-    if arr.shape != (h, w):
-        raise CanopyStereoError(
-            f"{name} is {arr.shape[1]}x{arr.shape[0]} but the organized cloud is {w}x{h} "
-            "(it must be drawn on the original left image)")
+    check_on_grid(arr, organized, name, hint="it must be drawn on the original left image")
     return arr
 
 
