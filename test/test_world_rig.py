@@ -17,12 +17,11 @@ from canopy_stereo.geometry.world_rig import (
     board_world_points,
     calibrate_world_rig,
     detect_board_corners,
-    load_placements,
     paper_layout_placements,
     resolve_corner_order,
-    write_placements,
 )
 from canopy_stereo.io.images import ImageFiles
+from canopy_stereo.io.placements import load_placements, write_placements
 
 # --------------------------------------------------------------------------- placements
 

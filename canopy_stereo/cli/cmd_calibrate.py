@@ -95,7 +95,8 @@ def run(args) -> int:
         args.square = 25.0
     _check_arguments(args)
     if args.points:
-        from canopy_stereo.geometry.calibration import calibrate_stereo_points, read_correspondences_csv
+        from canopy_stereo.geometry.calibration import calibrate_stereo_points
+        from canopy_stereo.io.correspondences import read_correspondences_csv
 
         X, xl, xr = read_correspondences_csv(args.points)
         cal = calibrate_stereo_points(X, xl, xr)
@@ -142,7 +143,8 @@ def run(args) -> int:
 
 def _run_paper_layout(args) -> int:
     """``--paper-layout -o placements.yaml``: the paper's layout as a placements file."""
-    from canopy_stereo.geometry.world_rig import PAPER_LAYOUT, paper_layout_placements, write_placements
+    from canopy_stereo.geometry.world_rig import PAPER_LAYOUT, paper_layout_placements
+    from canopy_stereo.io.placements import write_placements
 
     layout = {}
     if args.first_mark is not None:
@@ -182,12 +184,8 @@ def _run_paper_layout(args) -> int:
 
 def _run_world_rig(args) -> int:
     """``--world-rig PLACEMENTS.yaml LEFT_GLOB RIGHT_GLOB``: the paper's world-rig calibration."""
-    from canopy_stereo.geometry.world_rig import (
-        calibrate_world_rig,
-        load_placements,
-        parse_pattern,
-        plot_world_rig_errors,
-    )
+    from canopy_stereo.geometry.world_rig import calibrate_world_rig, parse_pattern, plot_world_rig_errors
+    from canopy_stereo.io.placements import load_placements
 
     placements_path, left_glob, right_glob = args.world_rig
     placements = load_placements(placements_path)

@@ -16,7 +16,8 @@ its rows (``x_axis``) and down its columns (``y_axis``). Inner corner ``(i, j)``
 ``origin + square * (i * x_axis + j * y_axis)``, in the row-major order of
 :func:`board_world_points` (OpenCV's order for a ``(cols, rows)`` pattern).
 
-Placements file (YAML; :func:`load_placements`, :func:`write_placements`)::
+Placements file (YAML; read and written by :mod:`canopy_stereo.io.placements`,
+parsed by :func:`placements_from_dict`)::
 
     pattern: 7x5          # inner corners, columns x rows
     square: 50            # world units
@@ -54,7 +55,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from canopy_stereo.errors import CalibrationError
 from canopy_stereo.geometry.calibration import (
@@ -275,60 +275,6 @@ def placements_from_dict(doc, source: str = "placements") -> Placements:
         label = e.get("label", "")
         out.append(BoardPlacement(pair, origin, axes[0], axes[1], "" if label is None else str(label)))
     return Placements(pattern, square, unit, tuple(out))
-
-
-def load_placements(path) -> Placements:
-    """Read and validate a placements YAML file (format in the module docstring).
-
-    Returns:
-        :class:`Placements` (world unit from the file's ``unit``, default ``mm``).
-
-    Raises:
-        CalibrationError: unreadable file, invalid YAML, or any invalid entry
-            (the message names the file, the entry and the problem).
-    """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise CalibrationError(f"cannot read placements file {path}: {exc.strerror or exc}") from None
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        first = str(exc).splitlines()[0] if str(exc) else "syntax error"
-        raise CalibrationError(f"placements file {path} is not valid YAML: {first}") from None
-    return placements_from_dict(doc, source=str(path))
-
-
-def _fmt(v: float) -> float:
-    return float(f"{float(v):.6g}") if abs(v) > 1e-12 else 0.0
-
-
-def write_placements(placements: Placements, path, *, comment: str | None = None) -> Path:
-    """Write ``placements`` as a placements YAML file (readable by :func:`load_placements`).
-
-    Coordinates are written with 6 significant digits. ``comment`` lines go on top.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    lines = []
-    if comment:
-        lines += [f"# {c}".rstrip() for c in comment.splitlines()]
-    cols, rows = placements.pattern
-    lines += [f"{f'pattern: {cols}x{rows}':<22}# inner corners, columns x rows",
-              f"{f'square: {_fmt(placements.square):g}':<22}# world units",
-              f"unit: {placements.unit}",
-              f"{'placements:':<22}# one per image pair, in the sorted order of the globs"]
-    for p in placements:
-        vec = lambda v: "[" + ", ".join(f"{_fmt(x):.6g}" for x in v) + "]"  # noqa: E731
-        lines.append(f"  - pair: {p.pair}")
-        lines.append(f"    origin: {vec(p.origin)}")
-        lines.append(f"    x_axis: {vec(p.x_axis)}")
-        lines.append(f"    y_axis: {vec(p.y_axis)}")
-        if p.label:
-            lines.append(f"    label: {yaml.safe_dump(p.label, width=1 << 30).splitlines()[0]}")
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    return path
 
 
 def board_world_points(placement: BoardPlacement, pattern, square: float) -> np.ndarray:
