@@ -58,7 +58,7 @@ class SceneMeasurement:
     leaf_ids: np.ndarray | None = None
 
 
-def check_organized(organized, name: str = "organized cloud") -> np.ndarray:
+def check_organized(organized, *, name: str = "organized cloud") -> np.ndarray:
     """``organized`` as float64 (H, W, 3) (at least 2 x 2, :func:`~canopy_stereo.geometry.clouds.check_cloud`)
     with at least 3 valid points, or :class:`CanopyStereoError`."""
     arr = check_cloud(organized, name=name, min_size=2)
