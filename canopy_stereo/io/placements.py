@@ -13,6 +13,7 @@ import yaml
 
 from canopy_stereo.errors import CalibrationError
 from canopy_stereo.geometry.world_rig import Placements, placements_from_dict
+from canopy_stereo.io.yaml_files import read_yaml_file
 
 
 def load_placements(path) -> Placements:
@@ -25,16 +26,7 @@ def load_placements(path) -> Placements:
         CalibrationError: unreadable file, invalid YAML, or any invalid entry
             (the message names the file, the entry and the problem).
     """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise CalibrationError(f"cannot read placements file {path}: {exc.strerror or exc}") from None
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        first = str(exc).splitlines()[0] if str(exc) else "syntax error"
-        raise CalibrationError(f"placements file {path} is not valid YAML: {first}") from None
+    doc = read_yaml_file(path, "placements file", error=CalibrationError)
     return placements_from_dict(doc, source=str(path))
 
 
