@@ -1,36 +1,41 @@
-"""Benchmark: the ROS 2 node graph replaying 640x480 paper-rig frames (issue 5).
+"""Benchmark: the ROS 2 node graph at camera rate (issues 5, 12, 15).
 
-Target: ``canopy-stereo run --rate 0`` at >= 10 frames/s, and < 150 ms from a
-raw pair to its ``points2``, on the 2-core development machine.
+Per configuration (``--configs``; ``--quick`` for the two headline ones, no option for all
+24), the graph is fed by two camera publishers at ``--rate`` (30) frames/s with
+bgr8 pairs of **real plant images** (Middlebury 2014 "Plants", the pair in the bundled
+``bags/plants.mcap``, cropped to 640x480 and resized to the configuration's size; the
+crop window drifts by a few pixels and sensor noise changes every frame, as a hand-held
+rig's would; ``--scene croton`` uses the bundled synthetic croton instead), and prints:
 
-A bag of ``--frames`` 640x480 frames is made from the bundled synthetic croton
-(paper rig, 15 frames/s stamps) and replayed through the real nodes, built
-in-process on a private DDS domain, exactly as ``canopy-stereo run`` does:
+* clouds/s offered (pairs published per second) and delivered (``points2`` received for
+  them per second, first pair published -> last cloud received) and their ratio;
+* latency median and 95th percentile: a pair's stamp (the wall clock when the left image
+  is published, as a camera driver stamps it) to its cloud's arrival in the feeding process;
+* CPU ms per node per offered pair (and per frame the node output, ``/out``): user + system time from ``/proc/<pid>/stat`` of each node
+  process (its DDS threads included) or, in one process, from ``/proc/self/task/<tid>/stat``
+  of each node's threads (executor, worker, ELAS pool; DDS threads count as ``dds``); the
+  feeding process (publishers + the cloud subscriber) is ``feed``;
+* frames each node output (``out`` totals on ``/diagnostics``) and inputs it dropped;
+* memory: peak RSS (``VmHWM``) of each node process, or of the one process.
 
-* throughput: ``--rate 0`` with two frames in flight (the run default);
-* latency: ``--rate 0`` with one frame in flight (an unloaded pipeline:
-  raw pair published -> ``points2`` received);
+Configuration ``MODE:MATCHER:MASK:SIZE``: MODE ``processes`` (rectify, disparity,
+[segment,] point_cloud, one process each, as ``ros2 run``/the launch file start them) or
+``inprocess`` (the same nodes in one process, as ``canopy_graph``/``canopy-stereo run``);
+MATCHER ``elas``/``sgbm``; MASK ``mask`` (segment_node runs and point_cloud_node keeps only
+plant pixels, ``use_mask``) or ``nomask`` (no segment_node); SIZE ``320x240``, ``640x480`` or
+``1280x960``. Each configuration runs in a fresh process (``--one``), so that memory peaks and
+numba/DDS state do not carry over. CPU time is much less sensitive to a loaded machine than
+wall-clock rates: the targets (>= 27 clouds/s, median latency < 100 ms, 640x480 at 30 Hz, on 2
+cores) need the nodes' CPU per pair to stay below 2 cores x 33 ms = 66 ms in total.
 
-for each matcher and with/without ``segment_node``. Also prints the busy time
-per frame of every node (seconds inside its callbacks), and the figures of the
-CLI itself for the default configuration (ELAS, segmentation, recording).
+    .venv/bin/python benchmarks/bench_graph.py --quick
+    .venv/bin/python benchmarks/bench_graph.py --configs processes:elas:mask:640x480 --frames 150
+    .venv/bin/python benchmarks/bench_graph.py            # all 24 configurations (~15 min)
 
-``--executors per-node multi`` also runs the graph on one rclpy
-MultiThreadedExecutor for comparison.
-
-Multi-process mode (issue 12, ``--processes``; ``--processes-only`` skips the rest):
-the four processing nodes (rectify, disparity with ELAS, segment, point_cloud), one
-process each as ``ros2 run``/the launch file start them, are fed by a stand-in camera
-driver (system-default QoS: reliable, keep last 10) publishing the same 640x480 frames
-at each of ``--rates`` (default 15 and 30 Hz); printed: clouds per offered pair and
-the median/90th-percentile latency (right image published -> ``points2`` received,
-both clocks in the feeding process). Against it, the in-process graph
-(``canopy-stereo run``) replays the same frames at the same rates (a bag stamped at
-that rate, ``--rate 1``). Target: the multi-process graph loses no more than 20 %
-against the in-process figures.
-
-    .venv/bin/python benchmarks/bench_graph.py [--frames 40] [--matchers elas sgbm] [--executors per-node multi]
-    .venv/bin/python benchmarks/bench_graph.py --processes-only --rates 15 30 --frames 60
+Older modes, kept: ``--replay`` replays a croton bag through the in-process graph as fast as
+possible (``--matchers``, ``--executors``, ``--no-cli``: frames/s, latency, busy time per node);
+``--processes`` / ``--processes-only`` compare the four node processes with the in-process
+graph fed the croton frames at ``--rates`` (issue 12's benchmark).
 """
 from __future__ import annotations
 
@@ -40,6 +45,7 @@ import io
 import os
 import sys
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -134,18 +140,8 @@ def per_frame_busy(result) -> str:
                      for name, st in sorted(result.graph_stats.items()))
 
 
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--frames", type=int, default=40)
-    p.add_argument("--matchers", nargs="*", default=["elas", "sgbm"])
-    p.add_argument("--executors", nargs="*", default=["per-node"], choices=["per-node", "multi"])
-    p.add_argument("--no-cli", action="store_true", help="skip the CLI run")
-    p.add_argument("--processes", action="store_true",
-                   help="also run the multi-process mode (4 node processes fed at --rates)")
-    p.add_argument("--processes-only", action="store_true", help="only the multi-process mode")
-    p.add_argument("--rates", nargs="*", type=float, default=[15.0, 30.0],
-                   help="feeding rates of the multi-process mode (Hz)")
-    args = p.parse_args(argv)
+def legacy_main(args) -> int:
+    """The replay (``--replay``) and issue-12 rate (``--processes``) modes."""
     rig = load_rig(bundled_rig("croton"))
     print(f"machine: {os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.2f}; "
           f"{args.frames} frames of {rig.image_size[0]}x{rig.image_size[1]} (paper rig)")
@@ -185,6 +181,489 @@ def main(argv=None) -> int:
                 if not line.startswith("recorded"):
                     print("  " + line)
     return 0
+
+
+# --------------------------------------------------------------------------- issue 15: per configuration
+
+#: Configuration sizes -> scale of the 640x480 frames.
+SIZES = {"320x240": 0.5, "640x480": 1.0, "1280x960": 2.0}
+MODES = ("processes", "inprocess")
+MATCHERS = ("elas", "sgbm")
+MASKS = ("mask", "nomask")
+#: ``--quick``: the issue's graph (four processes, ELAS, the mask, 640x480) and the same in one process.
+QUICK_CONFIGS = ("processes:elas:mask:640x480", "inprocess:elas:mask:640x480")
+#: Crop of the 710x496 Plants pair to 640x480 (centre of the drift), pixels.
+PLANTS_CROP = (35, 8)
+#: Drift of the crop window (pixels, each way) and its period (frames).
+DRIFT_PX, DRIFT_PERIOD = (12, 6), 60
+#: Standard deviation of the per-frame sensor noise (grey levels).
+NOISE_SIGMA = 2.0
+
+
+@dataclass(frozen=True)
+class Config:
+    """One benchmark configuration (see the module docstring)."""
+
+    mode: str
+    matcher: str
+    mask: bool
+    size: str
+
+    @classmethod
+    def parse(cls, text: str) -> "Config":
+        """``MODE:MATCHER:MASK:SIZE`` -> Config (ValueError naming the bad part)."""
+        parts = text.split(":")
+        if len(parts) != 4:
+            raise ValueError(f"configuration {text!r}: expected MODE:MATCHER:MASK:SIZE, "
+                             "e.g. processes:elas:mask:640x480")
+        mode, matcher, mask, size = parts
+        for value, choices, what in ((mode, MODES, "mode"), (matcher, MATCHERS, "matcher"),
+                                     (mask, MASKS, "mask"), (size, tuple(SIZES), "size")):
+            if value not in choices:
+                raise ValueError(f"configuration {text!r}: {what} must be one of {', '.join(choices)}")
+        return cls(mode, matcher, mask == "mask", size)
+
+    def __str__(self) -> str:
+        return f"{self.mode}:{self.matcher}:{'mask' if self.mask else 'nomask'}:{self.size}"
+
+    @property
+    def nodes(self) -> tuple[str, ...]:
+        base = ("rectify_node", "disparity_node", "segment_node", "point_cloud_node")
+        return base if self.mask else tuple(n for n in base if n != "segment_node")
+
+
+def all_configs() -> list[str]:
+    """Every configuration, processes before in-process, 640x480 first."""
+    sizes = ["640x480", "320x240", "1280x960"]
+    return [f"{m}:{a}:{k}:{s}" for s in sizes for a in MATCHERS for k in MASKS for m in MODES]
+
+
+def scaled_rig(rig, scale: float, crop=(0, 0), size=None):
+    """``rig`` for images cropped at ``crop`` = (x0, y0) to ``size`` (default: the rest) and
+    then resized by ``scale`` (``cv2.resize``: pixel centres ``u' = s u + (s - 1) / 2``); the
+    rig's ``disp_min``/``disp_max`` follow the scale."""
+    import numpy as np
+
+    from canopy_stereo.io.rig import Rig
+
+    x0, y0 = crop
+    w, h = size or (rig.image_size[0] - x0, rig.image_size[1] - y0)
+    s = float(scale)
+    A = np.array([[s, 0.0, (s - 1) / 2 - s * x0], [0.0, s, (s - 1) / 2 - s * y0], [0.0, 0.0, 1.0]])
+    extra = dict(rig.extra)
+    if "disp_min" in extra:
+        extra["disp_min"] = max(0, int(np.floor(extra["disp_min"] * s)))
+    if "disp_max" in extra:
+        extra["disp_max"] = int(np.ceil(extra["disp_max"] * s))
+    return Rig(A @ rig.P_left, A @ rig.P_right, (round(w * s), round(h * s)), rig.world_unit,
+               rig.D_left, rig.D_right, extra)
+
+
+def bench_frames(scene: str, size: str, n_frames: int = DRIFT_PERIOD, seed: int = 0):
+    """``(rig, frames)``: the rig of ``size`` and ``n_frames`` (left, right) uint8 BGR pairs of
+    the bundled ``scene`` (``plants``: the real Middlebury pair, a 640x480 crop drifting by
+    :data:`DRIFT_PX`; ``croton``: the four synthetic frames, cycled), resized to ``size``, with
+    fresh sensor noise (sigma :data:`NOISE_SIGMA`) in every frame."""
+    import cv2
+    import numpy as np
+
+    bag = BagReader(bundled_bag(scene))
+    lefts = [msg_to_image(m).copy() for _, m in bag.read("/stereo/left/image_raw")]
+    rights = [msg_to_image(m).copy() for _, m in bag.read("/stereo/right/image_raw")]
+    rig = load_rig(bundled_rig(scene))
+    scale = SIZES[size]
+    rng = np.random.default_rng(seed)
+    frames = []
+    if scene == "plants":
+        rig = scaled_rig(rig, scale, PLANTS_CROP, (640, 480))
+        (cx, cy), (dx, dy) = PLANTS_CROP, DRIFT_PX
+        cx, cy = min(cx, lefts[0].shape[1] - 640 - dx), min(cy, lefts[0].shape[0] - 480 - dy)
+    else:
+        rig = scaled_rig(rig, scale)
+    for k in range(n_frames):
+        left, right = lefts[k % len(lefts)], rights[k % len(rights)]
+        if scene == "plants":
+            phase = 2 * np.pi * k / DRIFT_PERIOD
+            x = cx + int(round(dx * np.sin(phase)))
+            y = cy + int(round(dy * np.sin(2 * phase)))
+            left, right = left[y:y + 480, x:x + 640], right[y:y + 480, x:x + 640]
+        pair = []
+        for img in (left, right):
+            if scale != 1:
+                img = cv2.resize(img, rig.image_size, interpolation=cv2.INTER_AREA if scale < 1
+                                 else cv2.INTER_LINEAR)
+            noisy = img.astype(np.float32) + rng.normal(0.0, NOISE_SIGMA, img.shape).astype(np.float32)
+            pair.append(np.clip(np.rint(noisy), 0, 255).astype(np.uint8))
+        frames.append(tuple(pair))
+    return rig, frames
+
+
+CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
+
+
+def proc_cpu_seconds(pid: int | str = "self", tid: int | None = None) -> float:
+    """User + system CPU seconds of a process (all its threads) or of one of its threads
+    (``/proc/<pid>/stat`` or ``/proc/<pid>/task/<tid>/stat``, fields 14 and 15)."""
+    path = f"/proc/{pid}/stat" if tid is None else f"/proc/{pid}/task/{tid}/stat"
+    with open(path) as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS  # utime, stime (fields 14, 15)
+
+
+def proc_peak_rss_mb(pid: int | str = "self") -> float:
+    """Peak resident set (``VmHWM``) of a process in MB (NaN when unreadable)."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return float("nan")
+
+
+def thread_owner(name: str) -> str:
+    """The node (or ``feed``/``dds``) a thread of the in-process graph works for, from its name:
+    ``canopy_graph:<node>`` (executor), ``<node>:latest`` (LatestOnly worker), ``elas_<i>``
+    (ELAS pool, the disparity node's), ``bench:*`` (feeder and probe)."""
+    if name.startswith("canopy_graph:"):
+        return name.split(":", 1)[1]
+    if name.endswith(":latest"):
+        return name.rsplit(":", 1)[0]
+    if name.startswith("elas"):
+        return "disparity_node"
+    if name.startswith("bench:"):
+        return "feed"
+    return "dds"
+
+
+def in_process_cpu_seconds() -> dict:
+    """Owner (:func:`thread_owner`) -> CPU seconds of the threads of this process; threads not
+    started by Python (the middleware's) and the main thread count as ``dds``/``feed``."""
+    import threading
+
+    out: dict = {}
+    named = {}
+    for t in threading.enumerate():
+        if t.native_id is not None:
+            named[t.native_id] = "feed" if t is threading.main_thread() else thread_owner(t.name)
+    for entry in os.listdir("/proc/self/task"):
+        tid = int(entry)
+        try:
+            cpu = proc_cpu_seconds("self", tid)
+        except OSError:  # the thread ended meanwhile
+            continue
+        owner = named.get(tid, "dds")
+        out[owner] = out.get(owner, 0.0) + cpu
+    return out
+
+
+class DiagnosticsTotals:
+    """Latest ``out ... total`` and ``dropped total`` of every node on ``/diagnostics``."""
+
+    def __init__(self, node):
+        import threading
+
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        self.lock = threading.Lock()
+        self.latest: dict = {}
+        node.create_subscription(DiagnosticArray, "/diagnostics", self._on, 50)
+
+    def _on(self, msg) -> None:
+        for status in msg.status:
+            node = status.name.split(":", 1)[0]
+            values = {kv.key: kv.value for kv in status.values}
+            outs = [int(v) for k, v in values.items() if k.startswith("out ") and k.endswith(" total")]
+            with self.lock:
+                self.latest[node] = {"out": max(outs) if outs else 0,
+                                     "dropped": int(values.get("dropped total", 0))}
+
+    def snapshot(self) -> dict:
+        with self.lock:
+            return {k: dict(v) for k, v in self.latest.items()}
+
+
+def parse_node_parameter(text: str) -> tuple[str, str, object]:
+    """``NODE:NAME=VALUE`` (VALUE in YAML, as ``-p NAME:=VALUE``) -> ``(node, name, value)``."""
+    import yaml
+
+    node, sep, rest = text.partition(":")
+    name, eq, value = rest.partition("=")
+    if not sep or not eq or not node or not name:
+        raise ValueError(f"node parameter {text!r}: expected NODE:NAME=VALUE, "
+                         "e.g. disparity_node:elas.subsampling=true")
+    return node, name, yaml.safe_load(value)
+
+
+def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rate_hz: float = 30.0,
+               log_dir: Path, threads: int | None = None, node_parameters: dict | None = None) -> dict:
+    """Feed the graph of ``config`` ``n_frames`` pairs at ``rate_hz``; the figures (see the module
+    docstring) as a dict. Runs in the calling process (``main`` gives each configuration a fresh one)."""
+    import threading
+    import time
+
+    import numpy as np
+    from sensor_msgs.msg import Image, PointCloud2
+
+    from canopy_stereo.io.rig import save_rig
+    from canopy_stereo.ros.context import private_domain_id
+    from canopy_stereo.ros.convert import image_to_msg
+    from canopy_stereo.ros.recorder import header_stamp_from_cdr
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
+    from ros_harness import Probe, ProcessGroup, wait_for
+
+    rig, frames = bench_frames(scene, config.size)
+    log_dir.mkdir(parents=True, exist_ok=True)
+    rig_path = save_rig(rig, log_dir / "rig.yaml")
+    domain = private_domain_id()
+    params = {"disparity_node": {"matcher": config.matcher},
+              "point_cloud_node": {"use_mask": config.mask}}
+    if threads:
+        params["disparity_node"]["threads"] = int(threads)
+    for node, values in (node_parameters or {}).items():
+        params.setdefault(node, {}).update(values)
+    group = graph = probe = None
+    arrivals: dict = {}
+    lock = threading.Lock()
+    try:
+        probe = Probe(domain, name="bench_probe")
+        probe._thread.name = "bench:probe"
+        if config.mode == "processes":
+            group = ProcessGroup(domain, log_dir)
+            procs = group.start_graph(rig_path, nodes=config.nodes, params=params)
+            pids = {name: p.pid for name, p in procs.items()}
+        else:
+            from canopy_stereo.ros.graph import CanopyGraph, GraphOptions
+
+            in_graph = {node: {k: v for k, v in values.items() if (node, k) not in
+                               (("disparity_node", "matcher"), ("point_cloud_node", "use_mask"))}
+                        for node, values in params.items()}
+            graph = CanopyGraph(rig, probe.context, GraphOptions(
+                matcher=config.matcher, segment=config.mask, use_mask=config.mask,
+                parameter_services=False, node_parameters=in_graph))
+            graph.spin_in_background()
+            pids = {}
+        diagnostics = DiagnosticsTotals(probe.node)
+        pub_l = probe.publisher(Image, "left/image_raw")
+        pub_r = probe.publisher(Image, "right/image_raw")
+
+        def on_cloud(data):
+            t = time.time_ns()
+            stamp = header_stamp_from_cdr(data[:12])
+            with lock:
+                arrivals.setdefault(stamp, t)
+
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+        sub = probe.node.create_subscription(PointCloud2, "points2", on_cloud,
+                                             QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE),
+                                             raw=True)
+        if not wait_for(lambda: sub.get_publisher_count() >= 1 and pub_l.get_subscription_count() >= 1
+                        and pub_r.get_subscription_count() >= 1, 60.0, group=group):
+            raise RuntimeError("the graph did not connect" + (":\n" + group.logs() if group else ""))
+        msgs = [(image_to_msg(left, "bgr8", 0, "left_camera"), image_to_msg(right, "bgr8", 0, "right_camera"))
+                for left, right in frames]
+
+        def publish(k: int) -> int:
+            stamp = time.time_ns()
+            left, right = msgs[k % len(msgs)]
+            left.header.stamp.sec, left.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+            right.header.stamp.sec, right.header.stamp.nanosec = divmod(stamp + 4_000_000, 1_000_000_000)
+            pub_l.publish(left)
+            pub_r.publish(right)
+            return stamp
+
+        # warm-up: first-call costs (numba caches, buffers) at 2 Hz until clouds come, then at the
+        # rate for a second, so that every node's allocations and queues are in steady state
+        deadline = time.monotonic() + 120.0
+        k = 0
+        while not arrivals and time.monotonic() < deadline:
+            publish(k)
+            k += 1
+            wait_for(lambda: bool(arrivals), 0.5, group=group)
+        if not arrivals:
+            raise RuntimeError("no cloud during the warm-up" + (":\n" + group.logs() if group else ""))
+        for j in range(int(rate_hz)):
+            publish(k + j)
+            time.sleep(1.0 / rate_hz)
+        time.sleep(2.5)  # drain, and one diagnostics period for the totals
+        with lock:
+            arrivals.clear()
+        diag0 = diagnostics.snapshot()
+
+        def cpu_now() -> dict:
+            if pids:
+                out = {name: proc_cpu_seconds(pid) for name, pid in pids.items()}
+                out["feed"] = proc_cpu_seconds("self")
+                return out
+            return in_process_cpu_seconds()
+
+        cpu0, wall0 = cpu_now(), time.monotonic()
+        sent = []
+        t0 = time.monotonic()
+        for i in range(n_frames):
+            delay = t0 + i / rate_hz - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            sent.append(publish(i))
+        t_fed = time.monotonic()
+        wanted = set(sent)
+        last, last_n = time.monotonic(), 0
+        while time.monotonic() - last < 2.0 and time.monotonic() - t_fed < 30.0:
+            with lock:
+                n = len(wanted & set(arrivals))
+            if n == len(wanted):
+                break
+            if n != last_n:
+                last, last_n = time.monotonic(), n
+            time.sleep(0.05)
+        cpu1, wall1 = cpu_now(), time.monotonic()
+        time.sleep(1.3)  # the next diagnostics period
+        diag1 = diagnostics.snapshot()
+        with lock:
+            got = {s: t for s, t in arrivals.items() if s in wanted}
+        lat_ms = np.array([(got[s] - s) / 1e6 for s in sent if s in got])
+        feed_s = (sent[-1] - sent[0]) / 1e9 if len(sent) > 1 else float("nan")
+        span_s = (max(got.values()) - sent[0]) / 1e9 if got else float("nan")
+        nodes = {}
+        for name in (*config.nodes, "dds", "feed"):
+            if name not in cpu1 and name not in cpu0:
+                continue
+            row = {"cpu_ms_per_pair": (cpu1.get(name, 0.0) - cpu0.get(name, 0.0)) / n_frames * 1e3}
+            if name in diag1:
+                row["out"] = diag1[name]["out"] - diag0.get(name, {}).get("out", 0)
+                row["dropped"] = diag1[name]["dropped"] - diag0.get(name, {}).get("dropped", 0)
+            if name in pids:
+                row["rss_peak_mb"] = proc_peak_rss_mb(pids[name])
+            nodes[name] = row
+        return {
+            "config": str(config), "scene": scene, "frames": n_frames, "rate_hz": rate_hz,
+            "offered_per_s": (len(sent) - 1) / feed_s if feed_s > 0 else float("nan"),
+            "delivered_per_s": len(got) / span_s if got and span_s > 0 else 0.0,
+            "delivered_fraction": len(got) / len(sent),
+            "latency_median_ms": float(np.median(lat_ms)) if lat_ms.size else float("nan"),
+            "latency_p95_ms": float(np.percentile(lat_ms, 95)) if lat_ms.size else float("nan"),
+            "cpu_window_s": wall1 - wall0,
+            "process_rss_peak_mb": proc_peak_rss_mb("self"),
+            "nodes": nodes,
+        }
+    finally:
+        if graph is not None:
+            graph.shutdown()
+        if probe is not None:
+            probe.close()
+        if group is not None:
+            group.stop_all()
+
+
+def _short(name: str) -> str:
+    return name.replace("_node", "").replace("point_cloud", "cloud")
+
+
+def format_result(r: dict) -> list[str]:
+    """Two lines per configuration: rates and latency; then CPU ms/pair, outputs, drops, RSS per node."""
+    lines = [f"{r['config']:32s} {r['offered_per_s']:7.1f} {r['delivered_per_s']:9.1f} "
+             f"{r['delivered_fraction'] * 100:5.0f}% {r['latency_median_ms']:8.0f} {r['latency_p95_ms']:6.0f}  "
+             f"cpu {sum(v['cpu_ms_per_pair'] for k, v in r['nodes'].items() if k != 'feed'):5.1f} ms/pair"]
+    parts = []
+    for name, v in r["nodes"].items():
+        text = f"{_short(name)} {v['cpu_ms_per_pair']:.1f}"
+        if "out" in v:
+            per_out = v["cpu_ms_per_pair"] * r["frames"] / v["out"] if v["out"] else float("nan")
+            text += f" ({per_out:.1f}/out; out {v['out']}, drop {v['dropped']})"
+        if "rss_peak_mb" in v:
+            text += f" {v['rss_peak_mb']:.0f} MB"
+        parts.append(text)
+    if r["config"].startswith("inprocess"):
+        parts.append(f"process {r['process_rss_peak_mb']:.0f} MB")
+    lines.append("    cpu ms per offered pair (per frame output): " + ", ".join(parts))
+    return lines
+
+
+HEADER = (f"{'configuration':32s} {'offered':>7s} {'delivered':>9s} {'ratio':>6s} {'lat p50':>8s} "
+          f"{'p95':>6s}  (clouds/s, ms)")
+
+
+def main(argv=None) -> int:
+    import json
+    import subprocess
+
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--configs", nargs="+", metavar="MODE:MATCHER:MASK:SIZE",
+                   help="configurations to run (default: all 24; see the module docstring)")
+    p.add_argument("--quick", action="store_true", help=f"only {' and '.join(QUICK_CONFIGS)}")
+    p.add_argument("--scene", choices=("plants", "croton"), default="plants",
+                   help="frames: the real Middlebury Plants pair (default) or the synthetic croton")
+    p.add_argument("--rate", type=float, default=30.0, help="camera rate (pairs/s)")
+    p.add_argument("--frames", type=int, default=None,
+                   help="pairs fed per configuration (default 90; the --replay/--processes modes: 40)")
+    p.add_argument("--threads", type=int, default=None,
+                   help="disparity_node's thread budget (default: the node's)")
+    p.add_argument("--param", action="append", default=[], metavar="NODE:NAME=VALUE",
+                   help="a node parameter for every configuration (repeatable), e.g. "
+                        "disparity_node:elas.subsampling=true, segment_node:recut_every=1")
+    p.add_argument("--json", metavar="OUT.json", help="also write the results as JSON")
+    p.add_argument("--one", metavar="CONFIG", help=argparse.SUPPRESS)  # one configuration, this process
+    p.add_argument("--replay", action="store_true", help="the bag replay mode (frames/s as fast as possible)")
+    p.add_argument("--matchers", nargs="*", default=["elas", "sgbm"], help="--replay: matchers")
+    p.add_argument("--executors", nargs="*", default=["per-node"], choices=["per-node", "multi"],
+                   help="--replay: executor layouts")
+    p.add_argument("--no-cli", action="store_true", help="--replay: skip the CLI run")
+    p.add_argument("--processes", action="store_true",
+                   help="issue 12's comparison (4 node processes vs in-process, croton, at --rates), then --replay")
+    p.add_argument("--processes-only", action="store_true", help="only issue 12's comparison")
+    p.add_argument("--rates", nargs="*", type=float, default=[15.0, 30.0],
+                   help="--processes: feeding rates (Hz)")
+    args = p.parse_args(argv)
+    if args.replay or args.processes or args.processes_only:
+        args.frames = args.frames or 40
+        return legacy_main(args)
+    n_frames = args.frames or 90
+    try:
+        configs = [Config.parse(c) for c in (args.configs or (QUICK_CONFIGS if args.quick else all_configs()))]
+        if args.one:
+            configs = [Config.parse(args.one)]
+        node_parameters: dict = {}
+        for text in args.param:
+            node, name, value = parse_node_parameter(text)
+            node_parameters.setdefault(node, {})[name] = value
+    except ValueError as exc:
+        p.error(str(exc))
+    if args.one:
+        with tempfile.TemporaryDirectory() as tmp:
+            result = run_config(configs[0], scene=args.scene, n_frames=n_frames, rate_hz=args.rate,
+                                log_dir=Path(tmp), threads=args.threads, node_parameters=node_parameters)
+        Path(args.json).write_text(json.dumps(result))
+        return 0
+    print(f"machine: {os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.2f} at start; "
+          f"{args.scene} frames, {n_frames} pairs per configuration at {args.rate:g} pairs/s"
+          + "".join(f"; {t}" for t in args.param) + (f"; disparity threads {args.threads}" if args.threads else ""),
+          flush=True)
+    print(HEADER, flush=True)
+    results = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for config in configs:
+            out = Path(tmp) / f"{str(config).replace(':', '_')}.json"
+            cmd = [sys.executable, str(Path(__file__).resolve()), "--one", str(config), "--json", str(out),
+                   "--scene", args.scene, "--rate", str(args.rate), "--frames", str(n_frames)]
+            if args.threads:
+                cmd += ["--threads", str(args.threads)]
+            for text in args.param:
+                cmd += ["--param", text]
+            proc = subprocess.run(cmd, capture_output=True, text=True)
+            if proc.returncode != 0 or not out.is_file():
+                print(f"{str(config):32s} failed: {(proc.stderr or proc.stdout).strip().splitlines()[-1:]}",
+                      flush=True)
+                continue
+            r = json.loads(out.read_text())
+            results.append(r)
+            print("\n".join(format_result(r)), flush=True)
+    print(f"load average {os.getloadavg()[0]:.2f} at the end (CPU ms per pair is the load-robust figure)")
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1))
+    return 0 if len(results) == len(configs) else 1
 
 
 if __name__ == "__main__":

@@ -26,6 +26,8 @@ from launch.substitutions import LaunchConfiguration, PathJoinSubstitution, Pyth
 from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
 
+from canopy_stereo.disparity import DEFAULT_MATCHER, matcher_names
+
 PACKAGE = "canopy_stereo"
 
 
@@ -42,7 +44,8 @@ def generate_launch_description():
         DeclareLaunchArgument("left_device", default_value="0", description="left camera device"),
         DeclareLaunchArgument("right_device", default_value="1", description="right camera device"),
         DeclareLaunchArgument("fps", default_value="15.0", description="camera frame rate (frames/s)"),
-        DeclareLaunchArgument("matcher", default_value="elas", description="elas or sgbm"),
+        DeclareLaunchArgument("matcher", default_value=DEFAULT_MATCHER, description="disparity matcher",
+                              choices=matcher_names()),
         DeclareLaunchArgument("use_mask", default_value="false", description="plant pixels only"),
         DeclareLaunchArgument("bag", default_value="", description="bag to replay instead of cameras"),
         DeclareLaunchArgument("rate", default_value="1.0", description="bag playback speed"),

@@ -144,3 +144,26 @@ def test_a_rig_too_large_for_memory_is_one_line_not_an_internal_error(tmp_path):
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert res.returncode == 2 and len(lines) == 1, res.stderr
     assert "error: not enough memory" in lines[0] and "internal error" not in lines[0]
+
+
+@pytest.mark.parametrize("argv", [
+    ["run", "--bag", "{tmp}/cut.mcap", "--rig", "{rig}"],
+    ["disparity", "{tmp}/missing.png", "{png}", "-o", "{tmp}/d.pfm"],
+    ["reconstruct", "--rig", "{rig}", "{tmp}/missing.png", "{png}", "-o", "{tmp}/c.ply"],
+])
+def test_bad_input_fails_before_the_kernels_are_prepared(cli, files, monkeypatch, argv):
+    """On a fresh machine preparing the numba kernels prints a progress line and takes up to a
+    minute: a command with a bad input must fail before that, in one line."""
+    from canopy_stereo.cli import progress
+
+    def too_early(*args, **kwargs):
+        raise AssertionError("kernels prepared before the input was checked")
+
+    monkeypatch.setattr(progress, "warm_up_kernels", too_early)
+    tmp = files["tmp"]
+    (tmp / "cut.mcap").write_bytes((REPO / "bags" / "croton.mcap").read_bytes()[:200])
+    args = [a.format(tmp=tmp, png=files["png"], rig=REPO / "config" / "croton_rig.yaml") for a in argv]
+    if argv[0] == "run":
+        pytest.importorskip("rclpy")
+    code, _, err = cli(*args)
+    assert code == 2 and err.count("\n") == 1, err

@@ -186,3 +186,25 @@ def test_stamp_conversion():
     t = convert.ns_to_stamp(1_700_000_000_123_456_789)
     assert (t.sec, t.nanosec) == (1_700_000_000, 123_456_789)
     assert convert.stamp_to_ns(t) == 1_700_000_000_123_456_789
+
+
+def test_message_buffers_one_copy_in_views_out():
+    """image_to_msg / points_to_cloud2 fill the uint8[] field with one copy (an array.array);
+    msg_to_image returns a view into the message's buffer, not a copy."""
+    import array
+
+    from canopy_stereo.ros.convert import message_bytes
+
+    rng = np.random.default_rng(0)
+    img = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    msg = convert.image_to_msg(img, "bgr8", 5, "cam")
+    assert isinstance(msg.data, array.array) and msg.data.typecode == "B"
+    view = convert.msg_to_image(msg)
+    np.testing.assert_array_equal(view, img)
+    assert np.shares_memory(view, np.frombuffer(msg.data, np.uint8))
+    strided = np.asfortranarray(rng.random((7, 5)).astype(np.float32))
+    assert message_bytes(strided).tobytes() == np.ascontiguousarray(strided).tobytes()
+    pts = rng.random((10, 3)).astype(np.float32)
+    cloud = convert.points_to_cloud2(pts, None, 1, "w", organized=False, rgb=rng.random(10).astype(np.float32))
+    assert isinstance(cloud.data, array.array)
+    np.testing.assert_array_equal(convert.cloud2_to_points(cloud)[0], pts)

@@ -16,6 +16,8 @@ import cv2
 import numpy as np
 import pytest
 
+from canopy_stereo.errors import ImageError  # noqa: E402
+
 pytest.importorskip("rclpy")
 pytest.importorskip("stereo_msgs.msg")
 
@@ -88,6 +90,46 @@ def test_camera_info_path_equals_back_mapping_and_dlt(paper_rig, rig_name):
     # depth is Z = f t / d of the rectified left camera
     z = depth.ravel()[index]
     np.testing.assert_allclose(z, msg.f * msg.t / msg.disparity.ravel()[index], rtol=1e-6)
+
+
+@pytest.mark.parametrize("organized", [False, True])
+@pytest.mark.parametrize("masked", [False, True])
+def test_cloud_records_path_gives_the_reference_cloud(paper_rig, organized, masked):
+    """point_cloud_node's fast path (the kernel writes x, y, z, rgb rows; records_to_cloud2)
+    makes the same PointCloud2, byte for byte, as the reference (points, gathered colours,
+    points_to_cloud2), dense or organized, with or without a mask."""
+    from canopy_stereo.geometry.frames import reproject_disparity_points, reproject_disparity_records
+    from canopy_stereo.ros.nodes.point_cloud import reprojection_from_messages
+
+    rig = verged_rig()
+    rect = fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
+    t = rect.baseline * rig.metres_per_unit
+    disp = smooth_disparity(rect, 15.0, 60.0)
+    msg = convert.msg_to_disparity(convert.disparity_to_msg(disp, rect.focal_length, t, 0, 100))
+    info = convert.rectified_camera_info(rect.K_rect_left, rect.size, t, "left", 0, "left_camera_rect_optical_frame")
+    geometry = parse_stereo_geometry(stereo_geometry_msg(rig, rect, FrameNames()))
+    T = geometry.lookup("canopy_world", info.header.frame_id)
+    Q = reprojection_from_messages(msg.f, msg.t, info)
+    rng = np.random.default_rng(1)
+    h, w = disp.shape
+    bgr = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    mask = (rng.random((h, w)) > 0.3).astype(np.uint8) * 255 if masked else None
+    rgb = convert.pack_bgr_image(bgr)
+    pts, index, depth = reproject_disparity_points(msg.disparity, Q, T, mask=mask, organized=organized)
+    colours = rgb if organized else rgb.reshape(-1)[index]
+    if organized:
+        pts = pts.reshape(h, w, 3)
+    ref = convert.points_to_cloud2(pts, None, 7, "canopy_world", organized=organized, rgb=colours)
+    records, depth2 = reproject_disparity_records(msg.disparity, Q, T, rgb=rgb, mask=mask, organized=organized)
+    fast = convert.records_to_cloud2(records, 7, "canopy_world", (h, w) if organized else None)
+    assert bytes(fast.data) == bytes(ref.data)
+    for field in ("height", "width", "point_step", "row_step", "is_dense", "is_bigendian", "fields", "header"):
+        assert getattr(fast, field) == getattr(ref, field), field
+    np.testing.assert_array_equal(depth2, depth)
+    with pytest.raises(ImageError):
+        convert.records_to_cloud2(records[:, :3].copy())
+    with pytest.raises(ImageError):
+        convert.records_to_cloud2(records, organized_shape=(h + 1, w))
 
 
 @pytest.mark.parametrize("rig_name", ["verged", "paper"])
@@ -297,6 +339,41 @@ def test_point_cloud_node_frames_optical_and_z_up(harness, paper_rig):
     np.testing.assert_allclose(zup[ok], want[ok], rtol=1e-5, atol=1e-6)
     # in z-up, the plant's points are in front (+x) and z is height
     assert np.all(zup[ok][:, 0] > 0)
+
+
+def test_point_cloud_node_holds_frames_until_stereo_geometry_arrives(harness, paper_rig):
+    """A frame synced before rectify_node's latched stereo_geometry reaches point_cloud_node (a
+    start-up race between topics) is held, not dropped: its world-frame cloud comes out when the
+    geometry arrives, with the points of a frame sent after it."""
+    from canopy_stereo.ros.nodes.point_cloud import PointCloudNode
+
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    node = harness.add(PointCloudNode(**node_kwargs(harness, organized=True)))
+    out = harness.collect(PointCloud2, "points2")
+    pd, pc = harness.publisher(DisparityImage, "disparity"), harness.publisher(Image, "left/image_rect_color")
+    il, ir = rect_info_publishers(harness)
+    harness.connect(pd, pc, il)
+    disp = smooth_disparity(rect, 20.0, 50.0)
+    t = rect.baseline * 1e-3
+
+    def send(stamp):
+        publish_rect_infos(il, ir, paper_rig, rect, stamp)
+        pc.publish(convert.image_to_msg(np.zeros((480, 640, 3), np.uint8), "bgr8", stamp, "x"))
+        pd.publish(convert.disparity_to_msg(disp, rect.focal_length, t, 0, 100, stamp_ns=stamp,
+                                            frame_id="left_camera_rect_optical_frame"))
+
+    send(T0)
+    assert pytest_wait(lambda: len(node.waiting_for_geometry) == 1)
+    assert out == [] and not node.drops
+    geometry_publisher(harness, paper_rig, rect)
+    assert pytest_wait(lambda: len(out) == 1)
+    assert out[0].header.frame_id == "canopy_world" and node.waiting_for_geometry == []
+    send(T0 + 1)
+    assert pytest_wait(lambda: len(out) == 2)
+    held, _ = convert.cloud2_to_points(out[0], organized=True)
+    later, _ = convert.cloud2_to_points(out[1], organized=True)
+    np.testing.assert_array_equal(held, later)
+    assert np.isfinite(held[..., 2]).sum() == np.isfinite(disp).sum()
 
 
 def pytest_wait(cond, timeout=TIMEOUT):

@@ -204,6 +204,27 @@ def test_rectify_node_drops_bad_input_and_keeps_running(harness, paper_rig):
     assert sum(drops.values()) == 5  # 32FC1 left, its right, two small frames, the orphan left
 
 
+def test_rectify_node_counts_frames_it_never_received(harness, paper_rig):
+    """Left stamps at 10 Hz with frames 4, 5, 6 and 9 missing: 4 drops 'missed', in the
+    node's counters and on /diagnostics; the pairs that came are all published."""
+    from canopy_stereo.ros.nodes.rectify import MISSED_REASON, RectifyNode
+
+    node = harness.add(RectifyNode(**node_kwargs(harness, paper_rig)))
+    out = harness.collect(Image, "left/image_rect_color")
+    pl, pr = harness.publisher(Image, "left/image_raw"), harness.publisher(Image, "right/image_raw")
+    harness.connect(pl, pr)
+    left, right = textured_pair(paper_rig)
+    sent = [k for k in range(12) if k not in (4, 5, 6, 9)]
+    for k in sent:
+        t = T0 + k * 100_000_000
+        pl.publish(convert.image_to_msg(left, "bgr8", t, "left_camera"))
+        pr.publish(convert.image_to_msg(right, "bgr8", t + 3_000_000, "right_camera"))
+        assert wait_for(lambda: len(out) == sent.index(k) + 1, TIMEOUT)
+    assert node.stats()["drops"] == {f"left frame: {MISSED_REASON}": 4}
+    values = {kv.key: kv.value for kv in node.diagnostics.status().values}
+    assert values[f"dropped: left frame: {MISSED_REASON}"] == "4"
+
+
 # --------------------------------------------------------------------------- disparity_node
 
 
@@ -379,6 +400,33 @@ def test_segment_node_grabcut_rect_and_auto(harness):
     assert [convert.stamp_to_ns(m.header.stamp) for m in out] == [T0, T0 + 1, T0 + 2]
 
 
+def test_segment_node_propagates_the_plant_model(harness):
+    """recut_every 4 over the croton frames: one full cut in four, the masks between within
+    IoU 0.95 of a full GrabCut of the same frame; the share of full cuts is in /diagnostics."""
+    from canopy_stereo.ros.bag import BagReader
+    from canopy_stereo.ros.bundled import bundled_bag
+    from canopy_stereo.ros.nodes.segment import SegmentNode
+    from canopy_stereo.segmentation.video import segment_plant
+
+    frames = [convert.msg_to_image(m).copy()
+              for _, m in BagReader(bundled_bag("croton")).read("/stereo/left/image_raw")] * 2
+    node = harness.add(SegmentNode(**node_kwargs(harness, recut_every=4)))
+    out = harness.collect(Image, "left/mask")
+    pub = harness.publisher(Image, "left/image_rect_color")
+    harness.connect(pub)
+    for k, img in enumerate(frames):
+        pub.publish(convert.image_to_msg(img, "bgr8", T0 + k, "rect"))
+        assert wait_for(lambda: len(out) == k + 1, TIMEOUT)
+    propagator = node.settings["propagator"]
+    assert (propagator.full_cuts, propagator.propagated) == (2, 6)
+    for msg, img in zip(out, frames):
+        mask, full = convert.msg_to_image(msg, ("mono8",)) > 0, segment_plant(img) > 0
+        assert (mask & full).sum() / (mask | full).sum() >= 0.95
+    values = {kv.key: kv.value for kv in node.diagnostics.status().values}
+    assert float(values["full cut share mean"]) == pytest.approx(0.25)
+    assert not node.set_parameters([Parameter("recut_every", value=0)])[0].successful
+
+
 # --------------------------------------------------------------------------- camera_node
 
 
@@ -503,3 +551,34 @@ def test_node_executable_reads_the_rig_file(repo_root, tmp_path):
         _, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, err
     assert f"matcher sgbm, disparities [{rig.extra['disp_min']}, {rig.extra['disp_max']}]" in err
+
+
+def test_disparity_thread_budget_is_per_thread_and_keeps_the_result():
+    """``threads``: numba's thread count of the calling (worker) thread only; ELAS gives the
+    same disparities with 1 thread as with every core."""
+    import threading
+
+    numba = pytest.importorskip("numba")
+    from canopy_stereo.disparity import compute_disparity
+    from canopy_stereo.ros.nodes.disparity import apply_thread_budget
+
+    rng = np.random.default_rng(3)
+    right = (rng.random((96, 128)) * 255).astype(np.uint8)
+    left = np.roll(right, 7, axis=1)
+    seen = {}
+
+    def work(n):
+        seen[n] = (apply_thread_budget(n), numba.get_num_threads(),
+                   compute_disparity(left, right, matcher="elas", disp_min=0, disp_max=16))
+
+    main_threads = numba.get_num_threads()
+    for n in (1, 0):
+        t = threading.Thread(target=work, args=(n,))
+        t.start()
+        t.join()
+    limit = int(numba.config.NUMBA_NUM_THREADS)
+    assert seen[1][:2] == (1, 1) and seen[0][:2] == (limit, limit)
+    assert numba.get_num_threads() == main_threads  # the caller's setting is untouched
+    np.testing.assert_array_equal(seen[1][2], seen[0][2])
+    assert apply_thread_budget(limit + 5) == limit
+    numba.set_num_threads(main_threads)

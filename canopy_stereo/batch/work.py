@@ -2,8 +2,8 @@
 
 Each stereo pair of the bag goes through the core exactly as
 ``canopy-stereo reconstruct --measure`` takes a pair:
-:func:`~canopy_stereo.pipeline.reconstruct.reconstruct_pair` (Fusiello
-rectification, ELAS, triangulation with the rig's world-frame ``P``), then the
+:func:`~canopy_stereo.pipeline.reconstruct.reconstruct_pair` (the rig's
+rectification: Fusiello unless the rig file names Hartley with its homographies; ELAS, triangulation with the rig's world-frame ``P``), then the
 automatic plant mask :func:`~canopy_stereo.segmentation.auto_plant_mask` (the
 vegetation index plus the distance of the reconstructed points from the left
 camera centre as the depth cue), then
@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from canopy_stereo.disparity import DEFAULT_MATCHER
 from canopy_stereo.errors import CanopyStereoError
 
 #: Trait columns of a row, in order: name -> description (units in the name).
@@ -63,7 +64,7 @@ class BatchOptions:
     rig_source: str = ""
     select: dict = field(default_factory=dict)
     index: str = "exg"
-    matcher: str = "elas"
+    matcher: str = DEFAULT_MATCHER
     max_frames: int = 0
     left_topic: str = "/stereo/left/image_raw"
     right_topic: str = "/stereo/right/image_raw"
@@ -74,7 +75,7 @@ class Skipped(Exception):
     """The bag is not selected (not an error)."""
 
 
-def measure_frame(left_bgr, right_bgr, rig, *, index: str = "exg", matcher: str = "elas") -> dict:
+def measure_frame(left_bgr, right_bgr, rig, *, index: str = "exg", matcher: str = DEFAULT_MATCHER) -> dict:
     """Traits (see :data:`TRAITS`) of one stereo pair, as ``reconstruct --measure`` with
     the automatic plant mask. Raises :class:`CanopyStereoError` when the pair cannot be
     reconstructed, segmented or measured."""

@@ -17,7 +17,7 @@ Exit status 1 when any bag failed, 2 for a usage error, 130 when interrupted."""
 def add_arguments(p):
     import os
 
-    from canopy_stereo.disparity import matcher_names
+    from canopy_stereo.disparity import DEFAULT_MATCHER, matcher_names
 
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="bag (.mcap) or folder of bags (searched recursively)")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
@@ -35,7 +35,8 @@ def add_arguments(p):
                    help="only bags whose metadata KEY is VALUE (values of one key: any; keys: all)")
     p.add_argument("--index", choices=("exg", "exgr", "none"), default="exg",
                    help="colour cue of the automatic plant mask (default exg; none: depth and learned colour)")
-    p.add_argument("--matcher", choices=matcher_names(), default="elas", help="dense matcher (default elas)")
+    p.add_argument("--matcher", choices=matcher_names(), default=DEFAULT_MATCHER,
+                   help=f"dense matcher (default {DEFAULT_MATCHER})")
     p.add_argument("--max-frames", type=int, default=0, metavar="N",
                    help="measure at most N stereo pairs per bag, evenly spread (default 0 = all)")
     p.add_argument("--left-topic", default="/stereo/left/image_raw",

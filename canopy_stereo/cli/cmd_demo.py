@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from canopy_stereo.disparity import DEFAULT_MATCHER, matcher_names
 from canopy_stereo.ros.bundled import BUNDLED
 
 COMMAND = "demo"
@@ -20,8 +21,8 @@ SCENES = tuple(BUNDLED)
 def add_arguments(p):
     p.add_argument("--scene", choices=SCENES + ("all",), default="all", help="bag to run (default all)")
     p.add_argument("--out", default="out", metavar="DIR", help="output folder (default out/)")
-    p.add_argument("--matcher", choices=("elas", "sgbm"), default=None,
-                   help="disparity matcher (default: elas)")
+    p.add_argument("--matcher", choices=matcher_names(), default=None,
+                   help=f"disparity matcher (default: {DEFAULT_MATCHER})")
     p.add_argument("--domain-id", type=int, default=None, help="DDS domain (default: private)")
     p.add_argument("--view", action="store_true",
                    help="stream the outputs live to the Rerun viewer (extra 'viz'): a window, or the "

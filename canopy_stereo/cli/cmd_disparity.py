@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from canopy_stereo.disparity import DEFAULT_MATCHER, available_matchers, matcher_names, matcher_spec, preset_names
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.images import read_image, write_image
 from canopy_stereo.io.pfm import write_pfm
@@ -18,8 +19,7 @@ u_right = u_left - d) as a Middlebury-style PFM (float32, inf where invalid).
 --png adds a colour-mapped picture with a colour bar in pixels (turbo from 0 to
 --disp-max, or to the 99th percentile; near = red, invalid = black)."""
 
-MATCHERS = ("elas", "sgbm")
-DEFAULT_DISP_MAX = {"elas": 255, "sgbm": 128}
+MATCHERS = tuple(matcher_names())
 
 
 def add_arguments(p):
@@ -27,32 +27,44 @@ def add_arguments(p):
     p.add_argument("right", help="rectified right image")
     p.add_argument("-o", "--output", required=True, metavar="DISP.pfm",
                    help="left disparity, PFM (inf = invalid)")
-    p.add_argument("--matcher", choices=MATCHERS, default="elas", help="matcher (default elas)")
-    p.add_argument("--preset", choices=("robotics", "middlebury"), default="robotics",
-                   help="ELAS preset (default robotics)")
+    p.add_argument("--matcher", choices=MATCHERS, default=DEFAULT_MATCHER,
+                   help=f"matcher (default {DEFAULT_MATCHER})")
+    specs = [matcher_spec(n) for n in available_matchers()]
+    p.add_argument("--preset", choices=preset_names() or None, default=None,
+                   help="preset of a matcher that has presets (default: " + ", ".join(
+                       f"{s.default_preset} for {s.name}" for s in specs if s.presets) + ")")
     p.add_argument("--disp-min", type=int, default=0, metavar="N", help="smallest disparity (px)")
     p.add_argument("--disp-max", type=int, default=None, metavar="N",
-                   help="largest disparity (px; default 255 for elas, 128 for sgbm)")
+                   help="largest disparity (px; default " + ", ".join(
+                       f"{s.default_disp_max} for {s.name}" for s in specs) + ")")
     p.add_argument("--subpixel", action="store_true",
-                   help="ELAS: parabola sub-pixel refinement of the matching cost")
+                   help="; ".join(s.parameter("subpixel").description for s in specs
+                                  if any(q.name == "subpixel" for q in s.parameters)))
     p.add_argument("--png", metavar="VIS.png", help="also write a colour-mapped picture")
 
 
 def run(args) -> int:
-    if args.matcher != "elas" and (args.subpixel or args.preset != "robotics"):
-        raise CanopyStereoError("--preset and --subpixel apply to --matcher elas only")
+    spec = matcher_spec(args.matcher)
+    names = {p.name for p in spec.parameters}
+    if args.subpixel and "subpixel" not in names:
+        raise CanopyStereoError(f"--subpixel does not apply to --matcher {args.matcher} (no subpixel parameter)")
+    if args.preset is not None and not spec.presets:
+        raise CanopyStereoError(f"--preset does not apply to --matcher {args.matcher} (it has no presets)")
     if not str(args.output).lower().endswith(".pfm"):
         raise CanopyStereoError(f"output must be a .pfm file, got {args.output}")
     from canopy_stereo.disparity import compute_disparity
 
-    if args.matcher == "elas":
+    left, right = read_image(args.left), read_image(args.right)  # a bad file fails at once
+    if spec.compiled:  # numba: compile outside the timing
         from canopy_stereo.cli.progress import warm_up_kernels
 
         warm_up_kernels()  # the time printed below is then the matching alone
-
-    left, right = read_image(args.left), read_image(args.right)
-    disp_max = args.disp_max if args.disp_max is not None else DEFAULT_DISP_MAX[args.matcher]
-    params = {"preset": args.preset, "subpixel": args.subpixel} if args.matcher == "elas" else {}
+    disp_max = args.disp_max if args.disp_max is not None else spec.default_disp_max
+    params = {}
+    if spec.presets:
+        params["preset"] = args.preset or spec.default_preset
+    if "subpixel" in names:
+        params["subpixel"] = args.subpixel
     t0 = time.perf_counter()
     disp = compute_disparity(left, right, matcher=args.matcher, disp_min=args.disp_min,
                              disp_max=disp_max, **params)
@@ -69,3 +81,4 @@ def run(args) -> int:
     print(f"{args.matcher}: {w}x{h}, density {100.0 * valid.mean():.1f}%, disparities {rng} px, "
           f"{1000.0 * elapsed:.0f} ms -> {args.output}" + (f", {args.png}" if args.png else ""))
     return 0
+

@@ -54,7 +54,8 @@ def add_arguments(p):
                    help="least share of a view near its neighbour after registration (default 0.5)")
     p.add_argument("--min-views", type=int, default=1, help="keep points seen by at least N views")
     p.add_argument("--no-free-space", action="store_true", help="keep single-view points others see through")
-    p.add_argument("--method", choices=RECTIFICATION_METHODS, default="fusiello")
+    p.add_argument("--method", choices=RECTIFICATION_METHODS, default=None,
+                   help="rectification of stereo-pair views (default: each rig's method, else fusiello)")
     p.add_argument("--matcher", choices=matcher_names(), default="sgbm")
     p.add_argument("--poses-out", metavar="POSES.yaml", help="write the poses used (e.g. registered ones)")
 

@@ -6,7 +6,7 @@ import time
 import numpy as np
 
 from canopy_stereo.cli.common import add_rig_argument
-from canopy_stereo.disparity import matcher_names
+from canopy_stereo.disparity import DEFAULT_MATCHER, matcher_names, matcher_spec
 from canopy_stereo.io.images import read_image
 from canopy_stereo.io.ply import write_ply
 from canopy_stereo.io.rig import load_rig
@@ -25,11 +25,13 @@ def add_arguments(p):
     p.add_argument("right", help="right image")
     add_rig_argument(p)
     p.add_argument("-o", "--output", required=True, metavar="cloud.ply")
-    p.add_argument("--method", choices=RECTIFICATION_METHODS, default="fusiello")
+    p.add_argument("--method", choices=RECTIFICATION_METHODS, default=None,
+                   help="rectification: fusiello or hartley (the rig's homographies when it has them, "
+                        "else from matches); default: the rig's method, else fusiello")
     p.add_argument("--match-pairs", nargs=2, metavar=("LEFT_GLOB", "RIGHT_GLOB"),
                    help="hartley: pool matches from more pairs taken by the same rig")
-    p.add_argument("--matcher", choices=matcher_names(), default="elas",
-                   help="dense matcher (default elas, as in the paper)")
+    p.add_argument("--matcher", choices=matcher_names(), default=DEFAULT_MATCHER,
+                   help=f"dense matcher (default {DEFAULT_MATCHER}, as in the paper)")
     p.add_argument("--mask", metavar="MASK.png", help="foreground mask on the left image (non-zero = keep)")
     p.add_argument("--disp-min", type=int, default=None, help="smallest disparity searched (px)")
     p.add_argument("--disp-max", type=int, default=None, help="largest disparity searched (px)")
@@ -51,26 +53,26 @@ def run(args) -> int:
         raise CanopyStereoError("--measure needs --report REPORT.json")
     if (args.leaf_ids or args.report or args.csv or args.plot) and not args.measure:
         raise CanopyStereoError("--leaf-ids/--report/--csv/--plot need --measure")
-    if args.matcher == "elas":
+    rig = load_rig(args.rig)  # inputs first: a bad file fails at once, in one line
+    left, right = read_image(args.left), read_image(args.right)
+    mask = read_image(args.mask, color=False) if args.mask else None
+    if matcher_spec(args.matcher).compiled:
         from canopy_stereo.cli.progress import warm_up_kernels
 
         warm_up_kernels()  # says so when numba compiles (first run); not in the stage times
     t0 = time.perf_counter()
-    rig = load_rig(args.rig)
-    left, right = read_image(args.left), read_image(args.right)
-    mask = read_image(args.mask, color=False) if args.mask else None
     rect = None
-    if args.method == "hartley" and args.match_pairs:
+    if args.match_pairs:
         from canopy_stereo.cli.cmd_rectify import load_match_pairs
         from canopy_stereo.pipeline.reconstruct import rectify_rig
 
-        rect = rectify_rig(rig, "hartley", left, right, match_pairs=load_match_pairs(args.match_pairs))
+        rect = rectify_rig(rig, args.method, left, right, match_pairs=load_match_pairs(args.match_pairs))
     rec = reconstruct_pair(left, right, rig, method=args.method, matcher=args.matcher, mask=mask,
                            disp_min=args.disp_min, disp_max=args.disp_max, rectification=rect)
     t = time.perf_counter()
     # PLYs are millimetres whatever the rig's unit (canopy_stereo.io.ply.PLY_UNIT)
     write_ply(args.output, rec.points * (rig.metres_per_unit * 1000.0), rec.colors, unit="mm",
-              comments=[f"canopy-stereo reconstruct method={args.method} matcher={args.matcher}"])
+              comments=[f"canopy-stereo reconstruct method={rec.rectification.method} matcher={args.matcher}"])
     if args.organized:
         from pathlib import Path
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from canopy_stereo.cli.common import add_rig_argument, check_at_least
+from canopy_stereo.disparity import DEFAULT_MATCHER, default_matcher, matcher_names, matcher_spec
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.ros.bag import add_split_arguments, split_options
 
@@ -24,8 +25,8 @@ def add_arguments(p):
     p.add_argument("--rate", type=float, default=1.0,
                    help="playback speed factor; 0 = as fast as the graph goes (default 1)")
     p.add_argument("--record", metavar="OUT.mcap", help="record the graph's outputs to this bag")
-    p.add_argument("--matcher", choices=("elas", "sgbm"), default=None,
-                   help="disparity matcher (default: elas)")
+    p.add_argument("--matcher", choices=matcher_names(), default=None,
+                   help=f"disparity matcher (default: {DEFAULT_MATCHER})")
     p.add_argument("--no-segment", action="store_true", help="do not run segment_node (no masks)")
     p.add_argument("--use-mask", action="store_true", help="keep only plant pixels in the clouds")
     p.add_argument("--organized", action="store_true", help="publish organized clouds (NaN = none)")
@@ -53,12 +54,12 @@ def run(args) -> int:
     from canopy_stereo.io.rig import load_rig
     from canopy_stereo.ros.graph import GraphOptions
     from canopy_stereo.ros.player import parse_remaps
-    from canopy_stereo.ros.runner import run_bag
+    from canopy_stereo.ros.runner import open_input_bag, run_bag
 
     import math
 
     from canopy_stereo.pipeline.reconstruct import disparity_range_for
-    from canopy_stereo.ros.params import rectification_for
+    from canopy_stereo.geometry.rig_rectification import rectification_for_rig
 
     if not (math.isfinite(args.rate) and args.rate >= 0):
         raise CanopyStereoError(f"--rate must be a finite number >= 0, got {args.rate}")
@@ -69,17 +70,18 @@ def run(args) -> int:
     # the nodes read the rig's method and disparity range: check them here with the same
     # code as 'reconstruct' (one line and exit 2 instead of a graph that silently ignores them)
     try:
-        disparity_range_for(rig, rectification_for(rig, str(rig.extra.get("method") or "fusiello"),
-                                                   rig.extra.get("H_left"), rig.extra.get("H_right")))
+        disparity_range_for(rig, rectification_for_rig(rig))
     except CanopyStereoError as exc:
         raise CanopyStereoError(f"rig {args.rig}: {exc}") from None
-    if args.matcher in (None, "elas"):
-        from canopy_stereo.cli.progress import warm_up_kernels
-
-        warm_up_kernels()  # says so when numba compiles (first run)
     options = GraphOptions(matcher=args.matcher, segment=not args.no_segment or args.use_mask,
                            use_mask=args.use_mask, organized=args.organized,
                            parameter_services=False)
+    # a bag the graph cannot play fails before the kernels are prepared (one line, no wait)
+    open_input_bag(args.bag, namespace=options.namespace, remap=parse_remaps(args.remap))
+    if matcher_spec(args.matcher or default_matcher()).compiled:
+        from canopy_stereo.cli.progress import warm_up_kernels
+
+        warm_up_kernels()  # says so when numba compiles (first run)
     view = None
     if args.view:
         from pathlib import Path

@@ -4,6 +4,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+from canopy_stereo.disparity import DEFAULT_MATCHER, matcher_names
 from canopy_stereo.errors import CanopyStereoError
 
 COMMAND = "view"
@@ -32,8 +33,8 @@ def add_arguments(p):
     p.add_argument("--no-measure", action="store_true",
                    help="do not measure leaves and canopy per frame (faster; recorded bags are measured "
                         "only when their clouds are organized and masks were recorded)")
-    p.add_argument("--matcher", choices=("elas", "sgbm"), default=None,
-                   help="disparity matcher for raw bags (default: elas)")
+    p.add_argument("--matcher", choices=matcher_names(), default=None,
+                   help=f"disparity matcher for raw bags (default: {DEFAULT_MATCHER})")
     p.add_argument("--domain-id", type=int, default=None, help="DDS domain of the graph (default: private)")
 
 

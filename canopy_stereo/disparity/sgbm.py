@@ -6,6 +6,10 @@ import numpy as np
 
 from canopy_stereo.io.images import to_gray
 
+#: ``mode`` -> OpenCV StereoSGBM mode: ``sgbm`` (5 paths), ``hh`` (full 8 paths), ``3way``.
+SGBM_MODES = {"sgbm": cv2.STEREO_SGBM_MODE_SGBM, "hh": cv2.STEREO_SGBM_MODE_HH,
+              "3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY}
+
 
 def sgbm_disparity(left: np.ndarray, right: np.ndarray, *, disp_min: int = 0,
                    disp_max: int = 128, block_size: int = 5, p1: int | None = None,
@@ -20,15 +24,13 @@ def sgbm_disparity(left: np.ndarray, right: np.ndarray, *, disp_min: int = 0,
     """
     gl, gr = to_gray(left, "left"), to_gray(right, "right")
     num = int(np.ceil((disp_max - disp_min + 1) / 16.0)) * 16
-    modes = {"sgbm": cv2.STEREO_SGBM_MODE_SGBM, "hh": cv2.STEREO_SGBM_MODE_HH,
-             "3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY}
     matcher = cv2.StereoSGBM_create(
         minDisparity=int(disp_min), numDisparities=num, blockSize=int(block_size),
         P1=int(p1 if p1 is not None else 8 * block_size ** 2),
         P2=int(p2 if p2 is not None else 32 * block_size ** 2),
         disp12MaxDiff=int(disp12_max_diff), uniquenessRatio=int(uniqueness),
         speckleWindowSize=int(speckle_window), speckleRange=int(speckle_range),
-        mode=modes[mode])
+        mode=SGBM_MODES[mode])
     raw = matcher.compute(gl, gr)
     disp = raw.astype(np.float32) / 16.0
     disp[raw < (disp_min * 16)] = -1.0

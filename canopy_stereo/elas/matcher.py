@@ -4,11 +4,11 @@ from __future__ import annotations
 import numpy as np
 
 from canopy_stereo.elas.core import elas_run
-from canopy_stereo.elas.params import make_params
+from canopy_stereo.elas.params import DEFAULT_PRESET, make_params
 
 
 def elas_matcher(left: np.ndarray, right: np.ndarray, *, disp_min: int = 0, disp_max: int = 255,
-                 preset: str = "robotics", **params) -> np.ndarray:
+                 preset: str = DEFAULT_PRESET, **params) -> np.ndarray:
     """Left ELAS disparity, float32 (H, W) in pixels, invalid = -1.
 
     ``preset`` and ``**params`` are those of :func:`canopy_stereo.elas.elas_disparity`.

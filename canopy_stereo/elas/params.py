@@ -125,6 +125,9 @@ class ElasParams:
         return self
 
 
+#: The preset used when none is named (the original's default, tuned for robotics images).
+DEFAULT_PRESET = "robotics"
+
 #: The original's two presets (reference table of ``elas.md``).
 PRESETS: dict[str, ElasParams] = {
     "robotics": ElasParams(),
@@ -135,7 +138,7 @@ PRESETS: dict[str, ElasParams] = {
 }
 
 
-def make_params(preset: str = "robotics", **params) -> ElasParams:
+def make_params(preset: str = DEFAULT_PRESET, **params) -> ElasParams:
     """Validated :class:`ElasParams` from a preset name and keyword overrides."""
     base = PRESETS.get(str(preset).lower())
     if base is None:

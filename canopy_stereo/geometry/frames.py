@@ -246,12 +246,14 @@ def reproject_disparity(disp, Q) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _reproject_kernel(disp, mask, Q, T, organized):  # pragma: no cover - compiled
+def _reproject_kernel(disp, mask, Q, T, organized, out, out_bits, rgb_bits):  # pragma: no cover - compiled
+    # out: (H * W, C) float32 rows x, y, z[, rgb]; out_bits: the same memory as uint32;
+    # rgb_bits: (H, W) uint32 packed colours copied into column 3, or (0, 0) for none
     h, w = disp.shape
-    pts = np.empty((h * w, 3), np.float32)
     index = np.empty(h * w, np.int32)
     depth = np.full((h, w), np.nan, np.float32)
     use_mask = mask.shape[0] == h
+    with_rgb = rgb_bits.shape[0] == h
     n = 0
     for v in range(h):
         for u in range(w):
@@ -266,16 +268,37 @@ def _reproject_kernel(disp, mask, Q, T, organized):  # pragma: no cover - compil
                 ok = z > 0 and np.isfinite(z)
             if ok:
                 depth[v, u] = z
-                pts[n, 0] = T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3]
-                pts[n, 1] = T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3]
-                pts[n, 2] = T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3]
+                out[n, 0] = T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3]
+                out[n, 1] = T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3]
+                out[n, 2] = T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3]
             elif organized:
-                pts[n, 0] = pts[n, 1] = pts[n, 2] = np.nan
+                out[n, 0] = out[n, 1] = out[n, 2] = np.nan
             else:
                 continue
+            if with_rgb:
+                out_bits[n, 3] = rgb_bits[v, u]
             index[n] = v * w + u
             n += 1
-    return pts[:n], index[:n], depth
+    return n, index[:n], depth
+
+
+def _reproject(disp, Q, T, mask, organized, rgb):
+    d = np.ascontiguousarray(disp, np.float32)
+    if d.ndim != 2:
+        raise ValueError(f"disparity must be (H, W), got shape {d.shape}")
+    m = kernel_mask(mask, d.shape)
+    T = np.eye(4) if T is None else np.asarray(T, np.float64)
+    if rgb is None:
+        bits = np.zeros((0, 0), np.uint32)
+    else:
+        bits = np.ascontiguousarray(rgb, np.float32)
+        if bits.shape != d.shape:
+            raise ValueError(f"rgb {bits.shape} does not match disparity {d.shape}")
+        bits = bits.view(np.uint32)
+    out = np.empty((d.size, 3 if rgb is None else 4), np.float32)
+    n, index, depth = _reproject_kernel(d, m, np.asarray(Q, np.float64), T, bool(organized), out,
+                                        out.view(np.uint32), bits)
+    return out[:n], index, depth
 
 
 def reproject_disparity_points(disp, Q, T=None, *, mask=None, organized: bool = False):
@@ -292,12 +315,25 @@ def reproject_disparity_points(disp, Q, T=None, *, mask=None, organized: bool = 
     (N,) flat pixel indices ``v * W + u``, and float32 (H, W) depth ``Z`` in the optical
     frame (NaN where no point: the REP 118 depth image of the same pixels).
     """
-    d = np.ascontiguousarray(disp, np.float32)
-    if d.ndim != 2:
-        raise ValueError(f"disparity must be (H, W), got shape {d.shape}")
-    m = kernel_mask(mask, d.shape)
-    T = np.eye(4) if T is None else np.asarray(T, np.float64)
-    return _reproject_kernel(d, m, np.asarray(Q, np.float64), T, bool(organized))
+    return _reproject(disp, Q, T, mask, organized, None)
+
+
+def reproject_disparity_records(disp, Q, T=None, *, rgb, mask=None, organized: bool = False):
+    """:func:`reproject_disparity_points` writing PointCloud2 records directly: each row is
+    float32 ``x, y, z`` (metres) and the packed ``rgb`` of its pixel, the layout of
+    :func:`canopy_stereo.ros.convert.points_to_cloud2` (no gathering, stacking or copying
+    afterwards: the rows become the message's data with one copy).
+
+    Args:
+        rgb: float32 (H, W) packed colours (:func:`canopy_stereo.ros.convert.pack_bgr_image`),
+            copied bit for bit.
+        disp, Q, T, mask, organized: as :func:`reproject_disparity_points`.
+
+    Returns ``(records, depth)``: float32 (N, 4) (N = H * W when ``organized``, NaN
+    coordinates where no point) and the float32 (H, W) depth image.
+    """
+    records, _, depth = _reproject(disp, Q, T, mask, organized, rgb)
+    return records, depth
 
 
 @dataclass(frozen=True)

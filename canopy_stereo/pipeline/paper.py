@@ -312,14 +312,15 @@ def _cells_reached(x_left, cells: np.ndarray, cell: int = 8) -> float:
 def section_rectification(out: Path, pair: StereoPair, progress: Progress) -> dict:
     """Figure 11: Hartley rectification from quasi-dense matches, epipolar lines drawn."""
     from canopy_stereo.features import match_pair
-    from canopy_stereo.geometry.rectification import StereoRectifier, hartley_rectify
+    from canopy_stereo.geometry.rectification import StereoRectifier
+    from canopy_stereo.geometry.rig_rectification import rectification_for_rig
     from canopy_stereo.geometry.triangulation import apply_homography
     from canopy_stereo.pipeline.figures import epipolar_figure
     from canopy_stereo.sim.correspondence import true_right_pixels
 
     progress.detail("quasi-dense matches -> F (RANSAC) -> Hartley homographies")
     m = match_pair(pair.left, pair.right, "qdmatch")
-    rect = hartley_rectify(m.x_left, m.x_right, pair.rig.image_size)
+    rect = rectification_for_rig(pair.rig, method="hartley", matches=(m.x_left, m.x_right))
     left_r, right_r = StereoRectifier(pair.rig, rect).rectify(pair.left, pair.right)
     # residual vertical disparity after rectification, on the exact correspondences
     truth = true_right_pixels(pair.sim)

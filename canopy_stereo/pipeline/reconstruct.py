@@ -1,6 +1,7 @@
 """Two images -> metric point cloud (the paper's Figure 13).
 
-Stages: rectify (Fusiello from the rig, or Hartley from matches), dense
+Stages: rectify (:func:`rectify_rig`: the rig's method, Fusiello from its P matrices or
+Hartley from its stored homographies or from matches), dense
 disparity on the rectified pair, back-mapping of the matches to the original
 images and triangulation with the world-frame ``P`` matrices, optionally
 restricted to a foreground mask drawn on the original left image.
@@ -12,20 +13,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from canopy_stereo.disparity import compute_disparity
+from canopy_stereo.disparity import DEFAULT_MATCHER, compute_disparity
 from canopy_stereo.errors import CanopyStereoError, ImageError
 from canopy_stereo.geometry.rectification import (
     Rectification,
     cached_rectifier,
     default_disparity_range,
-    fusiello_rectify,
-    hartley_rectify,
 )
 from canopy_stereo.geometry.distortion import undistort_pixels
+from canopy_stereo.geometry.rig_rectification import (  # noqa: F401 - RECTIFICATION_METHODS re-exported
+    RECTIFICATION_METHODS,
+    rectification_for_rig,
+    rig_rectification_method,
+    stored_homographies,
+)
 from canopy_stereo.geometry.triangulation import organized_from_disparity
 from canopy_stereo.io.images import check_pair, to_bgr, to_gray
-
-RECTIFICATION_METHODS = ("fusiello", "hartley")
 
 
 @dataclass
@@ -61,32 +64,38 @@ class Reconstruction:
         return self.points.min(axis=0), self.points.max(axis=0)
 
 
-def rectify_rig(rig, method: str = "fusiello", left=None, right=None,
-                match_method: str = "qdmatch", match_pairs=()) -> Rectification:
-    """Rectification for ``rig``.
+def rectify_rig(rig, method: str | None = None, left=None, right=None,
+                match_method: str = "qdmatch", match_pairs=(), *,
+                from_matches: bool | None = None) -> Rectification:
+    """Rectification for ``rig``
+    (:func:`~canopy_stereo.geometry.rig_rectification.rectification_for_rig`).
 
-    ``fusiello``: from the rig's P matrices. ``hartley``: from F estimated on
-    matches (``match_method``, quasi-dense by default) found in the raw
-    ``left``/``right`` images plus any further ``match_pairs`` taken by the same
-    fixed rig (pooling pairs spreads the matches over the whole field of view,
-    which a single planar or repetitive scene does not); matches are undistorted
-    with the rig's D before F is estimated.
+    ``method`` None = the rig's (its ``method`` extra parameter, else ``fusiello``).
+    ``fusiello``: from the rig's P matrices. ``hartley``: the rig's stored homographies
+    (``H_left``/``H_right``, written by ``canopy-stereo rectify --method hartley``), or,
+    when the rig has none, when ``match_pairs`` are given or when ``from_matches`` is
+    True, homographies estimated from F on matches (``match_method``, quasi-dense by
+    default) found in the raw ``left``/``right`` images plus any further ``match_pairs``
+    taken by the same fixed rig (pooling pairs spreads the matches over the whole field
+    of view, which a single planar or repetitive scene does not); matches are
+    undistorted with the rig's D before F is estimated.
     """
-    if method == "fusiello":
-        return fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
-    if method == "hartley":
-        pairs = ([(left, right)] if left is not None and right is not None else []) + list(match_pairs)
-        if not pairs:
-            raise CanopyStereoError("Hartley rectification needs images to find matches")
-        from canopy_stereo.features import match_pair
+    chosen = rig_rectification_method(rig, method)
+    if from_matches is None:
+        from_matches = bool(match_pairs) or not stored_homographies(rig)
+    if chosen != "hartley" or not from_matches:
+        return rectification_for_rig(rig, method=chosen)
+    pairs = ([(left, right)] if left is not None and right is not None else []) + list(match_pairs)
+    if not pairs:
+        raise CanopyStereoError("Hartley rectification needs images to find matches")
+    from canopy_stereo.features import match_pair
 
-        xl, xr = [], []
-        for a, b in pairs:
-            m = match_pair(a, b, method=match_method, min_matches=0)
-            xl.append(undistort_pixels(rig.P_left, rig.D_left, m.x_left))
-            xr.append(undistort_pixels(rig.P_right, rig.D_right, m.x_right))
-        return hartley_rectify(np.vstack(xl), np.vstack(xr), rig.image_size)
-    raise CanopyStereoError(f"unknown rectification method {method!r}; choose fusiello or hartley")
+    xl, xr = [], []
+    for a, b in pairs:
+        m = match_pair(a, b, method=match_method, min_matches=0)
+        xl.append(undistort_pixels(rig.P_left, rig.D_left, m.x_left))
+        xr.append(undistort_pixels(rig.P_right, rig.D_right, m.x_right))
+    return rectification_for_rig(rig, method="hartley", matches=(np.vstack(xl), np.vstack(xr)))
 
 
 def _whole_pixels(value, name: str) -> int:
@@ -126,7 +135,7 @@ def disparity_range_for(rig, rect: Rectification, disp_min=None, disp_max=None) 
     return dmin, dmax
 
 
-def reconstruct_pair(left_bgr, right_bgr, rig, method: str = "fusiello", matcher: str = "elas",
+def reconstruct_pair(left_bgr, right_bgr, rig, method: str | None = None, matcher: str = DEFAULT_MATCHER,
                      mask=None, disp_min=None, disp_max=None, matcher_params=None,
                      rectification: Rectification | None = None) -> Reconstruction:
     """Reconstruct one stereo pair into world coordinates.
@@ -134,7 +143,8 @@ def reconstruct_pair(left_bgr, right_bgr, rig, method: str = "fusiello", matcher
     Args:
         left_bgr, right_bgr: original (raw) images, uint8 grey or BGR, of the rig's size.
         rig: :class:`~canopy_stereo.io.rig.Rig` with world-frame P matrices.
-        method: ``"fusiello"`` (calibrated) or ``"hartley"`` (projective, from matches).
+        method: ``"fusiello"`` (calibrated) or ``"hartley"`` (projective: the rig's stored
+            homographies, else from matches); None = the rig's method (:func:`rectify_rig`).
         matcher: disparity matcher name (``"elas"``, the paper's, or ``"sgbm"``).
         mask: optional (H, W) foreground mask on the original left image (non-zero = keep).
         disp_min, disp_max: disparity search range in rectified pixels (default: from

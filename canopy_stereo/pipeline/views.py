@@ -52,14 +52,15 @@ def _read_pose(folder: Path, name: str):
     return next(iter(ps.poses.values())), ps.unit
 
 
-def load_view(folder, unit: str | None = None, method: str = "fusiello", matcher: str = "sgbm",
+def load_view(folder, unit: str | None = None, method: str | None = None, matcher: str = "sgbm",
               matcher_params=None) -> View:
     """Load (and, for a stereo pair, reconstruct) the view stored in ``folder``.
 
     Args:
         folder: view folder (see the module docstring for its files).
         unit: unit to assume for a ``cloud.ply`` that names none.
-        method, matcher, matcher_params: reconstruction settings for a stereo pair.
+        method, matcher, matcher_params: reconstruction settings for a stereo pair
+            (``method`` None: the rig's rectification method, else Fusiello).
 
     Raises:
         CanopyStereoError: missing files, or a pose file whose unit differs from the view's.

@@ -14,6 +14,7 @@ import sys
 import threading
 import time
 
+from canopy_stereo.disparity import DEFAULT_MATCHER, matcher_names
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.ros.context import tune_node_process
 from canopy_stereo.ros.graph import DEFAULT_THREADS, EXECUTOR_CHOICES, CanopyGraph, GraphOptions
@@ -44,7 +45,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--metadata", nargs="+", action="extend", default=[], metavar="KEY=VALUE",
                    help="with --cameras --record: describe the recording (plant_id=A12 plot=row1 ...); "
                         "stored with the rig file as the bag's metadata records")
-    p.add_argument("--matcher", choices=("elas", "sgbm"), default=None)
+    p.add_argument("--matcher", choices=matcher_names(), default=None,
+                   help=f"disparity matcher (default: {DEFAULT_MATCHER})")
     p.add_argument("--use-mask", action="store_true", help="keep only plant pixels in the clouds")
     p.add_argument("--no-segment", action="store_true", help="do not run segment_node")
     p.add_argument("--organized", action="store_true", help="organized clouds")
@@ -53,6 +55,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="one single-threaded executor per node (default) or one multi-threaded one")
     p.add_argument("--threads", type=int, default=DEFAULT_THREADS,
                    help="threads of the multi-threaded executor")
+    p.add_argument("--recut-every", type=int, default=None, metavar="N",
+                   help="segment_node: a full GrabCut every N frames, the plant model propagated between "
+                        "(default 10; 1 = every frame)")
+    p.add_argument("--disparity-threads", type=int, default=None, metavar="N",
+                   help="disparity_node: threads of the matcher (default: the node's)")
     return p
 
 
@@ -111,7 +118,8 @@ def main(args=None) -> int:
     options = GraphOptions(namespace=opts.namespace, matcher=opts.matcher,
                            segment=not opts.no_segment or opts.use_mask, use_mask=opts.use_mask,
                            organized=opts.organized, threads=opts.threads,
-                           executor=opts.executor)
+                           executor=opts.executor, recut_every=opts.recut_every,
+                           disparity_threads=opts.disparity_threads)
     if opts.cameras:
         # free-running cameras: the pairing tolerance is half a frame period at the camera rate
         if not opts.fps > 0:

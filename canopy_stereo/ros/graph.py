@@ -51,6 +51,10 @@ class GraphOptions:
         executor: ``"per-node"`` (one single-threaded executor and thread per node)
             or ``"multi"`` (one rclpy ``MultiThreadedExecutor`` for all nodes).
         threads: threads of the ``multi`` executor.
+        recut_every: segment_node's full-GrabCut period (frames; None: the node's default, 10;
+            1 = every frame; :mod:`canopy_stereo.segmentation.propagate`).
+        propagate_scale: segment_node's scale of the frames between full cuts (None: its ``scale``).
+        disparity_threads: disparity_node's thread budget (None: the node's default).
     """
 
     namespace: str = "/stereo"
@@ -63,6 +67,9 @@ class GraphOptions:
     parameter_services: bool = True
     threads: int = DEFAULT_THREADS
     executor: str = "per-node"
+    recut_every: int | None = None
+    propagate_scale: float | None = None
+    disparity_threads: int | None = None
 
 
 class CanopyGraph:
@@ -100,9 +107,12 @@ class CanopyGraph:
         common = {"reliability": o.reliability}
         per_node = {
             "rectify_node": {},
-            "disparity_node": {} if o.matcher is None else {"matcher": o.matcher},
+            "disparity_node": ({} if o.matcher is None else {"matcher": o.matcher})
+            | ({} if o.disparity_threads is None else {"threads": int(o.disparity_threads)}),
             # nothing waits for every mask unless use_mask: let GrabCut skip frames under load
-            "segment_node": {} if o.use_mask else {"queue_size": 1},
+            "segment_node": ({} if o.use_mask else {"queue_size": 1})
+            | ({} if o.recut_every is None else {"recut_every": int(o.recut_every)})
+            | ({} if o.propagate_scale is None else {"propagate_scale": float(o.propagate_scale)}),
             "point_cloud_node": {"use_mask": bool(o.use_mask), "organized": bool(o.organized)},
         }
         if cameras is not None:

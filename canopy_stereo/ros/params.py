@@ -15,7 +15,8 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.parameter import Parameter
 
 from canopy_stereo.errors import RigError
-from canopy_stereo.geometry.rectification import Rectification, fusiello_rectify
+from canopy_stereo.geometry.rectification import Rectification
+from canopy_stereo.geometry.rig_rectification import RECTIFICATION_METHODS, rectification_for_rig
 from canopy_stereo.io.rig import Rig, load_rig, rig_from_parameters
 
 def number_descriptor(description: str, *, minimum, maximum, step=0, integer: bool,
@@ -59,7 +60,6 @@ RIG_PARAMETERS = {
     "world_unit": "unit of the world frame of P (m, cm, mm, ...)",
 }
 
-RECTIFICATION_METHODS = ("fusiello", "hartley")
 
 
 def _read_only(description: str, dynamic: bool = True) -> ParameterDescriptor:
@@ -77,10 +77,13 @@ def declare_rig_parameters(node) -> None:
         else:
             descriptor = _read_only(desc)
         node.declare_parameter(name, None, descriptor)
-    node.declare_parameter("method", "fusiello", _read_only(
-        "rectification: fusiello (calibrated) or hartley (H_left/H_right from the CLI)"))
-    node.declare_parameter("H_left", None, _read_only("hartley: left rectifying homography (9 numbers)"))
-    node.declare_parameter("H_right", None, _read_only("hartley: right rectifying homography (9 numbers)"))
+    node.declare_parameter("method", "", _read_only(
+        "rectification: fusiello (calibrated) or hartley (H_left/H_right from "
+        "canopy-stereo rectify --method hartley); empty = the rig's, else fusiello"))
+    node.declare_parameter("H_left", None, _read_only("hartley: left rectifying homography (9 numbers); "
+                                                      "unset = the rig file's"))
+    node.declare_parameter("H_right", None, _read_only("hartley: right rectifying homography (9 numbers); "
+                                                       "unset = the rig file's"))
 
 
 def _value(node, name):
@@ -108,36 +111,23 @@ def rig_from_node(node) -> Rig:
 
 
 def rectification_from_node(node, rig: Rig) -> Rectification:
-    """Rectification named by ``method`` (Fusiello from the rig, Hartley from ``H_left``/``H_right``)."""
-    method = node.get_parameter("method").value or rig.extra.get("method", "fusiello")
-    return rectification_for(rig, method, _value(node, "H_left") or rig.extra.get("H_left"),
-                             _value(node, "H_right") or rig.extra.get("H_right"))
+    """The rig's rectification (:func:`~canopy_stereo.geometry.rig_rectification.rectification_for_rig`):
+    the parameters ``method`` and ``H_left``/``H_right`` when set (a rig file given with
+    ``--params-file`` sets them), else the ``rig_file``'s, else Fusiello."""
+    try:
+        return rectification_for_rig(rig, method=node.get_parameter("method").value or None,
+                                     H_left=_value(node, "H_left"), H_right=_value(node, "H_right"))
+    except RigError as exc:
+        from_file = _value(node, "P_left") is None and _value(node, "P_right") is None
+        source = (f"rig file {node.get_parameter('rig_file').value}" if from_file
+                  else f"node {node.get_name()} parameters")
+        raise RigError(f"{source}: {exc}") from None
 
 
 def rectification_for(rig: Rig, method: str = "fusiello", H_left=None, H_right=None) -> Rectification:
-    """Fusiello rectification of ``rig``, or the Hartley one given its two homographies."""
-    if method == "fusiello":
-        return fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
-    if method == "hartley":
-        if H_left is None or H_right is None:
-            raise RigError("method hartley needs H_left and H_right (computed offline with "
-                           "canopy-stereo rectify --method hartley)")
-        Hs = []
-        for name, H in (("H_left", H_left), ("H_right", H_right)):
-            H = np.asarray(H, np.float64).reshape(-1)
-            if H.size != 9 or not np.all(np.isfinite(H)):
-                raise RigError(f"{name} must be 9 finite numbers (a 3x3 homography)")
-            H = H.reshape(3, 3)
-            if abs(np.linalg.det(H)) < 1e-12 * np.abs(H).max() ** 3:
-                raise RigError(f"{name} is singular")
-            Hs.append(H / H[2, 2])
-        drange = None
-        if "disp_min" in rig.extra and "disp_max" in rig.extra:
-            drange = (int(rig.extra["disp_min"]), int(rig.extra["disp_max"]))
-        return Rectification(H_left=Hs[0], H_right=Hs[1], size=rig.image_size, method="hartley",
-                             disparity_range=drange)
-    raise RigError(f"unknown rectification method {method!r}; choose "
-                   f"{' or '.join(RECTIFICATION_METHODS)}")
+    """Fusiello rectification of ``rig``, or the Hartley one given its two homographies
+    (or the rig's); see :func:`~canopy_stereo.geometry.rig_rectification.rectification_for_rig`."""
+    return rectification_for_rig(rig, method=method, H_left=H_left, H_right=H_right)
 
 
 def rig_parameter_overrides(rig: Rig, include_extra: bool = True) -> list[Parameter]:

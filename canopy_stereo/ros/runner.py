@@ -178,6 +178,33 @@ class _FrameBook:
             self.cond.notify_all()
 
 
+def open_input_bag(bag_path, *, namespace: str = "stereo", remap: dict[str, str] | None = None):
+    """Open a bag for the graph and check it has both raw image topics (after ``remap``).
+
+    Returns ``(reader, topics to play, the left input topic)``. Raises :class:`BagError` when
+    the bag is truncated or damaged before any intact pair of input topics, and
+    :class:`CanopyStereoError` when it has no ``<namespace>/left|right/image_raw`` (naming the
+    topics it has). Cheap (reads the summary), so a CLI checks its input with it before
+    preparing the kernels.
+    """
+    bag = BagReader(bag_path)
+    remap = dict(remap or {})
+    damaged = bag.truncated or bool(bag.damage)
+    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+    in_left, in_right = f"{ns}/left/image_raw", f"{ns}/right/image_raw"
+    play_topics = [t for t in bag.topics if remap.get(t, t) in (in_left, in_right)]
+    sides = {remap.get(t, t) for t in play_topics}
+    if sides != {in_left, in_right} and damaged:
+        raise BagError(f"{bag.path} is {'truncated' if bag.truncated else 'damaged'} ({bag.problem}): "
+                       f"no intact {in_left} and {in_right} messages before the damage (topics "
+                       f"read: {', '.join(sorted(bag.topics)) or 'none'})")
+    if sides != {in_left, in_right}:
+        raise CanopyStereoError(
+            f"{bag.path} has no {in_left} and {in_right} to play (topics: "
+            f"{', '.join(sorted(bag.topics)) or 'none'}); use remapping")
+    return bag, play_topics, in_left
+
+
 def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOptions | None = None,
             domain_id: int | None = None, max_in_flight: int = 2, idle_s: float = 2.0,
             timeout_s: float = 120.0, keep=(), remap: dict | None = None,
@@ -227,21 +254,9 @@ def run_bag(bag_path, rig: Rig, rate: float = 1.0, record=None, options: GraphOp
         raise CanopyStereoError(f"rate must be >= 0, got {rate}")
     if max_in_flight < 1:
         raise CanopyStereoError(f"max_in_flight must be >= 1, got {max_in_flight}")
-    bag = BagReader(bag_path)
     remap = dict(remap or {})
-    damaged = bag.truncated or bool(bag.damage)
+    bag, play_topics, in_left = open_input_bag(bag_path, namespace=options.namespace, remap=remap)
     ns = "/" + options.namespace.strip("/") if options.namespace.strip("/") else ""
-    in_left, in_right = f"{ns}/left/image_raw", f"{ns}/right/image_raw"
-    play_topics = [t for t in bag.topics if remap.get(t, t) in (in_left, in_right)]
-    sides = {remap.get(t, t) for t in play_topics}
-    if sides != {in_left, in_right} and damaged:
-        raise BagError(f"{bag.path} is {'truncated' if bag.truncated else 'damaged'} ({bag.problem}): "
-                       f"no intact {in_left} and {in_right} messages before the damage (topics "
-                       f"read: {', '.join(sorted(bag.topics)) or 'none'})")
-    if sides != {in_left, in_right}:
-        raise CanopyStereoError(
-            f"{bag.path} has no {in_left} and {in_right} to play (topics: "
-            f"{', '.join(sorted(bag.topics)) or 'none'}); use remapping")
     left_topics = {t for t in play_topics if remap.get(t, t) == in_left}
     outputs = {"points2": PointCloud2, "disparity": DisparityImage, "left/depth": Image,
                "left/depth/camera_info": CameraInfo,

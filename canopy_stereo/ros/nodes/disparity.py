@@ -7,7 +7,7 @@ disparity node), and publishes ``disparity`` (``stereo_msgs/DisparityImage``):
 32FC1 disparities in rectified pixels, ``f`` the rectified focal length
 (pixels) and ``t`` the baseline (metres), both read from the two ``CameraInfo``
 ``P`` matrices (``f = P_r[0,0]``, ``t = -P_r[0,3] / f``), ``min_disparity``/``max_disparity``
-the search range, ``delta_d`` the matcher's resolution, ``valid_window`` the box of
+the search range, ``delta_d`` the matcher's resolution (from the registry), ``valid_window`` the box of
 valid pixels; invalid pixels are ``min_disparity - 1``. As the message definition
 asks, values (and the range) are reduced by ``cx_left - cx_right`` of the two
 ``P`` (0 for the package's Fusiello rectification), so depth is ``Z = f t / d``.
@@ -15,13 +15,19 @@ An uncalibrated (Hartley) camera pair gives ``f = t = 0``. This node holds no ri
 
 Parameters (changeable at run time unless marked read-only):
 
-* ``matcher``: ``elas`` (default) or ``sgbm``;
+* ``matcher``: a registered matcher (:mod:`canopy_stereo.disparity.registry`): ``elas``
+  (default) or ``sgbm``;
 * ``preset``: ELAS preset (``robotics``, ``middlebury``);
-* ``elas.<name>``: every ELAS parameter (:class:`~canopy_stereo.elas.params.ElasParams`),
-  unset = the preset's value; ``sgbm.<name>``: the SGBM matcher's parameters;
+* ``<matcher>.<name>``: every parameter of every available matcher, declared from the
+  registry's schema (description, type, range): ``elas.<name>`` every ELAS parameter
+  (:class:`~canopy_stereo.elas.params.ElasParams`), unset = the preset's value;
+  ``sgbm.<name>`` the SGBM matcher's;
 * ``disp_min``, ``disp_max``: search range in pixels (a rig file's ``disp_min``/``disp_max``
   set them); -1 = from the cameras: 0 to the disparity of a point 8 baselines away
   (``f / 8``), or 0 to 128 for an uncalibrated pair;
+* ``threads``: threads of the ELAS kernels (numba; 0 = numba's default, every core),
+  the node's share of the cores when other nodes run beside it (1 on a 2-core machine
+  running the whole graph keeps the matcher from competing with itself);
 * read-only: ``queue_size``, ``waiting_pairs``, ``reliability``, ``diagnostic_period``.
 
 This is the slowest stage: the matcher runs in a worker thread on the complete pairs
@@ -34,96 +40,62 @@ is refused with the reason); they apply from the next frame.
 """
 from __future__ import annotations
 
-import inspect
 import threading
 
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
 
-from canopy_stereo.disparity import available_matchers, compute_disparity, get_matcher
+from canopy_stereo.disparity import (available_matchers, compute_disparity, default_matcher,  # noqa: F401
+                                     matcher_names, matcher_spec, preset_names)
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.ros.convert import (COLOUR_ENCODINGS, camera_info_matrices, disparity_to_msg, is_calibrated,
                                        msg_to_mono, stamp_to_ns)
 from canopy_stereo.ros.limits import check_image_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.nodes.rectify import RECT_INFO_TOPICS
+from canopy_stereo.ros.params import number_descriptor
 from canopy_stereo.ros.sync import ExactTimeSynchronizer
 
 _RANGE = ("disp_min", "disp_max")
 
-
-def default_matcher() -> str:
-    """``elas`` when :mod:`canopy_stereo.elas` is importable, else ``sgbm``."""
-    return "elas" if "elas" in available_matchers() else "sgbm"
+#: Disparities searched while validating a matcher configuration whose range comes from the cameras.
+TYPICAL_RANGE = 64
 
 
 def matcher_parameters(matcher: str) -> dict:
     """``name -> default`` of the tunable parameters of a registered matcher
-    (ELAS: the fields of ``ElasParams`` with the ``robotics`` preset's values)."""
-    if matcher == "elas":
-        from dataclasses import fields
-
-        from canopy_stereo.elas.params import PRESETS
-
-        base = PRESETS["robotics"]
-        return {f.name: getattr(base, f.name) for f in fields(base) if f.name not in _RANGE}
-    sig = inspect.signature(get_matcher(matcher))
-    return {n: p.default for n, p in sig.parameters.items()
-            if p.kind == p.KEYWORD_ONLY and n not in _RANGE and p.default is not inspect.Parameter.empty}
+    (:meth:`~canopy_stereo.disparity.registry.MatcherSpec.defaults`; ELAS: its default
+    preset's values)."""
+    return matcher_spec(matcher).defaults()
 
 
-def _coerce(value, like):
-    """Give a ROS parameter value the Python type of the matcher's default."""
-    if like is None or value is None:
-        return value
-    if isinstance(like, bool):
-        if not isinstance(value, bool):
-            raise CanopyStereoError(f"expected true/false, got {value!r}")
-        return value
-    if isinstance(like, int):
-        if isinstance(value, bool) or float(value) != int(value):
-            raise CanopyStereoError(f"expected an integer, got {value!r}")
-        return int(value)
-    if isinstance(like, float):
-        if isinstance(value, bool):
-            raise CanopyStereoError(f"expected a number, got {value!r}")
-        return float(value)
-    return type(like)(value)
-
-
-def _elas_presets() -> list:
-    try:
-        from canopy_stereo.elas.params import PRESETS
-    except ImportError:  # pragma: no cover - numba missing: SGBM only
-        return ["robotics", "middlebury"]
-    return sorted(PRESETS)
-
-
-#: Ranges of the numeric matcher parameters (inclusive); the matchers validate combinations.
-_MATCHER_RANGES = {
-    "disp_min": (0, 4096), "disp_max": (0, 4096), "support_threshold": (0.0, 1.0),
-    "support_texture": (0, 255), "candidate_stepsize": (1, 64), "incon_window_size": (1, 64),
-    "incon_threshold": (0, 255), "incon_min_support": (0, 64), "grid_size": (1, 256),
-    "beta": (0.0, 100.0), "gamma": (0.0, 100.0), "sigma": (0.0, 100.0), "sradius": (0.0, 100.0),
-    "match_texture": (0, 255), "lr_threshold": (0, 64), "speckle_sim_threshold": (0.0, 255.0),
-    "speckle_size": (0, 100000), "ipol_gap_width": (0, 10000),
-    "block_size": (1, 51), "p1": (0, 10_000_000), "p2": (0, 10_000_000), "disp12_max_diff": (-1, 4096),
-    "uniqueness": (0, 100), "speckle_window": (0, 100000), "speckle_range": (0, 1000),
-}
-
-
-def _matcher_parameter_descriptor(matcher: str, name: str, default):
-    """Descriptor of ``<matcher>.<name>``: unset = the preset's value; numbers with a range."""
-    from canopy_stereo.ros.params import number_descriptor
-
-    description = f"{matcher} parameter {name} (unset: the preset's/matcher's {default!r})"
-    numeric = isinstance(default, (int, float)) and not isinstance(default, bool)
-    if numeric or (default is None and name in _MATCHER_RANGES):
-        lo, hi = _MATCHER_RANGES.get(name, (0, 1_000_000) if isinstance(default, int) else (0.0, 1e6))
-        integer = isinstance(default, int) if numeric else isinstance(lo, int)
-        return number_descriptor(description, minimum=lo, maximum=hi, integer=integer, dynamic=True)
+def matcher_parameter_descriptor(spec, parameter) -> ParameterDescriptor:
+    """Descriptor of ``<matcher>.<name>`` from the registry's schema: its description and
+    what unset means; numbers with their range (dynamic typing: unset is allowed)."""
+    description = parameter.description
+    if parameter.default is not None:
+        default = spec.defaults()[parameter.name]
+        description += (f" (unset: the preset's; {spec.default_preset}: {default!r})" if spec.presets
+                        else f" (unset: {default!r})")
+    if parameter.choices:
+        description += f" ({' | '.join(parameter.choices)})"
+    if parameter.numeric and parameter.minimum is not None and parameter.maximum is not None:
+        return number_descriptor(description, minimum=parameter.minimum, maximum=parameter.maximum,
+                                 integer=parameter.kind is int, dynamic=True)
     return ParameterDescriptor(description=description, dynamic_typing=True)
+
+
+def _default_preset() -> str:
+    """The default preset of the first available matcher that has presets ("" if none)."""
+    for name in [default_matcher()] + available_matchers():
+        try:
+            spec = matcher_spec(name)
+        except CanopyStereoError:
+            continue
+        if spec.presets:
+            return spec.default_preset
+    return ""
 
 
 class DisparityNode(CanopyNode):
@@ -137,23 +109,20 @@ class DisparityNode(CanopyNode):
         self.declare_number("waiting_pairs", 2, "complete pairs kept waiting while the matcher is busy; "
                             "when more arrive the oldest is dropped (the newest win, latency stays bounded)",
                             minimum=1, maximum=100, read_only=True)
-        self.declare_text("matcher", default_matcher(), "disparity matcher", choices=("elas", "sgbm"))
-        self.declare_text("preset", "robotics", "ELAS preset (defaults of the elas.* parameters)",
-                          choices=tuple(_elas_presets()))
+        self.declare_text("matcher", default_matcher(), "disparity matcher", choices=tuple(matcher_names()))
+        self.declare_number("threads", 0, "threads of the ELAS kernels (0 = numba's default: every core)",
+                            minimum=0, maximum=1024)
+        self.declare_text("preset", _default_preset(), "preset of the matchers that have presets (ELAS: "
+                          "defaults of the elas.* parameters)", choices=tuple(preset_names()))
         self.declare_number("disp_min", -1, "smallest disparity searched (pixels); "
                             "-1 = from the rectified cameras", minimum=-1, maximum=4096)
         self.declare_number("disp_max", -1, "largest disparity searched (pixels); "
                             "-1 = from the rectified cameras", minimum=-1, maximum=4096)
-        self._defaults = {}
-        for matcher in ("elas", "sgbm"):
-            try:
-                defaults = matcher_parameters(matcher)
-            except CanopyStereoError:
-                continue
-            for name, default in defaults.items():
-                self._defaults[f"{matcher}.{name}"] = default
-                self.declare_parameter(f"{matcher}.{name}", None,
-                                       _matcher_parameter_descriptor(matcher, name, default))
+        for matcher in available_matchers():
+            spec = matcher_spec(matcher)
+            for parameter in spec.parameters:
+                self.declare_parameter(f"{matcher}.{parameter.name}", None,
+                                       matcher_parameter_descriptor(spec, parameter))
         self._config_lock = threading.Lock()
         self.config = self._build_config({})
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -183,35 +152,27 @@ class DisparityNode(CanopyNode):
             return changes[name] if name in changes else self.get_parameter(name).value
 
         matcher = value("matcher")
-        get_matcher(matcher)  # raises for unknown/unavailable matchers
+        spec = matcher_spec(matcher)  # raises for unknown/unavailable matchers
         dmin, dmax = int(value("disp_min")), int(value("disp_max"))
         dmin, dmax = (None if dmin < 0 else dmin), (None if dmax < 0 else dmax)
         if dmin is not None and dmax is not None and dmax <= dmin:
             raise CanopyStereoError(f"disp_max ({dmax}) must be greater than disp_min ({dmin})")
         params = {}
-        for key, default in self._defaults.items():
-            prefix, name = key.split(".", 1)
-            v = value(key)
-            if prefix == matcher and v is not None:
-                try:
-                    params[name] = _coerce(v, default)
-                except (CanopyStereoError, TypeError, ValueError) as exc:
-                    raise CanopyStereoError(f"{key}: {exc}") from None
-        if matcher == "elas":
-            from canopy_stereo.elas.params import make_params
-
+        for name in available_matchers():  # every value set is checked; the active matcher's are used
+            for parameter in matcher_spec(name).parameters:
+                key = f"{name}.{parameter.name}"
+                v = value(key)
+                if v is not None:
+                    v = parameter.coerce(v, label=key)
+                    if name == matcher:
+                        params[parameter.name] = v
+        if spec.presets:
             params["preset"] = value("preset")
-            # validate with the given range, or a typical one where it comes from the cameras
-            lo = 0 if dmin is None else dmin
-            hi = dmax if dmax is not None else lo + 64
-            make_params(params["preset"], disp_min=lo, disp_max=hi,
-                        **{k: v for k, v in params.items() if k != "preset"})
-            subpixel = params.get("subpixel", False)
-            delta_d = 1.0 / 16.0 if subpixel else 1.0
-        else:
-            delta_d = 1.0 / 16.0
+        # validate with the given range, or a typical one where it comes from the cameras
+        lo = 0 if dmin is None else dmin
+        params = spec.check(params, lo, dmax if dmax is not None else lo + TYPICAL_RANGE)
         return {"matcher": matcher, "disp_min": dmin, "disp_max": dmax, "params": params,
-                "delta_d": delta_d}
+                "delta_d": spec.resolution_for(params), "threads": int(value("threads"))}
 
     def _on_set_parameters(self, parameters) -> SetParametersResult:
         changes = {p.name: p.value for p in parameters}
@@ -266,6 +227,7 @@ class DisparityNode(CanopyNode):
             self.get_logger().info(f"rectified cameras: f {f:.2f} px, t {t:.5f} m, "
                                    f"cx_left - cx_right {doffs:.2f} px")
         dmin, dmax = resolve_disparity_range(c["disp_min"], c["disp_max"], f, t, doffs)
+        apply_thread_budget(c["threads"])
         disp = compute_disparity(left, right, matcher=c["matcher"], disp_min=dmin,
                                  disp_max=dmax, **c["params"])
         msg = disparity_to_msg(disp, f, t, dmin, dmax, c["delta_d"], stamp_ns, frame_id, doffs)
@@ -274,6 +236,21 @@ class DisparityNode(CanopyNode):
 
 
 _STREAMS = ("left rectified image", "right rectified image", "left camera_info", "right camera_info")
+
+
+def apply_thread_budget(threads: int) -> int:
+    """Let the ELAS kernels called from this thread use ``threads`` threads (numba's setting is
+    per thread; 0 = numba's default, every core; capped at ``NUMBA_NUM_THREADS``); returns the
+    count in force. Without numba (SGBM only) nothing is set and 0 is returned."""
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - SGBM only
+        return 0
+    limit = int(numba.config.NUMBA_NUM_THREADS)
+    n = limit if int(threads) <= 0 else min(int(threads), limit)
+    if numba.get_num_threads() != n:
+        numba.set_num_threads(n)
+    return n
 
 
 def stereo_parameters(info_left, info_right) -> tuple[float, float, float]:

@@ -40,12 +40,12 @@ from std_msgs.msg import String
 from stereo_msgs.msg import DisparityImage
 
 from canopy_stereo.errors import CanopyStereoError, ImageError
-from canopy_stereo.geometry.frames import reproject_disparity, reproject_disparity_points
+from canopy_stereo.geometry.frames import reproject_disparity, reproject_disparity_records
 from canopy_stereo.geometry.transforms import transform_points
 from canopy_stereo.geometry.triangulation import triangulate_disparity_points
 from canopy_stereo.ros.convert import (COLOUR_ENCODINGS, camera_info_matrices, depth_to_msg, is_calibrated,
                                        msg_to_bgr, msg_to_disparity, msg_to_image, pack_bgr_image,
-                                       points_to_cloud2, stamp_to_ns)
+                                       points_to_cloud2, records_to_cloud2, stamp_to_ns)
 from canopy_stereo.ros.limits import check_disparity_msg, check_image_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.nodes.rectify import RECT_INFO_TOPICS
@@ -150,6 +150,10 @@ class PointCloudNode(CanopyNode):
                                     f"{self.get_parameter('cloud_frame').value!r}")
         self.add_on_set_parameters_callback(self._check_parameters)
         self.geometry = None
+        # synced frames that arrived before rectify_node's latched stereo_geometry (a race at start:
+        # the latched sample and the first images travel on different topics); published as soon
+        # as the geometry arrives, the oldest dropped beyond queue_size
+        self.waiting_for_geometry: list[tuple[int, tuple]] = []
         self.expected_size = None  # (width, height) of the latest rectified camera_info
         # streams: 0 disparity, 1 colour, 2 left camera_info, 3 mask
         n = 4 if self.use_mask else 3
@@ -183,6 +187,9 @@ class PointCloudNode(CanopyNode):
             self.drop(str(exc), "stereo_geometry")
             return
         self.count("geometry_received")
+        waiting, self.waiting_for_geometry = self.waiting_for_geometry, []
+        for stamp, items in waiting:
+            self._publish_or_drop(stamp, items)
 
     def _on(self, stream: int, msg) -> None:
         what = _STREAMS[stream]
@@ -208,11 +215,26 @@ class PointCloudNode(CanopyNode):
         items, dropped = self.sync.push(stream, stamp, item)
         for d in dropped:
             self.drop(d.reason, _STREAMS[d.stream], log=not d.reason.startswith("time jumped back"))
-        if items is not None:
-            try:
-                self._publish(stamp, *items)
-            except CanopyStereoError as exc:
-                self.drop(str(exc), "frame")
+        if items is None:
+            return
+        if self.geometry is None and self._needs_geometry(items[2]):
+            self.waiting_for_geometry.append((stamp, items))
+            limit = int(self.get_parameter("queue_size").value)
+            while len(self.waiting_for_geometry) > limit:
+                self.waiting_for_geometry.pop(0)
+                self.drop(f"no {STEREO_GEOMETRY_TOPIC} from rectify_node after {limit} frames "
+                          f"(needed for the {self.get_parameter('cloud_frame').value} frame)", "frame")
+            return
+        self._publish_or_drop(stamp, items)
+
+    def _needs_geometry(self, info: CameraInfo) -> bool:
+        return self.get_parameter("cloud_frame").value != "optical" or not is_calibrated(info)
+
+    def _publish_or_drop(self, stamp: int, items: tuple) -> None:
+        try:
+            self._publish(stamp, *items)
+        except CanopyStereoError as exc:
+            self.drop(str(exc), "frame")
 
     def _world_frame(self) -> str:
         return self.get_parameter("frame_id").value or (
@@ -224,7 +246,7 @@ class PointCloudNode(CanopyNode):
         if cloud_frame not in CLOUD_FRAMES:
             raise CanopyStereoError(f"cloud_frame must be one of {', '.join(CLOUD_FRAMES)}, "
                                     f"got {cloud_frame!r}")
-        if cloud_frame != "optical" or not is_calibrated(info):
+        if self._needs_geometry(info):
             if self.geometry is None:
                 raise CanopyStereoError(f"no {STEREO_GEOMETRY_TOPIC} from rectify_node yet (needed for "
                                         f"the {cloud_frame} frame)")
@@ -241,14 +263,14 @@ class PointCloudNode(CanopyNode):
                 target = self._target_frame(cloud_frame)
                 T = self.geometry.lookup(target, optical)
                 frame_id = self._world_frame() if cloud_frame == "world" else target
-            points, index, depth = reproject_disparity_points(frame.disparity, Q, T, mask=mask,
-                                                               organized=organized)
+            # x, y, z and rgb written by the kernel into the cloud's rows (one copy into the message)
+            records, depth = reproject_disparity_records(frame.disparity, Q, T, rgb=pack_bgr_image(bgr),
+                                                         mask=mask, organized=organized)
             self.pub_depth_info.publish(info)
             self.pub_depth.publish(depth_to_msg(depth, stamp_ns, optical))
-            rgb = pack_bgr_image(bgr)
-            colours = rgb if organized else rgb.reshape(-1)[index]
-            if organized:
-                points = points.reshape(h, w, 3)
+            self.pub.publish(records_to_cloud2(records, stamp_ns, frame_id, (h, w) if organized else None))
+            self.count("clouds_published")
+            return
         else:  # projective rectification: back-mapping + DLT with the world-frame P
             g = self.geometry
             disp = np.where(np.isfinite(frame.disparity), frame.disparity, np.float32(-1))

@@ -19,8 +19,9 @@ frame's stamp:
 * ``/tf_static`` (latched, when tf2_msgs is importable): ``canopy_world_z_up ->
   canopy_world -> {left,right}_camera_optical_frame, {left,right}_camera_rect_optical_frame``.
 
-Parameters: the rig (:mod:`canopy_stereo.ros.params`), ``method``,
-``H_left``/``H_right``, ``fps`` (the cameras' frame rate, 0 = measured from the
+Parameters: the rig (:mod:`canopy_stereo.ros.params`), ``method`` (empty = the rig's),
+``H_left``/``H_right`` (unset = the rig's; the rectification is
+:func:`~canopy_stereo.geometry.rig_rectification.rectification_for_rig`'s), ``fps`` (the cameras' frame rate, 0 = measured from the
 stamps), ``sync_slop`` (s; -1 = half a frame period at ``fps``), ``queue_size``,
 ``frame_id`` (rectified left optical frame) and ``right_frame_id``, ``world_frame``,
 ``world_z_up_frame`` ("" = none), ``left_camera_frame``/``right_camera_frame`` (raw
@@ -28,6 +29,12 @@ optical frames in the transforms), ``reliability``, ``diagnostic_period``.
 
 Stamps that go back further than the pairing tolerance (a looping bag, a
 restarted driver) reset the pairing with one log line; pairing goes on.
+
+Frames that never reached the node (overwritten in its keep-last input queue while it
+was busy, or lost upstream) are counted as drops (``left frame: missed ...``, in
+``/diagnostics``): a gap of ``k`` frame periods between two left stamps (the period
+measured from the stamps, median of recent intervals) is ``k - 1`` missed frames; gaps
+longer than 2 s are pauses, not losses.
 """
 from __future__ import annotations
 
@@ -63,6 +70,11 @@ _FRAME_PARAMETERS = {
 #: period at 30 frames/s, the fastest common webcam rate.
 INITIAL_SLOP_S = slop_for_rate(30.0)
 
+#: Drop reason of frames that never arrived (see the module docstring).
+MISSED_REASON = "missed (overwritten in the input queue while the node was busy, or lost upstream)"
+#: Longest gap between two left frames (s) still counted as lost frames rather than a pause.
+MISSED_MAX_GAP_S = 2.0
+
 
 class RectifyNode(CanopyNode):
     """Approximate-time pairing + rectification (see module docstring)."""
@@ -94,6 +106,8 @@ class RectifyNode(CanopyNode):
         self.period_estimator = FramePeriodEstimator() if slop < 0 and fps <= 0 else None
         if slop < 0:
             slop = slop_for_rate(fps) if fps > 0 else INITIAL_SLOP_S
+        self.left_gaps = FramePeriodEstimator(1, max_interval_s=MISSED_MAX_GAP_S)
+        self._last_left_ns = None
         self.pairer = ApproximateTimePairer(slop, int(self.get_parameter("queue_size").value),
                                             on_jump=self.time_jump_handler(("left", "right")))
         self.pub_left = self.make_publisher(Image, "left/image_rect")
@@ -129,6 +143,8 @@ class RectifyNode(CanopyNode):
             self.drop(str(exc), f"{name} frame")
             return
         stamp = stamp_to_ns(msg.header.stamp)
+        if side == 0:
+            self._count_missed(stamp)
         if self.period_estimator is not None:
             self._follow_frame_rate(self.period_estimator.observe(side, stamp))
         pair, dropped = self.pairer.push(side, stamp, bgr)
@@ -138,6 +154,18 @@ class RectifyNode(CanopyNode):
         if pair is not None:
             self.diagnostics.sample("pair offset ms", pair.skew_ns / 1e6)
             self._publish(pair.stamps_ns[0], *pair.items)
+
+    def _count_missed(self, stamp_ns: int) -> None:
+        """Count the left frames missing between the previous left stamp and ``stamp_ns``."""
+        period_s = self.left_gaps.observe(0, stamp_ns)
+        last, self._last_left_ns = self._last_left_ns, stamp_ns
+        if period_s is None or last is None:
+            return
+        gap_s = (stamp_ns - last) / 1e9
+        if gap_s <= 1.5 * period_s or gap_s > MISSED_MAX_GAP_S:
+            return
+        for _ in range(int(round(gap_s / period_s)) - 1):
+            self.drop(MISSED_REASON, "left frame")
 
     def camera_infos(self, stamp_ns: int) -> tuple[CameraInfo, CameraInfo]:
         """The rectified ``CameraInfo`` pair stamped ``stamp_ns``."""
