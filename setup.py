@@ -17,7 +17,7 @@ ROS_EXECUTABLES = {
     "point_cloud_node": "canopy_stereo.ros.nodes.point_cloud:main",
     "bag_record": "canopy_stereo.ros.recorder:main",
     "bag_play": "canopy_stereo.ros.player:main",
-    "canopy_graph": "canopy_stereo.ros.graph:main",
+    "canopy_graph": "canopy_stereo.ros.canopy_graph:main",
     "fusion_node": "canopy_stereo.ros.fusion_node:main",
 }
 

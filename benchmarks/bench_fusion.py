@@ -107,7 +107,7 @@ def main() -> None:
         transform_error,
         view_from_reconstruction,
     )
-    from canopy_stereo.fusion.transforms import invert_transform, transform_points
+    from canopy_stereo.geometry.transforms import invert_transform, transform_points
     from canopy_stereo.pipeline.reconstruct import reconstruct_pair
     from canopy_stereo.sim.multiview import render_views, sample_leaf_surfaces
 

@@ -41,7 +41,7 @@ MODULES = {
     "fusion_node": "canopy_stereo.ros.fusion_node",
     "bag_play": "canopy_stereo.ros.player",
     "bag_record": "canopy_stereo.ros.recorder",
-    "canopy_graph": "canopy_stereo.ros.graph",
+    "canopy_graph": "canopy_stereo.ros.canopy_graph",
 }
 
 #: The processing nodes of the graph, in data-flow order.

@@ -147,7 +147,7 @@ def test_graph_recording_from_cameras_is_measured_without_a_rig(tmp_path):
             cv2.imwrite(str(tmp_path / f"{side}_{k:03d}.png"), msg_to_image(m))
     out = tmp_path / "rec.mcap"
     env = dict(os.environ, ROS_DOMAIN_ID=str(private_domain_id()), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    code = "import sys; from canopy_stereo.ros.graph import main; sys.exit(main())"
+    code = "import sys; from canopy_stereo.ros.canopy_graph import main; sys.exit(main())"
     fps = 4.0
     proc = subprocess.Popen([sys.executable, "-c", code, "--rig", str(bundled_rig("croton")),
                              "--cameras", str(tmp_path / "left_%03d.png"), str(tmp_path / "right_%03d.png"),

@@ -180,7 +180,7 @@ def test_sigkill_loses_at_most_the_last_flush_period(tmp_path):
 
 
 def _graph(args, domain):
-    code = "import sys; from canopy_stereo.ros.graph import main; sys.exit(main())"
+    code = "import sys; from canopy_stereo.ros.canopy_graph import main; sys.exit(main())"
     return subprocess.Popen([sys.executable, "-c", code, "--rig", str(bundled_rig("croton")),
                              "--matcher", "sgbm", "--no-segment", *map(str, args)], cwd=REPO,
                             env=_env(domain), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

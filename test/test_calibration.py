@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 
 from canopy_stereo.errors import CalibrationError
-from canopy_stereo.geometry.calibration import (
-    calibrate_stereo_points, dlt_projection, gold_standard_projection, read_correspondences_csv)
+from canopy_stereo.geometry.calibration import calibrate_stereo_points, dlt_projection, gold_standard_projection
 from canopy_stereo.geometry.camera import camera_centre, project
+from canopy_stereo.io.correspondences import read_correspondences_csv
 
 
 def paper_target(rig, rng, noise=0.2):

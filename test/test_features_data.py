@@ -87,8 +87,8 @@ def test_qdmatch_is_95_percent_correct_on_the_middlebury_scenes(shared_data):
         left = read_image(shared_data / folder / l)
         right = read_image(shared_data / folder / r)
         gt = read_disparity(shared_data / folder / g, scale)
-        qd = match_pair(left, right, "qdmatch")
-        sift = match_pair(left, right, "sift")
+        qd = match_pair(left, right, method="qdmatch")
+        sift = match_pair(left, right, method="sift")
         shares[name], n = gt_correctness(qd.x_left, qd.x_right, gt)
         assert n > 0.8 * qd.num, name
         assert qd.distribution > sift.distribution, name

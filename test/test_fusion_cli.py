@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from canopy_stereo.fusion import read_poses, transform_error, transform_points, write_pose, write_poses
-from canopy_stereo.fusion.transforms import invert_transform, make_transform, rotation_about_axis
+from canopy_stereo.geometry.transforms import invert_transform, make_transform, rotation_about_axis
 from canopy_stereo.io.ply import read_ply, write_ply
 
 

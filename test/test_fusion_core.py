@@ -27,7 +27,8 @@ from canopy_stereo.fusion import (
     write_poses,
 )
 from canopy_stereo.fusion.posegraph import PoseGraphEdge, edge_residuals, optimize_pose_graph
-from canopy_stereo.fusion.transforms import (
+from canopy_stereo.fusion.voxel import pack_keys, unpack_keys, voxel_downsample
+from canopy_stereo.geometry.transforms import (
     check_transform,
     exp_se3,
     invert_transform,
@@ -37,7 +38,6 @@ from canopy_stereo.fusion.transforms import (
     rotation_from_rotvec,
     rotvec_from_rotation,
 )
-from canopy_stereo.fusion.voxel import pack_keys, unpack_keys, voxel_downsample
 
 
 def leafy_cloud(rng, n_patches=14, spread=90.0, radius=30.0, spacing=1.5):

@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from canopy_stereo.fusion.transforms import (  # noqa: E402
+from canopy_stereo.geometry.transforms import (  # noqa: E402
     invert_transform,
     make_transform,
     rotation_about_axis,

@@ -166,7 +166,7 @@ def test_disparity_node_parameters_are_the_registry(tmp_path):
 def test_graph_and_launch_matcher_choices_come_from_the_registry():
     pytest.importorskip("rclpy")
     pytest.importorskip("stereo_msgs.msg")
-    from canopy_stereo.ros.graph import build_parser
+    from canopy_stereo.ros.canopy_graph import build_parser
     from launch_eval import evaluate
 
     assert list(_option(build_parser(), "--matcher").choices) == matcher_names()

@@ -18,14 +18,15 @@ from canopy_stereo.measure import (
     measure_points,
     measure_scene,
     plot_views,
+    separate_leaves,
     voxel_volume,
     write_report,
 )
 from canopy_stereo.measure.analytic import EllipticLeaf, Plane, render
-from canopy_stereo.measure.canopy import MeasuringFrame, nice_voxel_size, ransac_plane
+from canopy_stereo.measure.canopy import nice_voxel_size
+from canopy_stereo.measure.frame import MeasuringFrame, ransac_plane
 from canopy_stereo.measure.sections import outline_field
 from canopy_stereo.measure.surface import local_linear_fit
-from canopy_stereo.segmentation import separate_leaves
 
 
 def _leaf(P, pixel, dist, theta_deg, normal, a=80.0, b=48.5, **kw):
@@ -372,7 +373,7 @@ def test_cli_measure_bad_input_is_one_line(tmp_path, cli):
 
 
 def test_detached_clusters_are_dropped_attached_ones_kept():
-    from canopy_stereo.measure.report import drop_detached_clusters
+    from canopy_stereo.measure.cleaning import drop_detached_clusters
 
     rng = np.random.default_rng(3)
     canopy = rng.uniform(0, 300, size=(20000, 3))            # the canopy: a 300 mm block

@@ -123,7 +123,7 @@ def test_end_to_end_canopy_extents(croton, reconstruction, true_scene):
 
 def test_leaves_separated_from_plant_mask_on_reconstruction(croton, reconstruction):
     """Without ids, the marked leaves are cut from the stem and from each other."""
-    from canopy_stereo.segmentation import separate_leaves
+    from canopy_stereo.measure import separate_leaves
 
     sim, plant = croton
     ids = separate_leaves(reconstruction.organized, plant)

@@ -63,13 +63,14 @@ def test_rectifier_moves_pixels_where_homography_says(paper_rig):
 
 def test_real_chessboard_rig(shared_data):
     from canopy_stereo.geometry.chessboard import calibrate_stereo_chessboard, detect_stereo_chessboards
+    from canopy_stereo.io.images import ImageFiles
 
     d = shared_data / "opencv_stereo_calib_chessboard"
-    cal = calibrate_stereo_chessboard(str(d / "left*.jpg"), str(d / "right*.jpg"), pattern=(9, 6),
-                                      square_size=25.0)
+    lefts, rights = ImageFiles(str(d / "left*.jpg"), color=False), ImageFiles(str(d / "right*.jpg"), color=False)
+    cal = calibrate_stereo_chessboard(lefts, rights, pattern=(9, 6), square_size=25.0)
     assert cal.rms_stereo <= 0.5
     rect = fusiello_rectify(cal.P_left, cal.P_right, (640, 480))
-    views = detect_stereo_chessboards(str(d / "left*.jpg"), str(d / "right*.jpg"))
+    views = detect_stereo_chessboards(lefts, rights)
     dv = []
     for cl, cr in zip(views.left, views.right):
         pl = apply_homography(rect.H_left, undistort_pixels(cal.P_left, cal.D_left, cl))
@@ -83,13 +84,13 @@ def test_real_chessboard_rig(shared_data):
 def test_hartley_from_pooled_qdmatch_on_raw_chessboard_pairs(shared_data):
     """Issue 6 target: Hartley from quasi-dense matches, corners' median |dv| <= 0.5 px."""
     from canopy_stereo.geometry.chessboard import calibrate_stereo_chessboard, find_corners
-    from canopy_stereo.io.images import read_image
+    from canopy_stereo.io.images import ImageFiles, read_image
     from canopy_stereo.io.rig import Rig
     from canopy_stereo.pipeline.reconstruct import rectify_rig
 
     d = shared_data / "opencv_stereo_calib_chessboard"
-    cal = calibrate_stereo_chessboard(str(d / "left*.jpg"), str(d / "right*.jpg"), pattern=(9, 6),
-                                      square_size=25.0)
+    cal = calibrate_stereo_chessboard(ImageFiles(str(d / "left*.jpg"), color=False),
+                                      ImageFiles(str(d / "right*.jpg"), color=False), pattern=(9, 6), square_size=25.0)
     rig = Rig(cal.P_left, cal.P_right, (640, 480), D_left=cal.D_left, D_right=cal.D_right)
     names = ["01", "02", "03", "04", "05", "06", "07", "08", "09", "11", "12", "13", "14"]
     pairs = [(read_image(d / f"left{n}.jpg"), read_image(d / f"right{n}.jpg")) for n in names]

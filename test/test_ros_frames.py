@@ -27,9 +27,9 @@ from stereo_msgs.msg import DisparityImage  # noqa: E402
 from canopy_stereo.geometry.camera import decompose_projection, point_depth  # noqa: E402
 from canopy_stereo.geometry.distortion import distort_pixels  # noqa: E402
 from canopy_stereo.geometry.frames import (  # noqa: E402
-    FrameNames, apply_transform, invert_transform, quaternion_to_rotation, raw_camera_calibration,
-    stereo_transforms)
+    FrameNames, quaternion_to_rotation, raw_camera_calibration, stereo_transforms)
 from canopy_stereo.geometry.rectification import fusiello_rectify  # noqa: E402
+from canopy_stereo.geometry.transforms import invert_transform, transform_points  # noqa: E402
 from canopy_stereo.geometry.triangulation import apply_homography  # noqa: E402
 from canopy_stereo.ros import convert  # noqa: E402
 from canopy_stereo.ros.stereo_geometry import parse_stereo_geometry, stereo_geometry_msg  # noqa: E402
@@ -81,7 +81,7 @@ def test_camera_info_path_equals_back_mapping_and_dlt(paper_rig, rig_name):
     from canopy_stereo.geometry.frames import reproject_disparity
     from canopy_stereo.geometry.triangulation import triangulate_disparity
 
-    p64 = apply_transform(T, reproject_disparity(msg.disparity, Q))
+    p64 = transform_points(T, reproject_disparity(msg.disparity, Q))
     r64 = triangulate_disparity(np.where(np.isfinite(disp), disp, -1), rect, rig.P_left, rig.P_right)
     ok = np.isfinite(r64[..., 2])
     rel = np.linalg.norm(p64[ok] - r64[ok] * rig.metres_per_unit, axis=1) / np.linalg.norm(
@@ -285,7 +285,7 @@ def test_recorded_bag_has_tf_static_and_depth_matching_points2(tmp_path):
         v, u = np.nonzero(np.isfinite(z))
         zz = z[v, u].astype(np.float64)
         xyz_opt = np.stack([(u - cx) * zz / fx, (v - cy) * zz / fy, zz], axis=1)
-        xyz_world = apply_transform(_lookup(tree, cloud_frame, depth_msg.header.frame_id), xyz_opt)
+        xyz_world = transform_points(_lookup(tree, cloud_frame, depth_msg.header.frame_id), xyz_opt)
         # points2 (dense: the valid pixels in row-major order), read as a PointCloud2 consumer does
         rec = np.frombuffer(cloud.data, np.dtype({"names": ["x", "y", "z"], "formats": ["<f4"] * 3,
                                                   "offsets": [0, 4, 8], "itemsize": cloud.point_step}))
@@ -340,7 +340,7 @@ def test_point_cloud_node_frames_optical_and_z_up(harness, paper_rig):
     assert out[1].header.frame_id == "canopy_world_z_up"
     zup, _ = convert.cloud2_to_points(out[1], organized=True)
     tree = {c: (p, T) for p, c, T in stereo_transforms(paper_rig, rect)}
-    want = apply_transform(_lookup(tree, "canopy_world_z_up", "left_camera_rect_optical_frame"), opt)
+    want = transform_points(_lookup(tree, "canopy_world_z_up", "left_camera_rect_optical_frame"), opt)
     ok = np.isfinite(want[..., 2])
     np.testing.assert_allclose(zup[ok], want[ok], rtol=1e-5, atol=1e-6)
     # in z-up, the plant's points are in front (+x) and z is height

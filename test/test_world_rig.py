@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
-from canopy_stereo.errors import CalibrationError
+from canopy_stereo.errors import CalibrationError, ImageError
 from canopy_stereo.geometry.camera import camera_centre, project
 from canopy_stereo.geometry.triangulation import triangulate_dlt
 from canopy_stereo.geometry.world_rig import (
@@ -17,11 +17,11 @@ from canopy_stereo.geometry.world_rig import (
     board_world_points,
     calibrate_world_rig,
     detect_board_corners,
-    load_placements,
     paper_layout_placements,
     resolve_corner_order,
-    write_placements,
 )
+from canopy_stereo.io.images import ImageFiles
+from canopy_stereo.io.placements import load_placements, write_placements
 
 # --------------------------------------------------------------------------- placements
 
@@ -408,5 +408,8 @@ def test_placements_for_missing_pairs_and_unequal_image_counts_are_rejected():
         calibrate_world_rig(blank, blank, pl)
     with pytest.raises(CalibrationError, match="4 left images but 3 right images"):
         calibrate_world_rig(blank, blank[:3], pl)
-    with pytest.raises(CalibrationError, match="no left images match"):
+    with pytest.raises(ImageError, match="no left images match"):   # files: ImageFiles (io)
+        calibrate_world_rig(ImageFiles("/nonexistent/left_*.png", what="left images"),
+                            ImageFiles("/nonexistent/right_*.png", what="right images"), pl)
+    with pytest.raises(CalibrationError, match="is a path or glob; read the files with"):
         calibrate_world_rig("/nonexistent/left_*.png", "/nonexistent/right_*.png", pl)

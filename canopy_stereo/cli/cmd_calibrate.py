@@ -95,15 +95,16 @@ def run(args) -> int:
         args.square = 25.0
     _check_arguments(args)
     if args.points:
-        from canopy_stereo.geometry.calibration import calibrate_stereo_points, read_correspondences_csv
+        from canopy_stereo.geometry.calibration import calibrate_stereo_points
+        from canopy_stereo.io.correspondences import read_correspondences_csv
 
         X, xl, xr = read_correspondences_csv(args.points)
         cal = calibrate_stereo_points(X, xl, xr)
         w, h = parse_int_list(args.image_size, 2, "--image-size") if args.image_size else (640, 480)
         print(f"Gold Standard calibration from {len(X)} correspondences")
     else:
-        from canopy_stereo.geometry.chessboard import calibrate_stereo_chessboard, expand_image_list
-        from canopy_stereo.io.images import read_image
+        from canopy_stereo.geometry.chessboard import calibrate_stereo_chessboard
+        from canopy_stereo.io.images import ImageFiles
 
         pattern = tuple(parse_int_list(args.pattern, 2, "--pattern"))
         from canopy_stereo.cli.progress import Progress
@@ -115,15 +116,15 @@ def run(args) -> int:
             bar = bar or Progress(total, "finding the chessboard in pair")
             bar.step(name)
 
+        lefts = ImageFiles(args.chessboard[0], color=False, what="left chessboard images")
+        rights = ImageFiles(args.chessboard[1], color=False, what="right chessboard images")
         try:
-            cal = calibrate_stereo_chessboard(args.chessboard[0], args.chessboard[1], pattern=pattern,
-                                              square_size=args.square,
+            cal = calibrate_stereo_chessboard(lefts, rights, pattern=pattern, square_size=args.square,
                                               world_board=args.world_board, progress=progress)
         finally:
             if bar is not None:
                 bar.close()
-        first = read_image(expand_image_list(args.chessboard[0])[0], color=False)
-        h, w = first.shape
+        h, w = lefts[0].shape[:2]
         print(f"chessboard calibration, {len(cal.check.errors) // (pattern[0] * pattern[1])} pairs used; "
               f"stereo RMS {cal.rms_stereo:.3f} px")
     print(f"reprojection RMS: left {cal.rms_left:.3f} px, right {cal.rms_right:.3f} px")
@@ -142,7 +143,8 @@ def run(args) -> int:
 
 def _run_paper_layout(args) -> int:
     """``--paper-layout -o placements.yaml``: the paper's layout as a placements file."""
-    from canopy_stereo.geometry.world_rig import PAPER_LAYOUT, paper_layout_placements, write_placements
+    from canopy_stereo.geometry.world_rig import PAPER_LAYOUT, paper_layout_placements
+    from canopy_stereo.io.placements import write_placements
 
     layout = {}
     if args.first_mark is not None:
@@ -182,12 +184,8 @@ def _run_paper_layout(args) -> int:
 
 def _run_world_rig(args) -> int:
     """``--world-rig PLACEMENTS.yaml LEFT_GLOB RIGHT_GLOB``: the paper's world-rig calibration."""
-    from canopy_stereo.geometry.world_rig import (
-        calibrate_world_rig,
-        load_placements,
-        parse_pattern,
-        plot_world_rig_errors,
-    )
+    from canopy_stereo.geometry.world_rig import calibrate_world_rig, parse_pattern, plot_world_rig_errors
+    from canopy_stereo.io.placements import load_placements
 
     placements_path, left_glob, right_glob = args.world_rig
     placements = load_placements(placements_path)
@@ -207,7 +205,11 @@ def _run_world_rig(args) -> int:
     def progress(msg):
         print(msg, flush=True)
 
-    cal = calibrate_world_rig(left_glob, right_glob, placements, pattern=pattern, square=placements.square,
+    from canopy_stereo.io.images import ImageFiles
+
+    lefts = ImageFiles(left_glob, color=False, what="left images")
+    rights = ImageFiles(right_glob, color=False, what="right images")
+    cal = calibrate_world_rig(lefts, rights, placements, pattern=pattern, square=placements.square,
                               max_rms_px=args.max_rms, leave_one_out=not args.no_loo, progress=progress)
     n_pairs = len(cal.pair_names)
     print(f"world-rig calibration: board found in {len(cal.used_pairs)} of {n_pairs} pairs "

@@ -89,7 +89,8 @@ def run(args) -> int:
     from canopy_stereo.fusion.plyout import write_fused_ply
     from canopy_stereo.fusion.poses import write_poses
     from canopy_stereo.fusion.registration import RegistrationSettings, check_given_poses, register_views
-    from canopy_stereo.fusion.views import common_unit, load_view
+    from canopy_stereo.fusion.views import common_unit
+    from canopy_stereo.pipeline.views import load_view
 
     t0 = time.perf_counter()
     folders = [Path(v) for v in args.views]

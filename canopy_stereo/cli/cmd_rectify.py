@@ -19,7 +19,7 @@ def load_match_pairs(globs):
     if not globs:
         return []
     from canopy_stereo.errors import CanopyStereoError
-    from canopy_stereo.geometry.chessboard import expand_image_list
+    from canopy_stereo.io.images import expand_image_list
 
     lefts, rights = expand_image_list(globs[0]), expand_image_list(globs[1])
     if not lefts or len(lefts) != len(rights):

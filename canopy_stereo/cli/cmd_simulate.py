@@ -168,7 +168,7 @@ def _run_views(args, rig, out: Path, effects) -> int:
 
 def _run_calibration(args, rig, rig_path: Path, out: Path) -> int:
     """``simulate calibration``: the paper's world-rig calibration images and placements."""
-    from canopy_stereo.geometry.world_rig import load_placements, write_placements
+    from canopy_stereo.io.placements import load_placements, write_placements
     from canopy_stereo.sim.calibration import calibration_placements, render_calibration_scene
 
     if args.views != 1 or args.mode is not None or args.frames != 1:

@@ -20,9 +20,9 @@ import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError, ImageError, MatchingError
 from canopy_stereo.features.detectors import detect_and_describe, detector_available, make_detector
-from canopy_stereo.features.fundamental import MIN_MATCHES_F
 from canopy_stereo.features.result import MatchResult
 from canopy_stereo.features.sparse import sparse_match
+from canopy_stereo.geometry.fundamental import MIN_MATCHES_F
 from canopy_stereo.io.images import check_pair, to_gray
 
 #: Study order of the methods (the paper's Tables 2-4 plus ORB/AKAZE/KAZE).

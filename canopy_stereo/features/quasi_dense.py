@@ -51,9 +51,9 @@ from numba import njit
 from canopy_stereo.errors import CanopyStereoError, MatchingError
 from canopy_stereo.features.descriptor_matching import match_descriptors
 from canopy_stereo.features.detectors import detect_and_describe, make_detector
-from canopy_stereo.features.fundamental import MIN_MATCHES_F, estimate_fundamental
 from canopy_stereo.features.result import DISTRIBUTION_CELL_PX, MatchResult
 from canopy_stereo.features.sparse import verify_matches
+from canopy_stereo.geometry.fundamental import MIN_MATCHES_F, estimate_fundamental
 
 
 # ----------------------------------------------------------------------------------------------

@@ -13,8 +13,8 @@ import numpy as np
 from canopy_stereo.errors import MatchingError
 from canopy_stereo.features.descriptor_matching import match_descriptors
 from canopy_stereo.features.detectors import Features
-from canopy_stereo.features.fundamental import MIN_MATCHES_F, estimate_fundamental
 from canopy_stereo.features.result import MatchResult
+from canopy_stereo.geometry.fundamental import MIN_MATCHES_F, estimate_fundamental
 
 
 def verify_matches(x_left: np.ndarray, x_right: np.ndarray, *, f_method: str = "ransac",

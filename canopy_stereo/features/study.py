@@ -23,8 +23,8 @@ import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError, ImageError, MatchingError
 from canopy_stereo.features.api import METHODS, check_method, match_pair, method_available
-from canopy_stereo.features.fundamental import MIN_MATCHES_F, epipolar_distance, estimate_fundamental
 from canopy_stereo.features.result import MatchResult
+from canopy_stereo.geometry.fundamental import MIN_MATCHES_F, epipolar_distance, estimate_fundamental
 
 #: Methods of the ``features`` command when none are named (the issue's list plus SURF,
 #: whose row says why it is absent).

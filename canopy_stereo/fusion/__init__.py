@@ -32,7 +32,8 @@ from canopy_stereo.fusion.registration import (
     register_pair,
     register_views,
 )
-from canopy_stereo.fusion.transforms import (
+from canopy_stereo.fusion.views import View, common_unit, view_from_reconstruction
+from canopy_stereo.geometry.transforms import (
     check_transform,
     invert_transform,
     make_transform,
@@ -41,14 +42,13 @@ from canopy_stereo.fusion.transforms import (
     transform_error,
     transform_points,
 )
-from canopy_stereo.fusion.views import View, common_unit, load_view, view_from_reconstruction
 
 __all__ = [
     "AddResult", "CoverageReport", "DepthView", "FusedCloud", "IcpResult", "IncrementalFusion",
     "PairRegistration", "PoseGraphEdge", "PoseSet", "RegistrationError", "RegistrationResult",
     "RegistrationSettings", "UnitMismatchError", "View", "check_given_poses", "check_transform",
     "common_unit", "estimate_normals", "evaluate_model", "fuse_point_sets", "fuse_views",
-    "icp_point_to_plane", "invert_transform", "load_view", "make_transform", "optimize_pose_graph",
+    "icp_point_to_plane", "invert_transform", "make_transform", "optimize_pose_graph",
     "read_poses", "register_pair", "register_views", "rigid_fit", "rotation_about_axis",
     "surface_coverage", "transform_error", "transform_points", "turntable_pose",
     "view_from_reconstruction", "write_pose", "write_poses",

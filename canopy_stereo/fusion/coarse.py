@@ -19,7 +19,7 @@ import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.fusion.errors import RegistrationError
-from canopy_stereo.fusion.transforms import rigid_fit, rigid_fit_batch, transform_points
+from canopy_stereo.geometry.transforms import rigid_fit, rigid_fit_batch, transform_points
 from canopy_stereo.io.images import to_gray
 
 

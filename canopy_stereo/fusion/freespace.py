@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from canopy_stereo.fusion.transforms import invert_transform
 from canopy_stereo.geometry.camera import normalize_projection, point_depth, project
+from canopy_stereo.geometry.transforms import invert_transform
 
 
 @dataclass

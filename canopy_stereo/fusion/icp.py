@@ -30,7 +30,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.fusion.transforms import exp_se3, transform_points
+from canopy_stereo.geometry.transforms import exp_se3, transform_points
 
 #: Tuning constants giving 95 % efficiency on Gaussian residuals.
 KERNEL_CONSTANTS = {"tukey": 4.685, "huber": 1.345, "cauchy": 2.3849}

@@ -19,9 +19,10 @@ from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.fusion.freespace import DepthView
 from canopy_stereo.fusion.fuse import FusedCloud, fuse_point_sets
 from canopy_stereo.fusion.registration import RegistrationSettings, _Prepared, _register
-from canopy_stereo.fusion.transforms import check_transform, transform_points
 from canopy_stereo.fusion.views import View
 from canopy_stereo.fusion.voxel import voxel_downsample
+from canopy_stereo.geometry.clouds import check_cloud
+from canopy_stereo.geometry.transforms import check_transform, transform_points
 
 
 @dataclass
@@ -106,7 +107,7 @@ class IncrementalFusion:
             RegistrationError: no pose and the cloud does not overlap the previous one.
             CanopyStereoError: a malformed pose or too few points.
         """
-        pts = np.asarray(points, np.float64).reshape(-1, 3)
+        pts = check_cloud(points, organized=None, name="points").reshape(-1, 3)
         cols = None if colors is None else np.asarray(colors).reshape(-1, 3)
         ok = np.all(np.isfinite(pts), axis=1)
         pts = pts[ok]

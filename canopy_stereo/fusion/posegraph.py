@@ -22,7 +22,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.fusion.transforms import exp_se3, invert_transform, log_se3, rotation_angle_deg
+from canopy_stereo.geometry.transforms import exp_se3, invert_transform, log_se3, rotation_angle_deg
 
 
 @dataclass

@@ -37,8 +37,9 @@ import numpy as np
 import yaml
 
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.fusion.transforms import check_transform, rotation_about_line
+from canopy_stereo.geometry.transforms import check_transform, rotation_about_line
 from canopy_stereo.io.rig import unit_to_metres
+from canopy_stereo.io.yaml_files import read_yaml_file
 
 
 @dataclass
@@ -74,14 +75,7 @@ def turntable_pose(angle_deg: float, axis_point, axis_direction) -> np.ndarray:
 
 
 def _read_yaml(path: Path) -> dict:
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise CanopyStereoError(f"cannot read pose file {path}: {exc.strerror or exc}") from None
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise CanopyStereoError(f"pose file {path} is not valid YAML: {exc}") from None
+    doc = read_yaml_file(path, "pose file")
     if not isinstance(doc, dict):
         raise CanopyStereoError(f"pose file {path} must be a mapping with 'unit' and 'poses' or 'pose'")
     return doc

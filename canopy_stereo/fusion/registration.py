@@ -39,8 +39,8 @@ from canopy_stereo.fusion.coarse import FeatureAlignment, align_keypoints, keypo
 from canopy_stereo.fusion.errors import RegistrationError
 from canopy_stereo.fusion.icp import IcpResult, IcpTarget, estimate_normals, icp_point_to_plane
 from canopy_stereo.fusion.posegraph import PoseGraphEdge, edge_residuals, optimize_pose_graph
-from canopy_stereo.fusion.transforms import invert_transform, transform_points
 from canopy_stereo.fusion.voxel import voxel_downsample
+from canopy_stereo.geometry.transforms import invert_transform, transform_points
 
 
 @dataclass

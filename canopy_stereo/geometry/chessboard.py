@@ -3,10 +3,13 @@
 The world frame is the left camera of the first pair (x right, y down, z
 forward, unit = unit of ``square_size``), or, with ``world_board=i``, the
 board of pair ``i`` (origin at its first inner corner, z = 0 on the board).
+
+Images come as sequences of arrays; for files on disk pass
+:class:`canopy_stereo.io.images.ImageFiles` (read one pair at a time), e.g.
+``calibrate_stereo_chessboard(ImageFiles("left*.png", color=False), ImageFiles("right*.png", color=False))``.
 """
 from __future__ import annotations
 
-import glob
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,7 +19,6 @@ import numpy as np
 from canopy_stereo.errors import CalibrationError
 from canopy_stereo.geometry.calibration import StereoCalibration, TriangulationCheck, triangulation_check
 from canopy_stereo.geometry.distortion import undistort_pixels
-from canopy_stereo.io.images import read_image
 
 
 @dataclass
@@ -29,18 +31,6 @@ class ChessboardViews:
     right: list
     names: list
     image_size: tuple[int, int]
-
-
-def expand_image_list(pattern_or_paths) -> list[Path]:
-    """Paths from a glob pattern (sorted) or an explicit list."""
-    if isinstance(pattern_or_paths, (str, Path)):
-        paths = sorted(Path(p) for p in glob.glob(str(pattern_or_paths)))
-    else:
-        paths = []
-        for p in pattern_or_paths:
-            matched = sorted(glob.glob(str(p)))
-            paths += [Path(m) for m in matched] if matched else [Path(p)]
-    return paths
 
 
 def board_points(pattern: tuple[int, int], square_size: float) -> np.ndarray:
@@ -62,45 +52,80 @@ def find_corners(gray: np.ndarray, pattern: tuple[int, int]) -> np.ndarray | Non
     return corners.reshape(-1, 2).astype(np.float64)
 
 
-def detect_stereo_chessboards(left_paths, right_paths, *, pattern=(9, 6), square_size=25.0,
+def image_sequence(images, side: str) -> tuple:
+    """``(images, names)``: a sequence of images (arrays, or
+    :class:`~canopy_stereo.io.images.ImageFiles`) and a name per image for messages
+    (the file names, else ``<side>[k]``). Raises :class:`CalibrationError` for an empty
+    sequence and for a path or glob (this module reads no files)."""
+    if isinstance(images, (str, Path)):
+        raise CalibrationError(f"{side} images: {str(images)!r} is a path or glob; read the files with "
+                               f"canopy_stereo.io.images.ImageFiles({str(images)!r})")
+    if not (hasattr(images, "__len__") and hasattr(images, "__getitem__")):
+        images = list(images)
+    if len(images) == 0:
+        raise CalibrationError(f"no {side} images given")
+    names = getattr(images, "names", None) or [f"{side}[{k}]" for k in range(len(images))]
+    return images, list(names)
+
+
+def image_array(image, name: str) -> np.ndarray:
+    """``image`` as an array; :class:`CalibrationError` for a path (this module reads no files)."""
+    if isinstance(image, (str, Path)):
+        raise CalibrationError(f"{name}: {str(image)!r} is a path; read the files with "
+                               "canopy_stereo.io.images.ImageFiles")
+    return np.asarray(image)
+
+
+def _grey(image, name: str) -> np.ndarray:
+    img = image_array(image, name)
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
+    return img
+
+
+def detect_stereo_chessboards(left_images, right_images, *, pattern=(9, 6), square_size=25.0,
                               progress=None) -> ChessboardViews:
     """Detect the board in every pair; pairs where either image misses it are skipped.
-    ``progress``: optional ``f(total, left image name)`` called before each pair."""
-    left_paths, right_paths = expand_image_list(left_paths), expand_image_list(right_paths)
-    if not left_paths:
-        raise CalibrationError("no left chessboard images found")
-    if len(left_paths) != len(right_paths):
-        raise CalibrationError(f"{len(left_paths)} left images but {len(right_paths)} right images")
+
+    ``left_images``, ``right_images``: sequences of (H, W) grey or (H, W, 3) BGR uint8
+    images, paired in order (:class:`~canopy_stereo.io.images.ImageFiles` for files; its
+    ``names`` name the pairs). ``progress``: optional ``f(total, left image name)`` called
+    before each pair."""
+    left_images, left_names = image_sequence(left_images, "left chessboard")
+    right_images, right_names = image_sequence(right_images, "right chessboard")
+    if len(left_images) != len(right_images):
+        raise CalibrationError(f"{len(left_images)} left images but {len(right_images)} right images")
     obj = board_points(pattern, square_size)
     lefts, rights, names, size = [], [], [], None
-    for lp, rp in zip(left_paths, right_paths):
+    for k, (ln, rn) in enumerate(zip(left_names, right_names)):
         if progress is not None:
-            progress(len(left_paths), lp.name)
-        gl, gr = read_image(lp, color=False), read_image(rp, color=False)
+            progress(len(left_names), ln)
+        gl, gr = _grey(left_images[k], ln), _grey(right_images[k], rn)
         if gl.shape != gr.shape:
-            raise CalibrationError(f"{lp.name} and {rp.name} differ in size")
+            raise CalibrationError(f"{ln} and {rn} differ in size")
         if size is None:
             size = (gl.shape[1], gl.shape[0])
         elif size != (gl.shape[1], gl.shape[0]):
-            raise CalibrationError(f"{lp.name} is {gl.shape[1]}x{gl.shape[0]}, expected {size[0]}x{size[1]}")
+            raise CalibrationError(f"{ln} is {gl.shape[1]}x{gl.shape[0]}, expected {size[0]}x{size[1]}")
         cl, cr = find_corners(gl, pattern), find_corners(gr, pattern)
         if cl is None or cr is None:
             continue
         lefts.append(cl)
         rights.append(cr)
-        names.append((lp.name, rp.name))
+        names.append((ln, rn))
     if len(lefts) < 3:
         raise CalibrationError(
             f"the {pattern[0]}x{pattern[1]} board was found in only {len(lefts)} pair(s); need at least 3")
     return ChessboardViews(obj, lefts, rights, names, size)
 
 
-def calibrate_stereo_chessboard(left_paths, right_paths, *, pattern=(9, 6), square_size=25.0,
+def calibrate_stereo_chessboard(left_images, right_images, *, pattern=(9, 6), square_size=25.0,
                                 world_board: int | None = None, progress=None) -> StereoCalibration:
     """Zhang calibration of both cameras plus stereo extrinsics, as world-frame ``P`` + ``D``.
 
     Args:
-        left_paths, right_paths: glob patterns or lists of image paths (paired in order).
+        left_images, right_images: sequences of images paired in order (see
+            :func:`detect_stereo_chessboards`; :class:`~canopy_stereo.io.images.ImageFiles` for files).
         pattern: inner corners ``(cols, rows)``.
         square_size: board square side in world units (e.g. 25 for mm).
         world_board: index of the pair whose board defines the world frame;
@@ -110,8 +135,7 @@ def calibrate_stereo_chessboard(left_paths, right_paths, *, pattern=(9, 6), squa
         A :class:`StereoCalibration` with ``P``/``D`` per camera, the stereo
         RMS (``rms_stereo``, pixels) and the corner triangulation check.
     """
-    views = detect_stereo_chessboards(left_paths, right_paths, pattern=pattern, square_size=square_size,
-                                      progress=progress)
+    views = detect_stereo_chessboards(left_images, right_images, pattern=pattern, square_size=square_size, progress=progress)
     obj = [views.object_points.astype(np.float32).reshape(-1, 1, 3)] * len(views.left)
     il = [c.astype(np.float32).reshape(-1, 1, 2) for c in views.left]
     ir = [c.astype(np.float32).reshape(-1, 1, 2) for c in views.right]

@@ -63,22 +63,6 @@ def transform_from_pose(R_cam_world, C_world, *, scale: float = 1.0) -> np.ndarr
     return T
 
 
-def invert_transform(T) -> np.ndarray:
-    """Inverse of a rigid 4x4 transform."""
-    T = np.asarray(T, np.float64)
-    out = np.eye(4)
-    out[:3, :3] = T[:3, :3].T
-    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return out
-
-
-def apply_transform(T, points) -> np.ndarray:
-    """Apply a 4x4 transform to points (..., 3); NaN points stay NaN. Returns float64."""
-    T = np.asarray(T, np.float64)
-    p = np.asarray(points, np.float64)
-    return p @ T[:3, :3].T + T[:3, 3]
-
-
 def rotation_to_quaternion(R) -> np.ndarray:
     """Unit quaternion ``(x, y, z, w)`` (ROS order, ``w >= 0``) of a 3x3 rotation matrix."""
     R = np.asarray(R, np.float64)

@@ -203,7 +203,7 @@ def hartley_rectify(x_left, x_right, image_size, *, F=None, threshold_px: float 
     x1 = np.asarray(x_left, np.float64).reshape(-1, 2)
     x2 = np.asarray(x_right, np.float64).reshape(-1, 2)
     if F is None:
-        from canopy_stereo.features.fundamental import estimate_fundamental
+        from canopy_stereo.geometry.fundamental import estimate_fundamental
 
         F, inl = estimate_fundamental(x1, x2, method="ransac", threshold_px=threshold_px)
     else:

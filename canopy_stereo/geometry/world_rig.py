@@ -16,7 +16,8 @@ its rows (``x_axis``) and down its columns (``y_axis``). Inner corner ``(i, j)``
 ``origin + square * (i * x_axis + j * y_axis)``, in the row-major order of
 :func:`board_world_points` (OpenCV's order for a ``(cols, rows)`` pattern).
 
-Placements file (YAML; :func:`load_placements`, :func:`write_placements`)::
+Placements file (YAML; read and written by :mod:`canopy_stereo.io.placements`,
+parsed by :func:`placements_from_dict`)::
 
     pattern: 7x5          # inner corners, columns x rows
     square: 50            # world units
@@ -48,14 +49,12 @@ across, y down, z away from the cameras along the middle line).
 """
 from __future__ import annotations
 
-import glob
 import itertools
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from canopy_stereo.errors import CalibrationError
 from canopy_stereo.geometry.calibration import (
@@ -64,8 +63,9 @@ from canopy_stereo.geometry.calibration import (
     gold_standard_projection,
 )
 from canopy_stereo.geometry.camera import camera_centre, project
+from canopy_stereo.geometry.chessboard import image_array, image_sequence
+from canopy_stereo.geometry.rig import UNIT_TO_METRES, Rig
 from canopy_stereo.geometry.triangulation import triangulate_dlt
-from canopy_stereo.io.rig import Rig, UNIT_TO_METRES
 
 #: Tolerance on |axis| - 1 and on x_axis . y_axis for a placement's axes.
 AXIS_TOLERANCE = 1e-3
@@ -275,60 +275,6 @@ def placements_from_dict(doc, source: str = "placements") -> Placements:
         label = e.get("label", "")
         out.append(BoardPlacement(pair, origin, axes[0], axes[1], "" if label is None else str(label)))
     return Placements(pattern, square, unit, tuple(out))
-
-
-def load_placements(path) -> Placements:
-    """Read and validate a placements YAML file (format in the module docstring).
-
-    Returns:
-        :class:`Placements` (world unit from the file's ``unit``, default ``mm``).
-
-    Raises:
-        CalibrationError: unreadable file, invalid YAML, or any invalid entry
-            (the message names the file, the entry and the problem).
-    """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise CalibrationError(f"cannot read placements file {path}: {exc.strerror or exc}") from None
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        first = str(exc).splitlines()[0] if str(exc) else "syntax error"
-        raise CalibrationError(f"placements file {path} is not valid YAML: {first}") from None
-    return placements_from_dict(doc, source=str(path))
-
-
-def _fmt(v: float) -> float:
-    return float(f"{float(v):.6g}") if abs(v) > 1e-12 else 0.0
-
-
-def write_placements(placements: Placements, path, *, comment: str | None = None) -> Path:
-    """Write ``placements`` as a placements YAML file (readable by :func:`load_placements`).
-
-    Coordinates are written with 6 significant digits. ``comment`` lines go on top.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    lines = []
-    if comment:
-        lines += [f"# {c}".rstrip() for c in comment.splitlines()]
-    cols, rows = placements.pattern
-    lines += [f"{f'pattern: {cols}x{rows}':<22}# inner corners, columns x rows",
-              f"{f'square: {_fmt(placements.square):g}':<22}# world units",
-              f"unit: {placements.unit}",
-              f"{'placements:':<22}# one per image pair, in the sorted order of the globs"]
-    for p in placements:
-        vec = lambda v: "[" + ", ".join(f"{_fmt(x):.6g}" for x in v) + "]"  # noqa: E731
-        lines.append(f"  - pair: {p.pair}")
-        lines.append(f"    origin: {vec(p.origin)}")
-        lines.append(f"    x_axis: {vec(p.x_axis)}")
-        lines.append(f"    y_axis: {vec(p.y_axis)}")
-        if p.label:
-            lines.append(f"    label: {yaml.safe_dump(p.label, width=1 << 30).splitlines()[0]}")
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    return path
 
 
 def board_world_points(placement: BoardPlacement, pattern, square: float) -> np.ndarray:
@@ -678,7 +624,7 @@ class WorldRigCalibration:
     """Result of :func:`calibrate_world_rig` (world frame and unit of the placements).
 
     Attributes:
-        rig: the calibrated :class:`~canopy_stereo.io.rig.Rig` (no lens distortion:
+        rig: the calibrated :class:`~canopy_stereo.geometry.rig.Rig` (no lens distortion:
             the Gold Standard model is linear, as in the paper).
         rms_left, rms_right: reprojection RMS of all used corners, pixels.
         used_pairs: pair indices whose board was found in both images.
@@ -751,27 +697,6 @@ class WorldRigCalibration:
         }
 
 
-def _image_list(images, side: str):
-    """A list of images (arrays) or paths from a glob string, a path list or an array list."""
-    if isinstance(images, (str, Path)):
-        paths = sorted(Path(p) for p in glob.glob(str(images)))
-        if not paths:
-            raise CalibrationError(f"no {side} images match {images}")
-        return paths
-    items = list(images)
-    if not items:
-        raise CalibrationError(f"no {side} images given")
-    return [Path(p) if isinstance(p, (str, Path)) else p for p in items]
-
-
-def _load(item):
-    from canopy_stereo.io.images import read_image
-
-    if isinstance(item, Path):
-        return read_image(item, color=False), item.name
-    return np.asarray(item), None
-
-
 def calibrate_world_rig(left_images, right_images, placements: Placements, *, pattern=None,
                         square: float | None = None, max_rms_px: float = 3.0,
                         leave_one_out: bool = True, detections=None, image_size=None,
@@ -786,8 +711,9 @@ def calibrate_world_rig(left_images, right_images, placements: Placements, *, pa
     gives ``P_left`` and ``P_right``.
 
     Args:
-        left_images, right_images: a glob (sorted), a list of paths, or a list of
-            (H, W[, 3]) uint8 arrays; pair ``k`` is the k-th left and k-th right image.
+        left_images, right_images: sequences of (H, W[, 3]) uint8 arrays (for files:
+            :class:`canopy_stereo.io.images.ImageFiles` of a glob, read one pair at a time,
+            its file names naming the pairs); pair ``k`` is the k-th left and k-th right image.
         placements: :class:`Placements` (one per pair it covers).
         pattern: ``(cols, rows)`` inner corners; must agree with the placements (default theirs).
         square: square side in world units; must agree with the placements (default theirs).
@@ -816,7 +742,8 @@ def calibrate_world_rig(left_images, right_images, placements: Placements, *, pa
     sq = placements.square if square is None else float(square)
     if abs(sq - placements.square) > 1e-9 * max(1.0, abs(sq)):
         raise CalibrationError(f"square {sq:g} does not match the placements' {placements.square:g}")
-    lefts, rights = _image_list(left_images, "left"), _image_list(right_images, "right")
+    lefts, left_names = image_sequence(left_images, "left")
+    rights, right_names = image_sequence(right_images, "right")
     if len(lefts) != len(rights):
         raise CalibrationError(f"{len(lefts)} left images but {len(rights)} right images")
     n_pairs = len(lefts)
@@ -829,8 +756,7 @@ def calibrate_world_rig(left_images, right_images, placements: Placements, *, pa
     det_l, det_r = {}, {}
     size = None
     for k in range(n_pairs):
-        ln = lefts[k].name if isinstance(lefts[k], Path) else f"left[{k}]"
-        rn = rights[k].name if isinstance(rights[k], Path) else f"right[{k}]"
+        ln, rn = left_names[k], right_names[k]
         names[k] = (ln, rn)
         if k not in by_pair:
             skipped.append((k, "no placement"))
@@ -838,8 +764,7 @@ def calibrate_world_rig(left_images, right_images, placements: Placements, *, pa
         if detections is not None and k in detections:
             cl, cr = detections[k]
         else:
-            gl, _ = _load(lefts[k])
-            gr, _ = _load(rights[k])
+            gl, gr = image_array(lefts[k], ln), image_array(rights[k], rn)
             if gl.shape[:2] != gr.shape[:2]:
                 raise CalibrationError(f"pair {k}: {ln} and {rn} differ in size")
             this = (gl.shape[1], gl.shape[0])
@@ -862,11 +787,8 @@ def calibrate_world_rig(left_images, right_images, placements: Placements, *, pa
             raise CalibrationError(f"the images are {size[0]}x{size[1]}, not {image_size[0]}x{image_size[1]}")
         size = image_size
     if size is None:
-        for item in lefts:
-            if isinstance(item, Path):
-                gl, _ = _load(item)
-                size = (gl.shape[1], gl.shape[0])
-                break
+        for k in range(len(lefts)):
+            item = lefts[k]
             if item is not None and np.ndim(item) >= 2:
                 size = (np.shape(item)[1], np.shape(item)[0])
                 break

@@ -1,6 +1,8 @@
 """Reading and checking images (OpenCV conventions: BGR, uint8, rows = v)."""
 from __future__ import annotations
 
+import glob
+from collections.abc import Sequence
 from pathlib import Path
 
 import cv2
@@ -27,6 +29,50 @@ def read_image(path, color: bool = True) -> np.ndarray:
     elif img.dtype != np.uint8:
         img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
     return img
+
+
+def expand_image_list(pattern_or_paths) -> list[Path]:
+    """Paths from a glob pattern (sorted) or an explicit list (each entry a path or a glob)."""
+    if isinstance(pattern_or_paths, (str, Path)):
+        paths = sorted(Path(p) for p in glob.glob(str(pattern_or_paths)))
+    else:
+        paths = []
+        for p in pattern_or_paths:
+            matched = sorted(glob.glob(str(p)))
+            paths += [Path(m) for m in matched] if matched else [Path(p)]
+    return paths
+
+
+class ImageFiles(Sequence):
+    """Image files in order, read when indexed: a glob pattern (sorted) or a list of paths/globs.
+
+    ``files[k]`` is the k-th image as :func:`read_image` returns it (grey (H, W) with
+    ``color=False``), read from disk on each access, so a long calibration series never
+    sits in memory at once; ``paths`` and ``names`` (file names, for messages) list the
+    files. The calibrations of :mod:`canopy_stereo.geometry` take it wherever they take a
+    list of images.
+
+    Raises :class:`ImageError` when the pattern matches no file (``what`` names them).
+    """
+
+    def __init__(self, pattern_or_paths, *, color: bool = True, what: str = "images"):
+        self.paths = expand_image_list(pattern_or_paths)
+        self.color = bool(color)
+        if not self.paths:
+            raise ImageError(f"no {what} match {pattern_or_paths}")
+
+    @property
+    def names(self) -> list[str]:
+        """File names (no folder), in order."""
+        return [p.name for p in self.paths]
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return [read_image(p, color=self.color) for p in self.paths[index]]
+        return read_image(self.paths[index], color=self.color)
 
 
 def write_image(path, image: np.ndarray) -> Path:

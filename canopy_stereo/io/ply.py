@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.geometry.clouds import check_cloud
 
 _PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -62,7 +63,7 @@ def write_ply(path, points, *, colors=None, unit: str = "mm", comments=(), prope
             float32/64); :func:`read_ply` returns them in ``PointCloud.extra``.
     """
     path = Path(path)
-    pts = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+    pts = check_cloud(points, organized=None, name="points", dtype=np.float32).reshape(-1, 3)
     fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
     if colors is not None:
         cols = np.asarray(colors).reshape(-1, 3)

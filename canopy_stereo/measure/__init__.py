@@ -4,23 +4,25 @@
 returns the REPORT.json dict; :func:`write_report` writes it (and a per-leaf
 CSV); :func:`measure_leaf` measures one leaf; :func:`plot_views` draws top and
 side views with the measured dimensions.
+
+Modules, one job each: :mod:`.instances` (leaf instances in the organized cloud),
+:mod:`.leaf` (one leaf's size), :mod:`.cleaning` (matching debris off the canopy),
+:mod:`.frame` (the measuring frame: ground, up), :mod:`.canopy` (extents, volumes),
+:mod:`.scene` (one cloud measured: the REPORT.json dict), :mod:`.report` (REPORT.json
+and CSV written, clouds read), :mod:`.plot` (pictures); :mod:`.surface`,
+:mod:`.sections`, :mod:`.geodesic`, :mod:`.viewpoint` serve them.
 """
-from canopy_stereo.measure.canopy import MeasuringFrame, canopy_dimensions, hull_volume, voxel_volume
+from canopy_stereo.measure.canopy import canopy_dimensions, hull_volume, voxel_volume
+from canopy_stereo.measure.frame import MeasuringFrame
+from canopy_stereo.measure.instances import separate_leaves
 from canopy_stereo.measure.leaf import LeafMeasurement, measure_leaf
 from canopy_stereo.measure.plot import plot_views
-from canopy_stereo.measure.report import (
-    SceneMeasurement,
-    load_cloud,
-    measure_organized,
-    measure_points,
-    measure_scene,
-    write_leaves_csv,
-    write_report,
-)
+from canopy_stereo.measure.report import load_cloud, write_leaves_csv, write_report
+from canopy_stereo.measure.scene import SceneMeasurement, measure_organized, measure_points, measure_scene
 from canopy_stereo.measure.viewpoint import estimate_camera
 
 __all__ = [
     "LeafMeasurement", "MeasuringFrame", "SceneMeasurement", "canopy_dimensions", "estimate_camera",
     "hull_volume", "load_cloud", "measure_leaf", "measure_organized", "measure_points",
-    "measure_scene", "plot_views", "voxel_volume", "write_leaves_csv", "write_report",
+    "measure_scene", "plot_views", "separate_leaves", "voxel_volume", "write_leaves_csv", "write_report",
 ]

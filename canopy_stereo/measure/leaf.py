@@ -31,16 +31,19 @@ import cv2
 import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.geometry.clouds import check_cloud, check_on_grid
 from canopy_stereo.measure.geodesic import geodesic_diameter
+from canopy_stereo.measure.instances import largest_surface_part
 from canopy_stereo.measure.sections import Section, measure_section, outline_field
 from canopy_stereo.measure.surface import (
+    EXACT_ROUGHNESS,
     GridSurface,
     fit_grid_surface,
     fit_ray_surface,
     local_linear_fit,
+    roughness,
     shift_projection,
 )
-from canopy_stereo.segmentation.instances import largest_surface_part
 
 #: Pixels of extrapolated surface around a leaf mask (room for the outline).
 RIM_PX = 3
@@ -185,32 +188,10 @@ def _width_at(surface, phi, midrib: Section, a: float, normal: np.ndarray):
 
 #: Surface models of :func:`measure_leaf`.
 SURFACE_MODELS = ("auto", "rays", "local", "exact")
-#: Roughness (in pixel sizes) below which a cloud counts as exact (synthetic).
-EXACT_ROUGHNESS = 0.02
 #: The "local" model widens its smoothing to ``roughness / LOCAL_NOISE_TARGET`` pixels ...
 LOCAL_NOISE_TARGET = 0.03
 #: ... up to this scale.
 MAX_LOCAL_SIGMA_PX = 16.0
-
-
-def roughness(organized: np.ndarray, valid: np.ndarray, *, sigma: float = 1.5) -> float:
-    """Small-scale scatter of a surface, in pixel sizes.
-
-    Robust standard deviation of the points' distances (along the local
-    normal) from a local-linear fit at ``sigma`` pixels, divided by the pixel
-    size (square root of the median pixel footprint). About 0 for exact
-    (rendered) surfaces, 0.1 or more for stereo reconstructions.
-    """
-    X, Xu, Xv = local_linear_fit(organized, valid, valid, sigma=sigma)
-    n = np.cross(Xu, Xv)
-    foot = np.linalg.norm(n, axis=-1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        res = np.einsum("hwk,hwk->hw", organized - X, n / foot[..., None])
-    ok = valid & np.isfinite(res) & np.isfinite(foot) & (foot > 0)
-    if ok.sum() < 8:
-        return float("inf")
-    pix = float(np.sqrt(np.median(foot[ok])))
-    return float(1.4826 * np.median(np.abs(res[ok])) / pix)
 
 
 def measure_leaf(organized: np.ndarray, leaf_mask: np.ndarray, *, leaf_id: int = 1, camera=None,
@@ -245,14 +226,9 @@ def measure_leaf(organized: np.ndarray, leaf_mask: np.ndarray, *, leaf_id: int =
         CanopyStereoError: mask of the wrong size, empty, or with fewer than
             ``min_points`` 3D points; unknown model; ``"rays"`` without camera.
     """
-    organized = np.asarray(organized, np.float64)
+    organized = check_cloud(organized)
     mask = np.asarray(leaf_mask).astype(bool)
-    if organized.ndim != 3 or organized.shape[2] != 3:
-        raise CanopyStereoError(f"organized cloud must be (H, W, 3), got shape {organized.shape}")
-    if mask.shape != organized.shape[:2]:
-        raise CanopyStereoError(
-            f"leaf {leaf_id}: mask is {mask.shape[1]}x{mask.shape[0]} but the organized cloud is "
-            f"{organized.shape[1]}x{organized.shape[0]}")
+    check_on_grid(mask, organized, f"leaf {leaf_id}: mask")
     if model not in SURFACE_MODELS:
         raise CanopyStereoError(f"unknown surface model {model!r}; choose one of {', '.join(SURFACE_MODELS)}")
     if model == "rays" and camera is None:

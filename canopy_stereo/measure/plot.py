@@ -30,7 +30,7 @@ def plot_views(measurement, path, *, title: str | None = None, dpi: int = 120) -
     """Write a PNG with the top view (x-y) and side view (x-z) of the canopy.
 
     Args:
-        measurement: a :class:`~canopy_stereo.measure.report.SceneMeasurement`.
+        measurement: a :class:`~canopy_stereo.measure.scene.SceneMeasurement`.
         path: output PNG path.
         title: optional figure title.
 

@@ -316,3 +316,27 @@ def shift_projection(P, v0: int, u0: int) -> np.ndarray:
     """The camera ``P`` seen from a crop whose top-left pixel is ``(u0, v0)``."""
     T = np.array([[1.0, 0.0, -u0], [0.0, 1.0, -v0], [0.0, 0.0, 1.0]])
     return T @ np.asarray(P, np.float64)
+
+
+#: Roughness (in pixel sizes) below which a cloud counts as exact (synthetic).
+EXACT_ROUGHNESS = 0.02
+
+
+def roughness(organized: np.ndarray, valid: np.ndarray, *, sigma: float = 1.5) -> float:
+    """Small-scale scatter of a surface, in pixel sizes.
+
+    Robust standard deviation of the points' distances (along the local
+    normal) from a local-linear fit at ``sigma`` pixels, divided by the pixel
+    size (square root of the median pixel footprint). About 0 for exact
+    (rendered) surfaces, 0.1 or more for stereo reconstructions.
+    """
+    X, Xu, Xv = local_linear_fit(organized, valid, valid, sigma=sigma)
+    n = np.cross(Xu, Xv)
+    foot = np.linalg.norm(n, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        res = np.einsum("hwk,hwk->hw", organized - X, n / foot[..., None])
+    ok = valid & np.isfinite(res) & np.isfinite(foot) & (foot > 0)
+    if ok.sum() < 8:
+        return float("inf")
+    pix = float(np.sqrt(np.median(foot[ok])))
+    return float(1.4826 * np.median(np.abs(res[ok])) / pix)

@@ -11,8 +11,9 @@ the rest of :mod:`canopy_stereo` never does. Modules:
   and ``bag_record``.
 * :mod:`~canopy_stereo.ros.nodes`: the camera, rectify, disparity, segment and
   point-cloud nodes.
-* :mod:`~canopy_stereo.ros.graph`: all nodes in one process (``canopy_graph``);
-  :mod:`~canopy_stereo.ros.runner` replays a bag through them (``canopy-stereo run`` / ``demo``).
+* :mod:`~canopy_stereo.ros.graph`: all nodes in one process;
+  :mod:`~canopy_stereo.ros.runner` replays a bag through them (``canopy-stereo run`` / ``demo``);
+  :mod:`~canopy_stereo.ros.canopy_graph`: the ``canopy_graph`` executable over both.
 * :mod:`~canopy_stereo.ros.params`, :mod:`~canopy_stereo.ros.qos`,
   :mod:`~canopy_stereo.ros.context`: rig parameters, QoS profiles, private contexts
   (and the node processes' allocator and middleware memory settings).

@@ -31,6 +31,7 @@ from std_msgs.msg import Header
 from stereo_msgs.msg import DisparityImage
 
 from canopy_stereo.errors import ImageError
+from canopy_stereo.geometry.clouds import check_cloud
 
 #: encoding -> (numpy dtype, channels)
 ENCODINGS: dict[str, tuple[str, int]] = {
@@ -331,9 +332,7 @@ def points_to_cloud2(points: np.ndarray, colors: np.ndarray | None = None, *, st
         rgb: instead of ``colors``, the already packed float32 ``rgb`` values
             (:func:`pack_rgb`, :func:`pack_bgr_image`) with the points' leading shape.
     """
-    pts = np.asarray(points, np.float32)
-    if pts.shape[-1] != 3 or pts.ndim not in (2, 3):
-        raise ImageError(f"points must be (N, 3) or (H, W, 3), got shape {pts.shape}")
+    pts = check_cloud(points, organized=None, name="points", dtype=np.float32, error=ImageError)
     if colors is not None and rgb is not None:
         raise ImageError("give colours or packed rgb, not both")
     if colors is not None:

@@ -49,13 +49,14 @@ def organize_on_rectified_grid(points_m: np.ndarray, colors, rig, size) -> tuple
     millimetres, NaN = none; colours (H, W, 3) uint8)`` with ``size = (W, H)``.
     """
     from canopy_stereo.geometry.camera import project
+    from canopy_stereo.geometry.clouds import check_cloud
     from canopy_stereo.geometry.rectification import fusiello_rectify
 
     rect = fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
     w, h = int(size[0]), int(size[1])
     organized = np.full((h, w, 3), np.nan)
     cols = np.zeros((h, w, 3), np.uint8)
-    pts = np.asarray(points_m, np.float64).reshape(-1, 3)
+    pts = check_cloud(points_m, organized=None, name="points").reshape(-1, 3)
     ok = np.all(np.isfinite(pts), axis=1)
     uv = np.rint(project(rect.P_rect_left, pts[ok] / rig.metres_per_unit)).astype(np.int64)
     inside = (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)

@@ -39,7 +39,7 @@ from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.fusion.errors import RegistrationError
 from canopy_stereo.fusion.incremental import IncrementalFusion
 from canopy_stereo.fusion.registration import RegistrationSettings
-from canopy_stereo.fusion.transforms import check_transform, make_transform
+from canopy_stereo.geometry.transforms import check_transform, make_transform
 from canopy_stereo.ros.convert import cloud2_to_points, points_to_cloud2, stamp_to_ns
 from canopy_stereo.ros.limits import MAX_IMAGE_PIXELS, check_cloud_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node

@@ -1,4 +1,4 @@
-"""The whole node graph in one process, and the ``canopy_graph`` executable.
+"""The whole node graph in one process.
 
 :class:`CanopyGraph` creates ``rectify_node``, ``disparity_node``,
 ``segment_node`` and ``point_cloud_node`` (plus two ``camera_node`` for live
@@ -12,27 +12,19 @@ kernels release the GIL), and a thread whose node has nothing to do sleeps in
 slower (about 10 against 13-19 frames/s, twice the latency) because its
 dispatcher rebuilds and re-polls the wait set in Python while holding the GIL.
 
-``canopy_graph`` (``ros2 run canopy_stereo canopy_graph --rig RIG.yaml``) runs
-it from live cameras (``--left-device``/``--right-device``) or from a bag
-(``--bag``), optionally recording the outputs (``--record``; with ``--loop``
-every pass appends to the same recording, which ``--split-size`` and
-``--split-duration`` split into ``<name>_0.mcap``, ... as rosbag2 does).
-SIGINT, SIGTERM and SIGHUP close the recording validly.
+The ``canopy_graph`` executable around it is :mod:`canopy_stereo.ros.canopy_graph`;
+:mod:`canopy_stereo.ros.runner` replays a bag through it.
 """
 from __future__ import annotations
 
-import argparse
-import sys
 import threading
 import time
 from dataclasses import dataclass, field
 
 from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
 
-from canopy_stereo.disparity import DEFAULT_MATCHER, matcher_names
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.rig import Rig
-from canopy_stereo.ros.context import tune_node_process
 from canopy_stereo.ros.params import parameters_from_dict, rig_parameter_overrides
 
 #: Default thread count of the ``multi`` executor: enough for every stage to have a frame in flight.
@@ -229,174 +221,3 @@ class CanopyGraph:
         for node in list(self.nodes.values()):
             node.destroy_node()
         self.nodes.clear()
-
-
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="canopy_graph",
-        description="All canopy_stereo nodes in one process, from live cameras or a bag.")
-    p.add_argument("--rig", required=True, metavar="RIG.yaml", help="rig file (ROS 2 parameter YAML)")
-    src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--bag", metavar="BAG.mcap", help="replay this bag's left/right image_raw")
-    src.add_argument("--cameras", nargs=2, metavar=("LEFT", "RIGHT"),
-                     help="camera devices (V4L2 index, /dev path, video file or image pattern)")
-    p.add_argument("--rate", type=float, default=1.0, help="bag playback speed (0 = as fast as possible)")
-    p.add_argument("--loop", action="store_true",
-                   help="replay the bag until Ctrl-C (the nodes are built once and follow the stamps "
-                        "jumping back at every pass)")
-    p.add_argument("--fps", type=float, default=15.0, help="camera frame rate")
-    p.add_argument("--width", type=int, default=0, help="camera width (default: the rig's)")
-    p.add_argument("--height", type=int, default=0, help="camera height (default: the rig's)")
-    p.add_argument("--fourcc", default="", help="camera pixel format, e.g. MJPG")
-    p.add_argument("--record", metavar="OUT.mcap", help="record the outputs")
-    from canopy_stereo.ros.bag import add_split_arguments
-
-    add_split_arguments(p)
-    p.add_argument("--metadata", nargs="+", action="extend", default=[], metavar="KEY=VALUE",
-                   help="with --cameras --record: describe the recording (plant_id=A12 plot=row1 ...); "
-                        "stored with the rig file as the bag's metadata records")
-    p.add_argument("--matcher", choices=matcher_names(), default=None,
-                   help=f"disparity matcher (default: {DEFAULT_MATCHER})")
-    p.add_argument("--use-mask", action="store_true", help="keep only plant pixels in the clouds")
-    p.add_argument("--no-segment", action="store_true", help="do not run segment_node")
-    p.add_argument("--segment-depth-cue", action="store_true",
-                   help="segment_node seeds GrabCut with the disparity too (near = plant)")
-    p.add_argument("--organized", action="store_true", help="organized clouds")
-    p.add_argument("--namespace", default="/stereo")
-    p.add_argument("--executor", choices=EXECUTOR_CHOICES, default="per-node",
-                   help="one single-threaded executor per node (default) or one multi-threaded one")
-    p.add_argument("--threads", type=int, default=DEFAULT_THREADS,
-                   help="threads of the multi-threaded executor")
-    p.add_argument("--recut-every", type=int, default=None, metavar="N",
-                   help="segment_node: a full GrabCut every N frames, the plant model propagated between "
-                        "(default 10; 1 = every frame)")
-    p.add_argument("--disparity-threads", type=int, default=None, metavar="N",
-                   help="disparity_node: threads of the matcher (default: the node's)")
-    return p
-
-
-def _print_pass(passes: int, frames_in: int, frames_out: int) -> None:
-    """One line per pass of ``--loop`` (the totals so far)."""
-    print(f"frames in: {frames_in}, frames out: {frames_out} (after pass {passes})", flush=True)
-
-
-def _run_bag_until_interrupted(opts, rig, options: GraphOptions, context, record=None):
-    """Play ``opts.bag`` (``--loop``: until Ctrl-C) through one graph; the playback runs in a
-    worker thread so that the main thread takes the signal and stops it cleanly."""
-    from canopy_stereo.ros.runner import run_bag
-
-    stop, done = threading.Event(), threading.Event()
-    outcome: dict = {}
-
-    def work():
-        try:
-            outcome["result"] = run_bag(opts.bag, rig, rate=opts.rate, record=record, options=options,
-                                        context=context, loop=opts.loop, stop=stop, on_pass=_print_pass)
-        except BaseException as exc:  # noqa: BLE001 - re-raised in the main thread
-            outcome["error"] = exc
-        finally:
-            done.set()
-
-    worker = threading.Thread(target=work, name="canopy_graph:bag", daemon=True)
-    worker.start()
-    # poll with sleep: a KeyboardInterrupt inside Thread.join() can leave the thread marked as
-    # finished while it still runs (CPython 3.11)
-    try:
-        while not done.is_set():
-            time.sleep(0.1)
-    except KeyboardInterrupt:
-        stop.set()
-    while not done.is_set():
-        time.sleep(0.1)
-    worker.join()
-    if "error" in outcome:
-        raise outcome["error"]
-    return outcome["result"]
-
-
-def main(args=None) -> int:
-    """``canopy_graph`` executable (``--ros-args`` after the options are passed to every node)."""
-    import rclpy
-    from rclpy.executors import ExternalShutdownException
-    from rclpy.utilities import remove_ros_args
-
-    from canopy_stereo.io.rig import load_rig
-    from canopy_stereo.ros.nodes.base import install_stop_signals
-
-    argv = sys.argv if args is None else args
-    opts = build_parser().parse_args(remove_ros_args(argv)[1:])
-    if opts.metadata and not (opts.cameras and opts.record):
-        print("canopy_graph: error: --metadata describes a recording from cameras: use it with "
-              "--cameras and --record", file=sys.stderr)
-        return 2
-    options = GraphOptions(namespace=opts.namespace, matcher=opts.matcher,
-                           segment=not opts.no_segment or opts.use_mask, use_mask=opts.use_mask,
-                           segment_depth_cue=opts.segment_depth_cue, organized=opts.organized,
-                           threads=opts.threads, executor=opts.executor, recut_every=opts.recut_every,
-                           disparity_threads=opts.disparity_threads)
-    if opts.cameras:
-        # free-running cameras: the pairing tolerance is half a frame period at the camera rate
-        if not opts.fps > 0:
-            print("canopy_graph: error: --fps must be > 0", file=sys.stderr)
-            return 2
-        # (CanopyGraph gives rectify_node the cameras' fps: pairing within half a frame period)
-    tune_node_process()
-    rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-    install_stop_signals()
-    context = rclpy.get_default_context()
-    graph = recorder = writer = None
-    try:
-        rig = load_rig(opts.rig)
-        if opts.record:
-            from canopy_stereo.ros.bag import BagWriter, split_options
-
-            # one writer for every pass of --loop: passes append (or split), never overwrite
-            writer = BagWriter(opts.record, compression="lz4", **split_options(opts))
-        if opts.bag:
-            result = _run_bag_until_interrupted(opts, rig, options, context, record=writer)
-            print("\n".join(result.summary_lines()), flush=True)
-            return 0
-        w = opts.width or rig.image_size[0]
-        h = opts.height or rig.image_size[1]
-        cam = {"width": w, "height": h, "fps": float(opts.fps), "fourcc": opts.fourcc}
-        graph = CanopyGraph(rig, context, options, cameras=(
-            {**cam, "device": str(opts.cameras[0])}, {**cam, "device": str(opts.cameras[1])}))
-        if opts.record:
-            from canopy_stereo.ros.recorder import BagRecorder
-
-            ns = "/" + options.namespace.strip("/")
-            topics = [f"{ns}/{t}" for t in ("points2", "disparity", "left/mask", "left/depth",
-                                             "left/depth/camera_info", "left/image_rect/camera_info",
-                                             "right/image_rect/camera_info", "left/camera_info",
-                                             "right/camera_info", "left/image_raw", "right/image_raw")]
-            from canopy_stereo.io.bag_metadata import parse_key_values, recording_metadata
-
-            for name, data in recording_metadata(parse_key_values(opts.metadata), rig).items():
-                writer.add_metadata(name, data)
-            recorder = BagRecorder(writer, topics, context=context,
-                                   static_transforms=graph.nodes["rectify_node"].transforms)
-            graph.add_node(recorder)
-        graph.spin_until_interrupted()
-        return 0
-    except CanopyStereoError as exc:
-        print(f"canopy_graph: error: {exc}", file=sys.stderr)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        return 0
-    finally:
-        try:
-            if graph is not None:  # stops every executor, the recorder's too
-                graph.shutdown()
-        finally:  # the recording is closed even if a second signal cut the shutdown short
-            if recorder is not None:
-                recorder.close()
-                recorder.destroy_node()
-            if writer is not None:
-                writer.close()
-                print(f"canopy_graph: recorded {', '.join(str(p) for p in writer.paths)}", flush=True)
-            if rclpy.ok():
-                rclpy.shutdown()
-
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main())

@@ -32,8 +32,9 @@ import numpy as np
 from std_msgs.msg import String
 
 from canopy_stereo.errors import RigError
-from canopy_stereo.geometry.frames import FrameNames, invert_transform, stereo_transforms
+from canopy_stereo.geometry.frames import FrameNames, stereo_transforms
 from canopy_stereo.geometry.rectification import Rectification
+from canopy_stereo.geometry.transforms import invert_transform
 
 #: Topic (relative to the node namespace) of the geometry message.
 STEREO_GEOMETRY_TOPIC = "stereo_geometry"

@@ -75,16 +75,20 @@ def measure_frame(organized_m: np.ndarray, mask: np.ndarray, *, rig=None):
     """Leaves and canopy of one organized cloud (metres, rectified left grid) and its plant
     mask, measured in millimetres (:func:`canopy_stereo.measure.measure_scene`); None when
     there is nothing to measure."""
+    from canopy_stereo.geometry.clouds import check_cloud
     from canopy_stereo.measure import measure_scene
 
-    if mask is None or organized_m is None or np.asarray(organized_m).ndim != 3:
+    if mask is None or organized_m is None:
+        return None
+    try:
+        organized_m = check_cloud(organized_m)
+    except CanopyStereoError:
         return None
     plant = np.asarray(mask) > 0
     if plant.shape != organized_m.shape[:2] or plant.sum() < 50:
         return None
     try:
-        return measure_scene(np.asarray(organized_m, np.float64) * 1000.0, mask=plant, unit="mm",
-                             camera="auto")
+        return measure_scene(organized_m * 1000.0, mask=plant, unit="mm", camera="auto")
     except CanopyStereoError:
         return None
 

@@ -1,6 +1,6 @@
 """Plant segmentation: GrabCut from a rectangle or mask, automatic plant masks
-from vegetation indices and depth (the one seeder: :mod:`.auto`), and leaf instances
-from an organized cloud."""
+from vegetation indices and depth (the one seeder: :mod:`.auto`), and mask cleaning. (Leaf
+instances, which need the organized cloud, are :func:`canopy_stereo.measure.separate_leaves`.)"""
 from canopy_stereo.segmentation.auto import (
     IMAGE_SEEDER,
     VIDEO_SEEDER,
@@ -11,6 +11,7 @@ from canopy_stereo.segmentation.auto import (
     seed_labels,
     segment_plant,
 )
+from canopy_stereo.segmentation.cleaning import clean_mask_regions
 from canopy_stereo.segmentation.colour_model import ColourGMM, colour_log_ratio, fit_colour_gmm
 from canopy_stereo.segmentation.grabcut import grabcut_labels, grabcut_mask, grabcut_rect
 from canopy_stereo.segmentation.indices import (
@@ -21,7 +22,6 @@ from canopy_stereo.segmentation.indices import (
     otsu_threshold,
     vegetation_index,
 )
-from canopy_stereo.segmentation.instances import clean_mask_regions, separate_leaves
 from canopy_stereo.segmentation.masks import (
     parse_rect,
     read_leaf_ids,
@@ -35,6 +35,6 @@ __all__ = [
     "ColourGMM", "auto_plant_mask", "chromaticity", "clean_mask_regions", "colour_log_ratio",
     "excess_green", "fit_colour_gmm",
     "excess_green_minus_red", "excess_red", "grabcut_labels", "grabcut_mask", "grabcut_rect",
-    "otsu_threshold", "parse_rect", "plant_seed", "read_leaf_ids", "read_mask", "separate_leaves",
+    "otsu_threshold", "parse_rect", "plant_seed", "read_leaf_ids", "read_mask",
     "vegetation_index", "write_leaf_ids", "write_mask",
 ]

@@ -55,6 +55,7 @@ import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError, ImageError
 from canopy_stereo.io.images import to_bgr
+from canopy_stereo.segmentation.cleaning import clean_mask_regions
 from canopy_stereo.segmentation.colour_model import (
     MIN_SAMPLES,
     SURE_LOG_RATIO,
@@ -65,7 +66,6 @@ from canopy_stereo.segmentation.colour_model import (
 from canopy_stereo.segmentation.grabcut import (GC_BGD, GC_FGD, GC_PR_BGD, GC_PR_FGD, grabcut_labels,
                                                 labels_to_mask)
 from canopy_stereo.segmentation.indices import class_means, otsu_threshold, vegetation_index
-from canopy_stereo.segmentation.instances import clean_mask_regions
 
 #: Vote values of a cue.
 SURE_BG, PROB_BG, PROB_FG, SURE_FG = -2, -1, 1, 2

@@ -39,7 +39,7 @@ import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.fusion.poses import turntable_pose, write_poses
-from canopy_stereo.fusion.transforms import invert_transform, rotation_about_line, transform_points
+from canopy_stereo.geometry.transforms import invert_transform, rotation_about_line, transform_points
 from canopy_stereo.io.rig import Rig
 from canopy_stereo.sim import leaf as leafgeom
 from canopy_stereo.sim.primitives import LABEL_BACKGROUND, LABEL_NONE, Frustum

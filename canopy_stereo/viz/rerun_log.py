@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.geometry.clouds import check_cloud
 from canopy_stereo.viz import INSTALL_HINT
 
 #: Timeline of every logged frame (ROS header stamps).
@@ -197,7 +198,7 @@ class FrameLogger:
         if camera is not None:
             self.log_camera(camera)
         if points_m is not None:
-            pts = np.asarray(points_m, np.float32).reshape(-1, 3)
+            pts = check_cloud(points_m, organized=None, name="points", dtype=np.float32).reshape(-1, 3)
             cols = None if colors is None else np.asarray(colors, np.uint8).reshape(-1, 3)
             ok = np.all(np.isfinite(pts), axis=1)
             pts = pts[ok]

@@ -40,7 +40,8 @@ from std_msgs.msg import String
 from stereo_msgs.msg import DisparityImage
 
 from canopy_stereo.errors import CanopyStereoError, ImageError
-from canopy_stereo.geometry.frames import apply_transform, reproject_disparity, reproject_disparity_records
+from canopy_stereo.geometry.frames import reproject_disparity, reproject_disparity_records
+from canopy_stereo.geometry.transforms import transform_points
 from canopy_stereo.geometry.triangulation import triangulate_disparity_points
 from canopy_stereo.ros.convert import (COLOUR_ENCODINGS, camera_info_matrices, depth_to_msg, is_calibrated,
                                        msg_to_bgr, msg_to_disparity, msg_to_image, pack_bgr_image,
@@ -281,7 +282,7 @@ class PointCloudNode(CanopyNode):
             else:
                 target = (self._target_frame(cloud_frame) if cloud_frame == "world_z_up"
                           else g.frames.get("raw_left", ""))
-                points = apply_transform(g.lookup(target, g.world_frame), points).astype(np.float32)
+                points = transform_points(g.lookup(target, g.world_frame), points).astype(np.float32)
                 frame_id = target
         self.pub.publish(points_to_cloud2(points, None, stamp_ns=stamp_ns, frame_id=frame_id,
                                           organized=organized, rgb=colours))

@@ -62,7 +62,7 @@ def invert_transform(T) -> np.ndarray:
 
 
 def transform_points(T, points) -> np.ndarray:
-    """Apply ``T`` (4, 4) to points (N, 3); NaN rows stay NaN."""
+    """Apply ``T`` (4, 4) to points (N, 3) (or any (..., 3)); NaN rows stay NaN. Returns float64."""
     T = np.asarray(T, np.float64)
     pts = np.asarray(points, np.float64)
     return pts @ T[:3, :3].T + T[:3, 3]

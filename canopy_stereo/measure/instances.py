@@ -13,6 +13,8 @@ import numpy as np
 from numba import njit
 
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.geometry.clouds import check_cloud, check_on_grid
+from canopy_stereo.measure.surface import local_linear_fit, roughness
 
 
 @njit(cache=True)
@@ -174,17 +176,9 @@ def separate_leaves(organized: np.ndarray, plant_mask: np.ndarray, *, max_jump: 
     Returns:
         (H, W) int32 leaf ids 1..n ordered by decreasing size; 0 = not a leaf.
     """
-    from canopy_stereo.measure.leaf import roughness
-    from canopy_stereo.measure.surface import local_linear_fit
-
-    organized = np.asarray(organized, np.float64)
+    organized = check_cloud(organized)
     mask = np.asarray(plant_mask).astype(bool)
-    if organized.ndim != 3 or organized.shape[2] != 3:
-        raise CanopyStereoError(f"organized cloud must be (H, W, 3), got shape {organized.shape}")
-    if mask.shape != organized.shape[:2]:
-        raise CanopyStereoError(
-            f"plant mask is {mask.shape[1]}x{mask.shape[0]} but the organized cloud is "
-            f"{organized.shape[1]}x{organized.shape[0]}")
+    check_on_grid(mask, organized, "plant mask")
     valid = mask & np.all(np.isfinite(organized), axis=-1)
     if valid.sum() < 3:
         raise CanopyStereoError(f"the plant mask has only {int(valid.sum())} pixels with 3D points "
@@ -252,22 +246,3 @@ def _absorb_small(organized, valid, labels, max_jump, rounds: int = 64):
         if not changed:
             break
     return labels
-
-
-def clean_mask_regions(mask: np.ndarray, min_pixels: int = 0, *, fill_holes_below: int = 0) -> np.ndarray:
-    """Binary mask without 8-connected regions smaller than ``min_pixels`` and with
-    holes (4-connected, not touching the border) smaller than ``fill_holes_below``
-    filled; returns (H, W) bool."""
-    import cv2
-
-    m = np.asarray(mask).astype(bool)
-    if min_pixels > 0 and m.any():
-        n, lab, stats, _ = cv2.connectedComponentsWithStats(m.astype(np.uint8), connectivity=8)
-        small = np.nonzero(stats[:, cv2.CC_STAT_AREA] < min_pixels)[0]
-        m &= ~np.isin(lab, small[small != 0])
-    if fill_holes_below > 0 and not m.all():
-        n, lab, stats, _ = cv2.connectedComponentsWithStats((~m).astype(np.uint8), connectivity=4)
-        border = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
-        holes = [i for i in range(1, n) if i not in border and stats[i, cv2.CC_STAT_AREA] < fill_holes_below]
-        m |= np.isin(lab, holes)
-    return m
