@@ -75,7 +75,7 @@ def ros_processes(tmp_path):
     logs are in ``tmp_path / "logs"``)."""
     pytest.importorskip("rclpy")
     from canopy_stereo.ros.context import private_domain_id
-    from ros_harness import ProcessGroup
+    from test.support.ros_harness import ProcessGroup
 
     group = ProcessGroup(private_domain_id(), tmp_path / "logs")
     try:

@@ -26,7 +26,7 @@ pytest.importorskip("distributed")
 
 from canopy_stereo.io.rig import load_rig  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 EPOCH_NS = 1_777_593_600_000_000_000  # 2026-05-01T00:00:00Z
 #: (file, plant_id, plot, treatment, date, seed)
 BAGS = [("a_w1", "A", "row1", "control", "2026-05-01", 0),

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import REPO, run_cli_subprocess
+from test.conftest import REPO, run_cli_subprocess
 
 
 def _rig_with(tmp_path, name, **extra):

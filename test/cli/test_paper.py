@@ -19,7 +19,7 @@ from canopy_stereo.features.study import correspondence_correctness, read_matche
 from canopy_stereo.sim import render_scene
 from canopy_stereo.sim.correspondence import true_right_pixels
 
-from conftest import run_cli_subprocess
+from test.conftest import run_cli_subprocess
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

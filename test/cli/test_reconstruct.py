@@ -6,7 +6,7 @@ from canopy_stereo.geometry.camera import camera_centre, project
 from canopy_stereo.io.ply import read_ply
 from canopy_stereo.io.rig import load_rig
 
-from conftest import REPO, run_cli_subprocess
+from test.conftest import REPO, run_cli_subprocess
 
 
 def _write_points_csv(path, rig, rng, n_planes=3):

@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from conftest import REPO, run_cli_subprocess
+from test.conftest import REPO, run_cli_subprocess
 
 CROTON_BAG = REPO / "bags" / "croton.mcap"
 CROTON_RIG = REPO / "config" / "croton_rig.yaml"

@@ -21,7 +21,7 @@ from canopy_stereo.io.bag_metadata import (
 )
 from canopy_stereo.io.rig import load_rig, rig_to_yaml
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 T0 = 1_700_000_000_000_000_000
 
 

@@ -20,7 +20,7 @@ from canopy_stereo.ros.context import private_domain_id  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 LEFT, RIGHT = "/stereo/left/image_raw", "/stereo/right/image_raw"
 
 

@@ -45,7 +45,7 @@ def rig():
 
     from canopy_stereo.io.rig import load_rig
 
-    return load_rig(Path(__file__).resolve().parents[1] / "config" / "paper_rig.yaml")
+    return load_rig(Path(__file__).resolve().parents[2] / "config" / "paper_rig.yaml")
 
 
 @pytest.mark.parametrize("pixel,dist,theta,normal", [

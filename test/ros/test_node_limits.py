@@ -26,9 +26,9 @@ from canopy_stereo.ros import convert, limits  # noqa: E402
 from canopy_stereo.ros.context import private_domain_id, ros_context, wait_for  # noqa: E402
 from canopy_stereo.ros.qos import publisher_qos, recording_qos  # noqa: E402
 
-from conftest import REPO  # noqa: E402
-from test_fusion_node import harness as fusion_harness  # noqa: E402,F401  (a fixture)
-from test_ros_nodes import harness  # noqa: E402,F401  (a fixture)
+from test.conftest import REPO  # noqa: E402
+from test.ros.test_fusion_node import harness as fusion_harness  # noqa: E402,F401  (a fixture)
+from test.ros.test_ros_nodes import harness  # noqa: E402,F401  (a fixture)
 
 T0 = 1_700_000_000_000_000_000
 
@@ -311,7 +311,7 @@ def _tails(logs) -> str:
 
 @pytest.mark.ros
 def test_fusion_node_drops_hostile_clouds_and_keeps_fusing(fusion_harness):
-    from test_fusion_node import _latest_model, _send, patch_cloud_m
+    from test.ros.test_fusion_node import _latest_model, _send, patch_cloud_m
 
     node, clouds, poses, reset, models = fusion_harness
     huge = convert.points_to_cloud2(np.zeros((4, 3), np.float32), None, T0, "canopy_world")
@@ -332,7 +332,7 @@ def test_fusion_node_drops_hostile_clouds_and_keeps_fusing(fusion_harness):
 def test_drop_counters_stay_bounded_under_varying_hostile_sizes(harness):
     from canopy_stereo.ros.nodes import base
     from canopy_stereo.ros.nodes.segment import SegmentNode
-    from test_ros_nodes import node_kwargs
+    from test.ros.test_ros_nodes import node_kwargs
 
     node = harness.add(SegmentNode(**node_kwargs(harness, image_width=64, image_height=48)))
     for k in range(base.MAX_DROP_REASONS + 50):

@@ -32,9 +32,9 @@ from canopy_stereo.geometry.triangulation import apply_homography  # noqa: E402
 from canopy_stereo.ros import convert  # noqa: E402
 from canopy_stereo.ros.stereo_geometry import parse_stereo_geometry, stereo_geometry_msg  # noqa: E402
 
-from test_ros_nodes import (T0, TIMEOUT, geometry_publisher, harness, node_kwargs,  # noqa: E402,F401
+from test.ros.test_ros_nodes import (T0, TIMEOUT, geometry_publisher, harness, node_kwargs,  # noqa: E402,F401
                             publish_rect_infos, rect_info_publishers)
-from test_stereo_geometry import verged_rig  # noqa: E402
+from test.geometry.test_stereo_geometry import verged_rig  # noqa: E402
 
 pytestmark = pytest.mark.ros
 

@@ -1,4 +1,4 @@
-"""The launch file, evaluated as ``ros2 launch`` does (test/launch_eval.py: launch and
+"""The launch file, evaluated as ``ros2 launch`` does (test/support/launch_eval.py: launch and
 launch_ros are not on PyPI) and its nodes started as processes: bag mode and camera mode
 (image sequences standing in for webcams) both produce clouds; ``canopy_graph --loop``
 replays a bag through one graph without rebuilding it."""
@@ -15,9 +15,9 @@ from rclpy.serialization import deserialize_message  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 
 from canopy_stereo.ros import convert  # noqa: E402
-from conftest import REPO  # noqa: E402
-from launch_eval import evaluate  # noqa: E402
-from ros_harness import Probe, wait_for  # noqa: E402
+from test.conftest import REPO  # noqa: E402
+from test.support.launch_eval import evaluate  # noqa: E402
+from test.support.ros_harness import Probe, wait_for  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 

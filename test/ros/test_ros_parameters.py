@@ -16,7 +16,7 @@ from canopy_stereo.errors import CanopyStereoError  # noqa: E402
 from canopy_stereo.io.rig import load_rig  # noqa: E402
 from canopy_stereo.ros.context import ros_context  # noqa: E402
 from canopy_stereo.ros.params import rig_parameter_overrides  # noqa: E402
-from conftest import REPO  # noqa: E402
+from test.conftest import REPO  # noqa: E402
 
 pytestmark = pytest.mark.ros
 

@@ -16,8 +16,8 @@ from stereo_msgs.msg import DisparityImage  # noqa: E402
 
 from canopy_stereo.ros.context import private_domain_id  # noqa: E402
 from canopy_stereo.ros.qos import sensor_data_qos  # noqa: E402
-from conftest import REPO  # noqa: E402
-from ros_harness import Probe, ProcessGroup, croton_frames, feed_pairs, wait_for  # noqa: E402
+from test.conftest import REPO  # noqa: E402
+from test.support.ros_harness import Probe, ProcessGroup, croton_frames, feed_pairs, wait_for  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 

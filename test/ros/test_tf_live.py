@@ -27,7 +27,7 @@ from canopy_stereo.geometry.rectification import fusiello_rectify  # noqa: E402
 from canopy_stereo.io.rig import load_rig  # noqa: E402
 from canopy_stereo.ros.context import private_domain_id  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 LISTENER = r"""

@@ -23,7 +23,7 @@ import time
 import numpy as np
 import pytest
 
-from conftest import REPO
+from test.conftest import REPO
 
 CROTON_BAG = REPO / "bags" / "croton.mcap"
 CROTON_RIG = REPO / "config" / "croton_rig.yaml"
