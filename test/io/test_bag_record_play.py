@@ -31,28 +31,6 @@ def _images(n):
             for k in range(n)]
 
 
-def _spin_in_thread(ctx, node):
-    from rclpy.executors import SingleThreadedExecutor
-
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    stop = threading.Event()
-
-    def spin():
-        while not stop.is_set() and ctx.ok():
-            ex.spin_once(timeout_sec=0.05)
-
-    t = threading.Thread(target=spin, daemon=True)
-    t.start()
-
-    def close():
-        stop.set()
-        t.join(timeout=5)
-        ex.shutdown(timeout_sec=1)
-
-    return close
-
-
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP])
 def test_bag_record_survives_signals_with_a_valid_file(tmp_path, sig):
     out = tmp_path / "rec.mcap"
@@ -101,48 +79,42 @@ def _play_bag(tmp_path):
     return BagReader(path)
 
 
-def test_player_keeps_timing_with_rate_offset_remap_and_loop(tmp_path):
+def test_player_keeps_timing_with_rate_offset_remap_and_loop(harness, tmp_path):
     bag = _play_bag(tmp_path)
-    with ros_context() as ctx:
-        node = Node("player_test", context=ctx, start_parameter_services=False)
-        got = []
-        node.create_subscription(Image, "/stereo/images", got.append, recording_qos())
-        close = _spin_in_thread(ctx, node)
-        try:
-            player = BagPlayer(node, bag, rate=2.0, remap=parse_remaps(["/cam/images:=/stereo/images"]),
-                               topics=["/cam/images"], depth=10)
-            assert list(player.publishers) == ["/cam/images"]
-            assert player.wait_for_subscribers(20.0)
-            times = []
-            stats = player.play(on_published=lambda m, t: times.append(t))
-            assert stats.published == {"/cam/images": 5} and stats.total == 5
-            gaps = np.diff(times)
-            # 100 ms at rate 2 -> 50 ms (median and span: one late message on a busy machine
-            # shortens the gap after it, the schedule stays)
-            assert 0.045 <= np.median(gaps) < 0.1 and times[-1] - times[0] >= 0.19, gaps
-            assert wait_for(lambda: len(got) == 5, 10.0)
-            assert [convert.stamp_to_ns(m.header.stamp) for m in got] == [T0 + k * 1000 for k in range(5)]
+    node = harness.add(Node("player_test", context=harness.ctx, start_parameter_services=False))
+    got = []
+    node.create_subscription(Image, "/stereo/images", got.append, recording_qos())
+    player = BagPlayer(node, bag, rate=2.0, remap=parse_remaps(["/cam/images:=/stereo/images"]),
+                       topics=["/cam/images"], depth=10)
+    assert list(player.publishers) == ["/cam/images"]
+    assert player.wait_for_subscribers(20.0)
+    times = []
+    stats = player.play(on_published=lambda m, t: times.append(t))
+    assert stats.published == {"/cam/images": 5} and stats.total == 5
+    gaps = np.diff(times)
+    # 100 ms at rate 2 -> 50 ms (median and span: one late message on a busy machine
+    # shortens the gap after it, the schedule stays)
+    assert 0.045 <= np.median(gaps) < 0.1 and times[-1] - times[0] >= 0.19, gaps
+    assert wait_for(lambda: len(got) == 5, 10.0)
+    assert [convert.stamp_to_ns(m.header.stamp) for m in got] == [T0 + k * 1000 for k in range(5)]
 
-            # start 0.25 s into the bag: frames 3 and 4 remain; as fast as possible
-            offset = BagPlayer(node, bag, rate=0, start_offset_s=0.25, topics=["/cam/images"])
-            stats = offset.play()
-            assert stats.published == {"/cam/images": 2}
+    # start 0.25 s into the bag: frames 3 and 4 remain; as fast as possible
+    offset = BagPlayer(node, bag, rate=0, start_offset_s=0.25, topics=["/cam/images"])
+    stats = offset.play()
+    assert stats.published == {"/cam/images": 2}
 
-            # loop until stopped
-            stop = threading.Event()
-            count = []
+    # loop until stopped
+    stop = threading.Event()
+    count = []
 
-            def on_pub(m, t):
-                count.append(m.log_time_ns)
-                if len(count) == 12:
-                    stop.set()
+    def on_pub(m, t):
+        count.append(m.log_time_ns)
+        if len(count) == 12:
+            stop.set()
 
-            looping = BagPlayer(node, bag, rate=10.0, loop=True, topics=["/cam/images"])
-            stats = looping.play(stop=stop, on_published=on_pub)
-            assert len(count) == 12 and stats.loops >= 2
-        finally:
-            close()
-            node.destroy_node()
+    looping = BagPlayer(node, bag, rate=10.0, loop=True, topics=["/cam/images"])
+    stats = looping.play(stop=stop, on_published=on_pub)
+    assert len(count) == 12 and stats.loops >= 2
 
 
 def test_player_options_are_validated(tmp_path):
@@ -164,26 +136,20 @@ def test_player_options_are_validated(tmp_path):
     assert recorded_reliability("") == "reliable"
 
 
-def test_bag_play_executable_publishes_with_remap(tmp_path):
+def test_bag_play_executable_publishes_with_remap(harness, tmp_path):
     bag = _play_bag(tmp_path)
     domain = private_domain_id()
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    with ros_context(domain) as ctx:
-        node = Node("play_exe_test", context=ctx, start_parameter_services=False)
-        got = []
-        node.create_subscription(Image, "/played", got.append, recording_qos())
-        close = _spin_in_thread(ctx, node)
-        try:
-            code = "import sys; from canopy_stereo.ros.player import main; sys.exit(main())"
-            res = subprocess.run([sys.executable, "-c", code, str(bag.path), "--rate", "5", "--delay", "15",
-                                  "--topics", "/cam/images", "--remap", "/cam/images:=/played"],
-                                 env=env, capture_output=True, text=True, timeout=60)
-            assert res.returncode == 0, res.stderr
-            assert "published 5 messages" in res.stdout
-            assert wait_for(lambda: len(got) == 5, 10.0), len(got)
-        finally:
-            close()
-            node.destroy_node()
+    node = harness.add(Node("play_exe_test", context=harness.ctx, start_parameter_services=False))  # on `domain`
+    got = []
+    node.create_subscription(Image, "/played", got.append, recording_qos())
+    code = "import sys; from canopy_stereo.ros.player import main; sys.exit(main())"
+    res = subprocess.run([sys.executable, "-c", code, str(bag.path), "--rate", "5", "--delay", "15",
+                          "--topics", "/cam/images", "--remap", "/cam/images:=/played"],
+                         env=env, capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0, res.stderr
+    assert "published 5 messages" in res.stdout
+    assert wait_for(lambda: len(got) == 5, 10.0), len(got)
 
 
 def test_header_stamp_from_cdr():

@@ -16,7 +16,7 @@ from sensor_msgs.msg import Image  # noqa: E402
 from canopy_stereo.ros import convert  # noqa: E402
 from canopy_stereo.ros.context import private_domain_id, wait_for  # noqa: E402
 
-from test.ros.test_ros_nodes import TIMEOUT, harness, node_kwargs  # noqa: E402,F401  (harness is a fixture)
+from test.ros.test_ros_nodes import TIMEOUT, node_kwargs  # noqa: E402
 
 pytestmark = pytest.mark.ros
 

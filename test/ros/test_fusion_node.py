@@ -2,8 +2,6 @@
 without poses, a cloud that does not overlap, and the reset service."""
 from __future__ import annotations
 
-import threading
-
 import numpy as np
 import pytest
 
@@ -11,11 +9,7 @@ pytest.importorskip("rclpy")
 pytest.importorskip("std_srvs.srv")
 
 from geometry_msgs.msg import PoseStamped  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.node import Node  # noqa: E402
-from rclpy.parameter import Parameter  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
-from sensor_msgs.msg import PointCloud2  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from canopy_stereo.fusion.transforms import (  # noqa: E402
@@ -24,10 +18,9 @@ from canopy_stereo.fusion.transforms import (  # noqa: E402
     rotation_about_axis,
     transform_points,
 )
-from canopy_stereo.ros.context import ros_context, wait_for, wait_for_subscribers  # noqa: E402
+from canopy_stereo.ros.context import wait_for  # noqa: E402
 from canopy_stereo.ros.convert import cloud2_to_points, make_header, points_to_cloud2  # noqa: E402
-from canopy_stereo.ros.fusion_node import FusionNode, matrix_to_pose, pose_to_matrix  # noqa: E402
-from canopy_stereo.ros.qos import publisher_qos, recording_qos  # noqa: E402
+from canopy_stereo.ros.fusion_node import matrix_to_pose, pose_to_matrix  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -65,41 +58,6 @@ def test_pose_message_round_trip():
         pose_to_matrix(msg.pose)
 
 
-@pytest.fixture
-def harness():
-    with ros_context() as ctx:
-        executor = SingleThreadedExecutor(context=ctx)
-        helper = Node("fusion_test_helper", context=ctx, namespace="/stereo", start_parameter_services=False)
-        node = FusionNode(context=ctx, parameter_overrides=[
-            Parameter("publish_period", value=0.2), Parameter("pose_wait", value=0.3)])
-        executor.add_node(helper)
-        executor.add_node(node)
-        stop = threading.Event()
-
-        def spin():
-            while not stop.is_set() and ctx.ok():
-                executor.spin_once(timeout_sec=0.05)
-
-        thread = threading.Thread(target=spin, daemon=True)
-        thread.start()
-        models = []
-        sub = helper.create_subscription(PointCloud2, "canopy_points", models.append, recording_qos())
-        clouds = helper.create_publisher(PointCloud2, "points2", publisher_qos(depth=10))
-        poses = helper.create_publisher(PoseStamped, "pose", publisher_qos(depth=10))
-        reset = helper.create_client(Trigger, "fusion_node/reset")
-        assert wait_for_subscribers([clouds, poses], TIMEOUT)
-        assert wait_for(lambda: sub.get_publisher_count() >= 1, TIMEOUT)
-        assert reset.wait_for_service(timeout_sec=TIMEOUT)
-        try:
-            yield node, clouds, poses, reset, models
-        finally:
-            stop.set()
-            thread.join(timeout=10)
-            node.destroy_node()
-            helper.destroy_node()
-            executor.shutdown(timeout_sec=1)
-
-
 def _send(pub, pts, cols, k):
     pub.publish(points_to_cloud2(pts, cols, T0 + k * 100_000_000, "canopy_world", organized=False))
 
@@ -109,8 +67,8 @@ def _latest_model(models, n_before):
     return cloud2_to_points(models[-1])
 
 
-def test_fusion_node_places_clouds_by_pose_and_resets(harness):
-    node, clouds, poses, reset, models = harness
+def test_fusion_node_places_clouds_by_pose_and_resets(fusion_harness):
+    node, clouds, poses, reset, models = fusion_harness
     pts, cols = patch_cloud_m()
     for k in range(3):
         T = np.linalg.matrix_power(STEP, k)
@@ -129,8 +87,8 @@ def test_fusion_node_places_clouds_by_pose_and_resets(harness):
     assert "forgot 3 cloud(s)" in future.result().message and node.fusion.view_count == 0
 
 
-def test_fusion_node_registers_clouds_without_pose_and_drops_non_overlapping(harness):
-    node, clouds, _, _, models = harness
+def test_fusion_node_registers_clouds_without_pose_and_drops_non_overlapping(fusion_harness):
+    node, clouds, _, _, models = fusion_harness
     pts, cols = patch_cloud_m()
     for k in range(2):
         T = np.linalg.matrix_power(STEP, k)

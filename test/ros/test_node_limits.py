@@ -23,12 +23,10 @@ from stereo_msgs.msg import DisparityImage  # noqa: E402
 
 from canopy_stereo.errors import ImageError  # noqa: E402
 from canopy_stereo.ros import convert, limits  # noqa: E402
-from canopy_stereo.ros.context import private_domain_id, ros_context, wait_for  # noqa: E402
+from canopy_stereo.ros.context import private_domain_id, wait_for  # noqa: E402
 from canopy_stereo.ros.qos import publisher_qos, recording_qos  # noqa: E402
 
 from test.conftest import REPO  # noqa: E402
-from test.ros.test_fusion_node import harness as fusion_harness  # noqa: E402,F401  (a fixture)
-from test.ros.test_ros_nodes import harness  # noqa: E402,F401  (a fixture)
 
 T0 = 1_700_000_000_000_000_000
 
@@ -208,10 +206,7 @@ EXPECTED_LOG = {
 
 
 @pytest.mark.ros
-def test_hostile_burst_into_node_processes_is_dropped_logged_and_memory_returns(tmp_path):
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
-
+def test_hostile_burst_into_node_processes_is_dropped_logged_and_memory_returns(harness, tmp_path):
     from canopy_stereo.ros.bag import BagReader
 
     rig_file = REPO / "config" / "croton_rig.yaml"
@@ -224,69 +219,59 @@ def test_hostile_burst_into_node_processes_is_dropped_logged_and_memory_returns(
     logs = {name: tmp_path / f"{name}.log" for name in NODES}
     procs = {name: _start_node(name, rig_file, env, logs[name]) for name in NODES}
     try:
-        with ros_context(domain) as ctx:
-            helper = Node("hostile_publisher", context=ctx, namespace="/stereo", start_parameter_services=False)
-            executor = SingleThreadedExecutor(context=ctx)
-            executor.add_node(helper)
-            clouds = []
-            helper.create_subscription(PointCloud2, "points2", clouds.append, recording_qos(depth=5))
-            topics = sorted({t for ts in INPUTS.values() for t in ts})
-            pubs = {t: helper.create_publisher(DisparityImage if t == "disparity" else Image, t,
-                                               publisher_qos(depth=20)) for t in topics}
+        helper = harness.helper  # /stereo/test_helper, on the processes' private domain
+        clouds = []
+        helper.create_subscription(PointCloud2, "points2", clouds.append, recording_qos(depth=5))
+        topics = sorted({t for ts in INPUTS.values() for t in ts})
+        pubs = {t: helper.create_publisher(DisparityImage if t == "disparity" else Image, t,
+                                           publisher_qos(depth=20)) for t in topics}
 
-            def spin_until(predicate, timeout):
-                deadline = time.monotonic() + timeout
-                while time.monotonic() < deadline:
-                    if predicate():
-                        return True
-                    executor.spin_once(timeout_sec=0.05)
-                return predicate()
+        def spin_until(predicate, timeout):  # the harness spins in its thread
+            return wait_for(predicate, timeout)
 
-            def send_good_pair(k):
-                stamp = T0 + k * 100_000_000
-                n = len(clouds)
-                pubs["left/image_raw"].publish(convert.image_to_msg(left, "bgr8", stamp, "left_camera"))
-                pubs["right/image_raw"].publish(convert.image_to_msg(right, "bgr8", stamp, "right_camera"))
-                assert spin_until(lambda: len(clouds) > n, 90.0), f"no cloud for good pair {k}: " + _tails(logs)
-                return clouds[-1]
+        def send_good_pair(k):
+            stamp = T0 + k * 100_000_000
+            n = len(clouds)
+            pubs["left/image_raw"].publish(convert.image_to_msg(left, "bgr8", stamp, "left_camera"))
+            pubs["right/image_raw"].publish(convert.image_to_msg(right, "bgr8", stamp, "right_camera"))
+            assert spin_until(lambda: len(clouds) > n, 90.0), f"no cloud for good pair {k}: " + _tails(logs)
+            return clouds[-1]
 
-            for name, proc in procs.items():
-                assert proc.poll() is None, f"{name} exited: " + _tails(logs)
-            # every node subscribed to every input topic it has, and the cloud publisher matched
-            assert spin_until(lambda: all(pubs[t].get_subscription_count() >= sum(t in v for v in INPUTS.values())
-                                          for t in topics) and helper.count_publishers("/stereo/points2") >= 1,
-                              60.0), "nodes did not connect: " + _tails(logs)
-            # the nodes discover each other on their own: resend the first pair until it comes through
-            def first_cloud(k):
-                stamp = T0 + k * 100_000_000
-                pubs["left/image_raw"].publish(convert.image_to_msg(left, "bgr8", stamp, "left_camera"))
-                pubs["right/image_raw"].publish(convert.image_to_msg(right, "bgr8", stamp, "right_camera"))
-                return spin_until(lambda: len(clouds) > 0, 10.0)
+        for name, proc in procs.items():
+            assert proc.poll() is None, f"{name} exited: " + _tails(logs)
+        # every node subscribed to every input topic it has, and the cloud publisher matched
+        assert spin_until(lambda: all(pubs[t].get_subscription_count() >= sum(t in v for v in INPUTS.values())
+                                      for t in topics) and helper.count_publishers("/stereo/points2") >= 1,
+                          60.0), "nodes did not connect: " + _tails(logs)
+        # the nodes discover each other on their own: resend the first pair until it comes through
+        def first_cloud(k):
+            stamp = T0 + k * 100_000_000
+            pubs["left/image_raw"].publish(convert.image_to_msg(left, "bgr8", stamp, "left_camera"))
+            pubs["right/image_raw"].publish(convert.image_to_msg(right, "bgr8", stamp, "right_camera"))
+            return spin_until(lambda: len(clouds) > 0, 10.0)
 
-            assert any(first_cloud(k) for k in range(12)), "no first cloud: " + _tails(logs)
-            for k in range(12, 15):  # warm up (compilation, first allocations), then the steady level
-                send_good_pair(k)
-            spin_until(lambda: False, 1.0)
-            steady = {name: rss_bytes(p.pid) for name, p in procs.items()}
+        assert any(first_cloud(k) for k in range(12)), "no first cloud: " + _tails(logs)
+        for k in range(12, 15):  # warm up (compilation, first allocations), then the steady level
+            send_good_pair(k)
+        spin_until(lambda: False, 1.0)
+        steady = {name: rss_bytes(p.pid) for name, p in procs.items()}
 
-            for topic, msg in _hostile_messages(T0 + 30 * 100_000_000):
-                pubs[topic].publish(msg)
-            assert spin_until(lambda: all(all(w in logs[n].read_text() for w in words)
-                                          for n, words in EXPECTED_LOG.items()), 60.0), \
-                "drops not logged: " + _tails(logs)
-            cloud = send_good_pair(40)  # the next good pair still becomes a cloud
-            assert cloud.width * cloud.height > 1000
+        for topic, msg in _hostile_messages(T0 + 30 * 100_000_000):
+            pubs[topic].publish(msg)
+        assert spin_until(lambda: all(all(w in logs[n].read_text() for w in words)
+                                      for n, words in EXPECTED_LOG.items()), 60.0), \
+            "drops not logged: " + _tails(logs)
+        cloud = send_good_pair(40)  # the next good pair still becomes a cloud
+        assert cloud.width * cloud.height > 1000
 
-            t_good = time.monotonic()
-            back = spin_until(lambda: all(rss_bytes(p.pid) <= 1.2 * steady[n] for n, p in procs.items()), 10.0)
-            after = {name: rss_bytes(p.pid) for name, p in procs.items()}
-            report = ", ".join(f"{n} {steady[n] / 2**20:.0f} -> {after[n] / 2**20:.0f} MiB" for n in NODES)
-            print(f"RSS steady -> after burst ({time.monotonic() - t_good:.1f} s): {report}")
-            assert back, f"RSS not back within 20 % in 10 s: {report}"
-            for name, proc in procs.items():
-                assert proc.poll() is None, f"{name} died"
-            executor.shutdown(timeout_sec=1)
-            helper.destroy_node()
+        t_good = time.monotonic()
+        back = spin_until(lambda: all(rss_bytes(p.pid) <= 1.2 * steady[n] for n, p in procs.items()), 10.0)
+        after = {name: rss_bytes(p.pid) for name, p in procs.items()}
+        report = ", ".join(f"{n} {steady[n] / 2**20:.0f} -> {after[n] / 2**20:.0f} MiB" for n in NODES)
+        print(f"RSS steady -> after burst ({time.monotonic() - t_good:.1f} s): {report}")
+        assert back, f"RSS not back within 20 % in 10 s: {report}"
+        for name, proc in procs.items():
+            assert proc.poll() is None, f"{name} died"
     finally:
         for proc in procs.values():
             if proc.poll() is None:

@@ -32,9 +32,9 @@ from canopy_stereo.geometry.triangulation import apply_homography  # noqa: E402
 from canopy_stereo.ros import convert  # noqa: E402
 from canopy_stereo.ros.stereo_geometry import parse_stereo_geometry, stereo_geometry_msg  # noqa: E402
 
-from test.ros.test_ros_nodes import (T0, TIMEOUT, geometry_publisher, harness, node_kwargs,  # noqa: E402,F401
-                            publish_rect_infos, rect_info_publishers)
 from test.geometry.test_stereo_geometry import verged_rig  # noqa: E402
+from test.ros.test_ros_nodes import (T0, TIMEOUT, geometry_publisher, node_kwargs,  # noqa: E402
+                                     publish_rect_infos, rect_info_publishers)
 
 pytestmark = pytest.mark.ros
 
@@ -280,8 +280,7 @@ def test_point_cloud_node_frames_optical_and_z_up(harness, paper_rig):
     np.testing.assert_array_equal(np.isnan(z), np.isnan(disp))
     np.testing.assert_allclose(opt[..., 2][np.isfinite(z)], z[np.isfinite(z)])
     np.testing.assert_allclose(z[np.isfinite(z)], rect.focal_length * t / disp[np.isfinite(disp)], rtol=1e-6)
-    harness.executor.remove_node(n_opt)
-    harness.nodes.remove(n_opt)
+    harness.remove(n_opt)
     n_opt.destroy_node()
     harness.add(PointCloudNode(**node_kwargs(harness, cloud_frame="world_z_up", organized=True)))
     geometry_publisher(harness, paper_rig, rect)
@@ -353,8 +352,7 @@ def test_bag_recorder_writes_tf_static_from_rectify_node(harness, paper_rig, tmp
     recorder = harness.add(BagRecorder(BagWriter(tmp_path / "rec.mcap"), ["/stereo/points2"],
                                        context=harness.ctx))
     assert pytest_wait(lambda: recorder._tf_written)
-    harness.executor.remove_node(recorder)
-    harness.nodes.remove(recorder)
+    harness.remove(recorder)
     recorder.close()
     recorder.destroy_node()
     bag = BagReader(tmp_path / "rec.mcap")

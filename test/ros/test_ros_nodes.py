@@ -8,8 +8,6 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("stereo_msgs.msg")
 
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2  # noqa: E402
 from stereo_msgs.msg import DisparityImage  # noqa: E402
@@ -17,75 +15,13 @@ from stereo_msgs.msg import DisparityImage  # noqa: E402
 from canopy_stereo.geometry.camera import point_depth  # noqa: E402
 from canopy_stereo.geometry.rectification import StereoRectifier, fusiello_rectify  # noqa: E402
 from canopy_stereo.ros import convert  # noqa: E402
-from canopy_stereo.ros.context import ros_context, wait_for, wait_for_subscribers  # noqa: E402
+from canopy_stereo.ros.context import wait_for  # noqa: E402
 from canopy_stereo.ros.params import rig_parameter_overrides  # noqa: E402
-from canopy_stereo.ros.qos import publisher_qos, recording_qos  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
 T0 = 1_700_000_000_000_000_000
 TIMEOUT = 20.0  # generous: the machine may be loaded
-
-
-class Harness:
-    """A context, an executor spinning in a thread, and a helper node to publish/collect."""
-
-    def __init__(self, ctx):
-        import threading
-
-        self.ctx = ctx
-        self.executor = SingleThreadedExecutor(context=ctx)  # nothing left running after close()
-        self.helper = Node("test_helper", context=ctx, namespace="/stereo", start_parameter_services=False)
-        self.executor.add_node(self.helper)
-        self.nodes = [self.helper]
-        self.received = {}
-        self.subscriptions = {}
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
-
-    def _spin(self):
-        while not self._stop.is_set() and self.ctx.ok():
-            self.executor.spin_once(timeout_sec=0.05)
-
-    def add(self, node):
-        self.nodes.append(node)
-        self.executor.add_node(node)
-        return node
-
-    def publisher(self, msg_type, topic):
-        return self.helper.create_publisher(msg_type, topic, publisher_qos())
-
-    def collect(self, msg_type, topic):
-        self.received[topic] = []
-        sub = self.helper.create_subscription(msg_type, topic, self.received[topic].append, recording_qos())
-        self.subscriptions[topic] = sub
-        return self.received[topic]
-
-    def wait_publishers(self, *topics):
-        subs = [self.subscriptions[t] for t in topics]
-        assert wait_for(lambda: all(s.get_publisher_count() >= 1 for s in subs), TIMEOUT), \
-            "publishers did not connect"
-
-    def connect(self, *pubs):
-        assert wait_for_subscribers(pubs, TIMEOUT), "subscribers did not connect"
-
-    def close(self):
-        self._stop.set()
-        self._thread.join(timeout=10)
-        for node in reversed(self.nodes):
-            node.destroy_node()
-        self.executor.shutdown(timeout_sec=1)
-
-
-@pytest.fixture
-def harness():
-    with ros_context() as ctx:
-        h = Harness(ctx)
-        try:
-            yield h
-        finally:
-            h.close()
 
 
 def node_kwargs(harness, rig=None, **params):
@@ -455,7 +391,7 @@ def test_hartley_homographies_from_parameters_give_the_same_cloud(harness, paper
     assert (infos[0].width, infos[0].height) == (640, 480)
 
 
-def test_node_executable_reads_the_rig_file(repo_root, tmp_path):
+def test_node_executable_reads_the_rig_file(harness, repo_root, tmp_path):
     """``disparity_node --ros-args --params-file config/croton_rig.yaml`` in its own process:
     the rig file's P matrices and extras (disp_min/disp_max, elas.subpixel) become parameters."""
     import os
@@ -476,24 +412,20 @@ def test_node_executable_reads_the_rig_file(repo_root, tmp_path):
                              "-p", "matcher:=sgbm", *[a for r in reliable for a in ("-p", r)]],
                             env=env, stderr=subprocess.PIPE, text=True)
     try:
-        with ros_context(domain) as ctx:
-            h = Harness(ctx)
-            try:
-                out = h.collect(DisparityImage, "disparity")
-                pl, pr = h.publisher(Image, "left/image_rect"), h.publisher(Image, "right/image_rect")
-                il, ir = rect_info_publishers(h)
-                h.connect(pl, pr, il, ir)
-                h.wait_publishers("disparity")
-                from canopy_stereo.io.rig import load_rig
+        h = harness  # on the same private domain as the node's process
+        out = h.collect(DisparityImage, "disparity")
+        pl, pr = h.publisher(Image, "left/image_rect"), h.publisher(Image, "right/image_rect")
+        il, ir = rect_info_publishers(h)
+        h.connect(pl, pr, il, ir)
+        h.wait_publishers("disparity")
+        from canopy_stereo.io.rig import load_rig
 
-                rig = load_rig(rig_file)
-                publish_rect_infos(il, ir, rig, fusiello_rectify(rig.P_left, rig.P_right, rig.image_size), T0)
-                left, right = textured_pair(rig, 40)
-                pl.publish(convert.image_to_msg(cv2.cvtColor(left, cv2.COLOR_BGR2GRAY), "mono8", T0))
-                pr.publish(convert.image_to_msg(cv2.cvtColor(right, cv2.COLOR_BGR2GRAY), "mono8", T0))
-                assert wait_for(lambda: len(out) == 1, 30.0)
-            finally:
-                h.close()
+        rig = load_rig(rig_file)
+        publish_rect_infos(il, ir, rig, fusiello_rectify(rig.P_left, rig.P_right, rig.image_size), T0)
+        left, right = textured_pair(rig, 40)
+        pl.publish(convert.image_to_msg(cv2.cvtColor(left, cv2.COLOR_BGR2GRAY), "mono8", T0))
+        pr.publish(convert.image_to_msg(cv2.cvtColor(right, cv2.COLOR_BGR2GRAY), "mono8", T0))
+        assert wait_for(lambda: len(out) == 1, 30.0)
         rect = fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
         assert out[0].min_disparity == pytest.approx(rig.extra["disp_min"] - rect.doffs, abs=1e-4)
         assert out[0].max_disparity == pytest.approx(rig.extra["disp_max"] - rect.doffs, abs=1e-4)

@@ -8,7 +8,9 @@ node); tests do the same:
   ``--ros-args`` (parameter files, ``-p name:=value`` as on a command line), keeps
   each process's output in a log file, and stops them all (SIGINT, then SIGKILL)
   at the end; :meth:`ProcessGroup.start_graph` starts the processing nodes.
-* :class:`Probe` is the test's own node, in the test process: it publishes like a
+* :class:`Harness` is the test's in-process ROS side (the ``harness`` fixture of
+  conftest.py): a helper node and the nodes under test, spun by one executor in a
+  background thread. :class:`Probe` is a Harness on a context of its own: it publishes like a
   camera driver (system-default QoS: reliable, keep last 10) and subscribes like a
   foreign consumer, with any QoS, receiving raw CDR bytes (no deserialization of
   5 MB clouds in the test process) with their arrival times.
@@ -203,36 +205,105 @@ class Received:
             return len(self.items)
 
 
-class Probe:
-    """The test's own node on ``domain_id``: publishers and foreign subscribers.
+class Harness:
+    """The test's in-process ROS side on one context: a helper node (``test_helper`` in
+    ``/stereo``) and every node :meth:`add`-ed, spun by one ``SingleThreadedExecutor`` in a
+    background thread. The ``harness`` fixture (conftest.py) gives one on the test
+    process's private DDS domain; :meth:`close` stops the thread and destroys the nodes.
 
-    Spins in a background thread; :meth:`close` stops it and shuts its context down.
+    Args:
+        ctx: an initialised rclpy context (e.g. from ``canopy_stereo.ros.context.ros_context``).
+        name: the helper node's name.
+        namespace: the helper node's namespace (relative topics resolve under it).
+        timeout_s: how long :meth:`connect` and :meth:`wait_publishers` wait, seconds.
     """
 
-    def __init__(self, domain_id: int, namespace: str = "/stereo", name: str = "test_probe"):
+    def __init__(self, ctx, name: str = "test_helper", namespace: str = "/stereo", timeout_s: float = 20.0):
+        import rclpy.node
         from rclpy.executors import SingleThreadedExecutor
 
-        from canopy_stereo.ros.context import ros_context
-
-        self._ctx_manager = ros_context(domain_id)
-        self.context = self._ctx_manager.__enter__()
-        import rclpy.node
-
-        self.node = rclpy.node.Node(name, context=self.context, namespace=namespace,
-                                    start_parameter_services=False)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
+        self.ctx = self.context = ctx
+        self.timeout_s = float(timeout_s)
+        self.executor = SingleThreadedExecutor(context=ctx)  # nothing left running after close()
+        self.helper = self.node = rclpy.node.Node(name, context=ctx, namespace=namespace,
+                                                  start_parameter_services=False)
+        self.executor.add_node(self.helper)
+        self.nodes = [self.helper]
+        self.received = {}
+        self.subscriptions = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
 
     def _spin(self):
-        while not self._stop.is_set() and self.context.ok():
+        while not self._stop.is_set() and self.ctx.ok():
             try:
                 self.executor.spin_once(timeout_sec=0.05)
             except Exception:  # noqa: BLE001 - context shut down under the executor
                 if not self._stop.is_set():
                     raise
+
+    def add(self, node):
+        """Spin ``node`` too (destroyed by :meth:`close`); returns it."""
+        self.nodes.append(node)
+        self.executor.add_node(node)
+        return node
+
+    def remove(self, node):
+        """Stop spinning ``node`` (the caller destroys it)."""
+        self.executor.remove_node(node)
+        self.nodes.remove(node)
+
+    def publisher(self, msg_type, topic):
+        """A helper publisher with the nodes' input QoS (:func:`canopy_stereo.ros.qos.publisher_qos`)."""
+        from canopy_stereo.ros.qos import publisher_qos
+
+        return self.helper.create_publisher(msg_type, topic, publisher_qos())
+
+    def collect(self, msg_type, topic):
+        """A list that every message on ``topic`` is appended to (recording QoS)."""
+        from canopy_stereo.ros.qos import recording_qos
+
+        self.received[topic] = []
+        sub = self.helper.create_subscription(msg_type, topic, self.received[topic].append, recording_qos())
+        self.subscriptions[topic] = sub
+        return self.received[topic]
+
+    def wait_publishers(self, *topics):
+        """Assert that every collected ``topic`` has a publisher within the timeout."""
+        from canopy_stereo.ros.context import wait_for as ros_wait_for
+
+        subs = [self.subscriptions[t] for t in topics]
+        assert ros_wait_for(lambda: all(s.get_publisher_count() >= 1 for s in subs), self.timeout_s), \
+            "publishers did not connect"
+
+    def connect(self, *pubs):
+        """Assert that every publisher in ``pubs`` has a subscriber within the timeout."""
+        from canopy_stereo.ros.context import wait_for_subscribers
+
+        assert wait_for_subscribers(pubs, self.timeout_s), "subscribers did not connect"
+
+    def close(self):
+        self._stop.set()
+        self._thread.join(timeout=10)
+        for node in reversed(self.nodes):
+            node.destroy_node()
+        self.nodes.clear()
+        self.executor.shutdown(timeout_sec=1)
+
+
+class Probe(Harness):
+    """A :class:`Harness` on a context of its own on ``domain_id``: publishers like a camera
+    driver and foreign subscribers (raw CDR bytes with their arrival times).
+
+    Spins in a background thread; :meth:`close` stops it and shuts its context down.
+    """
+
+    def __init__(self, domain_id: int, namespace: str = "/stereo", name: str = "test_probe"):
+        from canopy_stereo.ros.context import ros_context
+
+        self._ctx_manager = ros_context(domain_id)
+        super().__init__(self._ctx_manager.__enter__(), name=name, namespace=namespace)
 
     def publisher(self, msg_type, topic: str, qos=None):
         """A publisher with ``qos`` (default: the system-default a driver uses, reliable keep last 10)."""
@@ -260,10 +331,7 @@ class Probe:
         return received
 
     def close(self):
-        self._stop.set()
-        self._thread.join(timeout=10)
-        self.node.destroy_node()
-        self.executor.shutdown(timeout_sec=1)
+        super().close()
         self._ctx_manager.__exit__(None, None, None)
 
 
