@@ -24,6 +24,8 @@ import pytest
 
 pytest.importorskip("distributed")
 
+pytestmark = pytest.mark.slow  # Dask clusters of worker processes
+
 from canopy_stereo.io.rig import load_rig  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]

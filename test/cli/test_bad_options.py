@@ -93,6 +93,7 @@ def test_bad_option_is_one_line_exit_2(cli, files, tmp_path, case):
     assert not (tmp_path / "s").exists()  # simulate refused before writing anything
 
 
+@pytest.mark.slow
 def test_calibrate_png_as_points_in_a_fresh_process(files):
     """The reported case end to end: the console script's process, not only main()."""
     res = run_cli_subprocess("calibrate", "--points", files["png"], "-o", files["tmp"] / "r.yaml")
@@ -126,6 +127,7 @@ def test_reconstruct_and_disparity_node_share_the_range_check(cli, tmp_path, fil
             DisparityNode(context=ctx, parameter_overrides=overrides, start_parameter_services=False)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="address-space limit via setrlimit")
 def test_a_rig_too_large_for_memory_is_one_line_not_an_internal_error(tmp_path):
     import resource

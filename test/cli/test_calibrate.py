@@ -19,6 +19,7 @@ def _write_points_csv(path, rig, rng, n_planes=3):
     return path
 
 
+@pytest.mark.slow
 def test_calibrate_points(cli, tmp_path, paper_rig, rng):
     csv = _write_points_csv(tmp_path / "pts.csv", paper_rig, rng)
     code, out, err = cli("calibrate", "--points", csv, "-o", tmp_path / "rig.yaml", "--plot", tmp_path / "e.png")
@@ -41,6 +42,7 @@ def test_calibrate_chessboard(cli, tmp_path, shared_data):
 
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["few", "coplanar"])
 def test_bad_input_one_line_no_traceback(tmp_path, paper_rig, rng, case):
     if case == "few":

@@ -31,6 +31,7 @@ def test_disparity_writes_pfm_and_png(cli, pair_files):
 
 @pytest.mark.parametrize("extra", [["--preset", "middlebury", "--subpixel"],
                                    ["--matcher", "sgbm"]])
+@pytest.mark.slow
 def test_disparity_options(cli, pair_files, extra):
     out = pair_files / "d.pfm"
     code, _, err = cli("disparity", pair_files / "left.png", pair_files / "right.png",

@@ -144,6 +144,7 @@ def test_fuse_bad_input_messages(tmp_path, cli, case, message):
     assert code == 2 and message in stderr, stderr
 
 
+@pytest.mark.slow
 def test_fuse_stereo_pair_views_registered(tmp_path, cli):
     """Two rendered turntable views (stereo pairs + rig files) 45 degrees apart, no poses."""
     from canopy_stereo.sim.multiview import render_views, write_views

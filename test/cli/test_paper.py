@@ -21,6 +21,8 @@ from canopy_stereo.sim.correspondence import true_right_pixels
 
 from test.conftest import run_cli_subprocess
 
+pytestmark = pytest.mark.slow  # one reduced paper run in a process of its own
+
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 

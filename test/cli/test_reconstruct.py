@@ -34,6 +34,7 @@ def _bad_rig(tmp_path, P_right):
     return p
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["sizes", "unreadable", "nonfinite", "rank"])
 def test_bad_input_one_line_no_traceback(tmp_path, case):
     import cv2
@@ -61,6 +62,7 @@ def test_bad_input_one_line_no_traceback(tmp_path, case):
     assert word in lines[0] and "Traceback" not in res.stderr
 
 
+@pytest.mark.slow
 def test_reconstruct_and_measure_croton(cli, tmp_path):
     """reconstruct --measure on the synthetic croton: marked leaves within 2 % of truth."""
     import json

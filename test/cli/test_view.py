@@ -14,6 +14,7 @@ CROTON_BAG = REPO / "bags" / "croton.mcap"
 CROTON_RIG = REPO / "config" / "croton_rig.yaml"
 
 
+@pytest.mark.slow
 def test_view_without_rerun_says_what_to_install(tmp_path):
     code = ("import sys; sys.modules['rerun'] = None\n"
             "from canopy_stereo.cli import main\n"
@@ -25,6 +26,7 @@ def test_view_without_rerun_says_what_to_install(tmp_path):
     assert not (tmp_path / "x.rrd").exists()
 
 
+@pytest.mark.slow
 def test_view_bad_options_one_line_exit_2(tmp_path):
     pytest.importorskip("rerun")
     for args in ([tmp_path / "missing.mcap"],

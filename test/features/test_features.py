@@ -173,6 +173,7 @@ def test_hessian_affine_recovers_the_shape_of_an_elongated_blob():
 # ----------------------------------------------------------------------------- quasi-dense
 
 
+@pytest.mark.slow
 def test_qdmatch_is_correct_and_better_spread_than_sift(slanted_pair):
     left, right, d = slanted_pair
     sift = match_pair(left, right, "sift")

@@ -15,6 +15,7 @@ GT_PAIRS = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(GT_PAIRS))
 def test_qdmatch_is_correct_and_spreads_wider_than_sift(shared_data, name):
     folder, l, r, g, scale = GT_PAIRS[name]
@@ -40,6 +41,7 @@ def test_study_without_gt_on_the_plants_scene(shared_data):
     assert qd.result.distribution > sift.result.distribution
 
 
+@pytest.mark.slow
 def test_qdmatch_reaches_the_paper_spread_on_plant_pairs(shared_data):
     """Issue 18: qdmatch covered 13.4 % of the cells of Plants and 47.5 % of Aloe; the
     paper's qdmatch covers 27-31 %. Reseeding + centroid resampling reach the leaves."""

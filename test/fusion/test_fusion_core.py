@@ -160,6 +160,7 @@ def _cloud_view(name, points, unit="mm", pose=None):
     return View(name=name, points=points, colors=None, unit=unit, pose=pose)
 
 
+@pytest.mark.slow
 def test_register_pair_of_clouds_and_no_overlap_error(rng):
     cloud = leafy_cloud(rng)
     T = make_transform(rotation_about_axis([0, 1, 0], np.radians(3)), [2.0, 1.0, -1.5])
@@ -216,6 +217,7 @@ def test_pose_graph_spreads_loop_error():
     assert np.allclose(optimised[0], np.eye(4))
 
 
+@pytest.mark.slow
 def test_register_views_closes_loop_of_clouds(rng):
     """Four cloud views round a ring of patches, registered from identity (small steps)."""
     cloud = leafy_cloud(rng, n_patches=20, spread=70.0)
@@ -303,6 +305,7 @@ def test_depth_view_from_points_and_coverage():
     assert np.isclose(rep.median_error, 1.0) and rep.coverage > 0.45
 
 
+@pytest.mark.slow
 def test_incremental_fusion_registers_stream_and_resets(rng):
     cloud = leafy_cloud(rng, n_patches=16, spread=70.0)
     step = make_transform(rotation_about_axis([0, 1, 0], np.radians(3)), [1.0, 0.0, 0.0])

@@ -60,6 +60,7 @@ def test_sequence_poses_turn_about_the_plant_axis(paper_rig):
     assert all((transform_points(T, c0) - c0) @ axis > 50.0 for T in orbit)
 
 
+@pytest.mark.slow
 def test_views_render_the_plant_turned(turntable):
     seq, views, _ = turntable
     sim0, sim2 = views[0][1], views[2][1]
@@ -76,6 +77,7 @@ def test_views_render_the_plant_turned(turntable):
     assert sim0.mask.dtype == np.uint8 and 0 < (sim0.mask > 0).mean() < 0.6
 
 
+@pytest.mark.slow
 def test_registration_recovers_known_transform_between_two_views(turntable):
     """Neighbouring turntable views 45 degrees apart, poses unknown: features lifted to 3-D,
     then ICP; compared with the true relative pose at the plant."""
@@ -89,6 +91,7 @@ def test_registration_recovers_known_transform_between_two_views(turntable):
     assert pr.icp.overlap > 0.6
 
 
+@pytest.mark.slow
 def test_views_without_overlap_fail_clearly(turntable):
     """Opposite sides of the plant (180 degrees): the pot looks the same from every angle and
     lures the matcher into "no motion", but the check refuses the result."""
@@ -97,6 +100,7 @@ def test_views_without_overlap_fail_clearly(turntable):
         register_pair(views[0][0], views[4][0], RegistrationSettings(voxel=3.0))
 
 
+@pytest.mark.slow
 def test_fused_coverage_beats_single_views(turntable):
     """Four views 90 degrees apart with their true poses: the fused model covers far more
     of the true leaf surface than any single view, and stays as accurate."""

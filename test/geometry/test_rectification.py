@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from canopy_stereo.geometry.camera import project
 from canopy_stereo.geometry.distortion import distort_pixels, undistort_pixels
@@ -79,6 +80,7 @@ def test_real_chessboard_rig(shared_data):
     assert np.all(cal.check.mean_abs < [1.0, 1.0, 2.0])
 
 
+@pytest.mark.slow
 def test_hartley_from_pooled_qdmatch_on_raw_chessboard_pairs(shared_data):
     """Issue 6 target: Hartley from quasi-dense matches, corners' median |dv| <= 0.5 px."""
     from canopy_stereo.geometry.chessboard import calibrate_stereo_chessboard, find_corners

@@ -73,6 +73,7 @@ def test_fusiello_shares_one_principal_point_and_keeps_images_in_view(paper_rig)
         assert np.allclose(pl, pr, atol=1e-3)
 
 
+@pytest.mark.slow
 def test_q_matrix_depth_equals_f_t_over_d_and_the_truth_on_a_verged_rig():
     """Must-show: a verged rig whose cameras differ in principal point, rendered by
     canopy_stereo.sim; DisparityImage + the two rectified CameraInfos through

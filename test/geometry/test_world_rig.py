@@ -149,6 +149,7 @@ def _synthetic_detections(rig, pl, rng, noise=0.03, turn_probability=0.5):
     return det, turned
 
 
+@pytest.mark.slow
 def test_symmetric_board_reversed_detections_get_the_right_order(paper_rig, rng):
     """7x5 (both odd) looks the same turned 180 degrees; half the detections are reversed."""
     pl = paper_layout_placements()
@@ -239,6 +240,7 @@ def rendered(paper_rig):
     return pl, pairs
 
 
+@pytest.mark.slow
 def test_rendered_board_corners_are_found_to_a_few_hundredths_of_a_pixel(paper_rig, rendered):
     pl, pairs = rendered
     assert pl.pattern == (7, 5)                  # both odd: looks the same turned 180 degrees
@@ -255,6 +257,7 @@ def test_rendered_board_corners_are_found_to_a_few_hundredths_of_a_pixel(paper_r
     assert np.mean(errs) < 0.05, errs
 
 
+@pytest.mark.slow
 def test_rendered_world_rig_recovers_the_paper_matrices(paper_rig, rendered):
     """Must show (issue 18): the recovered matrices triangulate points of the working
     volume with mean absolute error <= 0.2 mm in X and Y and <= 0.5 mm in Z."""
@@ -306,6 +309,7 @@ def _write_pairs(folder, pairs):
         write_image(folder / f"right_{k:02d}.png", right)
 
 
+@pytest.mark.slow
 def test_cli_world_rig_calibration_and_contradicting_placements(tmp_path, cli, rendered, paper_rig):
     import cv2
 
@@ -363,6 +367,7 @@ def test_cli_paper_layout_writes_the_45_placements(tmp_path, cli):
     assert np.isclose(np.degrees(np.arctan2(pl2[0].x_axis[2], pl2[0].x_axis[0])), 15.0)
 
 
+@pytest.mark.slow
 def test_cli_simulate_calibration_writes_images_and_placements(tmp_path, cli, paper_rig):
     pl = paper_layout_placements(marks_per_line=1)
     write_placements(pl, tmp_path / "mine.yaml")
@@ -382,6 +387,7 @@ def test_cli_simulate_calibration_writes_images_and_placements(tmp_path, cli, pa
     assert "calibrate with: canopy-stereo calibrate --world-rig" in out
 
 
+@pytest.mark.slow
 def test_calibration_placements_follow_any_rig(repo_root):
     """The paper layout moved in front of another rig (its world frame and unit), far
     enough (and, for a narrow camera, with the side lines turned less) that every board

@@ -152,6 +152,7 @@ def test_parse_size():
         parse_size("big")
 
 
+@pytest.mark.slow
 def test_cli_run_says_truncated_and_rejects_garbage_cdr(cli, tmp_path):
     pytest.importorskip("rclpy")
     cut = tmp_path / "cut.mcap"
@@ -170,6 +171,7 @@ def test_cli_run_says_truncated_and_rejects_garbage_cdr(cli, tmp_path):
     assert "not valid sensor_msgs/msg/Image CDR" in err and "frames in: 0" not in out
 
 
+@pytest.mark.slow
 def test_bag_play_skips_a_damaged_chunk_with_a_warning(damaged):
     import subprocess
     import sys
@@ -192,6 +194,7 @@ def test_bag_play_skips_a_damaged_chunk_with_a_warning(damaged):
     assert res.returncode == 2 and "Traceback" not in res.stderr
 
 
+@pytest.mark.slow
 def test_run_plays_the_intact_frames_of_a_damaged_bag(damaged):
     pytest.importorskip("rclpy")
     from canopy_stereo.io.rig import load_rig

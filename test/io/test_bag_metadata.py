@@ -79,6 +79,7 @@ def test_writer_records_survive_truncation_and_rosbags_reads_the_bag(tmp_path):
         canopy_metadata({RIG_RECORD: {"yaml": "not: [a rig"}}, source="x.mcap")
 
 
+@pytest.mark.slow
 @pytest.mark.ros
 def test_bag_record_writes_metadata_and_rig(tmp_path):
     pytest.importorskip("rclpy")
@@ -128,6 +129,7 @@ def test_bag_record_writes_metadata_and_rig(tmp_path):
     assert bad.returncode == 2 and "KEY=VALUE" in bad.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.ros
 def test_graph_recording_from_cameras_is_measured_without_a_rig(tmp_path):
     """canopy_graph --cameras ... --record --metadata (its own process) -> a self-describing bag

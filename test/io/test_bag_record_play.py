@@ -31,6 +31,7 @@ def _images(n):
             for k in range(n)]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP])
 def test_bag_record_survives_signals_with_a_valid_file(tmp_path, sig):
     out = tmp_path / "rec.mcap"
@@ -136,6 +137,7 @@ def test_player_options_are_validated(tmp_path):
     assert recorded_reliability("") == "reliable"
 
 
+@pytest.mark.slow
 def test_bag_play_executable_publishes_with_remap(harness, tmp_path):
     bag = _play_bag(tmp_path)
     domain = private_domain_id()

@@ -97,6 +97,7 @@ def _recorded_so_far(path: Path) -> int:
         return 0
 
 
+@pytest.mark.slow
 def test_sigterm_at_three_moments_of_run_record_leaves_complete_bags(slow_bag, tmp_path):
     """SIGTERM during start-up, early and late in a 30 s `run --record` (and SIGKILL once):
     every SIGTERMed file is complete and rosbags reads it whole; the SIGKILLed one reads up
@@ -167,6 +168,7 @@ os.kill(os.getpid(), 9)
 """
 
 
+@pytest.mark.slow
 def test_sigkill_loses_at_most_the_last_flush_period(tmp_path):
     """Messages written more than one flush period before a SIGKILL are in the file."""
     path = tmp_path / "killed.mcap"
@@ -201,6 +203,7 @@ def _wait_for_passes(proc, n: int, timeout: float = 180.0, min_span_s: float = 0
     return lines
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGHUP, signal.SIGINT])
 def test_graph_loop_record_appends_every_pass_and_closes_on_signals(tmp_path, sig):
     """`canopy_graph --loop --record` keeps every pass in one file (no overwrite); SIGHUP or
@@ -223,6 +226,7 @@ def test_graph_loop_record_appends_every_pass_and_closes_on_signals(tmp_path, si
     assert _rosbags_reads_whole(out) == bag.message_count
 
 
+@pytest.mark.slow
 def test_graph_loop_record_splits_like_rosbag2(tmp_path):
     """--split-duration rotates to <name>_0.mcap, <name>_1.mcap, ...: each a complete bag;
     together they hold every message once."""
@@ -274,6 +278,7 @@ def test_split_size_names_files_like_rosbag2(tmp_path):
     assert total == 30
 
 
+@pytest.mark.slow
 def test_graph_cameras_record_closes_on_sigterm(tmp_path):
     """`canopy_graph --cameras ... --record` (live capture, image sequences standing in for
     webcams): SIGTERM leaves a complete bag that rosbags reads whole."""
@@ -338,6 +343,7 @@ for i in range(int(sys.argv[2])):
 """
 
 
+@pytest.mark.slow
 def test_an_interrupt_at_any_moment_of_a_writer_leaves_a_complete_file(tmp_path):
     """KeyboardInterrupt (what SIGINT/SIGTERM/SIGHUP become) at 40 different instants of
     create/write/close: every file is a complete bag (opening, closing and rotating are not

@@ -74,6 +74,7 @@ def test_flat_elliptic_leaf_within_half_percent(rig, pixel, dist, theta, normal)
 
 @pytest.mark.parametrize("bend,radius,sign", [("length", 150.0, -1.0), ("width", 120.0, 1.0),
                                               ("length", 200.0, 1.0)])
+@pytest.mark.slow
 def test_curved_leaf_lengths_follow_the_surface(rig, bend, radius, sign):
     leaf = _leaf(rig.P_left, (320, 240), 380.0, 20.0, [0.1, -0.3, -1.0], radius=radius, bend=bend,
                  bend_sign=sign)
@@ -237,6 +238,7 @@ def test_measure_organized_report_with_leaf_ids(rig, tmp_path):
     assert rows[0].startswith("id,length,width,area") and len(rows) == 3
 
 
+@pytest.mark.slow
 def test_measure_with_plant_mask_separates_leaves(rig, tmp_path):
     org, lab, leaves = _two_leaf_scene(rig)
     res = measure_scene(org, mask=(lab == 1) | (lab == 2), ground="camera")
@@ -335,6 +337,7 @@ def test_bad_inputs_give_clear_messages(rig, tmp_path):
 # ------------------------------------------------------------------ CLI
 
 
+@pytest.mark.slow
 def test_cli_measure_writes_report_csv_and_plot(rig, tmp_path, cli):
     import cv2
 

@@ -60,6 +60,7 @@ def test_marked_leaves_on_true_cloud(croton):
         assert m.extra["reliable"]
 
 
+@pytest.mark.slow
 def test_canopy_extents_on_true_cloud(croton, true_scene):
     sim, plant = croton
     rep = true_scene.report
@@ -94,6 +95,7 @@ def test_end_to_end_marked_leaves_within_targets(croton, reconstruction):
         assert abs(m.area / lf["area"] - 1) < 0.05
 
 
+@pytest.mark.slow
 def test_end_to_end_canopy_extents(croton, reconstruction, true_scene):
     """Height, width and depth within 1 % of the true cloud's in the same frame.
 

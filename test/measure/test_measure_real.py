@@ -8,8 +8,10 @@ stand about 2 m from the cameras and are a few hundred millimetres tall.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 
+@pytest.mark.slow
 def test_plants_end_to_end(shared_data, tmp_path):
     from canopy_stereo.geometry.camera import camera_centre
     from canopy_stereo.io.middlebury import load_middlebury_2014

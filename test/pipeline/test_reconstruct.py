@@ -46,6 +46,7 @@ def test_wrong_image_size_for_rig(paper_rig):
         reconstruct_pair(img, img, paper_rig)
 
 
+@pytest.mark.slow
 def test_hartley_rectification_still_gives_metric_points(paper_rig):
     """The paper's route: projective rectification from quasi-dense matches, matches mapped
     back through the inverse homographies, triangulated with the world-frame P matrices."""

@@ -31,6 +31,7 @@ def _camera_process(device, log_path, *params):
     return subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=open(log_path, "w"))
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
 def test_camera_node_on_a_fifo_logs_the_stall_and_stops_within_2s_of_sigint(tmp_path):
     """OpenCV blocks opening a FIFO that nobody writes to (16.5 s, deaf to Ctrl-C, when it ran
@@ -58,6 +59,7 @@ def test_camera_node_on_a_fifo_logs_the_stall_and_stops_within_2s_of_sigint(tmp_
     assert text.count("retrying with back-off") == 1  # logged once, not per attempt
 
 
+@pytest.mark.slow
 def test_camera_node_sigterm_on_a_healthy_sequence_stops_within_2s(tmp_path):
     import cv2
 

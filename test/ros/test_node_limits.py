@@ -120,6 +120,7 @@ def test_check_cloud_msg():
         limits.check_cloud_msg(short)
 
 
+@pytest.mark.slow
 def test_refusing_an_oversize_message_schedules_one_release(monkeypatch):
     calls = []
     monkeypatch.setattr("canopy_stereo.ros.context.release_free_memory", lambda hold_s=0.0: calls.append(hold_s) or True)
@@ -205,6 +206,7 @@ EXPECTED_LOG = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.ros
 def test_hostile_burst_into_node_processes_is_dropped_logged_and_memory_returns(harness, tmp_path):
     from canopy_stereo.ros.bag import BagReader
@@ -335,6 +337,7 @@ def test_drop_counters_stay_bounded_under_varying_hostile_sizes(harness):
     ({"FASTRTPS_DEFAULT_PROFILES_FILE": "/etc/mine.xml"}, False),
     ({"RMW_FASTRTPS_USE_QOS_FROM_XML": "0"}, False),
 ])
+@pytest.mark.slow
 def test_bounded_dds_memory_profile_unless_the_user_configures_fast_dds(tmp_path, user_env, applied):
     code = ("import os, rclpy; from canopy_stereo.ros.context import use_bounded_dds_memory as u; "
             "print(u(), os.environ.get('FASTRTPS_DEFAULT_PROFILES_FILE'), "
@@ -357,6 +360,7 @@ def test_bounded_dds_memory_profile_unless_the_user_configures_fast_dds(tmp_path
     assert "XMLPARSER" not in out.stderr and "Error" not in out.stderr, out.stderr  # the profile parses
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not os.path.isdir("/dev/shm"), reason="no POSIX shared memory directory")
 def test_fast_dds_shared_memory_segment_holds_several_frames(tmp_path):
     """A node process's participant gets the profile's 8 MiB shared-memory segment (Fast DDS's

@@ -195,6 +195,7 @@ def _lookup(tree, target, source):
     return invert_transform(a[common]) @ b[common]
 
 
+@pytest.mark.slow
 def test_recorded_bag_has_tf_static_and_depth_matching_points2(tmp_path):
     """Must-show: /tf_static in a recorded bag (read back with rosbags) connects the frame of
     points2 with the camera frames; the depth image, reprojected with its CameraInfo as

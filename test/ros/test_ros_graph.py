@@ -52,6 +52,7 @@ def test_bundled_bags_are_small_and_complete():
     assert rig.image_size == (710, 496) and rig.baseline == pytest.approx(169.843)
 
 
+@pytest.mark.slow
 def test_croton_bag_through_the_real_nodes_is_metric(croton, tmp_path):
     """One PointCloud2 per frame, median depth error < 1 % against the scene's truth,
     DisparityImage f/t from the rig; the recorded outputs read back with rosbags."""
@@ -114,6 +115,7 @@ def _bad_input_bag(path, croton_bag):
     return path
 
 
+@pytest.mark.slow
 def test_bad_input_keeps_the_graph_alive(croton, tmp_path):
     bag, rig = croton
     bad = _bad_input_bag(tmp_path / "bad.mcap", bag)
@@ -197,6 +199,7 @@ def test_cli_run_prints_figures_and_records(croton, tmp_path, cli):
     assert code == 2 and "bag not found" in stderr and "Traceback" not in stderr
 
 
+@pytest.mark.slow
 def test_cli_demo_writes_ply_disparity_png_and_summary(tmp_path, cli):
     from canopy_stereo.io.images import read_image
     from canopy_stereo.io.ply import read_ply
@@ -280,6 +283,7 @@ def test_graph_from_cameras(croton, tmp_path):
     assert 0.5 < z < 1.1 and len(pts) > 100_000
 
 
+@pytest.mark.slow
 def test_node_processes_tune_the_allocator_unless_the_environment_does():
     import os
     import subprocess

@@ -318,6 +318,7 @@ def test_segment_node_grabcut_rect_and_auto(harness):
 # --------------------------------------------------------------------------- camera_node
 
 
+@pytest.mark.slow
 def test_camera_node_image_sequence_and_device_loss(harness, tmp_path):
     from canopy_stereo.ros.nodes.camera import CameraNode
 
@@ -391,6 +392,7 @@ def test_hartley_homographies_from_parameters_give_the_same_cloud(harness, paper
     assert (infos[0].width, infos[0].height) == (640, 480)
 
 
+@pytest.mark.slow
 def test_node_executable_reads_the_rig_file(harness, repo_root, tmp_path):
     """``disparity_node --ros-args --params-file config/croton_rig.yaml`` in its own process:
     the rig file's P matrices and extras (disp_min/disp_max, elas.subpixel) become parameters."""

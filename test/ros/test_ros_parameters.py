@@ -119,6 +119,7 @@ def test_an_out_of_range_parameter_stops_the_node_with_one_line(ctx):
         _make(ctx, SegmentNode, False, scale=5.0)
 
 
+@pytest.mark.slow
 def test_camera_node_process_accepts_integer_fps(tmp_path, repo_root):
     """``camera_node --ros-args -p fps:=10`` (crashed before: an integer for a double)."""
     import os

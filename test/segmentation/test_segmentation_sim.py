@@ -31,6 +31,7 @@ def _depth(sim, matcher="sgbm", params=SGBM):
     return np.linalg.norm(rec.organized - camera_centre(sim.rig.P_left), axis=-1)
 
 
+@pytest.mark.slow
 def test_croton_colour_and_depth():
     """Red/yellow/green croton: depth finds what is near, ExG among the near
     pixels drops the terracotta pot and the soil."""
@@ -42,12 +43,14 @@ def test_croton_colour_and_depth():
     assert _iou(auto_plant_mask(sim.left, index="exg") > 0, truth) < _iou(mask, truth)
 
 
+@pytest.mark.slow
 def test_seedling_tray_colour_only():
     sim = render_scene("seedling_tray", seed=0)
     mask = auto_plant_mask(sim.left, index="exg") > 0
     assert _iou(mask, _truth(sim)) >= 0.9
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("matcher", ["elas", "sgbm"])
 def test_citrus_branch_depth_and_learned_colour(matcher):
     """Green leaves before green foliage: no vegetation index helps, depth does,
@@ -70,6 +73,7 @@ def test_citrus_branch_depth_and_learned_colour(matcher):
     assert _iou(seed_only, truth) >= 0.99
 
 
+@pytest.mark.slow
 def test_cli_segment_citrus_learned_colour(tmp_path, cli):
     """`canopy-stereo segment --auto --index none --depth`: learned colour by default,
     the depth cue alone with --no-colour-model."""
@@ -123,6 +127,7 @@ def test_colour_models_and_relabelling(rng):
         [GC_FGD, GC_PR_FGD, GC_PR_BGD, GC_BGD, GC_PR_FGD, GC_PR_BGD, GC_BGD, GC_BGD]]
 
 
+@pytest.mark.slow
 def test_colour_model_needs_a_depth_cue_and_no_index():
     from canopy_stereo.errors import ImageError
 

@@ -52,6 +52,7 @@ def test_correspondence_correctness_scores_exact_and_shifted_matches(croton):
         correspondence_correctness(xl, xr, truth[..., 0])
 
 
+@pytest.mark.slow
 def test_study_rows_against_exact_correspondences(croton):
     sim, truth = croton
     rows = run_study(sim.left, sim.right, ["sift", "qdmatch"], gt_right_pixels=truth)

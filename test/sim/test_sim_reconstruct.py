@@ -51,6 +51,7 @@ def test_reconstruction_of_croton_leaves_is_metric(croton, matcher):
     assert scale == pytest.approx(1.0, abs=0.005)
 
 
+@pytest.mark.slow
 def test_reconstruction_through_a_distorted_rig_is_metric(paper_rig):
     """The renderer's lens model and the pipeline's undistortion agree."""
     rig = replace(paper_rig, D_left=[-0.12, 0.05, 0.0008, -0.0005, 0.0],

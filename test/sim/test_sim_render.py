@@ -187,6 +187,7 @@ def test_sensor_gain_vignetting_and_noise():
         CameraEffects(vignetting=1.5)
 
 
+@pytest.mark.slow
 def test_sensor_effects_on_a_rendered_pair(clean_croton, paper_rig):
     effects = replace(CLEAN, gain_right=0.9, noise_sigma=1.0)
     sim = render_pair(clean_croton.scene, paper_rig, effects=effects)

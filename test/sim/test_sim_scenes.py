@@ -54,6 +54,7 @@ def test_croton_is_500_to_800_mm_away_with_its_marked_leaves_in_full_view(croton
     assert truth[1]["length"] == pytest.approx(160.0) and truth[2]["width"] == pytest.approx(86.0)
 
 
+@pytest.mark.slow
 def test_citrus_branch_has_many_small_leaves_that_occlude_each_other(paper_rig):
     rig = rig_at_resolution(paper_rig, 0.5)
     sim = render_scene("citrus_branch", rig, effects=CLEAN, supersample=1)
