@@ -77,7 +77,9 @@ def test_fusion_node_places_clouds_by_pose_and_resets(fusion_harness):
         poses.publish(msg)
         _send(clouds, transform_points(invert_transform(T), pts), cols, k)
     assert wait_for(lambda: node.fusion.view_count == 3, TIMEOUT)
-    assert node.counts["clouds_placed"] == 3 and node.counts.get("clouds_registered", 0) == 0
+    # the node counts just after the view is fused: wait for the count
+    assert wait_for(lambda: node.counts["clouds_placed"] == 3, TIMEOUT), node.counts
+    assert node.counts.get("clouds_registered", 0) == 0
     assert wait_for(lambda: node.counts["models_published"] >= 1 and not node._changed, TIMEOUT)
     model, colours = _latest_model(models, 0)
     d, _ = cKDTree(pts).query(model)
@@ -94,7 +96,8 @@ def test_fusion_node_registers_clouds_without_pose_and_drops_non_overlapping(fus
         T = np.linalg.matrix_power(STEP, k)
         _send(clouds, transform_points(invert_transform(T), pts), cols, k)
         assert wait_for(lambda: node.fusion.view_count == k + 1, TIMEOUT)
-    assert node.counts["clouds_registered"] == 1
+    # the node counts (and keeps last_result) just after the view is fused: wait for the count
+    assert wait_for(lambda: node.counts["clouds_registered"] == 1, TIMEOUT), node.counts
     res = node.last_result
     assert np.allclose(res.pose, STEP, atol=1e-4) and res.overlap > 0.9
     _send(clouds, pts + [3.0, 0.0, 0.0], cols, 2)                   # 3 m away: no overlap
