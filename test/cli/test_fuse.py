@@ -57,7 +57,9 @@ def test_fuse_ply_views_with_poses_file(tmp_path, cli):
     assert code == 0, stderr
     assert "poses given; residuals" in stdout and "v0 <- v1: rmse" in stdout
     cloud = read_ply(out)
-    assert cloud.unit == "mm" and cloud.colors is not None
+    # a fused voxel's colour is a mean of the patches' colours, which lie in 128..227
+    assert cloud.unit == "mm" and cloud.colors.shape == (len(cloud), 3)
+    assert cloud.colors.min() >= 128 and cloud.colors.max() <= 227
     views = cloud.extra["views"]
     assert views.max() == 3 and np.mean(views == 3) > 0.8          # the same scene from 3 poses
     pts, _ = patch_cloud()

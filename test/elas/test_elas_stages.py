@@ -243,7 +243,12 @@ def test_rasterize_covers_the_hull_exactly():
     for t, (i, j, k) in enumerate(tri):
         path = Path(verts[[i, j, k]])
         vv, uu = np.nonzero(tmap == t)
-        assert len(vv) > 0
+        # Pick's theorem: a triangle's pixels are at least its interior lattice points and at
+        # most its closed ones (area A, B lattice points on its edges)
+        a, b, c = verts[[i, j, k]].astype(np.int64)
+        area = abs((b - a)[0] * (c - a)[1] - (b - a)[1] * (c - a)[0]) / 2
+        boundary = sum(np.gcd(*np.abs(q - p)) for p, q in ((a, b), (b, c), (c, a)))
+        assert area - boundary / 2 + 1 <= len(vv) <= area + boundary / 2 + 1, (len(vv), area, boundary)
         assert path.contains_points(np.column_stack([uu, vv]), radius=1e-6).all() or \
             path.contains_points(np.column_stack([uu, vv]), radius=-1e-6).all()
 

@@ -228,7 +228,14 @@ def test_measure_organized_report_with_leaf_ids(rig, tmp_path):
     assert canopy["top_above_ground"] == pytest.approx(np.max(pts @ np.asarray(frame["z_axis"]))
                                                         + frame["ground_plane"][3], rel=1e-6)
     assert canopy["leaf_area"] == pytest.approx(sum(lf["area"] for lf in report["leaves"]))
-    assert canopy["hull_volume"] > 0 and canopy["voxel_volume"] > 0
+    # volumes of the two leaves' points: scipy's convex hull, the occupied voxels counted here
+    from scipy.spatial import ConvexHull
+
+    assert canopy["n_points"] == len(pts)
+    assert canopy["hull_volume"] == pytest.approx(ConvexHull(pts).volume, rel=1e-9)
+    vs = canopy["voxel_size"]
+    occupied = len(np.unique(np.floor((pts - pts.min(axis=0)) / vs).astype(np.int64), axis=0))
+    assert canopy["occupied_voxels"] == occupied and canopy["voxel_volume"] == pytest.approx(occupied * vs ** 3)
     assert canopy["leaf_area_density"] == pytest.approx(canopy["leaf_area"] / canopy["hull_volume"])
     # JSON and CSV
     out = write_report(report, tmp_path / "r.json", csv=tmp_path / "leaves.csv")

@@ -78,7 +78,16 @@ def test_canopy_extents_on_true_cloud(croton, true_scene):
     assert abs(can["depth"] / ext[1] - 1) < 0.01
     assert abs(can["height"] / ext[2] - 1) < 0.01
     assert 300 < can["height"] < 600 and 200 < can["width"] < 600
-    assert can["hull_volume"] > 0 and can["voxel_volume"] > 0 and can["leaf_area_density"] > 0
+    # volumes of the plant's true points: scipy's convex hull, the occupied voxels counted here
+    # (float32 truth: the report's hull and voxel grid agree to rounding)
+    from scipy.spatial import ConvexHull
+
+    assert can["n_points"] == len(pts)
+    assert can["hull_volume"] == pytest.approx(ConvexHull(pts).volume, rel=1e-4)
+    vs = can["voxel_size"]
+    occupied = len(np.unique(np.floor((pts - pts.min(axis=0)) / vs).astype(np.int64), axis=0))
+    assert can["voxel_volume"] == pytest.approx(occupied * vs ** 3, rel=2e-3)
+    assert can["leaf_area_density"] == pytest.approx(can["leaf_area"] / can["hull_volume"])
     areas = {lf["id"]: lf["area"] for lf in rep["leaves"]}
     assert can["leaf_area"] == pytest.approx(sum(areas.values()))
 

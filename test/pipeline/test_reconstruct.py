@@ -34,8 +34,14 @@ def test_mask_restricts_points(shared_data):
     mask = np.zeros(s["left"].shape[:2], np.uint8)
     mask[100:200, 100:250] = 255
     rec = reconstruct_pair(s["left"], s["right"], s["rig"], mask=mask)
-    assert len(rec.points) > 0
     assert np.all(mask[rec.pixels[:, 1], rec.pixels[:, 0]] > 0)
+    # exactly the unmasked reconstruction's points inside the mask
+    full = reconstruct_pair(s["left"], s["right"], s["rig"])
+    inside = mask[full.pixels[:, 1], full.pixels[:, 0]] > 0
+    assert len(rec.points) == inside.sum() == np.sum(np.all(np.isfinite(full.organized), -1) & (mask > 0))
+    order, order_full = np.lexsort(rec.pixels.T), np.lexsort(full.pixels[inside].T)
+    np.testing.assert_array_equal(rec.pixels[order], full.pixels[inside][order_full])
+    np.testing.assert_allclose(rec.points[order], full.points[inside][order_full])
     with pytest.raises(ImageError, match="mask"):
         reconstruct_pair(s["left"], s["right"], s["rig"], mask=np.zeros((10, 10), np.uint8))
 

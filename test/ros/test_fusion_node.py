@@ -83,7 +83,8 @@ def test_fusion_node_places_clouds_by_pose_and_resets(fusion_harness):
     assert wait_for(lambda: node.counts["models_published"] >= 1 and not node._changed, TIMEOUT)
     model, colours = _latest_model(models, 0)
     d, _ = cKDTree(pts).query(model)
-    assert np.median(d) < 0.00075 and colours is not None          # world frame, metres
+    assert np.median(d) < 0.00075                                  # world frame, metres
+    assert colours.shape == (len(model), 3) and np.all(colours == 120)  # every view's grey, averaged
     future = reset.call_async(Trigger.Request())
     assert wait_for(future.done, TIMEOUT) and future.result().success
     assert "forgot 3 cloud(s)" in future.result().message and node.fusion.view_count == 0

@@ -163,7 +163,10 @@ def test_diagnostics_report_rates_drops_latency_and_statistics(ctx):
         v = status_values(st)
         assert st.level == DiagnosticStatus.WARN and "too small" in st.message
         assert v["in /in total"] == "10" and v["out /out total"] == "8"
-        assert float(v["in /in Hz"]) > 0 and v["dropped"] == "1" and v["dropped: frame: too small"] == "1"
+        window = float(v["window s"])  # the rates are the counts over the window (3 significant digits)
+        assert window >= 0.05 and v["dropped"] == "1" and v["dropped: frame: too small"] == "1"
+        assert float(v["in /in Hz"]) == pytest.approx(10 / window, rel=0.01)
+        assert float(v["out /out Hz"]) == pytest.approx(8 / window, rel=0.01)
         assert float(v["latency median ms"]) >= 50 * 0.9
         assert float(v["pair offset ms mean"]) == pytest.approx(4.5)
         assert float(v["pair offset ms max"]) == 5.0

@@ -67,7 +67,12 @@ def test_disparity_and_depth_pictures_have_a_colour_bar_with_units():
     assert (pic[:y0 - 2, 320:] < 100).any() and (pic[:y0 - 2, :200] < 100).any()
     z = depth_picture(1.0 / d, unit="m")
     assert z.shape == pic.shape
-    assert COLORMAP is not None
+    # the colour map is OpenCV's turbo, value for value: colorize maps lo..hi onto its 256 entries
+    import cv2
+
+    assert COLORMAP == cv2.COLORMAP_TURBO
+    ramp = np.arange(256, dtype=np.uint8)[None]
+    assert np.array_equal(colorize(ramp.astype(float), lo=0, hi=255), cv2.applyColorMap(ramp, cv2.COLORMAP_TURBO))
 
 
 def test_progress_only_on_a_terminal():
