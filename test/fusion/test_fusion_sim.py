@@ -114,7 +114,13 @@ def test_fused_coverage_beats_single_views(turntable):
     best = max(s.coverage for s in single)
     assert model.coverage > best + 0.2 and model.coverage > 0.85
     assert model.median_error < 1.2 * min(s.median_error for s in single) + 0.5
-    assert fused.view_count.max() >= 3 and fused.removed_free_space > 0
+    assert fused.view_count.max() >= 3
+    # voxels seen through by another view were removed, each with its points: the points kept
+    # are the input less at least one per removed voxel
+    lost = fused.stats["input_points"] - fused.point_count.sum()
+    assert 0 < fused.removed_free_space <= lost
+    kept = fuse_views(ring, poses, voxel=2.0, free_space=False)
+    assert kept.removed_free_space == 0 and kept.point_count.sum() == kept.stats["input_points"]
     assert fused.colors is not None and len(fused.colors) == len(fused)
 
 
