@@ -1,8 +1,10 @@
-"""The calibrate command (points and chessboard), including bad input."""
+"""The calibrate command (points, chessboard, the paper layout), including bad input (``--world-rig``
+from rendered images: test/geometry/test_world_rig.py, beside its rendering)."""
 import numpy as np
 import pytest
 
 from canopy_stereo.geometry.camera import camera_centre, project
+from canopy_stereo.geometry.world_rig import load_placements, paper_layout_placements
 from canopy_stereo.io.rig import load_rig
 
 from test.conftest import run_cli_subprocess
@@ -57,3 +59,18 @@ def test_bad_input_one_line_no_traceback(tmp_path, paper_rig, rng, case):
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1, res.stderr
     assert word in lines[0] and "Traceback" not in res.stderr
+
+
+def test_cli_paper_layout_writes_the_45_placements(tmp_path, cli):
+    code, out, err = cli("calibrate", "--paper-layout", "-o", tmp_path / "layout.yaml")
+    assert code == 0, err
+    pl = load_placements(tmp_path / "layout.yaml")
+    ref = paper_layout_placements()
+    assert len(pl) == 45 and pl.pattern == (7, 5) and pl.square == 50.0
+    assert all(np.allclose(a.origin, b.origin, atol=1e-3) for a, b in zip(pl, ref))
+    code, out, err = cli("calibrate", "--paper-layout", "--first-mark", "600", "--marks-per-line", "5",
+                         "--line-angles=-15,15", "-o", tmp_path / "l2.yaml")
+    assert code == 0, err
+    pl2 = load_placements(tmp_path / "l2.yaml")
+    assert len(pl2) == 10
+    assert np.isclose(np.degrees(np.arctan2(pl2[0].x_axis[2], pl2[0].x_axis[0])), 15.0)

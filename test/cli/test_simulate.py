@@ -1,4 +1,4 @@
-"""``canopy-stereo simulate``: files written, their contents, and error handling."""
+"""``canopy-stereo simulate``: files written, their contents, and error handling; ``simulate calibration``."""
 import json
 
 import cv2
@@ -7,6 +7,8 @@ import pytest
 
 from canopy_stereo.cli import main
 from canopy_stereo.geometry.camera import project
+from canopy_stereo.geometry.world_rig import (board_world_points, detect_board_corners, load_placements,
+                                              paper_layout_placements, write_placements)
 from canopy_stereo.io.rig import load_rig, save_rig
 from canopy_stereo.sim import default_rig_path, rig_at_resolution
 
@@ -78,3 +80,29 @@ def test_simulate_reports_bad_input_in_one_line(tmp_path, capsys, argv, message)
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_cli_simulate_calibration_writes_images_and_placements(tmp_path, cli, paper_rig):
+    pl = paper_layout_placements(marks_per_line=1)
+    write_placements(pl, tmp_path / "mine.yaml")
+    code, out, err = cli("simulate", "calibration", "-o", tmp_path / "sim", "--placements",
+                         tmp_path / "mine.yaml", "--samples", "4")
+    assert code == 0, err
+    files = sorted(p.name for p in (tmp_path / "sim").iterdir())
+    assert files == ["left_00.png", "left_01.png", "left_02.png", "placements.yaml", "rig.yaml",
+                     "right_00.png", "right_01.png", "right_02.png"]
+    back = load_placements(tmp_path / "sim" / "placements.yaml")
+    assert back.pairs == [0, 1, 2]
+    import cv2
+
+    img = cv2.imread(str(tmp_path / "sim" / "left_01.png"))
+    assert img.shape == (480, 640, 3)
+    # the board is where the written rig and placement put it (either corner order: 7x5 is symmetric)
+    from canopy_stereo.io.rig import load_rig
+
+    corners = detect_board_corners(img, (7, 5))
+    x = project(load_rig(tmp_path / "sim" / "rig.yaml").P_left, board_world_points(back[1], back.pattern, back.square))
+    rms = min(np.sqrt(np.mean(np.sum((c - x) ** 2, 1))) for c in (corners, corners[::-1]))
+    assert rms < 0.1, rms
+    assert "calibrate with: canopy-stereo calibrate --world-rig" in out

@@ -352,47 +352,6 @@ def test_cli_world_rig_calibration_and_contradicting_placements(tmp_path, cli, r
     assert code == 2 and len(err.strip().splitlines()) == 1 and "--pattern 9x6" in err
 
 
-def test_cli_paper_layout_writes_the_45_placements(tmp_path, cli):
-    code, out, err = cli("calibrate", "--paper-layout", "-o", tmp_path / "layout.yaml")
-    assert code == 0, err
-    pl = load_placements(tmp_path / "layout.yaml")
-    ref = paper_layout_placements()
-    assert len(pl) == 45 and pl.pattern == (7, 5) and pl.square == 50.0
-    assert all(np.allclose(a.origin, b.origin, atol=1e-3) for a, b in zip(pl, ref))
-    code, out, err = cli("calibrate", "--paper-layout", "--first-mark", "600", "--marks-per-line", "5",
-                         "--line-angles=-15,15", "-o", tmp_path / "l2.yaml")
-    assert code == 0, err
-    pl2 = load_placements(tmp_path / "l2.yaml")
-    assert len(pl2) == 10
-    assert np.isclose(np.degrees(np.arctan2(pl2[0].x_axis[2], pl2[0].x_axis[0])), 15.0)
-
-
-@pytest.mark.slow
-def test_cli_simulate_calibration_writes_images_and_placements(tmp_path, cli, paper_rig):
-    pl = paper_layout_placements(marks_per_line=1)
-    write_placements(pl, tmp_path / "mine.yaml")
-    code, out, err = cli("simulate", "calibration", "-o", tmp_path / "sim", "--placements",
-                         tmp_path / "mine.yaml", "--samples", "4")
-    assert code == 0, err
-    files = sorted(p.name for p in (tmp_path / "sim").iterdir())
-    assert files == ["left_00.png", "left_01.png", "left_02.png", "placements.yaml", "rig.yaml",
-                     "right_00.png", "right_01.png", "right_02.png"]
-    back = load_placements(tmp_path / "sim" / "placements.yaml")
-    assert back.pairs == [0, 1, 2]
-    import cv2
-
-    img = cv2.imread(str(tmp_path / "sim" / "left_01.png"))
-    assert img.shape == (480, 640, 3)
-    # the board is where the written rig and placement put it (either corner order: 7x5 is symmetric)
-    from canopy_stereo.io.rig import load_rig
-
-    corners = detect_board_corners(img, (7, 5))
-    x = project(load_rig(tmp_path / "sim" / "rig.yaml").P_left, board_world_points(back[1], back.pattern, back.square))
-    rms = min(np.sqrt(np.mean(np.sum((c - x) ** 2, 1))) for c in (corners, corners[::-1]))
-    assert rms < 0.1, rms
-    assert "calibrate with: canopy-stereo calibrate --world-rig" in out
-
-
 @pytest.mark.slow
 def test_calibration_placements_follow_any_rig(repo_root):
     """The paper layout moved in front of another rig (its world frame and unit), far

@@ -1,6 +1,6 @@
-"""The whole graph: bundled bags replayed through the real nodes, bad input, CLI run/demo, launch."""
+"""The whole graph: bundled bags replayed through the real nodes, bad input, launch (the run and demo
+commands: test/cli/test_run.py, test_demo.py)."""
 import ast
-import re
 from pathlib import Path
 
 import numpy as np
@@ -189,47 +189,6 @@ def test_run_needs_the_input_topics(croton, tmp_path):
     bag, rig = croton
     with pytest.raises(CanopyStereoError, match="no /other/left/image_raw .*topics: /stereo/left"):
         run_bag(bag, rig, options=GraphOptions(namespace="/other", parameter_services=False))
-
-
-def test_cli_run_prints_figures_and_records(croton, tmp_path, cli):
-    bag, _ = croton
-    out = tmp_path / "run.mcap"
-    code, stdout, stderr = cli("run", "--bag", bag, "--rig", bundled_rig("croton"), "--rate", "0",
-                               "--record", out, "--matcher", "sgbm", "--no-segment")
-    assert code == 0, stderr
-    assert "frames in: 4, frames out: 4" in stdout
-    assert re.search(r"throughput: [0-9.]+ frames/s", stdout)
-    assert re.search(r"latency raw pair -> points2: median \d+ ms", stdout)
-    rec = BagReader(out)
-    assert rec.topics["/stereo/points2"].message_count == 4 and "/stereo/left/mask" not in rec.topics
-    code, _, stderr = cli("run", "--bag", tmp_path / "missing.mcap", "--rig", bundled_rig("croton"))
-    assert code == 2 and "bag not found" in stderr and "Traceback" not in stderr
-
-
-@pytest.mark.slow
-def test_cli_demo_writes_ply_disparity_png_and_summary(tmp_path, cli):
-    from canopy_stereo.io.images import read_image
-    from canopy_stereo.io.ply import read_ply
-
-    code, stdout, stderr = cli("demo", "--scene", "plants", "--out", tmp_path)
-    assert code == 0, stderr
-    cloud = read_ply(tmp_path / "plants.ply")
-    assert cloud.unit == "mm" and len(cloud) > 100_000 and cloud.colors.shape == (len(cloud), 3)
-    # Middlebury Plants: the plants stand about 2 to 3 m from the cameras
-    assert 1500 < np.median(cloud.points[:, 2]) < 3500
-    plant = read_ply(tmp_path / "plants_plant.ply")  # the plant-only cloud: a part of the whole
-    assert plant.unit == "mm" and 10_000 < len(plant) < len(cloud)
-    from canopy_stereo.viz.colour import picture_offset
-
-    png = read_image(tmp_path / "plants_disparity.png")  # the map, with a title and a colour bar
-    y0, _ = picture_offset((496, 710))
-    assert png.shape[0] == 496 + y0 + 6 and png.shape[1] > 710
-    assert (tmp_path / "plants_mask.png").is_file() and (tmp_path / "plants_depth.png").is_file()
-    summary = (tmp_path / "plants_summary.txt").read_text()
-    assert "frames in: 1, frames out: 1" in summary and "points" in summary
-    assert "canopy (plant mask): height" in summary and "leaves measured:" in summary
-    assert "no figure after warm-up" in summary
-    assert "scene plants" in stdout
 
 
 def test_launch_file_names_only_existing_executables():

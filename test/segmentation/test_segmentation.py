@@ -161,26 +161,3 @@ def test_mask_and_id_image_io(tmp_path):
     (tmp_path / "bad.png").write_text("not an image")
     with pytest.raises(ImageError, match="cannot read"):
         read_leaf_ids(tmp_path / "bad.png")
-
-
-def test_cli_segment(tmp_path, cli):
-    from canopy_stereo.io.pfm import write_pfm
-
-    img, truth = _scene(leaf_bgr=(50, 60, 200))
-    cv2.imwrite(str(tmp_path / "img.png"), img)
-    code, out, err = cli("segment", tmp_path / "img.png", "--rect", "30,40,270,160", "-o", tmp_path / "r.png")
-    assert code == 0, err
-    assert _iou(read_mask(tmp_path / "r.png"), truth) > 0.85
-    disp = np.where(truth, 40.0, 12.0).astype(np.float32)
-    disp[:3] = np.inf  # unknown
-    write_pfm(tmp_path / "d.pfm", disp)
-    code, out, err = cli("segment", tmp_path / "img.png", "--disparity", tmp_path / "d.pfm", "--index", "none",
-                         "-o", tmp_path / "a.png")
-    assert code == 0, err
-    assert _iou(read_mask(tmp_path / "a.png"), truth) > 0.95
-    assert "% plant" in out
-    # bad input: one line, exit 2
-    code, out, err = cli("segment", tmp_path / "img.png", "--rect", "1,2,3", "-o", tmp_path / "x.png")
-    assert code == 2 and "x,y,w,h" in err and len(err.strip().splitlines()) == 1
-    code, out, err = cli("segment", tmp_path / "nope.png", "-o", tmp_path / "x.png")
-    assert code == 2 and "not found" in err

@@ -73,26 +73,6 @@ def test_citrus_branch_depth_and_learned_colour(matcher):
     assert _iou(seed_only, truth) >= 0.99
 
 
-@pytest.mark.slow
-def test_cli_segment_citrus_learned_colour(tmp_path, cli):
-    """`canopy-stereo segment --auto --index none --depth`: learned colour by default,
-    the depth cue alone with --no-colour-model."""
-    import cv2
-
-    sim = render_scene("citrus_branch", seed=0)
-    truth = _truth(sim)
-    cv2.imwrite(str(tmp_path / "left.png"), sim.left)
-    np.save(tmp_path / "dist.npy", _depth(sim, "elas", None))
-    ious = {}
-    for extra in ((), ("--no-colour-model",)):
-        code, out, err = cli("segment", tmp_path / "left.png", "--depth", tmp_path / "dist.npy",
-                             "--index", "none", *extra, "-o", tmp_path / "m.png")
-        assert code == 0, err
-        assert ("learned colour" in out) == (not extra)
-        ious[extra] = _iou(cv2.imread(str(tmp_path / "m.png"), cv2.IMREAD_GRAYSCALE) > 0, truth)
-    assert ious[()] >= 0.93 and ious[("--no-colour-model",)] < 0.9
-
-
 def test_colour_models_and_relabelling(rng):
     from canopy_stereo.errors import ImageError
     from canopy_stereo.segmentation.colour_model import fit_colour_gmm, relabel_by_colour
