@@ -80,8 +80,8 @@ def bench_processes(rate_hz: float, n_frames: int, log_dir: Path, matcher: str =
 
     from canopy_stereo.ros.context import private_domain_id
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
-    from ros_harness import PROCESSING_NODES, Probe, ProcessGroup, croton_frames, feed_pairs, wait_for
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout's test package
+    from test.support.ros_harness import PROCESSING_NODES, Probe, ProcessGroup, croton_frames, feed_pairs, wait_for
 
     domain = private_domain_id() if domain_id is None else domain_id
     group = ProcessGroup(domain, log_dir)

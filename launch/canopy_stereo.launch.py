@@ -16,7 +16,7 @@ pattern), ``fps`` (camera rate; the left/right pairing tolerance is half its per
 every pass).
 
 In bag mode ``rectify_node`` measures the frame period from the stamps and pairs within
-half of it. The tests evaluate this file with ``test/launch_eval.py`` (launch and
+half of it. The tests evaluate this file with ``test/support/launch_eval.py`` (launch and
 launch_ros are not on PyPI) and start the commands it describes as processes.
 """
 from launch import LaunchDescription

@@ -1,4 +1,4 @@
-"""Shared fixtures: repository paths, the paper rig, ../shared/data, CLI runner."""
+"""Shared fixtures: repository paths, the paper rig, ../shared/data, CLI runner, ROS harnesses."""
 from __future__ import annotations
 
 import os
@@ -75,10 +75,29 @@ def ros_processes(tmp_path):
     logs are in ``tmp_path / "logs"``)."""
     pytest.importorskip("rclpy")
     from canopy_stereo.ros.context import private_domain_id
-    from ros_harness import ProcessGroup
+    from test.support.ros_harness import ProcessGroup
 
     group = ProcessGroup(private_domain_id(), tmp_path / "logs")
     try:
         yield group
     finally:
         group.stop_all()
+
+
+@pytest.fixture
+def harness():
+    """The one in-process spin harness (:class:`test.support.ros_harness.Harness`): an rclpy
+    context on this test process's private DDS domain, a helper node ``/stereo/test_helper``
+    (``publisher``, ``collect``, ``connect``) and every node ``harness.add``-ed, spun by one
+    executor in a background thread; all nodes destroyed and the context shut down after the
+    test."""
+    pytest.importorskip("rclpy")
+    from canopy_stereo.ros.context import ros_context
+    from test.support.ros_harness import Harness
+
+    with ros_context() as ctx:
+        h = Harness(ctx)
+        try:
+            yield h
+        finally:
+            h.close()

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import ast
 
-from conftest import REPO
+from test.conftest import REPO
 
 #: ``(class, function)`` that must keep positional options, each with its reason.
 EXEMPT = {

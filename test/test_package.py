@@ -3,7 +3,7 @@ import importlib
 import re
 import xml.etree.ElementTree as ET
 
-from conftest import REPO
+from test.conftest import REPO
 
 
 def test_package_xml_is_format_3_with_valid_maintainer():

@@ -1,0 +1,1 @@
+"""Tests of canopy_stereo.batch (``canopy-stereo batch`` on Dask)."""

@@ -1,0 +1,1 @@
+"""Tests of canopy_stereo.disparity (metrics, registry)."""

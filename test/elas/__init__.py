@@ -1,0 +1,1 @@
+"""Tests of canopy_stereo.elas (per stage and end to end)."""

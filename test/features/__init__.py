@@ -1,0 +1,1 @@
+"""Tests of canopy_stereo.features (matchers, quasi-dense matching, the study)."""

@@ -1,0 +1,1 @@
+"""Tests of canopy_stereo.fusion (registration, pose graph, voxel fusion)."""

@@ -1,0 +1,1 @@
+"""Tests of canopy_stereo.geometry (cameras, calibration, rectification, triangulation)."""

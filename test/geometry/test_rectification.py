@@ -1,0 +1,125 @@
+import numpy as np
+import pytest
+
+from canopy_stereo.geometry.camera import project
+from canopy_stereo.geometry.distortion import distort_pixels, undistort_pixels
+from canopy_stereo.geometry.rectification import (
+    StereoRectifier, fusiello_rectify, hartley_rectify)
+from canopy_stereo.geometry.triangulation import apply_homography
+
+
+def _scene(rng, n):
+    return np.column_stack([rng.uniform(-200, 250, n), rng.uniform(-200, 100, n), rng.uniform(400, 900, n)])
+
+
+def test_fusiello_rows_agree(paper_rig, rng):
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    X = _scene(rng, 3000)
+    pl = apply_homography(rect.H_left, project(paper_rig.P_left, X))
+    pr = apply_homography(rect.H_right, project(paper_rig.P_right, X))
+    assert np.abs(pl[:, 1] - pr[:, 1]).max() < 0.01
+    d = pl[:, 0] - pr[:, 0]
+    assert np.all(d > 0)
+    # disparity follows f B / Z in the rectified frame
+    c = -np.linalg.solve(rect.P_rect_left[:, :3], rect.P_rect_left[:, 3])
+    Z = (X - c) @ rect.R_rect[2]
+    assert np.allclose(d, rect.focal_length * rect.baseline / Z + rect.doffs, atol=1e-6)
+    # new cameras keep the old centres
+    assert np.allclose(project(rect.P_rect_left, X), pl, atol=1e-6)
+
+
+def test_hartley_from_matches_aligns_rows(paper_rig, rng):
+    X = _scene(rng, 400)
+    xl = project(paper_rig.P_left, X) + rng.normal(0, 0.1, (400, 2))
+    xr = project(paper_rig.P_right, X) + rng.normal(0, 0.1, (400, 2))
+    rect = hartley_rectify(xl, xr, paper_rig.image_size)
+    X2 = _scene(rng, 1000)
+    pl = apply_homography(rect.H_left, project(paper_rig.P_left, X2))
+    pr = apply_homography(rect.H_right, project(paper_rig.P_right, X2))
+    assert np.median(np.abs(pl[:, 1] - pr[:, 1])) < 0.3
+    d = pl[:, 0] - pr[:, 0]
+    lo, hi = rect.disparity_range
+    assert np.mean((d >= lo) & (d <= hi)) > 0.98
+    # not mirrored: left-right order and up-down order of points are kept
+    assert np.corrcoef(pl[:, 0], project(paper_rig.P_left, X2)[:, 0])[0, 1] > 0.9
+    assert np.corrcoef(pl[:, 1], project(paper_rig.P_left, X2)[:, 1])[0, 1] > 0.9
+
+
+def test_distortion_round_trip(paper_rig, rng):
+    D = np.array([-0.26, -0.05, 0.002, -0.0003, 0.25])
+    xy = np.column_stack([rng.uniform(0, 640, 500), rng.uniform(0, 480, 500)])
+    back = undistort_pixels(paper_rig.P_left, D, distort_pixels(paper_rig.P_left, D, xy))
+    assert np.abs(back - xy).max() < 1e-6
+
+
+def test_rectifier_moves_pixels_where_homography_says(paper_rig):
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    img = np.zeros((480, 640), np.uint8)
+    img[200:203, 300:303] = 255
+    lr, _ = StereoRectifier(paper_rig, rect).rectify(img, img)
+    v, u = np.nonzero(lr > 128)
+    expect = apply_homography(rect.H_left, np.array([[301.0, 201.0]]))[0]
+    assert abs(u.mean() - expect[0]) < 0.6 and abs(v.mean() - expect[1]) < 0.6
+
+
+def test_real_chessboard_rig(shared_data):
+    from canopy_stereo.geometry.chessboard import calibrate_stereo_chessboard, detect_stereo_chessboards
+    from canopy_stereo.io.images import ImageFiles
+
+    d = shared_data / "opencv_stereo_calib_chessboard"
+    lefts, rights = ImageFiles(str(d / "left*.jpg"), color=False), ImageFiles(str(d / "right*.jpg"), color=False)
+    cal = calibrate_stereo_chessboard(lefts, rights, pattern=(9, 6), square_size=25.0)
+    assert cal.rms_stereo <= 0.5
+    rect = fusiello_rectify(cal.P_left, cal.P_right, (640, 480))
+    views = detect_stereo_chessboards(lefts, rights)
+    dv = []
+    for cl, cr in zip(views.left, views.right):
+        pl = apply_homography(rect.H_left, undistort_pixels(cal.P_left, cal.D_left, cl))
+        pr = apply_homography(rect.H_right, undistort_pixels(cal.P_right, cal.D_right, cr))
+        dv.append(pl[:, 1] - pr[:, 1])
+    assert np.median(np.abs(np.concatenate(dv))) <= 0.5
+    # corners triangulate back close to the board model (25 mm squares)
+    assert np.all(cal.check.mean_abs < [1.0, 1.0, 2.0])
+
+
+@pytest.mark.slow
+def test_hartley_from_pooled_qdmatch_on_raw_chessboard_pairs(shared_data):
+    """Issue 6 target: Hartley from quasi-dense matches, corners' median |dv| <= 0.5 px."""
+    from canopy_stereo.geometry.chessboard import calibrate_stereo_chessboard, find_corners
+    from canopy_stereo.io.images import ImageFiles, read_image
+    from canopy_stereo.io.rig import Rig
+    from canopy_stereo.pipeline.reconstruct import rectify_rig
+
+    d = shared_data / "opencv_stereo_calib_chessboard"
+    cal = calibrate_stereo_chessboard(ImageFiles(str(d / "left*.jpg"), color=False),
+                                      ImageFiles(str(d / "right*.jpg"), color=False), pattern=(9, 6), square_size=25.0)
+    rig = Rig(cal.P_left, cal.P_right, (640, 480), D_left=cal.D_left, D_right=cal.D_right)
+    names = ["01", "02", "03", "04", "05", "06", "07", "08", "09", "11", "12", "13", "14"]
+    pairs = [(read_image(d / f"left{n}.jpg"), read_image(d / f"right{n}.jpg")) for n in names]
+    rect = rectify_rig(rig, "hartley", match_pairs=pairs)
+    dv = []
+    for left, right in pairs:
+        cl, cr = find_corners(left[:, :, 0], (9, 6)), find_corners(right[:, :, 0], (9, 6))
+        pl = apply_homography(rect.H_left, undistort_pixels(rig.P_left, rig.D_left, cl))
+        pr = apply_homography(rect.H_right, undistort_pixels(rig.P_right, rig.D_right, cr))
+        dv.append(pl[:, 1] - pr[:, 1])
+    assert np.median(np.abs(np.concatenate(dv))) <= 0.5
+
+
+def test_cached_rectifier_is_reused_only_for_the_same_geometry(paper_rig):
+    import dataclasses
+
+    from canopy_stereo.geometry.rectification import StereoRectifier, cached_rectifier
+
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    a = cached_rectifier(paper_rig, rect)
+    same = dataclasses.replace(paper_rig, P_left=paper_rig.P_left.copy())  # equal values, new arrays
+    assert cached_rectifier(same, fusiello_rectify(same.P_left, same.P_right, same.image_size)) is a
+    distorted = dataclasses.replace(paper_rig, D_left=np.array([0.05, 0.0, 0.0, 0.0, 0.0]))
+    b = cached_rectifier(distorted, rect)
+    assert b is not a
+    img = np.random.default_rng(0).integers(0, 256, (paper_rig.image_size[1], paper_rig.image_size[0], 3), np.uint8)
+    for rectifier, rig in ((a, paper_rig), (b, distorted)):
+        want = StereoRectifier(rig, rect).rectify(img, img)
+        got = rectifier.rectify(img, img)
+        assert all(np.array_equal(g, w) for g, w in zip(got, want))

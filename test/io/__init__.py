@@ -1,0 +1,1 @@
+"""Tests of canopy_stereo.io and the MCAP bags (reader, writer, recorder, damage)."""

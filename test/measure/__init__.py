@@ -1,0 +1,1 @@
+"""Tests of canopy_stereo.measure (leaves and canopy against exact answers)."""

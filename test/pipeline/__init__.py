@@ -1,0 +1,1 @@
+"""Tests of canopy_stereo.pipeline (reconstruction of a pair)."""

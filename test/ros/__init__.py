@@ -1,0 +1,1 @@
+"""Tests of canopy_stereo.ros (nodes in-process and as processes, messages, frames, launch)."""

@@ -1,0 +1,101 @@
+"""benchmarks/bench_graph.py: its configurations, frames, rigs and CPU accounting (the speed
+figures themselves are the benchmark's, not a test's)."""
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+pytest.importorskip("rclpy")
+import bench_graph  # noqa: E402
+
+
+def test_configs_parse_and_cover_the_matrix():
+    c = bench_graph.Config.parse("processes:elas:mask:640x480")
+    assert (c.mode, c.matcher, c.mask, c.size) == ("processes", "elas", True, "640x480")
+    assert str(c) == "processes:elas:mask:640x480"
+    assert c.nodes == ("rectify_node", "disparity_node", "segment_node", "point_cloud_node")
+    assert "segment_node" not in bench_graph.Config.parse("inprocess:sgbm:nomask:320x240").nodes
+    every = bench_graph.all_configs()
+    assert len(every) == len(set(every)) == 24
+    for bad, word in (("processes:elas:mask", "MODE:MATCHER:MASK:SIZE"), ("threads:elas:mask:640x480", "mode"),
+                      ("processes:bm:mask:640x480", "matcher"), ("processes:elas:on:640x480", "mask"),
+                      ("processes:elas:mask:800x600", "size")):
+        with pytest.raises(ValueError, match=word):
+            bench_graph.Config.parse(bad)
+
+
+def test_node_parameters_from_the_command_line():
+    assert bench_graph.parse_node_parameter("disparity_node:elas.subsampling=true") == (
+        "disparity_node", "elas.subsampling", True)
+    assert bench_graph.parse_node_parameter("segment_node:recut_every=1") == ("segment_node", "recut_every", 1)
+    for bad in ("disparity_node", "disparity_node:threads", ":x=1"):
+        with pytest.raises(ValueError, match="NODE:NAME=VALUE"):
+            bench_graph.parse_node_parameter(bad)
+
+
+@pytest.mark.parametrize("size", ["320x240", "640x480", "1280x960"])
+def test_bench_frames_and_scaled_rig_agree(size):
+    """The scaled, cropped rig projects a world point where the crop + resize puts its pixel."""
+    from canopy_stereo.geometry.camera import project
+    from canopy_stereo.io.rig import load_rig
+    from canopy_stereo.ros.bundled import bundled_rig
+
+    rig, frames = bench_graph.bench_frames("plants", size, n_frames=3)
+    w, h = (int(v) for v in size.split("x"))
+    assert rig.image_size == (w, h)
+    assert len(frames) == 3 and all(f.shape == (h, w, 3) and f.dtype == np.uint8 for p in frames for f in p)
+    assert not np.array_equal(frames[0][0], frames[1][0])  # drift and noise change every frame
+    base = load_rig(bundled_rig("plants"))
+    s = bench_graph.SIZES[size]
+    x0, y0 = bench_graph.PLANTS_CROP
+    X = np.array([[30.0, -20.0, 900.0], [-50.0, 40.0, 1200.0]])  # millimetres, in front of the rig
+    for P_base, P in ((base.P_left, rig.P_left), (base.P_right, rig.P_right)):
+        uv = project(P_base, X) - [x0, y0]
+        np.testing.assert_allclose(project(P, X), s * uv + (s - 1) / 2, atol=1e-9)
+    assert rig.extra["disp_min"] <= base.extra["disp_min"] * s <= base.extra["disp_max"] * s <= rig.extra["disp_max"]
+
+
+def test_cpu_accounting_sees_a_busy_thread():
+    stop = threading.Event()
+
+    def spin():
+        while not stop.is_set():
+            sum(range(1000))
+
+    t = threading.Thread(target=spin, name="canopy_graph:rectify_node")
+    before_proc = bench_graph.proc_cpu_seconds()
+    before = bench_graph.in_process_cpu_seconds().get("rectify_node", 0.0)
+    t.start()
+    time.sleep(0.5)
+    during = bench_graph.in_process_cpu_seconds().get("rectify_node", 0.0)
+    stop.set()
+    t.join()
+    assert during - before >= 0.1  # most of 0.5 s (a busy machine shares the core)
+    assert bench_graph.proc_cpu_seconds() - before_proc >= during - before - 0.02
+    assert bench_graph.proc_peak_rss_mb() > 10
+    assert [bench_graph.thread_owner(n) for n in ("canopy_graph:segment_node", "disparity_node:latest",
+                                                  "elas_0", "bench:probe", "Thread-3")] == [
+        "segment_node", "disparity_node", "disparity_node", "feed", "dds"]
+
+
+@pytest.mark.slow
+def test_one_configuration_reports_every_figure(tmp_path):
+    """A short in-process run at 320x240: clouds arrive, and every node has CPU and outputs."""
+    r = bench_graph.run_config(bench_graph.Config.parse("inprocess:sgbm:mask:320x240"), n_frames=10,
+                               rate_hz=10.0, log_dir=tmp_path,
+                               node_parameters={"segment_node": {"recut_every": 3}})
+    assert 8 < r["offered_per_s"] < 12
+    assert r["delivered_fraction"] > 0 and r["latency_median_ms"] > 0
+    assert r["latency_p95_ms"] >= r["latency_median_ms"]
+    for node in ("rectify_node", "disparity_node", "segment_node", "point_cloud_node"):
+        assert r["nodes"][node]["cpu_ms_per_pair"] > 0, node
+        assert r["nodes"][node]["out"] > 0, node
+    assert r["process_rss_peak_mb"] > 50
+    lines = bench_graph.format_result(r)
+    assert lines[0].startswith("inprocess:sgbm:mask:320x240") and "segment" in lines[1]

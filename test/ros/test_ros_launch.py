@@ -1,0 +1,123 @@
+"""The launch file, evaluated as ``ros2 launch`` does (test/support/launch_eval.py: launch and
+launch_ros are not on PyPI) and its nodes started as processes: bag mode and camera mode
+(image sequences standing in for webcams) both produce clouds; ``canopy_graph --loop``
+replays a bag through one graph without rebuilding it."""
+import re
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+pytest.importorskip("stereo_msgs.msg")
+
+from rclpy.serialization import deserialize_message  # noqa: E402
+from sensor_msgs.msg import PointCloud2  # noqa: E402
+
+from canopy_stereo.ros import convert  # noqa: E402
+from test.conftest import REPO  # noqa: E402
+from test.support.launch_eval import evaluate  # noqa: E402
+from test.support.ros_harness import Probe, wait_for  # noqa: E402
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+CROTON_BAG = REPO / "bags" / "croton.mcap"
+CROTON_RIG = REPO / "config" / "croton_rig.yaml"
+
+
+def _check_cloud(data: bytes):
+    pts, _ = convert.cloud2_to_points(deserialize_message(data, PointCloud2))
+    z = float(np.median(pts[:, 2]))
+    assert len(pts) > 100_000 and 0.5 < z < 1.1  # the croton 0.5-1.1 m in front of the rig
+
+
+def test_launch_file_evaluates_to_one_process_per_node():
+    cmds, declared = evaluate({"bag": str(CROTON_BAG), "rig": str(CROTON_RIG), "loop": "true"})
+    assert [c.executable for c in cmds] == ["bag_play", "rectify_node", "disparity_node", "segment_node",
+                                            "point_cloud_node"]
+    play = cmds[0]
+    assert play.arguments[:3] == [str(CROTON_BAG), "--rate", "1.0"] and "--loop" in play.arguments
+    rect = cmds[1]
+    assert rect.parameters == {"fps": 0.0}  # from a bag: measured from the stamps
+    assert ["-r", "__ns:=/stereo"] == rect.ros_args[:2] and str(CROTON_RIG) in rect.ros_args
+    cmds, _ = evaluate({"left_device": "0", "right_device": "2", "fps": "10"})
+    assert [c.executable for c in cmds] == ["camera_node", "camera_node", "rectify_node", "disparity_node",
+                                            "segment_node", "point_cloud_node"]
+    assert cmds[0].parameters == {"camera_name": "left", "device": 0, "fps": 10}  # integer fps, as launch_ros
+    assert cmds[2].parameters == {"fps": 10.0}  # pairing tolerance from the camera rate
+    assert cmds[4].parameters == {"queue_size": 1}  # no mask used: GrabCut takes the newest image
+    assert set(declared) >= {"rig", "namespace", "left_device", "right_device", "fps", "matcher", "use_mask",
+                             "bag", "rate", "loop"}
+
+
+def _clouds(ros_processes, commands, want: int, timeout_s: float):
+    probe = Probe(ros_processes.domain_id)
+    try:
+        clouds = probe.subscribe(PointCloud2, "points2")
+        ros_processes.start_launched(commands)
+        ok = wait_for(lambda: len(clouds) >= want, timeout_s, group=ros_processes)
+        assert ok, (len(clouds), ros_processes.logs())
+        with clouds.lock:
+            return list(clouds.items)
+    finally:
+        probe.close()
+
+
+def test_launch_bag_mode_produces_clouds_and_loops(ros_processes):
+    """``bag:=croton.mcap loop:=true``: the 4-frame bag plays again and again; the nodes
+    follow its stamps jumping back, so clouds keep coming (more than one pass)."""
+    cmds, _ = evaluate({"bag": str(CROTON_BAG), "rig": str(CROTON_RIG), "loop": "true", "matcher": "sgbm"},
+                       param_dir=ros_processes.log_dir)
+    items = _clouds(ros_processes, cmds, want=10, timeout_s=180.0)
+    stamps = [s for _, s, _ in items]
+    assert len(set(stamps)) <= 4 and len(stamps) > len(set(stamps))  # the same frames, again and again
+    _check_cloud(items[-1][2])
+
+
+def test_launch_camera_mode_with_image_sequences_produces_clouds(ros_processes, tmp_path):
+    import cv2
+
+    from canopy_stereo.ros.bag import BagReader
+
+    reader = BagReader(CROTON_BAG)
+    for side in ("left", "right"):
+        for k, (_, m) in enumerate(reader.read(f"/stereo/{side}/image_raw")):
+            cv2.imwrite(str(tmp_path / f"{side}_{k:03d}.png"), convert.msg_to_image(m))
+    cmds, _ = evaluate({"rig": str(CROTON_RIG), "left_device": str(tmp_path / "left_%03d.png"),
+                        "right_device": str(tmp_path / "right_%03d.png"), "fps": "5", "matcher": "sgbm"},
+                       param_dir=ros_processes.log_dir)
+    items = _clouds(ros_processes, cmds, want=3, timeout_s=180.0)
+    _check_cloud(items[-1][2])
+    log = next(p for p in ros_processes.processes if p.name == "rectify_node").log()
+    assert "sync slop 0.1 s" in log  # half a period at 5 frames/s
+
+
+def test_canopy_graph_loop_replays_without_rebuilding(ros_processes):
+    """``canopy_graph --bag croton.mcap --loop``: one graph, clouds from several passes, a
+    summary on Ctrl-C."""
+    probe = Probe(ros_processes.domain_id)
+    try:
+        clouds = probe.subscribe(PointCloud2, "points2")
+        proc = ros_processes.start("canopy_graph", "--rig", CROTON_RIG, "--bag", CROTON_BAG, "--loop",
+                                   "--matcher", "sgbm", "--no-segment")
+        assert wait_for(lambda: len(clouds) >= 10, 180.0, group=ros_processes), ros_processes.logs()
+        stamps = clouds.stamps()
+        time.sleep(0.5)
+        code = proc.stop()
+    finally:
+        probe.close()
+    log = proc.log()
+    assert code == 0, log
+    assert log.count("rectifying 640x480 pairs") == 1  # the nodes were built once
+    # 10 clouds of a 4-frame bag: several passes, each stamp again and again
+    assert len(set(stamps)) <= 4 and len(stamps) >= 10
+    # the final summary ("frames in: X, frames out: Y, dropped: Z"), not the per-pass lines
+    # ("frames in: X, frames out: Y (after pass N)") printed before it
+    counts = [tuple(map(int, m.groups())) for m in re.finditer(
+        r"^frames in: (\d+), frames out: (\d+)(?!\d| \(after pass)", log, re.MULTILINE)]
+    assert counts, log
+    frames_in, frames_out = counts[-1]
+    assert frames_in >= 10 and frames_in >= frames_out >= 5, log
+    passes = [tuple(map(int, m.groups())) for m in re.finditer(
+        r"^frames in: (\d+), frames out: (\d+) \(after pass \d+\)", log, re.MULTILINE)]
+    assert len(passes) >= 2 and all(i <= frames_in and o <= frames_out for i, o in passes), log

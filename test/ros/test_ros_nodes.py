@@ -1,0 +1,520 @@
+"""The nodes, one at a time, in-process on a private DDS domain (numbers against the core)."""
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+pytest.importorskip("stereo_msgs.msg")
+
+from rclpy.parameter import Parameter  # noqa: E402
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2  # noqa: E402
+from stereo_msgs.msg import DisparityImage  # noqa: E402
+
+from canopy_stereo.geometry.camera import point_depth  # noqa: E402
+from canopy_stereo.geometry.rectification import StereoRectifier, fusiello_rectify  # noqa: E402
+from canopy_stereo.ros import convert  # noqa: E402
+from canopy_stereo.ros.context import wait_for  # noqa: E402
+from canopy_stereo.ros.params import rig_parameter_overrides  # noqa: E402
+from canopy_stereo.sim.stereo_pair import synthetic_pair  # noqa: E402
+
+pytestmark = pytest.mark.ros
+
+T0 = 1_700_000_000_000_000_000
+TIMEOUT = 20.0  # generous: the machine may be loaded
+
+
+def node_kwargs(harness, rig=None, **params):
+    overrides = (rig_parameter_overrides(rig) if rig is not None else [])
+    overrides += [Parameter(k, value=v) for k, v in params.items()]
+    return dict(context=harness.ctx, namespace="/stereo", parameter_overrides=overrides,
+                start_parameter_services=False)
+
+
+def textured_pair(rig, shift_px=20, seed=0):
+    """Left/right colour images of a random texture, the right one shifted so that every
+    left pixel ``u`` matches the right pixel ``u - shift_px`` (disparity ``shift_px``)."""
+    w, h = rig.image_size
+    left, right, _ = synthetic_pair(w, h, plane=(0, 0, shift_px), texture="blocks", colour=True, seed=seed)
+    return left, right
+
+
+def rect_info_publishers(harness):
+    return (harness.publisher(CameraInfo, "left/image_rect/camera_info"),
+            harness.publisher(CameraInfo, "right/image_rect/camera_info"))
+
+
+def publish_rect_infos(il, ir, rig, rect, stamp, frames=("left_camera_rect_optical_frame",
+                                                          "right_camera_rect_optical_frame")):
+    """What rectify_node publishes beside a rectified pair (Fusiello)."""
+    t = rect.baseline * rig.metres_per_unit
+    il.publish(convert.rectified_camera_info(rect.K_rect_left, rect.size, t, "left", stamp_ns=stamp,
+                                             frame_id=frames[0]))
+    ir.publish(convert.rectified_camera_info(rect.K_rect_right, rect.size, t, "right", stamp_ns=stamp,
+                                             frame_id=frames[1]))
+
+
+def geometry_publisher(harness, rig, rect):
+    """rectify_node's latched stereo_geometry, published by the test."""
+    from std_msgs.msg import String
+
+    from canopy_stereo.geometry.frames import FrameNames
+    from canopy_stereo.ros.stereo_geometry import stereo_geometry_msg
+    from canopy_stereo.ros.tf import latched_qos
+
+    pub = harness.helper.create_publisher(String, "stereo_geometry", latched_qos())
+    pub.publish(stereo_geometry_msg(rig, rect, FrameNames()))
+    return pub
+
+
+# --------------------------------------------------------------------------- rectify_node
+
+
+def test_rectify_node_pairs_by_approximate_time_and_publishes_ros_camera_info(harness, paper_rig):
+    from canopy_stereo.ros.nodes.rectify import RectifyNode
+
+    node = harness.add(RectifyNode(**node_kwargs(harness, paper_rig, sync_slop=0.01)))
+    rect_l = harness.collect(Image, "left/image_rect")
+    rect_r = harness.collect(Image, "right/image_rect")
+    color = harness.collect(Image, "left/image_rect_color")
+    info_l = harness.collect(CameraInfo, "left/image_rect/camera_info")
+    info_r = harness.collect(CameraInfo, "right/image_rect/camera_info")
+    driver_info = harness.collect(CameraInfo, "left/camera_info")  # the raw camera's: not rectify_node's
+    pl, pr = harness.publisher(Image, "left/image_raw"), harness.publisher(Image, "right/image_raw")
+    harness.connect(pl, pr)
+    left, right = textured_pair(paper_rig)
+    for k in range(3):
+        t = T0 + k * 66_000_000
+        pl.publish(convert.image_to_msg(left, "bgr8", stamp_ns=t, frame_id="left_camera"))
+        pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=t + 7_000_000,
+                                        frame_id="right_camera"))  # 7 ms late
+    assert wait_for(lambda: len(info_r) == 3 and len(rect_r) == 3 and len(color) == 3, TIMEOUT)
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    want_l, want_r = StereoRectifier(paper_rig, rect).rectify(left, right)
+    np.testing.assert_array_equal(convert.msg_to_image(color[0]), want_l)
+    np.testing.assert_array_equal(convert.msg_to_image(rect_l[0]), cv2.cvtColor(want_l, cv2.COLOR_BGR2GRAY))
+    np.testing.assert_array_equal(convert.msg_to_image(rect_r[0]), cv2.cvtColor(want_r, cv2.COLOR_BGR2GRAY))
+    assert rect_l[0].encoding == "mono8" and color[0].encoding == "bgr8"
+    # one shared stamp per pair: the left frame's
+    stamps = [convert.stamp_to_ns(m.header.stamp) for m in rect_r]
+    assert stamps == [T0 + k * 66_000_000 for k in range(3)]
+    assert [convert.stamp_to_ns(m.header.stamp) for m in info_l] == stamps
+    PL, PR = np.reshape(info_l[0].p, (3, 4)), np.reshape(info_r[0].p, (3, 4))
+    f = rect.focal_length
+    assert PL[0, 0] == pytest.approx(f) and PL[0, 3] == 0
+    assert PR[0, 3] == pytest.approx(-f * paper_rig.baseline * 1e-3)  # -fx * baseline [m]
+    assert -PR[0, 3] / PR[0, 0] == pytest.approx(0.0296, abs=1e-4)
+    assert PL[0, 2] - PR[0, 2] == pytest.approx(rect.doffs) == 0.0  # one principal point
+    assert (info_l[0].width, info_l[0].height) == (640, 480)
+    assert info_l[0].header.frame_id == color[0].header.frame_id == "left_camera_rect_optical_frame"
+    assert info_r[0].header.frame_id == rect_r[0].header.frame_id == "right_camera_rect_optical_frame"
+    assert driver_info == []
+    assert node.stats()["drops"] == {}
+
+
+def test_rectify_node_drops_bad_input_and_keeps_running(harness, paper_rig):
+    from canopy_stereo.ros.nodes.rectify import RectifyNode
+
+    node = harness.add(RectifyNode(**node_kwargs(harness, paper_rig, sync_slop=0.005)))
+    out = harness.collect(Image, "left/image_rect_color")
+    pl, pr = harness.publisher(Image, "left/image_raw"), harness.publisher(Image, "right/image_raw")
+    harness.connect(pl, pr)
+    left, right = textured_pair(paper_rig)
+    # 1: wrong encoding (a depth image) on the left
+    pl.publish(convert.image_to_msg(np.ones((480, 640), np.float32), "32FC1", stamp_ns=T0))
+    pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=T0))
+    # 2: wrong size pair
+    pl.publish(convert.image_to_msg(left[:240, :320].copy(), "bgr8", stamp_ns=T0 + 100_000_000))
+    pr.publish(convert.image_to_msg(right[:240, :320].copy(), "bgr8", stamp_ns=T0 + 100_000_000))
+    # 3: an unpaired left frame (its right partner lost), then a good pair
+    pl.publish(convert.image_to_msg(left, "bgr8", stamp_ns=T0 + 200_000_000))
+    pl.publish(convert.image_to_msg(left, "bgr8", stamp_ns=T0 + 300_000_000))
+    pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=T0 + 301_000_000))
+    assert wait_for(lambda: len(out) == 1, TIMEOUT)
+    time.sleep(0.3)
+    assert len(out) == 1 and convert.stamp_to_ns(out[0].header.stamp) == T0 + 300_000_000
+    drops = node.stats()["drops"]
+    text = " | ".join(drops)
+    assert "'32FC1' not accepted" in text
+    assert "320x240 but 640x480 is expected" in text
+    assert "unpaired" in text or "no partner" in text
+    assert sum(drops.values()) == 5  # 32FC1 left, its right, two small frames, the orphan left
+
+
+def test_rectify_node_counts_frames_it_never_received(harness, paper_rig):
+    """Left stamps at 10 Hz with frames 4, 5, 6 and 9 missing: 4 drops 'missed', in the
+    node's counters and on /diagnostics; the pairs that came are all published."""
+    from canopy_stereo.ros.nodes.rectify import MISSED_REASON, RectifyNode
+
+    node = harness.add(RectifyNode(**node_kwargs(harness, paper_rig)))
+    out = harness.collect(Image, "left/image_rect_color")
+    pl, pr = harness.publisher(Image, "left/image_raw"), harness.publisher(Image, "right/image_raw")
+    harness.connect(pl, pr)
+    left, right = textured_pair(paper_rig)
+    sent = [k for k in range(12) if k not in (4, 5, 6, 9)]
+    for k in sent:
+        t = T0 + k * 100_000_000
+        pl.publish(convert.image_to_msg(left, "bgr8", stamp_ns=t, frame_id="left_camera"))
+        pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=t + 3_000_000, frame_id="right_camera"))
+        assert wait_for(lambda: len(out) == sent.index(k) + 1, TIMEOUT)
+    assert node.stats()["drops"] == {f"left frame: {MISSED_REASON}": 4}
+    values = {kv.key: kv.value for kv in node.diagnostics.status().values}
+    assert values[f"dropped: left frame: {MISSED_REASON}"] == "4"
+
+
+# --------------------------------------------------------------------------- disparity_node
+
+
+def test_disparity_node_fields_match_the_rig(harness, paper_rig):
+    from canopy_stereo.ros.nodes.disparity import DisparityNode
+
+    node = harness.add(DisparityNode(**node_kwargs(harness, paper_rig, matcher="sgbm",
+                                                   disp_min=16, disp_max=48)))
+    out = harness.collect(DisparityImage, "disparity")
+    pl, pr = harness.publisher(Image, "left/image_rect"), harness.publisher(Image, "right/image_rect")
+    il, ir = rect_info_publishers(harness)
+    harness.connect(pl, pr, il, ir)
+    shift = 30
+    left, right = textured_pair(paper_rig, shift)
+    gl, gr = cv2.cvtColor(left, cv2.COLOR_BGR2GRAY), cv2.cvtColor(right, cv2.COLOR_BGR2GRAY)
+    pl.publish(convert.image_to_msg(gl, "mono8", stamp_ns=T0, frame_id="rect"))
+    pr.publish(convert.image_to_msg(gr, "mono8", stamp_ns=T0, frame_id="rect"))
+    time.sleep(0.1)
+    assert out == []  # no camera_info yet: nothing to tell f and t
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    publish_rect_infos(il, ir, paper_rig, rect, T0)
+    assert wait_for(lambda: len(out) == 1, TIMEOUT)
+    msg = out[0]
+    assert msg.f == pytest.approx(rect.focal_length, rel=1e-6)
+    assert msg.t == pytest.approx(paper_rig.baseline * 1e-3, rel=1e-6)  # metres
+    assert msg.min_disparity == pytest.approx(16 - rect.doffs, abs=1e-4)
+    assert msg.max_disparity == pytest.approx(48 - rect.doffs, abs=1e-4)
+    assert msg.delta_d == pytest.approx(1 / 16)
+    assert msg.image.encoding == "32FC1" and (msg.image.width, msg.image.height) == (640, 480)
+    raw = convert.msg_to_image(msg.image)
+    valid = raw >= msg.min_disparity
+    assert np.all(raw[~valid] < msg.min_disparity)
+    # the textured pair is a pure shift: every matched pixel has d = shift (message: shift - doffs)
+    assert valid.mean() > 0.6
+    assert np.median(raw[valid]) == pytest.approx(shift - rect.doffs, abs=0.1)
+    x, y, w, h = (msg.valid_window.x_offset, msg.valid_window.y_offset, msg.valid_window.width,
+                  msg.valid_window.height)
+    rows, cols = np.nonzero(valid)
+    assert (x, y, x + w - 1, y + h - 1) == (cols.min(), rows.min(), cols.max(), rows.max())
+    assert convert.stamp_to_ns(msg.header.stamp) == T0 and msg.header.frame_id == "rect"
+    assert node.stats()["counts"]["disparities_published"] == 1
+
+
+def test_disparity_node_parameters_change_at_run_time_and_are_validated(harness, paper_rig):
+    pytest.importorskip("canopy_stereo.elas.params")
+    from canopy_stereo.ros.nodes.disparity import DisparityNode
+
+    node = harness.add(DisparityNode(**node_kwargs(harness, paper_rig, matcher="sgbm")))
+    assert node.config["matcher"] == "sgbm"
+    ok = node.set_parameters([Parameter("disp_max", value=64), Parameter("sgbm.block_size", value=7)])
+    assert all(r.successful for r in ok)
+    assert node.config["disp_max"] == 64 and node.config["params"]["block_size"] == 7
+    bad = node.set_parameters_atomically([Parameter("matcher", value="elas"),
+                                          Parameter("elas.support_threshold", value=1.5)])
+    assert not bad.successful and "support_threshold" in bad.reason
+    assert node.config["matcher"] == "sgbm" and node.get_parameter("matcher").value == "sgbm"
+    wrong_type = node.set_parameters([Parameter("sgbm.block_size", value=2.5)])
+    assert not wrong_type[0].successful and "integer" in wrong_type[0].reason
+    good = node.set_parameters_atomically([Parameter("matcher", value="elas"),
+                                           Parameter("elas.subpixel", value=True),
+                                           Parameter("preset", value="middlebury")])
+    assert good.successful
+    assert node.config["matcher"] == "elas" and node.config["params"]["subpixel"] is True
+    assert node.config["params"]["preset"] == "middlebury" and node.config["delta_d"] == 1 / 16
+    assert not node.has_parameter("P_left")  # the rig is rectify_node's alone
+
+
+# --------------------------------------------------------------------------- point_cloud_node
+
+
+def _plane_disparity(rig, rect, depth_mm):
+    """Rectified disparity of a plane perpendicular to the rectified viewing direction."""
+    w, h = rect.size
+    return np.full((h, w), rect.focal_length * rect.baseline / depth_mm + rect.doffs, np.float32)
+
+
+@pytest.mark.parametrize("organized", [False, True])
+def test_point_cloud_node_triangulates_in_world_metres(harness, paper_rig, organized):
+    from canopy_stereo.ros.nodes.point_cloud import PointCloudNode
+
+    harness.add(PointCloudNode(**node_kwargs(harness, organized=organized)))
+    out = harness.collect(PointCloud2, "points2")
+    pd, pc = harness.publisher(DisparityImage, "disparity"), harness.publisher(Image, "left/image_rect_color")
+    il, ir = rect_info_publishers(harness)
+    harness.connect(pd, pc, il)
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    geometry_publisher(harness, paper_rig, rect)
+    publish_rect_infos(il, ir, paper_rig, rect, T0)
+    depth_mm = 500.0
+    disp = _plane_disparity(paper_rig, rect, depth_mm)
+    disp[:10] = -1  # some invalid rows
+    colour = np.zeros((480, 640, 3), np.uint8)
+    colour[..., 0], colour[..., 1], colour[..., 2] = 10, 200, 30  # BGR
+    pd.publish(convert.disparity_to_msg(disp, rect.focal_length, rect.baseline * 1e-3, 0, 100,
+                                        stamp_ns=T0, frame_id="rect", doffs=rect.doffs))
+    pc.publish(convert.image_to_msg(colour, "bgr8", stamp_ns=T0, frame_id="rect"))
+    assert wait_for(lambda: len(out) == 1, TIMEOUT)
+    msg = out[0]
+    assert msg.header.frame_id == "canopy_world" and convert.stamp_to_ns(msg.header.stamp) == T0
+    pts, cols = convert.cloud2_to_points(msg, organized=organized)
+    if organized:
+        assert pts.shape == (480, 640, 3) and not msg.is_dense
+        assert np.all(np.isnan(pts[:10])) and np.isfinite(pts[10:]).all()
+        pts, cols = pts[10:].reshape(-1, 3), cols[10:].reshape(-1, 3)
+    else:
+        assert msg.height == 1 and msg.is_dense and len(pts) == 470 * 640
+    # the plane lies at 500 mm along the rectified viewing direction from the left centre
+    from canopy_stereo.geometry.camera import camera_centre
+
+    X_mm = pts.astype(np.float64) * 1e3
+    dist = (X_mm - camera_centre(paper_rig.P_left)) @ rect.R_rect[2]
+    np.testing.assert_allclose(dist, depth_mm, rtol=2e-4)
+    assert np.all(point_depth(paper_rig.P_left, X_mm) > 0)
+    assert np.all(cols == [30, 200, 10])  # RGB
+
+
+def test_point_cloud_node_applies_the_mask(harness, paper_rig):
+    from canopy_stereo.ros.nodes.point_cloud import PointCloudNode
+
+    harness.add(PointCloudNode(**node_kwargs(harness, use_mask=True)))
+    out = harness.collect(PointCloud2, "points2")
+    pd = harness.publisher(DisparityImage, "disparity")
+    pc, pm = harness.publisher(Image, "left/image_rect_color"), harness.publisher(Image, "left/mask")
+    il, ir = rect_info_publishers(harness)
+    harness.connect(pd, pc, pm, il)
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    geometry_publisher(harness, paper_rig, rect)
+    publish_rect_infos(il, ir, paper_rig, rect, T0)
+    disp = _plane_disparity(paper_rig, rect, 400.0)
+    mask = np.zeros((480, 640), np.uint8)
+    mask[100:150, 200:300] = 255
+    # the mask arrives first, the disparity last: exact-time pairing in any order
+    pm.publish(convert.image_to_msg(mask, "mono8", stamp_ns=T0))
+    pc.publish(convert.image_to_msg(np.zeros((480, 640, 3), np.uint8), "bgr8", stamp_ns=T0))
+    time.sleep(0.1)
+    assert out == []
+    pd.publish(convert.disparity_to_msg(disp, rect.focal_length, 0.03, 0, 100, stamp_ns=T0, doffs=rect.doffs))
+    assert wait_for(lambda: len(out) == 1, TIMEOUT)
+    assert out[0].width * out[0].height == 50 * 100
+
+
+# --------------------------------------------------------------------------- segment_node
+
+
+def test_segment_node_grabcut_rect_and_auto(harness):
+    from canopy_stereo.ros.nodes.segment import SegmentNode
+
+    node = harness.add(SegmentNode(**node_kwargs(harness, scale=0.5)))
+    out = harness.collect(Image, "left/mask")
+    pub = harness.publisher(Image, "left/image_rect_color")
+    harness.connect(pub)
+    rng = np.random.default_rng(5)
+    img = np.clip(rng.normal(128, 12, (240, 320, 3)), 0, 255).astype(np.uint8)  # grey background
+    truth = np.zeros((240, 320), bool)
+    cv2.ellipse(truth.view(np.uint8), (160, 120), (60, 40), 0, 0, 360, 1, -1)
+    img[truth] = np.clip(rng.normal((40, 160, 50), 10, (truth.sum(), 3)), 0, 255).astype(np.uint8)
+    pub.publish(convert.image_to_msg(img, "bgr8", stamp_ns=T0, frame_id="rect"))  # automatic (saturation)
+    assert wait_for(lambda: len(out) == 1, TIMEOUT)
+    res = node.set_parameters([Parameter("rect", value=[90, 70, 140, 100]), Parameter("iterations", value=2)])
+    assert all(r.successful for r in res)
+    assert not node.set_parameters([Parameter("scale", value=2.0)])[0].successful
+    pub.publish(convert.image_to_msg(img, "bgr8", stamp_ns=T0 + 1, frame_id="rect"))
+    assert wait_for(lambda: len(out) == 2, TIMEOUT)
+    res = node.set_parameters([Parameter("rect", value=[0, 0, 0, 0]), Parameter("auto_init", value="exg")])
+    assert all(r.successful for r in res) and node.settings["rect"] is None
+    pub.publish(convert.image_to_msg(img, "bgr8", stamp_ns=T0 + 2, frame_id="rect"))
+    assert wait_for(lambda: len(out) == 3, TIMEOUT)
+    for msg in out:
+        mask = convert.msg_to_image(msg, ("mono8",)) > 0
+        assert msg.encoding == "mono8" and set(np.unique(convert.msg_to_image(msg))) <= {0, 255}
+        iou = (mask & truth).sum() / (mask | truth).sum()
+        assert iou > 0.85, iou
+    assert [convert.stamp_to_ns(m.header.stamp) for m in out] == [T0, T0 + 1, T0 + 2]
+
+
+def test_segment_node_propagates_the_plant_model(harness):
+    """recut_every 4 over the croton frames: one full cut in four, the masks between within
+    IoU 0.95 of a full GrabCut of the same frame; the share of full cuts is in /diagnostics."""
+    from canopy_stereo.ros.bag import BagReader
+    from canopy_stereo.ros.bundled import bundled_bag
+    from canopy_stereo.ros.nodes.segment import SegmentNode
+    from canopy_stereo.segmentation.auto import segment_plant
+
+    frames = [convert.msg_to_image(m).copy()
+              for _, m in BagReader(bundled_bag("croton")).read("/stereo/left/image_raw")] * 2
+    node = harness.add(SegmentNode(**node_kwargs(harness, recut_every=4)))
+    out = harness.collect(Image, "left/mask")
+    pub = harness.publisher(Image, "left/image_rect_color")
+    harness.connect(pub)
+    for k, img in enumerate(frames):
+        pub.publish(convert.image_to_msg(img, "bgr8", stamp_ns=T0 + k, frame_id="rect"))
+        assert wait_for(lambda: len(out) == k + 1, TIMEOUT)
+    propagator = node.settings["propagator"]
+    assert (propagator.full_cuts, propagator.propagated) == (2, 6)
+    for msg, img in zip(out, frames):
+        mask, full = convert.msg_to_image(msg, ("mono8",)) > 0, segment_plant(img) > 0
+        assert (mask & full).sum() / (mask | full).sum() >= 0.95
+    values = {kv.key: kv.value for kv in node.diagnostics.status().values}
+    assert float(values["full cut share mean"]) == pytest.approx(0.25)
+    assert not node.set_parameters([Parameter("recut_every", value=0)])[0].successful
+
+
+# --------------------------------------------------------------------------- camera_node
+
+
+@pytest.mark.slow
+def test_camera_node_image_sequence_and_device_loss(harness, tmp_path):
+    from canopy_stereo.ros.nodes.camera import CameraNode
+
+    frames = [np.full((48, 64, 3), 40 * k, np.uint8) for k in range(1, 4)]
+    pattern = str(tmp_path / "seq" / "left_%03d.png")
+    node = harness.add(CameraNode(**node_kwargs(harness, device=pattern, camera_name="left",
+                                                fps=50.0, loop=True)))
+    out = harness.collect(Image, "left/image_raw")
+    # the sequence does not exist yet: the node must stay alive and retry with back-off
+    assert wait_for(lambda: node.counts["open_failures"] >= 2, TIMEOUT)
+    assert out == []
+    (tmp_path / "seq").mkdir()
+    for k, f in enumerate(frames):
+        cv2.imwrite(pattern % k, f)
+    assert wait_for(lambda: len(out) >= 5, TIMEOUT)
+    got = [int(convert.msg_to_image(m)[0, 0, 0]) for m in out[:5]]
+    start = got.index(40)
+    assert got[start:start + 3] == [40, 80, 120]  # in order, looping
+    assert all(m.encoding == "bgr8" and m.header.frame_id == "left_camera_optical_frame" for m in out)
+    stamps = [convert.stamp_to_ns(m.header.stamp) for m in out]
+    assert stamps == sorted(stamps) and stamps[0] > T0  # stamped at capture (wall clock)
+    # the "device" disappears mid-stream, then comes back: the node resumes by itself
+    import shutil
+
+    shutil.move(str(tmp_path / "seq"), str(tmp_path / "gone"))
+    failures = node.counts["open_failures"]
+    assert wait_for(lambda: node.counts["open_failures"] > failures, TIMEOUT)
+    n = len(out)
+    shutil.move(str(tmp_path / "gone"), str(tmp_path / "seq"))
+    assert wait_for(lambda: len(out) >= n + 3, TIMEOUT)
+
+
+# --------------------------------------------------------------------------- hartley, executables
+
+
+def test_hartley_homographies_from_parameters_give_the_same_cloud(harness, paper_rig):
+    """rectify_node and point_cloud_node accept method hartley with H_left/H_right; with
+    Fusiello's homographies passed that way the cloud is the Fusiello one."""
+    from canopy_stereo.ros.nodes.point_cloud import PointCloudNode
+    from canopy_stereo.ros.nodes.rectify import RectifyNode
+
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    H = dict(method="hartley", H_left=[float(v) for v in rect.H_left.ravel()],
+             H_right=[float(v) for v in rect.H_right.ravel()])
+    rectify = harness.add(RectifyNode(**node_kwargs(harness, paper_rig, **H)))
+    harness.add(PointCloudNode(**node_kwargs(harness, organized=True)))  # no rig: from rectify_node
+    assert rectify.rect.method == "hartley" and rectify.rect.K_rect_left is None
+    color = harness.collect(Image, "left/image_rect_color")
+    infos = harness.collect(CameraInfo, "left/image_rect/camera_info")
+    clouds = harness.collect(PointCloud2, "points2")
+    pl, pr = harness.publisher(Image, "left/image_raw"), harness.publisher(Image, "right/image_raw")
+    pd = harness.publisher(DisparityImage, "disparity")
+    harness.connect(pl, pr, pd)
+    left, right = textured_pair(paper_rig)
+    pl.publish(convert.image_to_msg(left, "bgr8", stamp_ns=T0))
+    pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=T0))
+    assert wait_for(lambda: len(color) == 1, TIMEOUT)
+    want, _ = StereoRectifier(paper_rig, rect).rectify(left, right)
+    np.testing.assert_array_equal(convert.msg_to_image(color[0]), want)
+    disp = _plane_disparity(paper_rig, rect, 450.0)
+    # in hartley mode disparity_node publishes f = t = 0 and no principal-point shift
+    pd.publish(convert.disparity_to_msg(disp, 0.0, 0.0, 0, 100, stamp_ns=T0, doffs=0.0))
+    assert wait_for(lambda: len(clouds) == 1, TIMEOUT)
+    pts, _ = convert.cloud2_to_points(clouds[0], organized=True)
+    from canopy_stereo.geometry.triangulation import triangulate_disparity
+
+    np.testing.assert_allclose(pts, triangulate_disparity(disp, rect, paper_rig.P_left, paper_rig.P_right)
+                               * 1e-3, rtol=1e-5, atol=1e-6)
+    # a projective rectification has no metric camera: its camera_info is the uncalibrated one
+    assert len(infos) == 1 and not any(infos[0].p) and not any(infos[0].k)
+    assert (infos[0].width, infos[0].height) == (640, 480)
+
+
+@pytest.mark.slow
+def test_node_executable_reads_the_rig_file(harness, repo_root, tmp_path):
+    """``disparity_node --ros-args --params-file config/croton_rig.yaml`` in its own process:
+    the rig file's P matrices and extras (disp_min/disp_max, elas.subpixel) become parameters."""
+    import os
+    import subprocess
+    import sys
+
+    from canopy_stereo.ros.context import private_domain_id
+
+    domain = private_domain_id()
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    code = "import sys; from canopy_stereo.ros.nodes.disparity import main; sys.exit(main())"
+    rig_file = repo_root / "config" / "croton_rig.yaml"
+    # large best-effort samples can be lost between processes: make the inputs reliable
+    # with ROS 2's standard QoS override parameters
+    reliable = [f"qos_overrides./stereo/{side}/{topic}.subscription.reliability:=reliable"
+                for side in ("left", "right") for topic in ("image_rect", "image_rect/camera_info")]
+    proc = subprocess.Popen([sys.executable, "-c", code, "--ros-args", "--params-file", str(rig_file),
+                             "-p", "matcher:=sgbm", *[a for r in reliable for a in ("-p", r)]],
+                            env=env, stderr=subprocess.PIPE, text=True)
+    try:
+        h = harness  # on the same private domain as the node's process
+        out = h.collect(DisparityImage, "disparity")
+        pl, pr = h.publisher(Image, "left/image_rect"), h.publisher(Image, "right/image_rect")
+        il, ir = rect_info_publishers(h)
+        h.connect(pl, pr, il, ir)
+        h.wait_publishers("disparity")
+        from canopy_stereo.io.rig import load_rig
+
+        rig = load_rig(rig_file)
+        publish_rect_infos(il, ir, rig, fusiello_rectify(rig.P_left, rig.P_right, rig.image_size), T0)
+        left, right = textured_pair(rig, 40)
+        pl.publish(convert.image_to_msg(cv2.cvtColor(left, cv2.COLOR_BGR2GRAY), "mono8", stamp_ns=T0))
+        pr.publish(convert.image_to_msg(cv2.cvtColor(right, cv2.COLOR_BGR2GRAY), "mono8", stamp_ns=T0))
+        assert wait_for(lambda: len(out) == 1, 30.0)
+        rect = fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
+        assert out[0].min_disparity == pytest.approx(rig.extra["disp_min"] - rect.doffs, abs=1e-4)
+        assert out[0].max_disparity == pytest.approx(rig.extra["disp_max"] - rect.doffs, abs=1e-4)
+        assert out[0].t == pytest.approx(rig.baseline * 1e-3, rel=1e-6)
+    finally:
+        proc.terminate()
+        _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    assert f"matcher sgbm, disparities [{rig.extra['disp_min']}, {rig.extra['disp_max']}]" in err
+
+
+def test_disparity_thread_budget_is_per_thread_and_keeps_the_result():
+    """``threads``: numba's thread count of the calling (worker) thread only; ELAS gives the
+    same disparities with 1 thread as with every core."""
+    import threading
+
+    numba = pytest.importorskip("numba")
+    from canopy_stereo.disparity import compute_disparity
+    from canopy_stereo.ros.nodes.disparity import apply_thread_budget
+
+    rng = np.random.default_rng(3)
+    right = (rng.random((96, 128)) * 255).astype(np.uint8)
+    left = np.roll(right, 7, axis=1)
+    seen = {}
+
+    def work(n):
+        seen[n] = (apply_thread_budget(n), numba.get_num_threads(),
+                   compute_disparity(left, right, matcher="elas", disp_min=0, disp_max=16))
+
+    main_threads = numba.get_num_threads()
+    for n in (1, 0):
+        t = threading.Thread(target=work, args=(n,))
+        t.start()
+        t.join()
+    limit = int(numba.config.NUMBA_NUM_THREADS)
+    assert seen[1][:2] == (1, 1) and seen[0][:2] == (limit, limit)
+    assert numba.get_num_threads() == main_threads  # the caller's setting is untouched
+    np.testing.assert_array_equal(seen[1][2], seen[0][2])
+    assert apply_thread_budget(limit + 5) == limit
+    numba.set_num_threads(main_threads)

@@ -1,0 +1,1 @@
+"""Tests of canopy_stereo.segmentation (indices, GrabCut, automatic masks)."""

@@ -1,0 +1,1 @@
+"""Tests of canopy_stereo.sim (leaf geometry, scenes, ray-cast rendering)."""

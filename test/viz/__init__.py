@@ -1,0 +1,1 @@
+"""Tests of canopy_stereo.viz (pictures with units, the web viewer in a browser)."""
