@@ -7,8 +7,8 @@ import pytest
 
 from canopy_stereo.cli import main
 from canopy_stereo.geometry.camera import project
-from canopy_stereo.geometry.world_rig import (board_world_points, detect_board_corners, load_placements,
-                                              paper_layout_placements, write_placements)
+from canopy_stereo.geometry.world_rig import board_world_points, detect_board_corners, paper_layout_placements
+from canopy_stereo.io.placements import load_placements, write_placements
 from canopy_stereo.io.rig import load_rig, save_rig
 from canopy_stereo.sim import default_rig_path, rig_at_resolution
 
