@@ -411,8 +411,8 @@ def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rat
     from canopy_stereo.ros.convert import image_to_msg
     from canopy_stereo.ros.recorder import header_stamp_from_cdr
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
-    from ros_harness import Probe, ProcessGroup, wait_for
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout's test package
+    from test.support.ros_harness import Probe, ProcessGroup, wait_for
 
     rig, frames = bench_frames(scene, config.size)
     log_dir.mkdir(parents=True, exist_ok=True)

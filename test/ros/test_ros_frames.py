@@ -298,6 +298,24 @@ def test_recorded_bag_has_tf_static_and_depth_matching_points2(tmp_path):
         assert np.median(relative_depth_errors(pts, rig, truth[ns])) < 0.01
 
 
+def point_cloud_inputs(harness):
+    """Publishers of point_cloud_node's inputs: disparity, colour, left and right rectified
+    camera_info (connected to the node)."""
+    pd, pc = harness.publisher(DisparityImage, "disparity"), harness.publisher(Image, "left/image_rect_color")
+    il, ir = rect_info_publishers(harness)
+    harness.connect(pd, pc, il)
+    return pd, pc, il, ir
+
+
+def send_point_cloud_inputs(pubs, rig, rect, disp, stamp):
+    """One frame of point_cloud_node's inputs as rectify_node and disparity_node send them."""
+    pd, pc, il, ir = pubs
+    publish_rect_infos(il, ir, rig, rect, stamp)
+    pc.publish(convert.image_to_msg(np.zeros((480, 640, 3), np.uint8), "bgr8", stamp_ns=stamp, frame_id="x"))
+    pd.publish(convert.disparity_to_msg(disp, rect.focal_length, rect.baseline * rig.metres_per_unit, 0, 100,
+                                        stamp_ns=stamp, frame_id="left_camera_rect_optical_frame"))
+
+
 def test_point_cloud_node_frames_optical_and_z_up(harness, paper_rig):
     """cloud_frame optical: points in the rectified left optical frame (no stereo_geometry
     needed); world_z_up: the same points through the z-up transform; left/depth matches."""
@@ -308,18 +326,11 @@ def test_point_cloud_node_frames_optical_and_z_up(harness, paper_rig):
     out = harness.collect(PointCloud2, "points2")
     depth = harness.collect(Image, "left/depth")
     depth_info = harness.collect(CameraInfo, "left/depth/camera_info")
-    pd, pc = harness.publisher(DisparityImage, "disparity"), harness.publisher(Image, "left/image_rect_color")
-    il, ir = rect_info_publishers(harness)
-    harness.connect(pd, pc, il)
+    pd, pc, il, ir = point_cloud_inputs(harness)
     disp = smooth_disparity(rect, 20.0, 50.0)
-    t = rect.baseline * 1e-3
 
     def send(stamp):
-        publish_rect_infos(il, ir, paper_rig, rect, stamp)
-        pc.publish(convert.image_to_msg(np.zeros((480, 640, 3), np.uint8), "bgr8", stamp_ns=stamp,
-                                        frame_id="x"))
-        pd.publish(convert.disparity_to_msg(disp, rect.focal_length, t, 0, 100, stamp_ns=stamp,
-                                            frame_id="left_camera_rect_optical_frame"))
+        send_point_cloud_inputs((pd, pc, il, ir), paper_rig, rect, disp, stamp)
 
     send(T0)
     assert pytest_wait(lambda: len(out) == 1 and len(depth) == 1 and len(depth_info) == 1)
@@ -328,6 +339,7 @@ def test_point_cloud_node_frames_optical_and_z_up(harness, paper_rig):
     z = convert.msg_to_image(depth[0], ("32FC1",))
     np.testing.assert_array_equal(np.isnan(z), np.isnan(disp))
     np.testing.assert_allclose(opt[..., 2][np.isfinite(z)], z[np.isfinite(z)])
+    t = rect.baseline * paper_rig.metres_per_unit
     np.testing.assert_allclose(z[np.isfinite(z)], rect.focal_length * t / disp[np.isfinite(disp)], rtol=1e-6)
     harness.remove(n_opt)
     n_opt.destroy_node()
@@ -356,18 +368,11 @@ def test_point_cloud_node_holds_frames_until_stereo_geometry_arrives(harness, pa
     rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
     node = harness.add(PointCloudNode(**node_kwargs(harness, organized=True)))
     out = harness.collect(PointCloud2, "points2")
-    pd, pc = harness.publisher(DisparityImage, "disparity"), harness.publisher(Image, "left/image_rect_color")
-    il, ir = rect_info_publishers(harness)
-    harness.connect(pd, pc, il)
+    pd, pc, il, ir = point_cloud_inputs(harness)
     disp = smooth_disparity(rect, 20.0, 50.0)
-    t = rect.baseline * 1e-3
 
     def send(stamp):
-        publish_rect_infos(il, ir, paper_rig, rect, stamp)
-        pc.publish(convert.image_to_msg(np.zeros((480, 640, 3), np.uint8), "bgr8", stamp_ns=stamp,
-                                        frame_id="x"))
-        pd.publish(convert.disparity_to_msg(disp, rect.focal_length, t, 0, 100, stamp_ns=stamp,
-                                            frame_id="left_camera_rect_optical_frame"))
+        send_point_cloud_inputs((pd, pc, il, ir), paper_rig, rect, disp, stamp)
 
     send(T0)
     assert pytest_wait(lambda: len(node.waiting_for_geometry) == 1)
