@@ -79,6 +79,7 @@ MIDDLEBURY_GT = {
 }
 
 
+@pytest.mark.slow
 def test_qdmatch_is_95_percent_correct_on_the_middlebury_scenes(shared_data):
     """Issue 18: reseeding and relaxed resampling had let qdmatch fall to 90.7 % correct
     on average (73.7 % on Playtable); the aperture and interior checks bring the mean

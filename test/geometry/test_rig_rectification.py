@@ -136,12 +136,14 @@ def _geometry_from_process(ros_processes, **start):
 
 
 @pytest.mark.ros
+@pytest.mark.slow
 def test_rectify_node_process_with_rig_file_parameter(ros_processes, hartley_rig_file, hartley_reference):
     pytest.importorskip("stereo_msgs.msg")
     _same(_geometry_from_process(ros_processes, params={"rig_file": str(hartley_rig_file)}), hartley_reference)
 
 
 @pytest.mark.ros
+@pytest.mark.slow
 def test_rectify_node_process_with_the_files_parameters(ros_processes, hartley_rig_file, hartley_reference):
     pytest.importorskip("stereo_msgs.msg")
     _same(_geometry_from_process(ros_processes, params_files=[hartley_rig_file]), hartley_reference)
@@ -217,6 +219,7 @@ def test_hartley_without_homographies_and_unknown_method(tmp_path):
 
 
 @pytest.mark.ros
+@pytest.mark.slow
 def test_rectify_node_process_with_bad_homographies_exits_with_one_line(ros_processes, tmp_path):
     path = _rig_with(tmp_path, H_left=GOOD, H_right=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0])
     proc = ros_processes.start("rectify_node", params={"rig_file": str(path)})

@@ -39,6 +39,7 @@ def _iou(a, b):
     return (a & b).sum() / (a | b).sum()
 
 
+@pytest.mark.slow
 def test_segment_node_process_uses_the_disparity_cue(ros_processes):
     """``segment_node --ros-args -p depth_cue:=true -p auto_init:=none`` in its own process:
     a mask waits for the disparity of its image and follows the disparity, not the colour."""
