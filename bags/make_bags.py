@@ -25,7 +25,7 @@ def main() -> None:
     a = p.parse_args()
     paper = load_rig(REPO / "config" / "paper_rig.yaml")
     outputs = [make_croton(REPO / "bags" / "croton.mcap", REPO / "config" / "croton_rig.yaml",
-                           paper, a.frames, a.seed),
+                           paper, n_frames=a.frames, seed=a.seed),
                make_plants(REPO / "bags" / "plants.mcap", REPO / "config" / "plants_rig.yaml",
                            a.data / "middlebury_MiddEval3_testQ" / "Plants")]
     for bag, rig in outputs:
