@@ -52,15 +52,12 @@ def smooth_disparity(rect, lo, hi, seed=0):
     return d
 
 
-@pytest.mark.parametrize("rig_name", ["paper", "verged"])
-def test_camera_info_path_equals_back_mapping_and_dlt(paper_rig, rig_name):
-    """point_cloud_node's path (Q from the DisparityImage and the left rectified CameraInfo,
-    then T_world_optical from stereo_geometry) gives the points of the exact back-mapping +
-    DLT path with the rig's P, to 1e-6 relative."""
-    from canopy_stereo.geometry.frames import reproject_disparity_points
-    from canopy_stereo.ros.nodes.point_cloud import cloud_from_disparity, reprojection_from_messages
+def reprojection_case(rig):
+    """point_cloud_node's inputs for a smooth disparity field on ``rig`` (Fusiello): the
+    rectification, the disparities (px, NaN = invalid), the DisparityImage as the node reads
+    it, T_world_optical from stereo_geometry and Q from the left rectified CameraInfo."""
+    from canopy_stereo.ros.nodes.point_cloud import reprojection_from_messages
 
-    rig = paper_rig if rig_name == "paper" else verged_rig()
     rect = fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
     t = rect.baseline * rig.metres_per_unit
     disp = smooth_disparity(rect, 15.0, 60.0)
@@ -70,6 +67,19 @@ def test_camera_info_path_equals_back_mapping_and_dlt(paper_rig, rig_name):
     geometry = parse_stereo_geometry(stereo_geometry_msg(rig, rect, FrameNames()))
     T = geometry.lookup("canopy_world", info.header.frame_id)
     Q = reprojection_from_messages(msg.f, msg.t, info)
+    return rect, disp, msg, T, Q
+
+
+@pytest.mark.parametrize("rig_name", ["paper", "verged"])
+def test_camera_info_path_equals_back_mapping_and_dlt(paper_rig, rig_name):
+    """point_cloud_node's path (Q from the DisparityImage and the left rectified CameraInfo,
+    then T_world_optical from stereo_geometry) gives the points of the exact back-mapping +
+    DLT path with the rig's P, to 1e-6 relative."""
+    from canopy_stereo.geometry.frames import reproject_disparity_points
+    from canopy_stereo.ros.nodes.point_cloud import cloud_from_disparity
+
+    rig = paper_rig if rig_name == "paper" else verged_rig()
+    rect, disp, msg, T, Q = reprojection_case(rig)
     pts, index, depth = reproject_disparity_points(msg.disparity, Q, T=T)
     bgr = np.zeros((*disp.shape, 3), np.uint8)
     ref, _ = cloud_from_disparity(np.where(np.isfinite(disp), disp, -1), bgr, rig, rect, organized=False)
@@ -99,18 +109,9 @@ def test_cloud_records_path_gives_the_reference_cloud(paper_rig, organized, mask
     makes the same PointCloud2, byte for byte, as the reference (points, gathered colours,
     points_to_cloud2), dense or organized, with or without a mask."""
     from canopy_stereo.geometry.frames import reproject_disparity_points, reproject_disparity_records
-    from canopy_stereo.ros.nodes.point_cloud import reprojection_from_messages
 
     rig = verged_rig()
-    rect = fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
-    t = rect.baseline * rig.metres_per_unit
-    disp = smooth_disparity(rect, 15.0, 60.0)
-    msg = convert.msg_to_disparity(convert.disparity_to_msg(disp, rect.focal_length, t, 0, 100))
-    info = convert.rectified_camera_info(rect.K_rect_left, rect.size, t, "left", stamp_ns=0,
-                                         frame_id="left_camera_rect_optical_frame")
-    geometry = parse_stereo_geometry(stereo_geometry_msg(rig, rect, FrameNames()))
-    T = geometry.lookup("canopy_world", info.header.frame_id)
-    Q = reprojection_from_messages(msg.f, msg.t, info)
+    rect, disp, msg, T, Q = reprojection_case(rig)
     rng = np.random.default_rng(1)
     h, w = disp.shape
     bgr = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
