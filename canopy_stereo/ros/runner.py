@@ -297,6 +297,10 @@ def run_bag(bag_path, rig: Rig, *, rate: float = 1.0, record=None, options: Grap
     return result
 
 
+#: Quiet time (s) awaited after the last cloud before the graph is torn down.
+OUTPUT_DRAIN_S = 0.2
+
+
 def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, remap, startup_timeout_s,
          progress, context, play_topics, left_topics, ns, outputs, result, book, writer, loop=False,
          stop=None, on_output_cb=None, on_pass=None) -> None:
@@ -377,6 +381,10 @@ def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, r
                     continue
                 with book.cond:
                     book.cond.wait(0.05)
+            # the last frame's other outputs (depth, camera_info, mask) travel on their own
+            # topics and may be taken after its points2: let the graph go quiet before the
+            # recording is closed, so that every output of a completed frame is in the bag
+            wait_for(lambda: graph_idle_for(OUTPUT_DRAIN_S), max(idle_s, OUTPUT_DRAIN_S))
         finally:
             result.graph_stats = graph.stats()
             graph.shutdown()
