@@ -10,6 +10,7 @@ from __future__ import annotations
 import functools
 import os
 import sys
+import tempfile
 import threading
 import time
 from contextlib import contextmanager
@@ -18,14 +19,58 @@ from pathlib import Path
 import rclpy
 from rclpy.context import Context
 
-#: Domains used for private runs: 100 + (pid mod 100), clear of the default 0
+#: Domains used for private runs: 100 .. 199, clear of the default 0
 #: and inside the range every DDS vendor accepts (0..232).
 PRIVATE_DOMAIN_BASE = 100
+PRIVATE_DOMAIN_COUNT = 100
+
+_reserved: dict[int, tuple[int, object]] = {}  # pid -> (domain, its open lock file)
+_reserve_lock = threading.Lock()
+
+
+def _domain_lock_dir() -> Path:
+    return Path(tempfile.gettempdir()) / f"canopy_stereo_domains-{os.getuid() if hasattr(os, 'getuid') else 0}"
 
 
 def private_domain_id(pid: int | None = None) -> int:
-    """A DDS domain id derived from the process id (``100 .. 199``)."""
-    return PRIVATE_DOMAIN_BASE + (os.getpid() if pid is None else pid) % 100
+    """A DDS domain id (``100 .. 199``) for this process's private runs and the node
+    processes it starts, not used by any other process on this machine that asked here.
+
+    The first call of a process reserves the first free domain from ``100 + pid mod 100``
+    on (an exclusive ``flock`` on a file in the temporary directory, held until the
+    process exits) and later calls return it; two test sessions or benchmark runs at the
+    same time therefore never share a domain (a pid-derived id alone collided). Where
+    locks are unavailable, or every domain is taken, the pid-derived id is returned.
+    ``pid`` given: the pid-derived id of that process, no reservation.
+    """
+    if pid is not None:
+        return PRIVATE_DOMAIN_BASE + pid % PRIVATE_DOMAIN_COUNT
+    me = os.getpid()
+    with _reserve_lock:
+        held = _reserved.get(me)
+        if held is not None:
+            return held[0]
+        first = me % PRIVATE_DOMAIN_COUNT
+        domain = PRIVATE_DOMAIN_BASE + first
+        try:
+            import fcntl
+
+            folder = _domain_lock_dir()
+            folder.mkdir(mode=0o700, exist_ok=True)
+            for k in range(PRIVATE_DOMAIN_COUNT):
+                candidate = PRIVATE_DOMAIN_BASE + (first + k) % PRIVATE_DOMAIN_COUNT
+                handle = open(folder / f"{candidate}.lock", "a")  # noqa: SIM115 - held until exit
+                try:
+                    fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except OSError:
+                    handle.close()
+                    continue
+                _reserved[me] = (candidate, handle)
+                return candidate
+        except (ImportError, OSError):
+            pass
+        _reserved[me] = (domain, None)
+        return domain
 
 
 def env_domain_id() -> int:
