@@ -246,7 +246,10 @@ def disparity_to_msg(disp: np.ndarray, f: float, t: float, min_disparity: float,
 
     Invalid pixels (and values outside the range) are written as
     ``min_disparity - 1`` (after the shift): below the range, as ROS expects.
-    ``valid_window`` is the bounding box of the valid pixels.
+    ``valid_window`` is the bounding box of the valid pixels. ``f``, ``t``, the range and
+    ``delta_d`` are float32 on the wire and are stored rounded to float32 here, so that a
+    node of the same process handed this object (intra-process) reads what a subscriber
+    in another process reads.
     """
     d = np.asarray(disp, np.float32)
     if d.ndim != 2:
@@ -258,14 +261,19 @@ def disparity_to_msg(disp: np.ndarray, f: float, t: float, min_disparity: float,
     msg = DisparityImage()
     msg.header = make_header(stamp_ns, frame_id)
     msg.image = image_to_msg(out, "32FC1", stamp_ns=stamp_ns, frame_id=frame_id)
-    msg.f = float(f)
-    msg.t = float(t)
+    msg.f = _wire_float32(f)
+    msg.t = _wire_float32(t)
     msg.valid_window = RegionOfInterest(x_offset=x, y_offset=y, width=w, height=h,
                                         do_rectify=False)
-    msg.min_disparity = lo
-    msg.max_disparity = hi
-    msg.delta_d = float(delta_d)
+    msg.min_disparity = _wire_float32(lo)
+    msg.max_disparity = _wire_float32(hi)
+    msg.delta_d = _wire_float32(delta_d)
     return msg
+
+
+def _wire_float32(value: float) -> float:
+    """``value`` as a ``float32`` message field carries it (rounded to float32)."""
+    return float(np.float32(value))
 
 
 def msg_to_disparity(msg: DisparityImage) -> DisparityFrame:

@@ -25,6 +25,7 @@ from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
 
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.rig import Rig
+from canopy_stereo.ros.intra_process import IntraProcessBus
 from canopy_stereo.ros.params import parameters_from_dict, rig_parameter_overrides
 
 #: Default thread count of the ``multi`` executor: enough for every stage to have a frame in flight.
@@ -57,6 +58,9 @@ class GraphOptions:
             1 = every frame; :mod:`canopy_stereo.segmentation.propagate`).
         propagate_scale: segment_node's scale of the frames between full cuts (None: its ``scale``).
         disparity_threads: disparity_node's thread budget (None: the node's default).
+        intra_process: messages between the graph's nodes travel over an
+            :class:`~canopy_stereo.ros.intra_process.IntraProcessBus` (the message object,
+            no DDS; outputs still go to DDS for everyone else); False: through DDS only.
     """
 
     namespace: str = "/stereo"
@@ -73,6 +77,7 @@ class GraphOptions:
     recut_every: int | None = None
     propagate_scale: float | None = None
     disparity_threads: int | None = None
+    intra_process: bool = True
 
 
 class CanopyGraph:
@@ -107,6 +112,8 @@ class CanopyGraph:
                         if o.executor == "multi" else None)
         self._threads: list[threading.Thread] = []
         self._stop = threading.Event()
+        #: the nodes' intra-process bus (None: DDS between them too)
+        self.bus = IntraProcessBus() if o.intra_process else None
         common = {"reliability": o.reliability}
         per_node = {
             "rectify_node": {},
@@ -142,7 +149,7 @@ class CanopyGraph:
 
     def _add(self, key, cls, values: dict, rig_params: bool) -> None:
         overrides = (rig_parameter_overrides(self.rig) if rig_params else []) + parameters_from_dict(values)
-        kwargs = dict(context=self.context, namespace=self.options.namespace,
+        kwargs = dict(context=self.context, namespace=self.options.namespace, intra_process=self.bus,
                       parameter_overrides=overrides, use_global_arguments=True,
                       start_parameter_services=self.options.parameter_services)
         node = cls(node_name=key, **kwargs)

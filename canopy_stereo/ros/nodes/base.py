@@ -48,6 +48,7 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.ros.context import tune_node_process
 from canopy_stereo.ros.diagnostics import DEFAULT_PERIOD_S, NodeDiagnostics
+from canopy_stereo.ros.intra_process import IntraProcessBus, LocalSubscription
 from canopy_stereo.ros.params import flag_descriptor, number_descriptor, text_descriptor
 from canopy_stereo.ros.qos import OUTPUT_DEPTH, RELIABILITY_CHOICES, publisher_qos, subscription_qos
 
@@ -67,13 +68,19 @@ class CanopyNode(Node):
     package's QoS, :meth:`drop` and :meth:`guarded` callbacks.
 
     Keyword arguments go to :class:`rclpy.node.Node` (``context``, ``namespace``,
-    ``parameter_overrides``, ``cli_args``, ...). Counters: ``counts`` (received,
+    ``parameter_overrides``, ``cli_args``, ...), except ``intra_process``: an
+    :class:`~canopy_stereo.ros.intra_process.IntraProcessBus` shared with the other nodes of
+    the process (:class:`~canopy_stereo.ros.graph.CanopyGraph` passes one), over which
+    messages between them travel without DDS. Counters: ``counts`` (received,
     published, ...) and ``drops`` (reason -> count), both thread-safe to read.
     """
 
-    def __init__(self, node_name: str, **kwargs):
+    def __init__(self, node_name: str, *, intra_process: IntraProcessBus | None = None, **kwargs):
         kwargs.setdefault("namespace", DEFAULT_NAMESPACE)
         super().__init__(node_name, **kwargs)
+        self.intra_process = intra_process
+        self.local_subscriptions: list[LocalSubscription] = []
+        self._local_topics: list[str] = []
         self.add_pre_set_parameters_callback(self._integers_for_doubles)
         self.declare_text("reliability", "reliable", "reliability of the node's publishers",
                           choices=RELIABILITY_CHOICES, read_only=True)
@@ -160,7 +167,10 @@ class CanopyNode(Node):
         pub = self.create_publisher(msg_type, topic,
                                     publisher_qos(self.get_parameter("reliability").value, OUTPUT_DEPTH),
                                     qos_overriding_options=QoSOverridingOptions.with_default_policies())
-        return _CountedPublisher(pub, self.diagnostics)
+        if self.intra_process is not None:
+            self.intra_process.register_publisher(pub.topic_name)
+            self._local_topics.append(pub.topic_name)
+        return _CountedPublisher(pub, self.diagnostics, self.intra_process)
 
     def make_subscription(self, msg_type, topic: str, callback, *, depth: int | None = None, **kwargs):
         """Reliable keep-last subscription (:func:`~canopy_stereo.ros.qos.subscription_qos`)
@@ -168,6 +178,10 @@ class CanopyNode(Node):
 
         ``qos_overrides.<topic>.subscription.reliability: best_effort`` (a node parameter)
         accepts a best-effort publisher (large messages between processes may then be lost).
+
+        With an intra-process bus, a topic that another node of the bus publishes is
+        received from the bus instead (a :class:`~canopy_stereo.ros.intra_process.LocalSubscription`
+        with the same keep-last depth; its QoS overrides do not apply).
         """
         diagnostics = self.diagnostics
         name = topic
@@ -177,6 +191,14 @@ class CanopyNode(Node):
             diagnostics.received(name, stamp)
             return callback(msg)
 
+        if self.intra_process is not None and not kwargs:
+            resolved = self.resolve_topic_name(topic)
+            if self.intra_process.publisher_count(resolved) > 0:
+                name = resolved
+                sub = self.intra_process.subscribe(self, resolved, self.guarded(counted),
+                                                   int(subscription_qos(depth).depth))
+                self.local_subscriptions.append(sub)
+                return sub
         sub = self.create_subscription(msg_type, topic, self.guarded(counted), subscription_qos(depth),
                                        qos_overriding_options=QoSOverridingOptions.with_default_policies(),
                                        **kwargs)
@@ -281,6 +303,12 @@ class CanopyNode(Node):
         """Refuse new callbacks, wait (up to 30 s) for running ones, then destroy."""
         with self._idle:
             self._closing = True
+        for sub in self.local_subscriptions:
+            sub.close()
+        if self.intra_process is not None:
+            for topic in self._local_topics:
+                self.intra_process.unregister_publisher(topic)
+            self._local_topics = []
         for worker in self._workers:
             worker.close()
         with self._idle:
@@ -362,16 +390,21 @@ def _header_stamp_ns(msg) -> int | None:
 
 
 class _CountedPublisher:
-    """An rclpy publisher whose ``publish`` also reports to the node's diagnostics
-    (every other attribute is the publisher's own)."""
+    """An rclpy publisher whose ``publish`` also reports to the node's diagnostics and hands
+    the message to the local subscriptions of an intra-process bus (every other attribute
+    is the publisher's own)."""
 
-    def __init__(self, publisher, diagnostics: NodeDiagnostics):
+    def __init__(self, publisher, diagnostics: NodeDiagnostics, bus: IntraProcessBus | None = None):
         self._publisher = publisher
         self._diagnostics = diagnostics
+        self._bus = bus
+        self._topic = publisher.topic_name
 
     def publish(self, msg) -> None:
         self._publisher.publish(msg)
-        self._diagnostics.published(self._publisher.topic_name, _header_stamp_ns(msg))
+        if self._bus is not None:
+            self._bus.deliver(self._topic, msg)
+        self._diagnostics.published(self._topic, _header_stamp_ns(msg))
 
     @property
     def publisher(self):
