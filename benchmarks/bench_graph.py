@@ -397,7 +397,8 @@ def parse_node_parameter(text: str) -> tuple[str, str, object]:
 
 
 def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rate_hz: float = 30.0,
-               log_dir: Path, threads: int | None = None, node_parameters: dict | None = None) -> dict:
+               log_dir: Path, threads: int | None = None, node_parameters: dict | None = None,
+               intra_process: bool = True) -> dict:
     """Feed the graph of ``config`` ``n_frames`` pairs at ``rate_hz``; the figures (see the module
     docstring) as a dict. Runs in the calling process (``main`` gives each configuration a fresh one)."""
     import threading
@@ -442,7 +443,7 @@ def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rat
                         for node, values in params.items()}
             graph = CanopyGraph(rig, probe.context, GraphOptions(
                 matcher=config.matcher, segment=config.mask, use_mask=config.mask,
-                parameter_services=False, node_parameters=in_graph))
+                parameter_services=False, node_parameters=in_graph, intra_process=intra_process))
             graph.spin_in_background()
             pids = {}
         diagnostics = DiagnosticsTotals(probe.node)
@@ -606,6 +607,8 @@ def main(argv=None) -> int:
                    help="a node parameter for every configuration (repeatable), e.g. "
                         "disparity_node:elas.subsampling=true, segment_node:recut_every=1")
     p.add_argument("--json", metavar="OUT.json", help="also write the results as JSON")
+    p.add_argument("--no-intra-process", action="store_true",
+                   help="inprocess: DDS between the nodes too (GraphOptions.intra_process=False)")
     p.add_argument("--one", metavar="CONFIG", help=argparse.SUPPRESS)  # one configuration, this process
     p.add_argument("--replay", action="store_true", help="the bag replay mode (frames/s as fast as possible)")
     p.add_argument("--matchers", nargs="*", default=["elas", "sgbm"], help="--replay: matchers")
@@ -635,12 +638,14 @@ def main(argv=None) -> int:
     if args.one:
         with tempfile.TemporaryDirectory() as tmp:
             result = run_config(configs[0], scene=args.scene, n_frames=n_frames, rate_hz=args.rate,
-                                log_dir=Path(tmp), threads=args.threads, node_parameters=node_parameters)
+                                log_dir=Path(tmp), threads=args.threads, node_parameters=node_parameters,
+                                intra_process=not args.no_intra_process)
         Path(args.json).write_text(json.dumps(result))
         return 0
     print(f"machine: {os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.2f} at start; "
           f"{args.scene} frames, {n_frames} pairs per configuration at {args.rate:g} pairs/s"
-          + "".join(f"; {t}" for t in args.param) + (f"; disparity threads {args.threads}" if args.threads else ""),
+          + "".join(f"; {t}" for t in args.param) + (f"; disparity threads {args.threads}" if args.threads else "")
+          + ("; in-process graph without the intra-process bus" if args.no_intra_process else ""),
           flush=True)
     print(HEADER, flush=True)
     results = []
@@ -651,6 +656,8 @@ def main(argv=None) -> int:
                    "--scene", args.scene, "--rate", str(args.rate), "--frames", str(n_frames)]
             if args.threads:
                 cmd += ["--threads", str(args.threads)]
+            if args.no_intra_process:
+                cmd.append("--no-intra-process")
             for text in args.param:
                 cmd += ["--param", text]
             proc = subprocess.run(cmd, capture_output=True, text=True)

@@ -62,6 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default 10; 1 = every frame)")
     p.add_argument("--disparity-threads", type=int, default=None, metavar="N",
                    help="disparity_node: threads of the matcher (default: the node's)")
+    p.add_argument("--no-intra-process", action="store_true",
+                   help="pass messages between the nodes through DDS too (default: the message objects, "
+                        "canopy_stereo.ros.intra_process)")
     return p
 
 
@@ -121,7 +124,7 @@ def main(args=None) -> int:
                            segment=not opts.no_segment or opts.use_mask, use_mask=opts.use_mask,
                            segment_depth_cue=opts.segment_depth_cue, organized=opts.organized,
                            threads=opts.threads, executor=opts.executor, recut_every=opts.recut_every,
-                           disparity_threads=opts.disparity_threads)
+                           disparity_threads=opts.disparity_threads, intra_process=not opts.no_intra_process)
     if opts.cameras:
         # free-running cameras: the pairing tolerance is half a frame period at the camera rate
         if not opts.fps > 0:
