@@ -22,7 +22,7 @@ from __future__ import annotations
 import threading
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -301,11 +301,23 @@ def run_bag(bag_path, rig: Rig, *, rate: float = 1.0, record=None, options: Grap
 OUTPUT_DRAIN_S = 0.2
 
 
+def _hold_every_frame(options: GraphOptions, rate: float, max_in_flight: int) -> GraphOptions:
+    """As fast as possible (``rate`` 0) the player keeps ``max_in_flight`` frames in the graph and
+    none may be dropped: disparity_node may hold that many waiting (unless set explicitly; its
+    default of 1 is for cameras, which do not wait)."""
+    disparity = options.node_parameters.get("disparity_node", {})
+    if rate != 0 or "waiting_pairs" in disparity:
+        return options
+    params = {**options.node_parameters, "disparity_node": {**disparity, "waiting_pairs": int(max_in_flight)}}
+    return replace(options, node_parameters=params)
+
+
 def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, remap, startup_timeout_s,
          progress, context, play_topics, left_topics, ns, outputs, result, book, writer, loop=False,
          stop=None, on_output_cb=None, on_pass=None) -> None:
     """Build the graph, play, drain and tear down (the body of :func:`run_bag`)."""
     reliability = options.reliability
+    options = _hold_every_frame(options, rate, max_in_flight)
     with (_given(context) if context is not None else ros_context(domain_id)) as ctx:
         graph = CanopyGraph(rig, ctx, options)
         io_node = CanopyNode("canopy_run", context=ctx, namespace=ns or "/",

@@ -87,7 +87,8 @@ def test_camera_info_path_equals_back_mapping_and_dlt(paper_rig, rig_name):
     scale = np.linalg.norm(ref.astype(np.float64), axis=1)
     err = np.linalg.norm(pts.astype(np.float64) - ref, axis=1) / scale
     assert err.max() < 1e-6
-    # and the float64 path (before rounding to the cloud's float32) too
+    # and the float64 path (before rounding to the cloud's float32) too: its only error is the
+    # DisparityImage's f and t, float32 on the wire (2 roundings of 2**-24 relative each)
     from canopy_stereo.geometry.frames import reproject_disparity
     from canopy_stereo.geometry.triangulation import triangulate_disparity
 
@@ -96,7 +97,7 @@ def test_camera_info_path_equals_back_mapping_and_dlt(paper_rig, rig_name):
     ok = np.isfinite(r64[..., 2])
     rel = np.linalg.norm(p64[ok] - r64[ok] * rig.metres_per_unit, axis=1) / np.linalg.norm(
         r64[ok] * rig.metres_per_unit, axis=1)
-    assert rel.max() < 1e-9
+    assert rel.max() < 1.5e-7
     # depth is Z = f t / d of the rectified left camera
     z = depth.ravel()[index]
     np.testing.assert_allclose(z, msg.f * msg.t / msg.disparity.ravel()[index], rtol=1e-6)

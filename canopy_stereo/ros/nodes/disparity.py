@@ -31,7 +31,7 @@ Parameters (changeable at run time unless marked read-only):
 * read-only: ``queue_size``, ``waiting_pairs``, ``reliability``, ``diagnostic_period``.
 
 This is the slowest stage: the matcher runs in a worker thread on the complete pairs
-(:class:`~canopy_stereo.ros.nodes.base.LatestOnly`), at most ``waiting_pairs`` (2)
+(:class:`~canopy_stereo.ros.nodes.base.LatestOnly`), at most ``waiting_pairs`` (1)
 waiting; when the cameras are faster than the matcher, the oldest waiting pairs are
 dropped as superseded, so latency stays bounded. Stamps that go back reset the pairing.
 
@@ -106,7 +106,7 @@ class DisparityNode(CanopyNode):
         self.declare_number("queue_size", 5, "rectified images and camera_infos kept per stream while "
                             "waiting for the others with the same stamp",
                             minimum=1, maximum=100, read_only=True)
-        self.declare_number("waiting_pairs", 2, "complete pairs kept waiting while the matcher is busy; "
+        self.declare_number("waiting_pairs", 1, "complete pairs kept waiting while the matcher is busy; "
                             "when more arrive the oldest is dropped (the newest win, latency stays bounded)",
                             minimum=1, maximum=100, read_only=True)
         self.declare_text("matcher", default_matcher(), "disparity matcher", choices=tuple(matcher_names()))
