@@ -47,6 +47,11 @@ def generate_launch_description():
         DeclareLaunchArgument("matcher", default_value=DEFAULT_MATCHER, description="disparity matcher",
                               choices=matcher_names()),
         DeclareLaunchArgument("use_mask", default_value="false", description="plant pixels only"),
+        DeclareLaunchArgument("segment_depth_cue", default_value="false",
+                              description="segment_node seeds GrabCut with the disparity too (near = plant)"),
+        DeclareLaunchArgument("elas_subsampling", default_value="false",
+                              description="ELAS matches every second row and column (camera rate at 640x480 "
+                                          "on 2 cores; the map is repeated over 2x2 blocks)"),
         DeclareLaunchArgument("bag", default_value="", description="bag to replay instead of cameras"),
         DeclareLaunchArgument("rate", default_value="1.0", description="bag playback speed"),
         DeclareLaunchArgument("loop", default_value="false", description="replay the bag until stopped"),
@@ -73,11 +78,13 @@ def generate_launch_description():
         Node(package=PACKAGE, executable="rectify_node", namespace=ns,
              parameters=[rig, {"fps": camera_fps}]),
         Node(package=PACKAGE, executable="disparity_node", namespace=ns,
-             parameters=[rig, {"matcher": LaunchConfiguration("matcher")}]),
+             parameters=[rig, {"matcher": LaunchConfiguration("matcher"),
+                               "elas.subsampling": LaunchConfiguration("elas_subsampling")}]),
         # nothing waits for every mask unless use_mask: GrabCut segments the newest image
         Node(package=PACKAGE, executable="segment_node", namespace=ns,
              parameters=[{"queue_size": PythonExpression(
-                 ["5 if '", LaunchConfiguration("use_mask"), "'.lower() == 'true' else 1"])}]),
+                 ["5 if '", LaunchConfiguration("use_mask"), "'.lower() == 'true' else 1"]),
+                 "depth_cue": LaunchConfiguration("segment_depth_cue")}]),
         Node(package=PACKAGE, executable="point_cloud_node", namespace=ns,
              parameters=[rig, {"use_mask": LaunchConfiguration("use_mask")}]),
     ]
