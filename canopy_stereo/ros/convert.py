@@ -222,8 +222,12 @@ class DisparityFrame:
 
 def valid_window(disp: np.ndarray, min_disparity: float = 0.0) -> tuple[int, int, int, int]:
     """Bounding box ``(x, y, w, h)`` of pixels with ``disp >= min_disparity`` (zeros if none)."""
-    ok = np.isfinite(disp) & (disp >= min_disparity)
-    cols, rows = np.flatnonzero(ok.any(axis=0)), np.flatnonzero(ok.any(axis=1))
+    return _mask_window(np.isfinite(disp) & (disp >= min_disparity))
+
+
+def _mask_window(mask: np.ndarray) -> tuple[int, int, int, int]:
+    """Bounding box ``(x, y, w, h)`` of the true pixels of a boolean (H, W) mask (zeros if none)."""
+    cols, rows = np.flatnonzero(mask.any(axis=0)), np.flatnonzero(mask.any(axis=1))
     if cols.size == 0:
         return 0, 0, 0, 0
     return int(cols[0]), int(rows[0]), int(cols[-1] - cols[0] + 1), int(rows[-1] - rows[0] + 1)
@@ -254,10 +258,12 @@ def disparity_to_msg(disp: np.ndarray, f: float, t: float, min_disparity: float,
     d = np.asarray(disp, np.float32)
     if d.ndim != 2:
         raise ImageError(f"a disparity map must be (H, W), got shape {d.shape}")
-    invalid = ~np.isfinite(d) | (d < 0) | (d < min_disparity) | (d > max_disparity)
     lo, hi = float(min_disparity) - float(doffs), float(max_disparity) - float(doffs)
-    out = np.where(invalid, np.float32(lo - 1.0), d - np.float32(doffs)).astype(np.float32)
-    x, y, w, h = valid_window(np.where(invalid, -1.0, 1.0))
+    # valid: finite, >= 0 and inside the range (NaN compares false; +inf is above the range)
+    valid = (d >= max(0.0, float(min_disparity))) & (d <= float(max_disparity))
+    shifted = d if float(doffs) == 0.0 else d - np.float32(doffs)
+    out = np.where(valid, shifted, np.float32(lo - 1.0)).astype(np.float32, copy=False)
+    x, y, w, h = _mask_window(valid)
     msg = DisparityImage()
     msg.header = make_header(stamp_ns, frame_id)
     msg.image = image_to_msg(out, "32FC1", stamp_ns=stamp_ns, frame_id=frame_id)

@@ -89,6 +89,25 @@ def test_disparity_round_trip_marks_invalid_below_min():
     assert frame.stamp_ns == 7 and frame.frame_id == "rect"
 
 
+def test_disparity_invalid_values_and_window():
+    """Every kind of invalid value (NaN, +-inf, negative, below and above the range) becomes
+    min_disparity - 1; the valid window is the box of the rest; float64 maps are accepted."""
+    d = np.full((5, 6), np.nan)
+    d[1, 2], d[3, 4] = 10.0, 20.0  # valid
+    d[0, 0], d[4, 5], d[2, 0], d[0, 5], d[4, 0] = np.inf, -np.inf, -3.0, 3.0, 70.0  # invalid
+    msg = convert.disparity_to_msg(d, 500.0, 0.05, 4, 64, doffs=1.5)
+    raw = convert.msg_to_image(msg.image)
+    assert raw.dtype == np.float32
+    assert raw[1, 2] == 8.5 and raw[3, 4] == 18.5  # shifted by doffs
+    invalid = np.ones_like(raw, bool)
+    invalid[1, 2] = invalid[3, 4] = False
+    assert np.all(raw[invalid] == np.float32(4 - 1.5 - 1))
+    w = msg.valid_window
+    assert (w.x_offset, w.y_offset, w.width, w.height) == (2, 1, 3, 3)
+    empty = convert.disparity_to_msg(np.full((3, 3), np.nan, np.float32), 500.0, 0.05, 0, 64).valid_window
+    assert (empty.x_offset, empty.y_offset, empty.width, empty.height) == (0, 0, 0, 0)
+
+
 def test_disparity_principal_point_offset_gives_ros_depth():
     """With converging rectified cameras (cx_l != cx_r) the message holds d - doffs, so Z = f t / d."""
     f, B, doffs = 640.0, 0.03, 15.5
