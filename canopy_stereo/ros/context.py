@@ -24,7 +24,7 @@ from rclpy.context import Context
 PRIVATE_DOMAIN_BASE = 100
 PRIVATE_DOMAIN_COUNT = 100
 
-_reserved: dict[int, tuple[int, object]] = {}  # pid -> (domain, its open lock file)
+_reserved: dict[int, tuple[int, int | None]] = {}  # pid -> (domain, the descriptor of its lock file)
 _reserve_lock = threading.Lock()
 
 
@@ -59,13 +59,13 @@ def private_domain_id(pid: int | None = None) -> int:
             folder.mkdir(mode=0o700, exist_ok=True)
             for k in range(PRIVATE_DOMAIN_COUNT):
                 candidate = PRIVATE_DOMAIN_BASE + (first + k) % PRIVATE_DOMAIN_COUNT
-                handle = open(folder / f"{candidate}.lock", "a")  # noqa: SIM115 - held until exit
+                fd = os.open(folder / f"{candidate}.lock", os.O_WRONLY | os.O_CREAT, 0o600)  # held until exit
                 try:
-                    fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
                 except OSError:
-                    handle.close()
+                    os.close(fd)
                     continue
-                _reserved[me] = (candidate, handle)
+                _reserved[me] = (candidate, fd)
                 return candidate
         except (ImportError, OSError):
             pass
