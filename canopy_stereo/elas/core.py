@@ -163,7 +163,8 @@ def elas_run(left: np.ndarray, right: np.ndarray, params: ElasParams,
     timings["matching"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    disp_l, disp_r = left_right_check(disp_l, disp_r, p.lr_threshold, step=step)
+    disp_l, disp_r = left_right_check(disp_l, disp_r, p.lr_threshold, step=step,
+                                      want_right=want_right)
     timings["lr_check"] = time.perf_counter() - t
 
     if want_right and not p.postprocess_only_left:

@@ -19,92 +19,110 @@ MEAN_TAPS_AFTER = 3
 MEDIAN_RADIUS = 3
 
 
+@njit(cache=True, inline="always")
+def _lr_keep(d, c2, row_other, threshold):
+    """:data:`INVALID` if ``d`` is valid (>= 0) and its partner ``row_other[c2]`` is
+    missing (``c2`` out of range, partner negative) or differs by more than
+    ``threshold``; else ``d`` (branch-free)."""
+    w = row_other.shape[0]
+    outside = (c2 < 0) | (c2 >= w)
+    partner = row_other[min(max(c2, 0), w - 1)]
+    bad = outside | (partner < 0) | (abs(d - partner) > threshold)
+    return INVALID if (d >= 0) & bad else d
+
+
 @njit(cache=True, nogil=True)
-def _lr_check(d_left, d_right, threshold, step):
+def _lr_check(d_left, d_right, threshold, step, want_right):
+    """The checked maps (H, W) float32; the right one is not computed (returned as the
+    unchanged ``d_right``) unless ``want_right``."""
     h, w = d_left.shape
-    out_l = d_left.copy()
-    out_r = d_right.copy()
+    out_l = np.empty_like(d_left)
+    out_r = np.empty_like(d_right) if want_right else d_right
     inv_step = 1.0 / step
     for v in range(h):
         row_l = d_left[v]
         row_r = d_right[v]
         dst_l = out_l[v]
-        dst_r = out_r[v]
         for c in range(w):
             d = row_l[c]
-            if d >= 0:
-                # partner column round((c*step - d) / step), rounding half up
-                x = (c * step - d) * inv_step + 0.5
-                c2 = int(x) if x >= 0 else -1
-                if c2 >= w or c2 < 0 or row_r[c2] < 0 or abs(d - row_r[c2]) > threshold:
-                    dst_l[c] = INVALID
-            d = row_r[c]
-            if d >= 0:
-                c1 = int((c * step + d) * inv_step + 0.5)
-                if c1 >= w or row_l[c1] < 0 or abs(d - row_l[c1]) > threshold:
-                    dst_r[c] = INVALID
+            # partner column round((c*step - d) / step), rounding half up
+            x = (c * step - d) * inv_step + 0.5
+            c2 = int(x) if x >= 0 else -1
+            dst_l[c] = _lr_keep(d, c2, row_r, threshold)
+        if want_right:
+            dst_r = out_r[v]
+            for c in range(w):
+                d = row_r[c]
+                x = (c * step + d) * inv_step + 0.5
+                c1 = int(x) if x >= 0 else -1
+                dst_r[c] = _lr_keep(d, c1, row_l, threshold)
     return out_l, out_r
 
 
 def left_right_check(d_left: np.ndarray, d_right: np.ndarray, threshold: float,
-                     *, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
+                     *, step: int = 1, want_right: bool = True):
     """Invalidate pixels whose match in the other map disagrees by more than ``threshold``.
 
     Left pixel ``u`` with disparity ``d`` is checked against the right map at
     ``round(u - d)``, right pixel ``u`` against the left map at ``round(u + d)``
     (columns in full-resolution pixels, ``step`` for subsampled maps).
-    Returns new maps; the inputs are not changed.
+    Returns new maps ``(left, right)`` float32 (H, W); the inputs are not changed.
+    ``want_right=False`` skips the right map's check and returns ``(left, None)``.
     """
-    return _lr_check(np.ascontiguousarray(d_left, np.float32),
-                     np.ascontiguousarray(d_right, np.float32), float(threshold), int(step))
+    out_l, out_r = _lr_check(np.ascontiguousarray(d_left, np.float32),
+                             np.ascontiguousarray(d_right, np.float32), float(threshold),
+                             int(step), bool(want_right))
+    return out_l, (out_r if want_right else None)
 
 
 @njit(cache=True, nogil=True)
 def _remove_small_segments(disp, sim_threshold, min_size):
+    """Breadth-first flood fill on a copy padded with one invalid pixel on every side,
+    so that a neighbour is ``p +- 1`` / ``p +- (W + 2)`` of the flat index ``p``
+    without bounds checks or divisions. The queue holds each segment's pixels, which
+    are invalidated in place when the segment is small (already-visited pixels are
+    never looked at again, so this does not change the later segments)."""
     h, w = disp.shape
-    out = disp.copy()
-    label = np.zeros((h, w), dtype=np.int32)
-    stack = np.empty(h * w, dtype=np.int64)
-    members = np.empty(h * w, dtype=np.int64)
-    current = 0
+    stride = w + 2
+    padded = np.full((h + 2) * stride, INVALID, dtype=np.float32)
+    for v in range(h):
+        padded[(v + 1) * stride + 1:(v + 1) * stride + 1 + w] = disp[v]
+    seen = np.zeros((h + 2) * stride, dtype=np.uint8)
+    queue = np.empty(h * w, dtype=np.int32)
     for v0 in range(h):
-        for u0 in range(w):
-            if disp[v0, u0] < 0 or label[v0, u0] != 0:
+        for p0 in range((v0 + 1) * stride + 1, (v0 + 1) * stride + 1 + w):
+            if padded[p0] < 0 or seen[p0]:
                 continue
-            current += 1
-            label[v0, u0] = current
-            top = 0
-            n = 0
-            stack[top] = v0 * w + u0
-            top += 1
-            while top > 0:
-                top -= 1
-                p = stack[top]
-                members[n] = p
-                n += 1
-                v = p // w
-                u = p - v * w
-                d = disp[v, u]
+            seen[p0] = 1
+            queue[0] = p0
+            head = 0
+            tail = 1
+            while head < tail:
+                p = queue[head]
+                head += 1
+                d = padded[p]
                 for k in range(4):
                     if k == 0:
-                        vv, uu = v, u - 1
+                        q = p - 1
                     elif k == 1:
-                        vv, uu = v, u + 1
+                        q = p + 1
                     elif k == 2:
-                        vv, uu = v - 1, u
+                        q = p - stride
                     else:
-                        vv, uu = v + 1, u
-                    if vv < 0 or vv >= h or uu < 0 or uu >= w or label[vv, uu] != 0:
+                        q = p + stride
+                    if seen[q]:
                         continue
-                    d2 = disp[vv, uu]
+                    d2 = padded[q]
                     if d2 >= 0 and abs(d2 - d) <= sim_threshold:
-                        label[vv, uu] = current
-                        stack[top] = vv * w + uu
-                        top += 1
-            if n < min_size:
-                for i in range(n):
-                    p = members[i]
-                    out[p // w, p % w] = INVALID
+                        seen[q] = 1
+                        queue[tail] = q
+                        tail += 1
+            if tail < min_size:
+                for i in range(tail):
+                    padded[queue[i]] = INVALID
+    out = np.empty_like(disp)
+    for v in range(h):
+        out[v] = padded[(v + 1) * stride + 1:(v + 1) * stride + 1 + w]
     return out
 
 
