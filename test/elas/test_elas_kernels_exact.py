@@ -1,0 +1,255 @@
+"""The optimised ELAS kernels give exactly (bit for bit) what straightforward
+implementations of the same definitions give.
+
+Each reference below is a plain transcription of the stage's definition (the
+kernels as they were before they were tuned for speed), kept here on purpose: the
+package's kernels are free to change their loops, memory layout and branches, never
+their output. Inputs: random maps/images, and the real intermediate maps of an ELAS
+run on the bundled Middlebury Plants pair (examples/plants).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from canopy_stereo.elas import delaunay, descriptor, grid, matching, postprocess, support
+from canopy_stereo.elas.core import elas_run
+from canopy_stereo.elas.params import make_params
+from canopy_stereo.io.images import read_image
+
+REPO = Path(__file__).resolve().parents[2]
+INVALID = np.float32(-1.0)
+
+
+def same_bits(a, b) -> bool:
+    """Equal shape, dtype and bytes (so -0.0 != 0.0 and NaN == NaN of the same payload)."""
+    a, b = np.asarray(a), np.asarray(b)
+    return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
+
+
+# --------------------------------------------------------------------------- inputs
+@pytest.fixture(scope="module")
+def plants():
+    """A 320x240 grey crop of the real Plants pair and its ELAS intermediates."""
+    left = read_image(REPO / "examples" / "plants" / "left.png", color=False)
+    right = read_image(REPO / "examples" / "plants" / "right.png", color=False)
+    gl = np.ascontiguousarray(left[120:360, 240:560])
+    gr = np.ascontiguousarray(right[120:360, 240:560])
+    p = make_params("robotics", disp_min=0, disp_max=120)
+    desc_l, tex_l = descriptor.compute_descriptors(gl)
+    desc_r, tex_r = descriptor.compute_descriptors(gr)
+    pts = support.support_points(desc_l, desc_r, tex_l, tex_r, p)
+    maps = {}
+    for right_image in (False, True):
+        own, other, tex = (desc_r, desc_l, tex_r) if right_image else (desc_l, desc_r, tex_l)
+        vert, tri, planes, valid = delaunay.triangle_planes(pts, right_image=right_image)
+        lists, counts = grid.disparity_grid(pts, (gl.shape[1], gl.shape[0]), p.grid_size,
+                                            p.disp_min, p.disp_max, right_image=right_image)
+        tri_map = delaunay.rasterize_triangles(vert, tri, *gl.shape)
+        radius = matching.plane_radius(p.sigma, p.sradius)
+        prior = matching.prior_table(p.beta, p.gamma, p.sigma, radius + 1)
+        maps[right_image] = dict(desc_own=own, desc_other=other, tex_own=tex, tri_map=tri_map,
+                                 planes=planes, valid=valid, lists=lists, counts=counts,
+                                 prior=prior, radius=radius, vertices=vert, triangles=tri)
+    disp_l, _ = matching.dense_match(*_match_args(maps[False], p, 1, 1, False))
+    disp_r, _ = matching.dense_match(*_match_args(maps[True], p, -1, 1, False))
+    return dict(left=gl, right=gr, params=p, desc=(desc_l, desc_r), tex=(tex_l, tex_r),
+                support=pts, maps=maps, disp=(disp_l, disp_r))
+
+
+def _match_args(m, p, sign, step, subpixel):
+    return (m["desc_own"], m["desc_other"], m["tex_own"], m["tri_map"], m["planes"], m["valid"],
+            m["lists"], m["counts"], p.grid_size, m["prior"], m["radius"], sign, p.disp_min,
+            p.disp_max, p.match_texture, step, subpixel)
+
+
+def random_disparity(rng, shape, *, invalid=0.3, integer=True, lo=0, hi=40):
+    """float32 map with smooth-ish patches, ``invalid`` share of -1 pixels."""
+    d = rng.integers(lo, hi, shape).astype(np.float32)
+    d = np.round(0.5 * d + 0.5 * np.roll(d, 1, axis=1)) if integer else \
+        (0.5 * d + 0.5 * np.roll(d, 1, axis=1) + rng.uniform(-0.5, 0.5, shape)).astype(np.float32)
+    d = d.astype(np.float32)
+    d[rng.random(shape) < invalid] = INVALID
+    return d
+
+
+# ------------------------------------------------------------- left-right check
+def reference_lr_check(d_left, d_right, threshold, step):
+    h, w = d_left.shape
+    out_l, out_r = d_left.copy(), d_right.copy()
+    inv_step = 1.0 / step
+    for v in range(h):
+        for c in range(w):
+            d = d_left[v, c]
+            if d >= 0:
+                x = (c * step - float(d)) * inv_step + 0.5
+                c2 = int(x) if x >= 0 else -1
+                if c2 >= w or c2 < 0 or d_right[v, c2] < 0 or \
+                        abs(d - d_right[v, c2]) > threshold:
+                    out_l[v, c] = INVALID
+            d = d_right[v, c]
+            if d >= 0:
+                c1 = int((c * step + float(d)) * inv_step + 0.5)
+                if c1 >= w or d_left[v, c1] < 0 or abs(d - d_left[v, c1]) > threshold:
+                    out_r[v, c] = INVALID
+    return out_l, out_r
+
+
+@pytest.mark.parametrize("step", [1, 2])
+@pytest.mark.parametrize("integer", [True, False])
+def test_left_right_check_is_exact_on_random_maps(rng, step, integer):
+    shape = (37, 53)
+    d_left = random_disparity(rng, shape, integer=integer, hi=30)
+    d_right = random_disparity(rng, shape, integer=integer, hi=30)
+    # make many pairs consistent so that both outcomes occur
+    for v in range(shape[0]):
+        for c in range(shape[1]):
+            x = int((c * step - float(d_left[v, c])) / step + 0.5)
+            if d_left[v, c] >= 0 and 0 <= x < shape[1] and rng.random() < 0.6:
+                d_right[v, x] = d_left[v, c] + np.float32(rng.choice([0.0, 1.0, 2.5]))
+    ref_l, ref_r = reference_lr_check(d_left, d_right, 2.0, step)
+    got_l, got_r = postprocess.left_right_check(d_left, d_right, 2.0, step=step)
+    assert same_bits(got_l, ref_l) and same_bits(got_r, ref_r)
+    assert (ref_l < 0).sum() > (d_left < 0).sum()         # the check did something
+    only_l, none_r = postprocess.left_right_check(d_left, d_right, 2.0, step=step,
+                                                  want_right=False)
+    assert none_r is None and same_bits(only_l, ref_l)
+
+
+def test_left_right_check_is_exact_on_real_maps(plants):
+    disp_l, disp_r = plants["disp"]
+    ref_l, ref_r = reference_lr_check(disp_l, disp_r, 2, 1)
+    got_l, got_r = postprocess.left_right_check(disp_l, disp_r, 2, step=1)
+    assert same_bits(got_l, ref_l) and same_bits(got_r, ref_r)
+
+
+# ------------------------------------------------------- small-segment removal
+def reference_remove_small_segments(disp, sim_threshold, min_size):
+    h, w = disp.shape
+    out = disp.copy()
+    label = np.zeros((h, w), np.int64)
+    current = 0
+    for v0 in range(h):
+        for u0 in range(w):
+            if disp[v0, u0] < 0 or label[v0, u0]:
+                continue
+            current += 1
+            label[v0, u0] = current
+            stack, members = [(v0, u0)], []
+            while stack:
+                v, u = stack.pop()
+                members.append((v, u))
+                for vv, uu in ((v, u - 1), (v, u + 1), (v - 1, u), (v + 1, u)):
+                    if 0 <= vv < h and 0 <= uu < w and not label[vv, uu] and \
+                            disp[vv, uu] >= 0 and abs(disp[vv, uu] - disp[v, u]) <= sim_threshold:
+                        label[vv, uu] = current
+                        stack.append((vv, uu))
+            if len(members) < min_size:
+                for v, u in members:
+                    out[v, u] = INVALID
+    return out
+
+
+@pytest.mark.parametrize("integer", [True, False])
+def test_small_segment_removal_is_exact_on_random_maps(rng, integer):
+    disp = random_disparity(rng, (41, 57), integer=integer, hi=6, invalid=0.25)
+    disp[0, :] = 3.0                   # segments touching every border
+    disp[:, -1] = 5.0
+    disp[5, 5] = np.nan                # a NaN pixel is a segment of its own
+    for min_size in (1, 4, 30):
+        ref = reference_remove_small_segments(disp, 1.0, min_size)
+        assert same_bits(postprocess.remove_small_segments(disp, 1.0, min_size), ref)
+
+
+def test_small_segment_removal_is_exact_on_real_maps(plants):
+    for disp in plants["disp"]:
+        ref = reference_remove_small_segments(disp, 1.0, 200)
+        got = postprocess.remove_small_segments(disp, 1.0, 200)
+        assert same_bits(got, ref)
+        assert (got < 0).sum() > (disp < 0).sum()
+
+
+# -------------------------------------------------------------- support points
+def reference_candidate_grid(desc_l, desc_r, tex_l, tex_r, step, disp_min, disp_max,
+                             support_texture, support_threshold, lr_threshold):
+    """Candidate cells by the definition in canopy_stereo.elas.support (numpy per candidate)."""
+    h, w = desc_l.shape[:2]
+    off, border, margin = support.SUPPORT_SAMPLE_OFFSET, descriptor.BORDER, support.SUPPORT_MARGIN
+    thr = np.float32(support_threshold)
+
+    def cost_vector(desc, u, v):
+        return np.concatenate([desc[v - off, u - off], desc[v - off, u + off],
+                               desc[v + off, u - off], desc[v + off, u + off]]).astype(np.int32)
+
+    def best(desc_own, desc_other, tex_own, u, v, sign):
+        if tex_own[v, u] < support_texture:
+            return -1
+        dmax = min(disp_max, u - off - border) if sign > 0 else \
+            min(disp_max, w - 1 - border - off - u)
+        dmin = max(disp_min, 0)
+        if dmax - dmin + 1 < 11:
+            return -1
+        own = cost_vector(desc_own, u, v)
+        costs = np.array([np.abs(own - cost_vector(desc_other, u - sign * d, v)).sum()
+                          for d in range(dmin, dmax + 1)], np.int64)
+        k = int(np.argmin(costs))
+        second = np.min(np.delete(costs, k))
+        ok = np.float32(costs[k]) < thr * np.float32(second)
+        return dmin + k if ok else -1
+
+    rows, cols = (h - 1) // step + 1, (w - 1) // step + 1
+    out = np.full((rows, cols), -1, np.int32)
+    for i in range(rows):
+        v = i * step
+        if v < margin or v > h - 1 - margin:
+            continue
+        for j in range(cols):
+            u = j * step
+            if u < margin or u > w - 1 - margin:
+                continue
+            d = best(desc_l, desc_r, tex_l, u, v, 1)
+            if d < 0:
+                continue
+            d_back = best(desc_r, desc_l, tex_r, u - d, v, -1)
+            if d_back >= 0 and abs(d - d_back) <= lr_threshold:
+                out[i, j] = d
+    return out
+
+
+def test_support_candidates_are_exact_on_real_images(plants):
+    (dl, dr), (tl, tr) = plants["desc"], plants["tex"]
+    for step, dmin, dmax, thr in ((5, 0, 120, 0.85), (4, 20, 60, 0.95)):
+        ref = reference_candidate_grid(dl, dr, tl, tr, step, dmin, dmax, 10, thr, 2)
+        got = support.candidate_grid(dl, dr, tl, tr, step, dmin, dmax, 10, thr, 2)
+        assert same_bits(got, ref)
+        assert (ref >= 0).sum() > 100
+
+
+def test_support_candidates_are_exact_on_random_images(rng):
+    img = rng.integers(0, 256, (45, 70), dtype=np.uint8)
+    shifted = np.roll(img, -7, axis=1)
+    dl, tl = descriptor.compute_descriptors(img)
+    dr, tr = descriptor.compute_descriptors(shifted)
+    ref = reference_candidate_grid(dl, dr, tl, tr, 3, 0, 30, 10, 0.9, 2)
+    assert same_bits(support.candidate_grid(dl, dr, tl, tr, 3, 0, 30, 10, 0.9, 2), ref)
+    assert (ref == 7).sum() > 10
+
+
+# ------------------------------------------------------------------- the whole run
+def test_elas_run_is_deterministic_across_thread_counts(plants):
+    import numba
+
+    p = make_params("middlebury", disp_min=0, disp_max=120, subpixel=True)
+    before = numba.get_num_threads()
+    try:
+        runs = []
+        for threads in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
+            numba.set_num_threads(threads)
+            runs.append(elas_run(plants["left"], plants["right"], p, want_right=True))
+    finally:
+        numba.set_num_threads(before)
+    for other in runs[1:]:
+        for name in ("disp_left", "disp_right", "support", "triangles_left", "triangles_right"):
+            assert same_bits(getattr(other, name), getattr(runs[0], name))
