@@ -88,22 +88,19 @@ def _candidate_disparity(flat_own, flat_other, texture_own, row_base, width, u, 
     if dmax - dmin + 1 < MIN_SUPPORT_DISPARITIES:
         return -1
     a = row_base + u * SUPPORT_BYTES
+    # best and second-best cost, branch-free (a new best pushes the old one to second;
+    # ties keep the first best). At least MIN_SUPPORT_DISPARITIES (> 1) costs are
+    # seen, so both exist.
     best_e = np.int32(2147483647)
     second_e = np.int32(2147483647)
     best_d = -1
-    second_d = -1
     for d in range(dmin, dmax + 1):
         e = sad64(flat_own, a, flat_other, a - sign * d * SUPPORT_BYTES)
-        if e < best_e:
-            second_e = best_e
-            second_d = best_d
-            best_e = e
-            best_d = d
-        elif e < second_e:
-            second_e = e
-            second_d = d
-    unique = np.float32(best_e) < support_threshold * np.float32(second_e)
-    if best_d >= 0 and second_d >= 0 and unique:
+        lower = e < best_e
+        second_e = best_e if lower else min(e, second_e)
+        best_d = d if lower else best_d
+        best_e = e if lower else best_e
+    if np.float32(best_e) < support_threshold * np.float32(second_e):
         return best_d
     return -1
 
