@@ -19,7 +19,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.typed import Dict
+
+#: Dictionary key of a point: (x, y).
+_POINT_KEY = types.UniTuple(types.float64, 2)
 
 
 @njit(cache=True, inline="always")
@@ -283,25 +287,53 @@ def _sweep(xs, ys, order, i0, i1, i2, ccx, ccy):
     return out
 
 
+@njit(cache=True, nogil=True)
+def _first_occurrences(xs, ys):
+    """int64 indices of the first occurrence of every distinct point ``(xs[i], ys[i])``,
+    increasing (``0.0`` and ``-0.0`` are the same coordinate, as for ``np.unique``)."""
+    seen = Dict.empty(key_type=_POINT_KEY, value_type=types.int64)
+    first = np.empty(xs.shape[0], dtype=np.int64)
+    n = 0
+    for i in range(xs.shape[0]):
+        key = (xs[i] + 0.0, ys[i] + 0.0)     # + 0.0 turns -0.0 into 0.0
+        if key not in seen:
+            seen[key] = i
+            first[n] = i
+            n += 1
+    return first[:n]
+
+
+@njit(cache=True, nogil=True)
+def delaunay_kernel(xs_all, ys_all):
+    """:func:`delaunay_triangles` of points ``(xs_all[i], ys_all[i])`` (float64 (N,)),
+    without the GIL: int32 (T, 3) indices into the input, counter-clockwise."""
+    empty = np.zeros((0, 3), np.int32)
+    if xs_all.shape[0] < 3:
+        return empty
+    first = _first_occurrences(xs_all, ys_all)
+    if first.shape[0] < 3:
+        return empty
+    xs = xs_all[first]
+    ys = ys_all[first]
+    i0, i1, i2, ccx, ccy = _seed(xs, ys)
+    if i0 < 0:
+        return empty
+    # insertion order: distance from the seed's circumcentre (stable: ties keep input order)
+    order = np.argsort((xs - ccx) ** 2 + (ys - ccy) ** 2, kind="mergesort")
+    tri = _sweep(xs, ys, order, i0, i1, i2, ccx, ccy)
+    out = np.empty_like(tri)
+    for t in range(tri.shape[0]):
+        for k in range(3):
+            out[t, k] = first[tri[t, k]]
+    return out
+
+
 def delaunay_triangles(points: np.ndarray) -> np.ndarray:
     """Delaunay triangles of 2-D points as int32 (T, 3) indices, counter-clockwise.
 
     Duplicate points are triangulated once (the first occurrence is used); fewer
-    than 3 distinct points, or all of them on one line, give (0, 3).
+    than 3 distinct points, or all of them on one line, give (0, 3). All the work
+    runs in :func:`delaunay_kernel`, without the GIL.
     """
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    if len(pts) < 3:
-        return np.zeros((0, 3), np.int32)
-    _, first = np.unique(pts, axis=0, return_index=True)
-    first = np.sort(first)                     # keep the input order of first occurrences
-    xs = np.ascontiguousarray(pts[first, 0])
-    ys = np.ascontiguousarray(pts[first, 1])
-    if len(xs) < 3:
-        return np.zeros((0, 3), np.int32)
-    i0, i1, i2, ccx, ccy = _seed(xs, ys)
-    if i0 < 0:
-        return np.zeros((0, 3), np.int32)
-    # insertion order: distance from the seed's circumcentre (sorted here, in numpy)
-    order = np.argsort((xs - ccx) ** 2 + (ys - ccy) ** 2, kind="stable")
-    tri = _sweep(xs, ys, order, int(i0), int(i1), int(i2), float(ccx), float(ccy))
-    return first[tri].astype(np.int32)
+    return delaunay_kernel(np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]))
