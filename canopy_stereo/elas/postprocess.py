@@ -169,16 +169,53 @@ def _fill_line(line, max_gap, discon, extrapolate):
                 break
 
 
+@njit(cache=True, inline="always")
+def _gap_fill(d1, d2, discon):
+    """Value of a gap between valid ends ``d1`` and ``d2`` (float32)."""
+    if abs(d1 - d2) < discon:
+        return np.float32(0.5 * (d1 + d2))
+    return min(d1, d2)
+
+
+@njit(cache=True, nogil=True)
+def _fill_columns(out, max_gap, discon, extrapolate):
+    """:func:`_fill_line` on every column of ``out`` (H, W) in place, scanning whole rows
+    (contiguous) with one run counter per column instead of transposing the map."""
+    h, w = out.shape
+    count = np.zeros(w, dtype=np.int64)
+    for i in range(h):
+        row = out[i]
+        for u in range(w):
+            if row[u] >= 0:
+                n = count[u]
+                if n >= 1 and n <= max_gap and i - n > 0:
+                    fill = _gap_fill(out[i - n - 1, u], row[u], discon)
+                    for j in range(i - n, i):
+                        out[j, u] = fill
+                count[u] = 0
+            else:
+                count[u] += 1
+    if extrapolate:
+        for u in range(w):
+            for i in range(h):
+                if out[i, u] >= 0:
+                    for j in range(max(i - max_gap, 0), i):
+                        out[j, u] = out[i, u]
+                    break
+            for i in range(h - 1, -1, -1):
+                if out[i, u] >= 0:
+                    for j in range(i + 1, min(i + 1 + max_gap, h)):
+                        out[j, u] = out[i, u]
+                    break
+
+
 @njit(cache=True, nogil=True)
 def _interpolate_gaps(disp, max_gap, discon, extrapolate):
-    h, w = disp.shape
     out = disp.copy()
-    for v in range(h):
+    for v in range(out.shape[0]):
         _fill_line(out[v], max_gap, discon, extrapolate)
-    t = np.ascontiguousarray(out.T)
-    for u in range(w):
-        _fill_line(t[u], max_gap, discon, extrapolate)
-    return np.ascontiguousarray(t.T)
+    _fill_columns(out, max_gap, discon, extrapolate)
+    return out
 
 
 def interpolate_gaps(disp: np.ndarray, max_gap: int, *, extrapolate: bool = False,
