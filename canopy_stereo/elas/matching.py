@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit
 
 from canopy_stereo.elas.parallel import run_row_bands
-from canopy_stereo.elas.simd import DESC_BYTES, first_min4, sad16, sad16x4_store
+from canopy_stereo.elas.simd import MASKED, DESC_BYTES, first_min4, sad16, sad16x4_store
 
 #: Pixels closer than this to the left/right border are not matched.
 MATCH_BORDER = 2
@@ -117,11 +117,10 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
                             & (tex_row[u] >= match_texture) & (tex_row[u + 1] >= match_texture)
                             & (tex_row[u + 2] >= match_texture)
                             & (tex_row[u + 3] >= match_texture)):
-                        mu = int(planes[t0, 0] * u + planes[t0, 1] * v + planes[t0, 2])
+                        mu0 = int(planes[t0, 0] * u + planes[t0, 1] * v + planes[t0, 2])
                         mu1 = int(planes[t1, 0] * (u + 1) + planes[t1, 1] * v + planes[t1, 2])
                         mu2 = int(planes[t2, 0] * (u + 2) + planes[t2, 1] * v + planes[t2, 2])
                         mu3 = int(planes[t3, 0] * (u + 3) + planes[t3, 1] * v + planes[t3, 2])
-                        use_prior = plane_valid[t0]
                         if sign > 0:
                             d_lo = max(disp_min, u - (w - MATCH_BORDER - 1))
                             d_hi = min(disp_max, u - MATCH_BORDER)
@@ -133,29 +132,42 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
                             d_lo3 = max(disp_min, MATCH_BORDER - u - 3)
                             d_hi3 = min(disp_max, w - MATCH_BORDER - 4 - u)
                         # (the bounds are monotonic in u: equal at u and u+3 means all equal)
-                        quad = ((d_lo == d_lo3) & (d_hi == d_hi3) & (d_lo <= d_hi)
-                                & (plane_valid[t1] == use_prior) & (plane_valid[t2] == use_prior)
-                                & (plane_valid[t3] == use_prior)
-                                & (mu1 == mu) & (mu2 == mu) & (mu3 == mu))
+                        quad = (d_lo == d_lo3) & (d_hi == d_hi3) & (d_lo <= d_hi)
                 if quad:
-                    # the candidates' costs of the four pixels, in the order the
-                    # one-pixel path evaluates them, then each pixel's first minimum
-                    w_lo = mu - radius
-                    w_hi = mu + radius
+                    # the candidates' costs of the four pixels, each pixel seeing its own
+                    # candidates in the order of the one-pixel path (grid candidates
+                    # outside its window, then its window), then each pixel's first minimum
+                    p0 = plane_valid[t0]
+                    p1 = plane_valid[t1]
+                    p2 = plane_valid[t2]
+                    p3 = plane_valid[t3]
                     a0 = row + u * DESC_BYTES
                     n_cand = 0
                     for j in range(n_grid):
                         d = cell[j]
-                        if (d >= w_lo and d <= w_hi) or d < d_lo or d > d_hi:
+                        if d < d_lo or d > d_hi:
                             continue
-                        sad16x4_store(flat_own, a0, flat_other, a0 - sign * d * DESC_BYTES, 0,
-                                      quad_costs, 4 * n_cand)
+                        m0 = MASKED if abs(d - mu0) <= radius else 0
+                        m1 = MASKED if abs(d - mu1) <= radius else 0
+                        m2 = MASKED if abs(d - mu2) <= radius else 0
+                        m3 = MASKED if abs(d - mu3) <= radius else 0
+                        sad16x4_store(flat_own, a0, flat_other, a0 - sign * d * DESC_BYTES,
+                                      m0, m1, m2, m3, quad_costs, 4 * n_cand)
                         quad_disp[n_cand] = d
                         n_cand += 1
-                    for d in range(max(w_lo, d_lo), min(w_hi, d_hi) + 1):
-                        bonus = prior[abs(d - mu)] if use_prior else 0
+                    mu_lo = min(min(mu0, mu1), min(mu2, mu3))
+                    mu_hi = max(max(mu0, mu1), max(mu2, mu3))
+                    for d in range(max(mu_lo - radius, d_lo), min(mu_hi + radius, d_hi) + 1):
+                        x0 = abs(d - mu0)
+                        x1 = abs(d - mu1)
+                        x2 = abs(d - mu2)
+                        x3 = abs(d - mu3)
+                        b0 = MASKED if x0 > radius else (prior[x0] if p0 else 0)
+                        b1 = MASKED if x1 > radius else (prior[x1] if p1 else 0)
+                        b2 = MASKED if x2 > radius else (prior[x2] if p2 else 0)
+                        b3 = MASKED if x3 > radius else (prior[x3] if p3 else 0)
                         sad16x4_store(flat_own, a0, flat_other, a0 - sign * d * DESC_BYTES,
-                                      bonus, quad_costs, 4 * n_cand)
+                                      b0, b1, b2, b3, quad_costs, 4 * n_cand)
                         quad_disp[n_cand] = d
                         n_cand += 1
                     best0, best1, best2, best3 = first_min4(quad_costs, quad_disp, n_cand)

@@ -157,11 +157,16 @@ def _element_pointer(context, builder, array_type, array, index, index_type, ele
     return builder.bitcast(builder.gep(arr.data, [idx]), elem_type.as_pointer())
 
 
+#: A :func:`sad16x4_store` bonus at least this large masks its lane (cost INT32_MAX).
+MASKED = 1 << 30
+
+
 @intrinsic
-def sad16x4_store(typingctx, a, offset_a, b, offset_b, bonus, out, out_offset):
-    """Store the four :func:`sad16` of 16-byte blocks ``k = 0..3``
-    (``sad16(a, offset_a + 16k, b, offset_b + 16k) + bonus``) as int32 at
-    ``out[out_offset + k]``.
+def sad16x4_store(typingctx, a, offset_a, b, offset_b, bonus0, bonus1, bonus2, bonus3, out,
+                  out_offset):
+    """Store the four :func:`sad16` of 16-byte blocks ``k = 0..3`` plus a bonus per block,
+    ``sad16(a, offset_a + 16k, b, offset_b + 16k) + bonus_k``, as int32 at
+    ``out[out_offset + k]``; a bonus of :data:`MASKED` or more stores INT32_MAX instead.
 
     One 64-byte load from each uint8 array and x86 ``psadbw`` (one on AVX-512BW,
     two on AVX2, four on SSE2; portable IR elsewhere). No bounds checking: the
@@ -169,26 +174,31 @@ def sad16x4_store(typingctx, a, offset_a, b, offset_b, bonus, out, out_offset):
     """
     if _sad_signature(a, offset_a, b, offset_b) is None:
         return None
+    bonuses = (bonus0, bonus1, bonus2, bonus3)
     if not (isinstance(out, types.Array) and out.dtype == types.int32 and out.ndim == 1
-            and isinstance(bonus, types.Integer) and isinstance(out_offset, types.Integer)):
+            and all(isinstance(x, types.Integer) for x in bonuses)
+            and isinstance(out_offset, types.Integer)):
         return None
-    sig = types.void(a, offset_a, b, offset_b, bonus, out, out_offset)
+    sig = types.void(a, offset_a, b, offset_b, *bonuses, out, out_offset)
 
     def codegen(context, builder, signature, args):
+        i32 = ir.IntType(32)
         vec_i8 = ir.VectorType(ir.IntType(8), 64)
-        vec_i32 = ir.VectorType(ir.IntType(32), 4)
+        vec_i32 = ir.VectorType(i32, 4)
         ta, tb = signature.args[0], signature.args[2]
         pa = _element_pointer(context, builder, ta, args[0], args[1], signature.args[1], vec_i8)
         pb = _element_pointer(context, builder, tb, args[2], args[3], signature.args[3], vec_i8)
         sums = _block_sums(builder, builder.load(pa, align=1), builder.load(pb, align=1))
-        extra = context.cast(builder, args[4], signature.args[4], types.int32)
-        splat = builder.insert_element(ir.Constant(vec_i32, ir.Undefined), extra,
-                                       ir.IntType(32)(0))
-        splat = builder.shuffle_vector(splat, ir.Constant(vec_i32, ir.Undefined),
-                                       ir.Constant(vec_i32, [ir.IntType(32)(0)] * 4))
-        po = _element_pointer(context, builder, signature.args[5], args[5], args[6],
-                              signature.args[6], vec_i32)
-        builder.store(builder.add(sums, splat), po, align=4)
+        extra = ir.Constant(vec_i32, ir.Undefined)
+        for k in range(4):
+            value = context.cast(builder, args[4 + k], signature.args[4 + k], types.int32)
+            extra = builder.insert_element(extra, value, i32(k))
+        masked = builder.icmp_signed(">=", extra, ir.Constant(vec_i32, [i32(MASKED)] * 4))
+        cost = builder.select(masked, ir.Constant(vec_i32, [i32(2147483647)] * 4),
+                              builder.add(sums, extra))
+        po = _element_pointer(context, builder, signature.args[8], args[8], args[9],
+                              signature.args[9], vec_i32)
+        builder.store(cost, po, align=4)
         return context.get_dummy_value()
 
     return sig, codegen
