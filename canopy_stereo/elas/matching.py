@@ -83,8 +83,9 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
     flat_own = desc_own.reshape(-1)
     flat_other = desc_other.reshape(-1)
     lane_best = np.empty(4, np.int64)
-    # the four-pixel path's candidates: grid candidates and the plane window
-    max_candidates = disp_max + 2 * radius + 2
+    # the four-pixel path's candidates: grid candidates and the union of the four plane
+    # windows, each at most disp_max + 1 disparities (the window is clipped to the bounds)
+    max_candidates = 2 * (disp_max + 1)
     quad_costs = np.empty(4 * max_candidates, np.int32)
     quad_disp = np.empty(max_candidates, np.int64)
     # matched columns x = u - sign*d must satisfy MATCH_BORDER <= x < w - MATCH_BORDER

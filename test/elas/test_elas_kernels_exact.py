@@ -253,3 +253,168 @@ def test_elas_run_is_deterministic_across_thread_counts(plants):
     for other in runs[1:]:
         for name in ("disp_left", "disp_right", "support", "triangles_left", "triangles_right"):
             assert same_bits(getattr(other, name), getattr(runs[0], name))
+
+
+# --------------------------------------------------------------- SIMD intrinsics
+def _sad16x4_both():
+    """A fresh (uncached) kernel: sad16x4_store next to the plain loop, so that it is
+    compiled with the current simd.PSADBW_WIDTH."""
+    from numba import njit
+
+    from canopy_stereo.elas.simd import MASKED, sad16x4_store, sad_reference
+
+    @njit
+    def both(a, b, n, bonuses):
+        out = np.zeros(4 * n, np.int32)
+        ref = np.zeros(4 * n, np.int32)
+        for i in range(n):
+            sad16x4_store(a, i * 3, b, i * 5, bonuses[i, 0], bonuses[i, 1], bonuses[i, 2],
+                          bonuses[i, 3], out, 4 * i)
+            for k in range(4):
+                if bonuses[i, k] >= MASKED:
+                    ref[4 * i + k] = 2147483647
+                else:
+                    ref[4 * i + k] = sad_reference(a, i * 3 + 16 * k, b, i * 5 + 16 * k,
+                                                   16) + bonuses[i, k]
+        return out, ref
+
+    return both
+
+
+def test_sad16x4_store_equals_four_plain_sads_with_every_instruction_width(rng, monkeypatch):
+    from canopy_stereo.elas import simd
+
+    n = 300
+    a = rng.integers(0, 256, 3 * n + 64, dtype=np.uint8)
+    b = rng.integers(0, 256, 5 * n + 64, dtype=np.uint8)
+    bonuses = rng.integers(-60, 1, (n, 4)).astype(np.int64)
+    bonuses[rng.random((n, 4)) < 0.2] = simd.MASKED
+    a[:64], b[:64] = 0, 255                       # the largest sum, 16 * 255 per block
+    widths = [w for w in (64, 32, 16) if w <= simd.PSADBW_WIDTH] + [0]
+    for width in widths:
+        monkeypatch.setattr(simd, "PSADBW_WIDTH", width)
+        out, ref = _sad16x4_both()(a, b, n, bonuses)
+        assert np.array_equal(out, ref), f"psadbw width {width}"
+    assert ref[0] == 16 * 255 + bonuses[0, 0] or bonuses[0, 0] >= simd.MASKED
+
+
+def test_first_min4_keeps_each_lanes_first_minimum(rng):
+    from numba import njit
+
+    from canopy_stereo.elas.simd import first_min4
+
+    @njit
+    def run(costs, values, n):
+        return first_min4(costs, values, n)
+
+    for _ in range(300):
+        n = int(rng.integers(0, 15))
+        costs = rng.integers(-3, 4, 4 * n).astype(np.int32)   # many ties
+        costs[rng.random(4 * n) < 0.2] = 2147483647
+        values = rng.integers(0, 300, n).astype(np.int64)
+        expect = []
+        for k in range(4):
+            best, value = 2147483647, -1
+            for j in range(n):
+                if costs[4 * j + k] < best:
+                    best, value = costs[4 * j + k], values[j]
+            expect.append(value)
+        assert run(costs, values, n) == tuple(expect)
+
+
+# ------------------------------------------------------------------ dense matching
+def _reference_match_kernel():
+    """The dense matching definition, one pixel at a time (matching.py's module
+    docstring), compiled fresh for the test."""
+    from numba import njit
+
+    from canopy_stereo.elas.simd import sad_reference
+
+    @njit
+    def match(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_lists,
+              grid_counts, grid_size, prior, radius, sign, disp_min, disp_max, match_texture,
+              step, subpixel):
+        h, w, _ = desc_own.shape
+        fo = desc_own.reshape(-1)
+        ft = desc_other.reshape(-1)
+        oh, ow = (h + step - 1) // step, (w + step - 1) // step
+        disp = np.full((oh, ow), -1.0, np.float32)
+        offs = np.zeros((oh, ow), np.float32)
+        for r in range(oh):
+            v = r * step
+            for c in range(ow):
+                u = c * step
+                if u < 2 or u >= w - 2:
+                    continue
+                t = tri_map[v, u]
+                if t < 0 or tex_own[v, u] < match_texture:
+                    continue
+                if sign > 0:
+                    d_lo, d_hi = max(disp_min, u - (w - 3)), min(disp_max, u - 2)
+                else:
+                    d_lo, d_hi = max(disp_min, 2 - u), min(disp_max, w - 3 - u)
+                mu = int(planes[t, 0] * u + planes[t, 1] * v + planes[t, 2])
+                a = (v * w + u) * 16
+                best_e, best_d = 2147483647, -1
+                gy, gx = v // grid_size, u // grid_size
+                for j in range(grid_counts[gy, gx]):
+                    d = grid_lists[gy, gx, j]
+                    if abs(d - mu) <= radius or d < d_lo or d > d_hi:
+                        continue
+                    e = sad_reference(fo, a, ft, a - sign * d * 16, 16)
+                    if e < best_e:
+                        best_e, best_d = e, d
+                for d in range(max(mu - radius, d_lo), min(mu + radius, d_hi) + 1):
+                    e = sad_reference(fo, a, ft, a - sign * d * 16, 16)
+                    if plane_valid[t]:
+                        e += prior[abs(d - mu)]
+                    if e < best_e:
+                        best_e, best_d = e, d
+                if best_d < 0:
+                    continue
+                disp[r, c] = best_d
+                if subpixel and best_d - 1 >= d_lo and best_d + 1 <= d_hi:
+                    b = a - sign * best_d * 16
+                    c0 = sad_reference(fo, a, ft, b, 16)
+                    cm = sad_reference(fo, a, ft, b + sign * 16, 16)
+                    cp = sad_reference(fo, a, ft, b - sign * 16, 16)
+                    if c0 <= cm and c0 <= cp and cm + cp > 2 * c0:
+                        offs[r, c] = np.float32(0.5 * (cm - cp) / (cm + cp - 2 * c0))
+        return disp, offs
+
+    return match
+
+
+@pytest.mark.parametrize("subpixel", [False, True])
+@pytest.mark.parametrize("step", [1, 2])
+def test_dense_matching_is_exact_on_real_images(plants, subpixel, step):
+    reference = _reference_match_kernel()
+    p = plants["params"]
+    for right_image, sign in ((False, 1), (True, -1)):
+        args = _match_args(plants["maps"][right_image], p, sign, step, subpixel)
+        ref = reference(*args)
+        got = matching.dense_match(*args)
+        assert same_bits(got[0], ref[0]) and same_bits(got[1], ref[1])
+        assert (ref[0] >= 0).mean() > 0.3
+
+
+def test_dense_matching_is_exact_with_steep_random_planes(plants, rng):
+    """Random planes: neighbouring pixels get different predictions and prior flags
+    (the four-pixel path masks each pixel's own window), also near the borders."""
+    reference = _reference_match_kernel()
+    p = plants["params"]
+    m = dict(plants["maps"][False])
+    n_tri = len(m["planes"])
+    planes = np.zeros((n_tri, 3), np.float32)
+    planes[:, 0] = rng.uniform(-0.9, 0.9, n_tri)
+    planes[:, 1] = rng.uniform(-0.3, 0.3, n_tri)
+    planes[:, 2] = rng.uniform(0, 120, n_tri)
+    m["planes"] = planes
+    m["valid"] = rng.random(n_tri) < 0.5
+    for sign, own in ((1, False), (-1, True)):
+        mm = dict(m, desc_own=plants["maps"][own]["desc_own"],
+                  desc_other=plants["maps"][own]["desc_other"])
+        args = _match_args(mm, p, sign, 1, True)
+        ref = reference(*args)
+        got = matching.dense_match(*args)
+        assert same_bits(got[0], ref[0]) and same_bits(got[1], ref[1])
