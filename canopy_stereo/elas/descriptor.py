@@ -114,19 +114,36 @@ def _pack8(b0, b1, b2, b3, b4, b5, b6, b7):
             | (np.uint64(b7) << np.uint64(56)))
 
 
+@njit(cache=True, inline="always")
+def _centred(x):
+    """``|x - 128|`` of a gradient byte, as int32."""
+    return abs(np.int32(x) - 128)
+
+
 @njit(cache=True, nogil=True)
 def _assemble_words(du, dv):
-    """Descriptor (H, W, 16) written as two little-endian uint64 words per pixel.
+    """Descriptor (H, W, 16) written as two little-endian uint64 words per pixel, and
+    its texture (H, W) int32 from the same bytes.
 
     The same bytes as :func:`_assemble_bytes` with the offsets of :data:`DU_OFFSETS` and
-    :data:`DV_OFFSETS` spelled out, about 3x faster (vectorises over ``u``).
+    :data:`DV_OFFSETS` spelled out, about 3x faster (vectorises over ``u``); only the
+    :data:`BORDER` margin is zeroed separately.
     """
     h, w = du.shape
-    desc = np.zeros((h, w, DESC_BYTES), dtype=np.uint8)
+    desc = np.empty((h, w, DESC_BYTES), dtype=np.uint8)
+    texture = np.empty((h, w), dtype=np.int32)
     words = desc.reshape(h, w * DESC_BYTES).view(np.uint64).reshape(h, w, 2)
     b = BORDER
     n = w - 2 * b
-    for v in range(b, h - b):
+    for v in range(h):
+        if v < b or v >= h - b:
+            words[v, :, :] = 0
+            texture[v, :] = 0
+            continue
+        words[v, :b, :] = 0
+        words[v, w - b:, :] = 0
+        texture[v, :b] = 0
+        texture[v, w - b:] = 0
         # du samples: (-2,0) (-1,-2) (-1,0) (-1,2) (0,-1) (0,0) (0,0) (0,1)
         #             (1,-2) (1,0) (1,2) (2,0)
         m2c = du[v - 2, b:b + n]
@@ -138,10 +155,17 @@ def _assemble_words(du, dv):
         vm1, vl, vr, vp1 = dv[v - 1, b:b + n], dv[v, b - 1:b - 1 + n], dv[v, b + 1:b + 1 + n], \
             dv[v + 1, b:b + n]
         out = words[v, b:b + n]
+        tex = texture[v, b:b + n]
         for i in range(n):
             out[i, 0] = _pack8(m2c[i], m1l[i], m1c[i], m1r[i], z_l[i], z_c[i], z_c[i], z_r[i])
             out[i, 1] = _pack8(p1l[i], p1c[i], p1r[i], p2c[i], vm1[i], vl[i], vr[i], vp1[i])
-    return desc
+        for i in range(n):      # a loop of its own: it vectorises (the two together do not)
+            tex[i] = (_centred(m2c[i]) + _centred(m1l[i]) + _centred(m1c[i]) + _centred(m1r[i])
+                      + _centred(z_l[i]) + 2 * _centred(z_c[i]) + _centred(z_r[i])
+                      + _centred(p1l[i]) + _centred(p1c[i]) + _centred(p1r[i])
+                      + _centred(p2c[i]) + _centred(vm1[i]) + _centred(vl[i]) + _centred(vr[i])
+                      + _centred(vp1[i]))
+    return desc, texture
 
 
 def gradient_bytes(gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -163,7 +187,6 @@ def compute_descriptors(gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return np.zeros((h, w, DESC_BYTES), np.uint8), np.zeros((h, w), np.int32)
     du, dv = _sobel_bytes(gray)
     if sys.byteorder == "little":
-        desc = _assemble_words(du, dv)
-    else:
-        desc = _assemble_bytes(du, dv, _DU_DR, _DU_DC, _DV_DR, _DV_DC)
+        return _assemble_words(du, dv)
+    desc = _assemble_bytes(du, dv, _DU_DR, _DU_DC, _DV_DR, _DV_DC)
     return desc, _texture(desc)
