@@ -141,7 +141,17 @@ def rasterize_triangles(vertices, triangles, height, width):
     For every pixel row the triangle's column span is found from its edges (each edge
     visits only the rows it crosses), so the work is proportional to the covered area.
     """
-    tri_map = np.full((height, width), -1, dtype=np.int32)
+    tri_map = np.empty((height, width), dtype=np.int32)
+    rasterize_triangles_into(vertices, triangles, tri_map)
+    return tri_map
+
+
+@njit(cache=True, nogil=True)
+def rasterize_triangles_into(vertices, triangles, tri_map):
+    """:func:`rasterize_triangles` into an existing int32 (height, width) map (its
+    previous contents are overwritten)."""
+    height, width = tri_map.shape
+    tri_map[:, :] = -1
     eps = 1e-9
     lo = np.empty(height, dtype=np.float64)
     hi = np.empty(height, dtype=np.float64)
@@ -172,4 +182,3 @@ def rasterize_triangles(vertices, triangles, height, width):
             row = tri_map[v]
             for u in range(u0, u1 + 1):
                 row[u] = t
-    return tri_map

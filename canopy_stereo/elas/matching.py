@@ -233,7 +233,7 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
 
 def match_job(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_lists,
               grid_counts, grid_size, prior, radius, sign, disp_min, disp_max, match_texture,
-              step, subpixel):
+              step, subpixel, *, workspace=None):
     """Dense matching of one image as a row job for
     :func:`~canopy_stereo.elas.parallel.run_row_bands`: returns ``(job, disp, offset)``;
     the outputs are filled when the job has run.
@@ -253,6 +253,8 @@ def match_job(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_
         match_texture: minimum texture of a matched pixel.
         step: 1, or 2 for subsampling (every second row and column).
         subpixel: compute the parabola refinement.
+        workspace: a :class:`~canopy_stereo.elas.workspace.Workspace` to take the two
+            output maps from (overwritten by its next use); fresh arrays when None.
 
     Returns:
         ``(disp, offset)``, both float32 (ceil(H/step), ceil(W/step)): ``disp`` holds
@@ -263,8 +265,14 @@ def match_job(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_
     """
     h, w = tri_map.shape
     out_shape = ((h + step - 1) // step, (w + step - 1) // step)
-    disp = np.full(out_shape, -1.0, dtype=np.float32)
-    offsets = np.zeros(out_shape, dtype=np.float32)
+    if workspace is None:
+        disp = np.full(out_shape, -1.0, dtype=np.float32)
+        offsets = np.zeros(out_shape, dtype=np.float32)
+    else:
+        disp = workspace.array("disp", out_shape, np.float32)
+        offsets = workspace.array("offsets", out_shape, np.float32)
+        disp.fill(-1.0)
+        offsets.fill(0.0)
     args = (desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_lists, grid_counts,
             int(grid_size), prior, int(radius), int(sign), int(disp_min), int(disp_max),
             int(match_texture), int(step), bool(subpixel), disp, offsets)

@@ -32,11 +32,10 @@ def _lr_keep(d, c2, row_other, threshold):
 
 
 @njit(cache=True, nogil=True)
-def _lr_check(d_left, d_right, threshold, step, want_right):
-    """The checked maps (H, W) float32; the right one is not computed (returned as the
-    unchanged ``d_right``) unless ``want_right``."""
+def _lr_check(d_left, d_right, threshold, step, want_right, out_l):
+    """The checked maps (H, W) float32, the left one written to ``out_l``; the right one
+    is not computed (returned as the unchanged ``d_right``) unless ``want_right``."""
     h, w = d_left.shape
-    out_l = np.empty_like(d_left)
     out_r = np.empty_like(d_right) if want_right else d_right
     inv_step = 1.0 / step
     for v in range(h):
@@ -60,7 +59,7 @@ def _lr_check(d_left, d_right, threshold, step, want_right):
 
 
 def left_right_check(d_left: np.ndarray, d_right: np.ndarray, threshold: float,
-                     *, step: int = 1, want_right: bool = True):
+                     *, step: int = 1, want_right: bool = True, workspace=None):
     """Invalidate pixels whose match in the other map disagrees by more than ``threshold``.
 
     Left pixel ``u`` with disparity ``d`` is checked against the right map at
@@ -68,15 +67,19 @@ def left_right_check(d_left: np.ndarray, d_right: np.ndarray, threshold: float,
     (columns in full-resolution pixels, ``step`` for subsampled maps).
     Returns new maps ``(left, right)`` float32 (H, W); the inputs are not changed.
     ``want_right=False`` skips the right map's check and returns ``(left, None)``.
+    With a :class:`~canopy_stereo.elas.workspace.Workspace` the left map is the
+    workspace's (overwritten by its next use); the right one is always fresh.
     """
-    out_l, out_r = _lr_check(np.ascontiguousarray(d_left, np.float32),
-                             np.ascontiguousarray(d_right, np.float32), float(threshold),
-                             int(step), bool(want_right))
+    d_left = np.ascontiguousarray(d_left, np.float32)
+    out_l = np.empty_like(d_left) if workspace is None else \
+        workspace.array("lr_left", d_left.shape, np.float32)
+    out_l, out_r = _lr_check(d_left, np.ascontiguousarray(d_right, np.float32),
+                             float(threshold), int(step), bool(want_right), out_l)
     return out_l, (out_r if want_right else None)
 
 
 @njit(cache=True, nogil=True)
-def _remove_small_segments(disp, sim_threshold, min_size):
+def _remove_small_segments(disp, sim_threshold, min_size, padded, seen, queue, out):
     """Breadth-first flood fill on a copy padded with one invalid pixel on every side,
     so that a neighbour is ``p +- 1`` / ``p +- (W + 2)`` of the flat index ``p``
     without bounds checks or divisions. The queue holds each segment's pixels, which
@@ -84,11 +87,10 @@ def _remove_small_segments(disp, sim_threshold, min_size):
     never looked at again, so this does not change the later segments)."""
     h, w = disp.shape
     stride = w + 2
-    padded = np.full((h + 2) * stride, INVALID, dtype=np.float32)
+    padded[:] = INVALID
     for v in range(h):
         padded[(v + 1) * stride + 1:(v + 1) * stride + 1 + w] = disp[v]
-    seen = np.zeros((h + 2) * stride, dtype=np.uint8)
-    queue = np.empty(h * w, dtype=np.int32)
+    seen[:] = 0
     for v0 in range(h):
         for p0 in range((v0 + 1) * stride + 1, (v0 + 1) * stride + 1 + w):
             if padded[p0] < 0 or seen[p0]:
@@ -120,20 +122,33 @@ def _remove_small_segments(disp, sim_threshold, min_size):
             if tail < min_size:
                 for i in range(tail):
                     padded[queue[i]] = INVALID
-    out = np.empty_like(disp)
     for v in range(h):
         out[v] = padded[(v + 1) * stride + 1:(v + 1) * stride + 1 + w]
     return out
 
 
-def remove_small_segments(disp: np.ndarray, sim_threshold: float, min_size: int) -> np.ndarray:
+def remove_small_segments(disp: np.ndarray, sim_threshold: float, min_size: int,
+                          *, workspace=None) -> np.ndarray:
     """Invalidate 4-connected segments smaller than ``min_size`` pixels.
 
     Neighbouring valid pixels belong to one segment when their disparities differ
     by at most ``sim_threshold`` (chained, so a segment may drift slowly).
+    Returns a new float32 (H, W) map, or with a
+    :class:`~canopy_stereo.elas.workspace.Workspace` the workspace's map (overwritten
+    by its next use) and scratch from it.
     """
-    return _remove_small_segments(np.ascontiguousarray(disp, np.float32), float(sim_threshold),
-                                  int(min_size))
+    disp = np.ascontiguousarray(disp, np.float32)
+    h, w = disp.shape
+    size = (h + 2) * (w + 2)
+    if workspace is None:
+        scratch = (np.empty(size, np.float32), np.empty(size, np.uint8),
+                   np.empty(h * w, np.int32), np.empty_like(disp))
+    else:
+        scratch = (workspace.array("segments_padded", (size,), np.float32),
+                   workspace.array("segments_seen", (size,), np.uint8),
+                   workspace.array("segments_queue", (h * w,), np.int32),
+                   workspace.array("segments", (h, w), np.float32))
+    return _remove_small_segments(disp, float(sim_threshold), int(min_size), *scratch)
 
 
 @njit(cache=True, nogil=True)
@@ -210,8 +225,8 @@ def _fill_columns(out, max_gap, discon, extrapolate):
 
 
 @njit(cache=True, nogil=True)
-def _interpolate_gaps(disp, max_gap, discon, extrapolate):
-    out = disp.copy()
+def _interpolate_gaps(disp, max_gap, discon, extrapolate, out):
+    out[:, :] = disp
     for v in range(out.shape[0]):
         _fill_line(out[v], max_gap, discon, extrapolate)
     _fill_columns(out, max_gap, discon, extrapolate)
@@ -219,7 +234,8 @@ def _interpolate_gaps(disp, max_gap, discon, extrapolate):
 
 
 def interpolate_gaps(disp: np.ndarray, max_gap: int, *, extrapolate: bool = False,
-                     discontinuity: float = DISCONTINUITY_THRESHOLD) -> np.ndarray:
+                     discontinuity: float = DISCONTINUITY_THRESHOLD,
+                     workspace=None) -> np.ndarray:
     """Fill runs of at most ``max_gap`` invalid pixels between two valid ones, rows first,
     then columns.
 
@@ -227,9 +243,13 @@ def interpolate_gaps(disp: np.ndarray, max_gap: int, *, extrapolate: bool = Fals
     ``discontinuity`` pixels, otherwise with the smaller one (the background).
     With ``extrapolate`` the first/last valid value of each row and column is also
     copied up to ``max_gap`` pixels towards the image border.
+    Returns a new map, or the :class:`~canopy_stereo.elas.workspace.Workspace`'s
+    (overwritten by its next use) when one is given.
     """
-    return _interpolate_gaps(np.ascontiguousarray(disp, np.float32), int(max_gap),
-                             float(discontinuity), bool(extrapolate))
+    disp = np.ascontiguousarray(disp, np.float32)
+    out = np.empty_like(disp) if workspace is None else \
+        workspace.array("interpolated", disp.shape, np.float32)
+    return _interpolate_gaps(disp, int(max_gap), float(discontinuity), bool(extrapolate), out)
 
 
 @njit(cache=True, inline="always")
@@ -243,14 +263,13 @@ def _mean_weight(d, c, linear):
 
 
 @njit(cache=True, nogil=True)
-def _adaptive_mean(disp, linear, before, after):
+def _adaptive_mean(disp, linear, before, after, rows):
     """Rows pass (taps along u) then columns pass (taps along v, whole rows at a time);
     invalid taps and taps outside the image weigh nothing. The tap counts are
     arguments, not constants, so that LLVM does not unroll the tap loops (which
     multiplied the compile time by ten)."""
     h, w = disp.shape
     # rows: a padded copy of each row; tap k of pixel u is line[u + k]
-    rows = np.empty_like(disp)
     line = np.full(w + before + after, -1.0, dtype=np.float32)
     s = np.empty(w, dtype=np.float32)
     sw = np.empty(w, dtype=np.float32)
@@ -288,16 +307,19 @@ def _adaptive_mean(disp, linear, before, after):
     return out
 
 
-def adaptive_mean(disp: np.ndarray, linear: bool = False) -> np.ndarray:
+def adaptive_mean(disp: np.ndarray, linear: bool = False, *, workspace=None) -> np.ndarray:
     """Separable 8-tap adaptive mean (rows, then columns; taps at -4..+3).
 
     Each valid tap is weighted by its difference ``dd`` to the centre: 4 if
     ``|dd| < 2``, 2 if ``2 <= |dd| < 8``, else 0 (the original as compiled), or
-    ``max(0, 4 - |dd|)`` with ``linear``. Invalid pixels stay invalid.
+    ``max(0, 4 - |dd|)`` with ``linear``. Invalid pixels stay invalid. Returns a new
+    map; the rows pass's scratch comes from ``workspace`` when given.
     """
-    return _adaptive_mean(np.ascontiguousarray(disp, np.float32),
-                          np.float32(1.0 if linear else 0.0),
-                          MEAN_TAPS_BEFORE, MEAN_TAPS_AFTER)
+    disp = np.ascontiguousarray(disp, np.float32)
+    rows = np.empty_like(disp) if workspace is None else \
+        workspace.array("adaptive_mean_rows", disp.shape, np.float32)
+    return _adaptive_mean(disp, np.float32(1.0 if linear else 0.0),
+                          MEAN_TAPS_BEFORE, MEAN_TAPS_AFTER, rows)
 
 
 #: An optimal 16-comparator sorting network for 7 values (checked exhaustively on
@@ -347,10 +369,10 @@ def _median7(t0, t1, t2, t3, t4, t5, t6):
 
 
 @njit(cache=True, nogil=True)
-def _median(disp, radius):
-    """Rows pass then columns pass of the 7-tap median of valid values."""
+def _median(disp, radius, rows):
+    """Rows pass (into ``rows``) then columns pass of the 7-tap median of valid values."""
     h, w = disp.shape
-    rows = disp.copy()
+    rows[:, :] = disp
     line = np.full(w + 2 * radius, -1.0, dtype=np.float32)
     for v in range(h):
         src = disp[v]
@@ -378,6 +400,12 @@ def _median(disp, radius):
     return out
 
 
-def median_filter(disp: np.ndarray) -> np.ndarray:
-    """Separable 7-tap median of the valid taps (rows, then columns); invalid stays invalid."""
-    return _median(np.ascontiguousarray(disp, np.float32), MEDIAN_RADIUS)
+def median_filter(disp: np.ndarray, *, workspace=None) -> np.ndarray:
+    """Separable 7-tap median of the valid taps (rows, then columns); invalid stays invalid.
+
+    Returns a new map; the rows pass's scratch comes from ``workspace`` when given.
+    """
+    disp = np.ascontiguousarray(disp, np.float32)
+    rows = np.empty_like(disp) if workspace is None else \
+        workspace.array("median_rows", disp.shape, np.float32)
+    return _median(disp, MEDIAN_RADIUS, rows)
