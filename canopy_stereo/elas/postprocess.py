@@ -78,52 +78,74 @@ def left_right_check(d_left: np.ndarray, d_right: np.ndarray, threshold: float,
     return out_l, (out_r if want_right else None)
 
 
+@njit(cache=True, inline="always")
+def _find_root(parent, r):
+    """Root of ``r`` in the union-find forest ``parent``, halving the path on the way."""
+    while parent[r] != r:
+        parent[r] = parent[parent[r]]
+        r = parent[r]
+    return r
+
+
 @njit(cache=True, nogil=True)
-def _remove_small_segments(disp, sim_threshold, min_size, padded, seen, queue, out):
-    """Breadth-first flood fill on a copy padded with one invalid pixel on every side,
-    so that a neighbour is ``p +- 1`` / ``p +- (W + 2)`` of the flat index ``p``
-    without bounds checks or divisions. The queue holds each segment's pixels, which
-    are invalidated in place when the segment is small (already-visited pixels are
-    never looked at again, so this does not change the later segments)."""
+def _remove_small_segments(disp, sim_threshold, min_size, label, parent, run_size, out):
+    """Connected segments of row runs with union-find, then one pass that invalidates
+    the pixels of small segments.
+
+    Two neighbouring pixels are joined when both are valid (>= 0) and differ by at most
+    ``sim_threshold`` (a symmetric relation, so the segments are those of a flood fill).
+    A row run is a maximal horizontally joined stretch; runs are united through their
+    vertical joins (consecutive joins between the same two runs are united once). A
+    NaN pixel joins nothing: a segment of its own, as in a flood fill seeded there.
+    ``label`` int32 (H, W), ``parent`` and ``run_size`` int32 (H*W,) are scratch.
+    """
     h, w = disp.shape
-    stride = w + 2
-    padded[:] = INVALID
+    n_runs = 0
     for v in range(h):
-        padded[(v + 1) * stride + 1:(v + 1) * stride + 1 + w] = disp[v]
-    seen[:] = 0
-    for v0 in range(h):
-        for p0 in range((v0 + 1) * stride + 1, (v0 + 1) * stride + 1 + w):
-            if padded[p0] < 0 or seen[p0]:
+        row = disp[v]
+        lab = label[v]
+        last_above = -1
+        last_here = -1
+        for u in range(w):
+            d = row[u]
+            if d < 0:
+                lab[u] = -1
                 continue
-            seen[p0] = 1
-            queue[0] = p0
-            head = 0
-            tail = 1
-            while head < tail:
-                p = queue[head]
-                head += 1
-                d = padded[p]
-                for k in range(4):
-                    if k == 0:
-                        q = p - 1
-                    elif k == 1:
-                        q = p + 1
-                    elif k == 2:
-                        q = p - stride
-                    else:
-                        q = p + stride
-                    if seen[q]:
-                        continue
-                    d2 = padded[q]
-                    if d2 >= 0 and abs(d2 - d) <= sim_threshold:
-                        seen[q] = 1
-                        queue[tail] = q
-                        tail += 1
-            if tail < min_size:
-                for i in range(tail):
-                    padded[queue[i]] = INVALID
+            if u > 0 and d >= 0 and row[u - 1] >= 0 and abs(row[u - 1] - d) <= sim_threshold:
+                r = lab[u - 1]
+                run_size[r] += 1
+            else:
+                r = n_runs
+                n_runs += 1
+                parent[r] = r
+                run_size[r] = 1
+            lab[u] = r
+            if v > 0:
+                above = disp[v - 1, u]
+                if above >= 0 and d >= 0 and abs(above - d) <= sim_threshold:
+                    ra = label[v - 1, u]
+                    if ra != last_above or r != last_here:
+                        last_above = ra
+                        last_here = r
+                        x = _find_root(parent, ra)
+                        y = _find_root(parent, r)
+                        if x < y:
+                            parent[y] = x
+                        elif y < x:
+                            parent[x] = y
+    # segment sizes at the roots, then each run's root
+    for r in range(n_runs):
+        if parent[r] != r:
+            run_size[_find_root(parent, r)] += run_size[r]
+    for r in range(n_runs):
+        parent[r] = _find_root(parent, r)
     for v in range(h):
-        out[v] = padded[(v + 1) * stride + 1:(v + 1) * stride + 1 + w]
+        row = disp[v]
+        lab = label[v]
+        dst = out[v]
+        for u in range(w):
+            r = lab[u]
+            dst[u] = INVALID if r >= 0 and run_size[parent[r]] < min_size else row[u]
     return out
 
 
@@ -139,14 +161,13 @@ def remove_small_segments(disp: np.ndarray, sim_threshold: float, min_size: int,
     """
     disp = np.ascontiguousarray(disp, np.float32)
     h, w = disp.shape
-    size = (h + 2) * (w + 2)
     if workspace is None:
-        scratch = (np.empty(size, np.float32), np.empty(size, np.uint8),
+        scratch = (np.empty((h, w), np.int32), np.empty(h * w, np.int32),
                    np.empty(h * w, np.int32), np.empty_like(disp))
     else:
-        scratch = (workspace.array("segments_padded", (size,), np.float32),
-                   workspace.array("segments_seen", (size,), np.uint8),
-                   workspace.array("segments_queue", (h * w,), np.int32),
+        scratch = (workspace.array("segments_label", (h, w), np.int32),
+                   workspace.array("segments_parent", (h * w,), np.int32),
+                   workspace.array("segments_run_size", (h * w,), np.int32),
                    workspace.array("segments", (h, w), np.float32))
     return _remove_small_segments(disp, float(sim_threshold), int(min_size), *scratch)
 
