@@ -275,12 +275,17 @@ def interpolate_gaps(disp: np.ndarray, max_gap: int, *, extrapolate: bool = Fals
 
 @njit(cache=True, inline="always")
 def _mean_weight(d, c, linear):
-    """Weight of tap value ``d`` for centre ``c`` (0 for an invalid tap), as arithmetic
-    on 0/1 factors (``linear`` is 0.0 or 1.0) so that the loops stay branch-free."""
+    """Weight of tap value ``d`` for centre ``c`` (0 for an invalid tap): the step
+    weights, or the ramp with ``linear`` (a loop-invariant bool: LLVM compiles one
+    branch-free loop per value). Bit for bit the former single formula
+    ``(l * ramp + (1 - l) * step) * valid`` with ``l`` 0.0 or 1.0, for finite maps."""
     delta = abs(d - c)
-    step = np.float32(2.0) * np.float32(delta < 8.0) + np.float32(2.0) * np.float32(delta < 2.0)
-    ramp = max(np.float32(0.0), np.float32(4.0) - delta)
-    return (linear * ramp + (np.float32(1.0) - linear) * step) * np.float32(d >= 0)
+    if linear:
+        weight = max(np.float32(0.0), np.float32(4.0) - delta)
+    else:
+        weight = (np.float32(2.0) * np.float32(delta < 8.0)
+                  + np.float32(2.0) * np.float32(delta < 2.0))
+    return weight * np.float32(d >= 0)
 
 
 @njit(cache=True, nogil=True)
@@ -339,8 +344,7 @@ def adaptive_mean(disp: np.ndarray, linear: bool = False, *, workspace=None) -> 
     disp = np.ascontiguousarray(disp, np.float32)
     rows = np.empty_like(disp) if workspace is None else \
         workspace.array("adaptive_mean_rows", disp.shape, np.float32)
-    return _adaptive_mean(disp, np.float32(1.0 if linear else 0.0),
-                          MEAN_TAPS_BEFORE, MEAN_TAPS_AFTER, rows)
+    return _adaptive_mean(disp, bool(linear), MEAN_TAPS_BEFORE, MEAN_TAPS_AFTER, rows)
 
 
 #: An optimal 16-comparator sorting network for 7 values (checked exhaustively on
