@@ -418,3 +418,179 @@ def test_dense_matching_is_exact_with_steep_random_planes(plants, rng):
         ref = reference(*args)
         got = matching.dense_match(*args)
         assert same_bits(got[0], ref[0]) and same_bits(got[1], ref[1])
+
+
+# ---------------------------------------------------------- gap interpolation
+def reference_fill_line(line, max_gap, discon, extrapolate):
+    n, count = len(line), 0
+    for i in range(n):
+        if line[i] >= 0:
+            if 1 <= count <= max_gap and i - count > 0:
+                d1, d2 = line[i - count - 1], line[i]
+                fill = np.float32(0.5 * (float(d1) + float(d2))) if abs(d1 - d2) < discon \
+                    else min(d1, d2)
+                line[i - count:i] = fill
+            count = 0
+        else:
+            count += 1
+    if extrapolate:
+        valid = np.flatnonzero(line >= 0)
+        if len(valid):
+            first, last = valid[0], valid[-1]
+            line[max(first - max_gap, 0):first] = line[first]
+            line[last + 1:min(last + 1 + max_gap, n)] = line[last]
+
+
+def reference_interpolate_gaps(disp, max_gap, extrapolate):
+    out = disp.copy()
+    for v in range(out.shape[0]):
+        reference_fill_line(out[v], max_gap, 3.0, extrapolate)
+    for u in range(out.shape[1]):
+        column = out[:, u].copy()
+        reference_fill_line(column, max_gap, 3.0, extrapolate)
+        out[:, u] = column
+    return out
+
+
+@pytest.mark.parametrize("max_gap,extrapolate", [(3, False), (5, True), (5000, True)])
+def test_gap_interpolation_is_exact(rng, plants, max_gap, extrapolate):
+    maps = [random_disparity(rng, (45, 61), integer=False, hi=30, invalid=0.4),
+            postprocess.remove_small_segments(plants["disp"][0], 1.0, 200)]
+    for disp in maps:
+        ref = reference_interpolate_gaps(disp, max_gap, extrapolate)
+        assert same_bits(postprocess.interpolate_gaps(disp, max_gap, extrapolate=extrapolate),
+                         ref)
+
+
+# ------------------------------------------------------------------- adaptive mean
+def reference_adaptive_mean(disp, linear):
+    """The former single weight formula ``(l * ramp + (1 - l) * step) * valid`` in float32,
+    taps -4..+3 in order, rows then columns."""
+    f32 = np.float32
+    lin = f32(1.0 if linear else 0.0)
+
+    def weight(d, c):
+        delta = abs(d - c)
+        step = f32(2.0) * f32(delta < 8.0) + f32(2.0) * f32(delta < 2.0)
+        ramp = max(f32(0.0), f32(4.0) - delta)
+        return (lin * ramp + (f32(1.0) - lin) * step) * f32(d >= 0)
+
+    def one_pass(x):
+        h, w = x.shape
+        out = x.copy()
+        for v in range(h):
+            for u in range(w):
+                c = x[v, u]
+                if not c >= 0:
+                    continue
+                s, sw = f32(0.0), f32(0.0)
+                for k in range(-4, 4):
+                    d = x[v, u + k] if 0 <= u + k < w else f32(-1.0)
+                    wt = weight(d, c)
+                    s = f32(s + f32(wt * d))
+                    sw = f32(sw + wt)
+                out[v, u] = f32(s / sw)
+        return out
+
+    return np.ascontiguousarray(one_pass(np.ascontiguousarray(one_pass(disp).T)).T)
+
+
+@pytest.mark.parametrize("linear", [False, True])
+def test_adaptive_mean_is_exact(rng, plants, linear):
+    crop = postprocess.interpolate_gaps(plants["disp"][0], 3)[100:140, 150:210]
+    for disp in (random_disparity(rng, (23, 31), integer=False, hi=12, invalid=0.25), crop):
+        ref = reference_adaptive_mean(np.ascontiguousarray(disp), linear)
+        assert same_bits(postprocess.adaptive_mean(disp, linear=linear), ref)
+
+
+# ----------------------------------------------------------- Delaunay and planes
+def reference_delaunay(points):
+    """The former numpy glue around the sweep: np.unique for first occurrences, a
+    stable numpy argsort for the insertion order."""
+    from canopy_stereo.elas import sweephull
+
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    if len(pts) < 3:
+        return np.zeros((0, 3), np.int32)
+    _, first = np.unique(pts, axis=0, return_index=True)
+    first = np.sort(first)
+    xs, ys = np.ascontiguousarray(pts[first, 0]), np.ascontiguousarray(pts[first, 1])
+    if len(xs) < 3:
+        return np.zeros((0, 3), np.int32)
+    i0, i1, i2, ccx, ccy = sweephull._seed(xs, ys)
+    if i0 < 0:
+        return np.zeros((0, 3), np.int32)
+    order = np.argsort((xs - ccx) ** 2 + (ys - ccy) ** 2, kind="stable")
+    tri = sweephull._sweep(xs, ys, order, int(i0), int(i1), int(i2), float(ccx), float(ccy))
+    return first[tri].astype(np.int32)
+
+
+def reference_triangle_planes(points, right_image):
+    points = np.asarray(points, dtype=np.int64).reshape(-1, 3)
+    u_left, v, d = points[:, 0], points[:, 1], points[:, 2]
+    u_own, u_other = (u_left - d, u_left) if right_image else (u_left, u_left - d)
+    vertices = np.column_stack([u_own, v]).astype(np.float64)
+    triangles = reference_delaunay(vertices)
+    planes = delaunay.fit_planes(u_own, v, d, triangles)
+    other = delaunay.fit_planes(u_other, v, d, triangles)
+    valid = (np.abs(planes[:, 0]) < delaunay.MAX_PLANE_SLOPE) & \
+        (np.abs(other[:, 0]) < delaunay.MAX_PLANE_SLOPE)
+    return vertices, triangles, planes, valid
+
+
+def test_delaunay_and_planes_are_exact(rng, plants):
+    grid_pts = np.stack(np.meshgrid(np.arange(0, 60, 5), np.arange(0, 40, 5)), -1).reshape(-1, 2)
+    cases = [plants["support"][:, :2],                  # real support points
+             grid_pts,                                   # co-circular quadruples
+             np.vstack([grid_pts, grid_pts[::3]]),       # repeated points
+             np.vstack([grid_pts * -1.0, [[0.0, -0.0]]]),  # -0.0 equals 0.0
+             rng.integers(0, 50, (200, 2)),              # many duplicates
+             np.array([[0, 0], [1, 1], [2, 2], [3, 3]]),  # collinear
+             np.zeros((2, 2))]
+    for pts in cases:
+        assert same_bits(delaunay.triangulate(pts), reference_delaunay(pts))
+    for right_image in (False, True):
+        got = delaunay.triangle_planes(plants["support"], right_image=right_image)
+        ref = reference_triangle_planes(plants["support"], right_image)
+        assert all(same_bits(a, b) for a, b in zip(got, ref))
+        assert 0 < got[3].sum() < len(got[3]) or got[3].all()
+
+
+# ------------------------------------------------------------------- rasterisation
+def reference_rasterize(vertices, triangles, height, width):
+    tri_map = np.full((height, width), -1, np.int32)
+    eps = 1e-9
+    for t, (i, j, k) in enumerate(triangles):
+        (ax, ay), (bx, by), (cx, cy) = vertices[i], vertices[j], vertices[k]
+        vmin = max(int(np.ceil(min(ay, by, cy) - eps)), 0)
+        vmax = min(int(np.floor(max(ay, by, cy) + eps)), height - 1)
+        for v in range(vmin, vmax + 1):
+            y, lo, hi = float(v), np.inf, -np.inf
+            for x0, y0, x1, y1 in ((ax, ay, bx, by), (bx, by, cx, cy), (cx, cy, ax, ay)):
+                if y0 == y1:
+                    if abs(y - y0) <= eps:
+                        lo, hi = min(lo, x0, x1), max(hi, x0, x1)
+                    continue
+                if y < min(y0, y1) - eps or y > max(y0, y1) + eps:
+                    continue
+                x = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+                lo, hi = min(lo, x), max(hi, x)
+            if lo > hi:
+                continue
+            u0, u1 = max(int(np.ceil(lo - eps)), 0), min(int(np.floor(hi + eps)), width - 1)
+            if u1 >= u0:
+                tri_map[v, u0:u1 + 1] = t
+    return tri_map
+
+
+def test_rasterisation_is_exact(rng, plants):
+    for right_image in (False, True):
+        m = plants["maps"][right_image]
+        h, w = plants["left"].shape
+        ref = reference_rasterize(m["vertices"], m["triangles"], h, w)
+        assert same_bits(delaunay.rasterize_triangles(m["vertices"], m["triangles"], h, w), ref)
+    # non-integer vertices, horizontal edges, triangles leaving the image
+    vertices = np.vstack([rng.uniform(-10, 70, (30, 2)), [[5.0, 7.0], [25.0, 7.0], [15.0, 20.5]]])
+    triangles = np.vstack([rng.integers(0, 30, (40, 3)), [[30, 31, 32]]]).astype(np.int32)
+    ref = reference_rasterize(vertices, triangles, 50, 60)
+    assert same_bits(delaunay.rasterize_triangles(vertices, triangles, 50, 60), ref)
