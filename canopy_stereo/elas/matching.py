@@ -19,7 +19,11 @@ matching the left one and ``(u + d, v)`` when matching the right one; it must al
 be more than 2 pixels from the border.
 
 Each cost is one vector instruction (:func:`~canopy_stereo.elas.simd.sad16`);
-rows run in parallel.
+four neighbouring pixels with the same disparity bounds share one 64-byte SAD per
+candidate (:func:`~canopy_stereo.elas.simd.sad16x4_store`: their descriptors, and
+those of their matches at any one ``d``, lie side by side), each pixel's own window
+and prior applied per lane, and keep their first minima in one vector
+(:func:`~canopy_stereo.elas.simd.first_min4`); rows run in parallel.
 """
 from __future__ import annotations
 

@@ -8,7 +8,12 @@ A plain loop is what numba would otherwise emit, and it does not vectorise
 (about 10x slower), which is why this one function is written in IR.
 
 :func:`sad64` does the same over 64 bytes (the four descriptors of a support
-candidate). :func:`sad_reference` is the plain-loop computation, for tests.
+candidate). :func:`sad16x4_store` gives the four 16-byte SADs of 64 bytes at once
+(dense matching of four neighbouring pixels): there the per-block sums need x86's
+``psadbw`` by name (the generic pattern becomes a long zero-extend-and-add chain),
+so :func:`psadbw_width` picks the instruction numba's target has, with the generic
+IR elsewhere. :func:`first_min4` keeps four running minima in one vector.
+:func:`sad_reference` is the plain-loop computation, for tests.
 """
 from __future__ import annotations
 
