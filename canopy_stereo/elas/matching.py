@@ -117,11 +117,15 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
                     t1 = tri_row[u + 1]
                     t2 = tri_row[u + 2]
                     t3 = tri_row[u + 3]
+                    on0 = (t0 >= 0) & (tex_row[u] >= match_texture)
+                    on1 = (t1 >= 0) & (tex_row[u + 1] >= match_texture)
+                    on2 = (t2 >= 0) & (tex_row[u + 2] >= match_texture)
+                    on3 = (t3 >= 0) & (tex_row[u + 3] >= match_texture)
+                    if not (on0 | on1 | on2 | on3):
+                        u += 4          # none of the four is matched
+                        continue
                     # (bitwise & and |: few, predictable branches)
-                    if ((t0 >= 0) & (t1 >= 0) & (t2 >= 0) & (t3 >= 0)
-                            & (tex_row[u] >= match_texture) & (tex_row[u + 1] >= match_texture)
-                            & (tex_row[u + 2] >= match_texture)
-                            & (tex_row[u + 3] >= match_texture)):
+                    if on0 & on1 & on2 & on3:
                         mu0 = int(planes[t0, 0] * u + planes[t0, 1] * v + planes[t0, 2])
                         mu1 = int(planes[t1, 0] * (u + 1) + planes[t1, 1] * v + planes[t1, 2])
                         mu2 = int(planes[t2, 0] * (u + 2) + planes[t2, 1] * v + planes[t2, 2])
