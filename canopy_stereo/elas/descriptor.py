@@ -157,6 +157,7 @@ def _assemble_words_into(du, dv, desc, texture):
     """
     h, w = du.shape
     words = desc.reshape(h, w * DESC_BYTES).view(np.uint64).reshape(h, w, 2)
+    flat_words = words.reshape(-1)
     b = BORDER
     n = w - 2 * b
     for v in range(h):
@@ -178,11 +179,14 @@ def _assemble_words_into(du, dv, desc, texture):
         # dv samples: (-1,0) (0,-1) (0,1) (1,0)
         vm1, vl, vr, vp1 = dv[v - 1, b:b + n], dv[v, b - 1:b - 1 + n], dv[v, b + 1:b + 1 + n], \
             dv[v + 1, b:b + n]
-        out = words[v, b:b + n]
         tex = texture[v, b:b + n]
+        # the row's words as a 1-D contiguous array: word 2i / 2i+1 of pixel b+i (a 2-D
+        # slice has run-time strides and does not vectorise)
+        out = flat_words[(v * w + b) * 2:(v * w + b + n) * 2]
         for i in range(n):
-            out[i, 0] = _pack8(m2c[i], m1l[i], m1c[i], m1r[i], z_l[i], z_c[i], z_c[i], z_r[i])
-            out[i, 1] = _pack8(p1l[i], p1c[i], p1r[i], p2c[i], vm1[i], vl[i], vr[i], vp1[i])
+            out[2 * i] = _pack8(m2c[i], m1l[i], m1c[i], m1r[i], z_l[i], z_c[i], z_c[i], z_r[i])
+            out[2 * i + 1] = _pack8(p1l[i], p1c[i], p1r[i], p2c[i], vm1[i], vl[i], vr[i],
+                                    vp1[i])
         for i in range(n):      # a loop of its own: it vectorises (the two together do not)
             tex[i] = (_centred(m2c[i]) + _centred(m1l[i]) + _centred(m1c[i]) + _centred(m1r[i])
                       + _centred(z_l[i]) + 2 * _centred(z_c[i]) + _centred(z_r[i])
