@@ -43,6 +43,10 @@ class Workspace:
         """The same store, with ``prefix`` before every name."""
         return Workspace(self._store, self._prefix + prefix + "/")
 
+    def arrays(self) -> list[np.ndarray]:
+        """Every array of the store (all prefixes)."""
+        return list(self._store.values())
+
     def nbytes(self) -> int:
         """Bytes held by all arrays of the store."""
         return sum(a.nbytes for a in self._store.values())
