@@ -68,6 +68,7 @@ def test_results_do_not_alias_the_workspace(pairs, preset, extra):
     # and the same images give the same result again
     assert same(snapshot(elas_run(*pairs[0], p, want_right=True)), kept)
     held = thread_workspace()
+    assert held.nbytes() > 10 * first.disp_left.nbytes      # the maps are kept there
     for name in FIELDS:
         arr = getattr(first, name)
         if arr is not None:
