@@ -33,7 +33,8 @@ import numpy as np
 from numba import njit
 
 from canopy_stereo.elas.parallel import run_row_bands
-from canopy_stereo.elas.simd import MASKED, DESC_BYTES, first_min4, sad16, sad16x4_store
+from canopy_stereo.elas.simd import (MASKED, DESC_BYTES, first_min4, sad16, sad16x4_store,
+                                     sad16x4_store_outside)
 
 #: Pixels closer than this to the left/right border are not matched.
 MATCH_BORDER = 2
@@ -156,12 +157,9 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
                         d = cell[j]
                         if d < d_lo or d > d_hi:
                             continue
-                        m0 = MASKED if abs(d - mu0) <= radius else 0
-                        m1 = MASKED if abs(d - mu1) <= radius else 0
-                        m2 = MASKED if abs(d - mu2) <= radius else 0
-                        m3 = MASKED if abs(d - mu3) <= radius else 0
-                        sad16x4_store(flat_own, a0, flat_other, a0 - sign * d * DESC_BYTES,
-                                      m0, m1, m2, m3, quad_costs, 4 * n_cand)
+                        sad16x4_store_outside(flat_own, a0, flat_other,
+                                              a0 - sign * d * DESC_BYTES, d, mu0, mu1, mu2,
+                                              mu3, radius, quad_costs, 4 * n_cand)
                         quad_disp[n_cand] = d
                         n_cand += 1
                     mu_lo = min(min(mu0, mu1), min(mu2, mu3))

@@ -210,6 +210,57 @@ def sad16x4_store(typingctx, a, offset_a, b, offset_b, bonus0, bonus1, bonus2, b
 
 
 @intrinsic
+def sad16x4_store_outside(typingctx, a, offset_a, b, offset_b, d, mu0, mu1, mu2, mu3, radius,
+                          out, out_offset):
+    """:func:`sad16x4_store` of candidate disparity ``d`` with block ``k`` masked
+    (INT32_MAX) where ``|d - mu_k| <= radius`` (inside that pixel's plane window) and no
+    bonus elsewhere; the masks are one vector compare."""
+    if _sad_signature(a, offset_a, b, offset_b) is None:
+        return None
+    scalars = (d, mu0, mu1, mu2, mu3, radius, out_offset)
+    if not (isinstance(out, types.Array) and out.dtype == types.int32 and out.ndim == 1
+            and all(isinstance(x, types.Integer) for x in scalars)):
+        return None
+    sig = types.void(a, offset_a, b, offset_b, d, mu0, mu1, mu2, mu3, radius, out, out_offset)
+
+    def codegen(context, builder, signature, args):
+        i64 = ir.IntType(64)
+        i32 = ir.IntType(32)
+        vec_i8 = ir.VectorType(ir.IntType(8), 64)
+        vec_i32 = ir.VectorType(i32, 4)
+        vec_i64 = ir.VectorType(i64, 4)
+        ta, tb = signature.args[0], signature.args[2]
+        pa = _element_pointer(context, builder, ta, args[0], args[1], signature.args[1], vec_i8)
+        pb = _element_pointer(context, builder, tb, args[2], args[3], signature.args[3], vec_i8)
+        sums = _block_sums(builder, builder.load(pa, align=1), builder.load(pb, align=1))
+
+        def as_i64(k):
+            return context.cast(builder, args[k], signature.args[k], types.int64)
+
+        mus = ir.Constant(vec_i64, ir.Undefined)
+        for k in range(4):
+            mus = builder.insert_element(mus, as_i64(5 + k), i32(k))
+        undef = ir.Constant(vec_i64, ir.Undefined)
+        zeros = ir.Constant(vec_i32, [i32(0)] * 4)
+        dvec = builder.shuffle_vector(builder.insert_element(undef, as_i64(4), i32(0)), undef,
+                                      zeros)
+        rvec = builder.shuffle_vector(builder.insert_element(undef, as_i64(9), i32(0)), undef,
+                                      zeros)
+        diff = builder.sub(dvec, mus)
+        neg = builder.sub(ir.Constant(vec_i64, [i64(0)] * 4), diff)
+        dist = builder.select(builder.icmp_signed("<", diff, ir.Constant(vec_i64, [i64(0)] * 4)),
+                              neg, diff)
+        inside = builder.icmp_signed("<=", dist, rvec)
+        cost = builder.select(inside, ir.Constant(vec_i32, [i32(2147483647)] * 4), sums)
+        po = _element_pointer(context, builder, signature.args[10], args[10], args[11],
+                              signature.args[11], vec_i32)
+        builder.store(cost, po, align=4)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
 def first_min4(typingctx, costs, values, count):
     """Per lane ``k = 0..3``: ``values[j]`` of the first ``j < count`` with the lowest
     ``costs[4j + k]`` (int32), or -1 when ``count`` is 0; a tuple of four int64.

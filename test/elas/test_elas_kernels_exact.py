@@ -594,3 +594,37 @@ def test_rasterisation_is_exact(rng, plants):
     triangles = np.vstack([rng.integers(0, 30, (40, 3)), [[30, 31, 32]]]).astype(np.int32)
     ref = reference_rasterize(vertices, triangles, 50, 60)
     assert same_bits(delaunay.rasterize_triangles(vertices, triangles, 50, 60), ref)
+
+
+def test_sad16x4_store_outside_masks_each_pixels_window(rng, monkeypatch):
+    from numba import njit
+
+    from canopy_stereo.elas import simd
+
+    def kernel():
+        @njit
+        def both(a, b, n, d, mus, radius):
+            out = np.zeros(4 * n, np.int32)
+            ref = np.zeros(4 * n, np.int32)
+            for i in range(n):
+                simd.sad16x4_store_outside(a, i * 3, b, i * 5, d[i], mus[i, 0], mus[i, 1],
+                                           mus[i, 2], mus[i, 3], radius, out, 4 * i)
+                for k in range(4):
+                    if abs(d[i] - mus[i, k]) <= radius:
+                        ref[4 * i + k] = 2147483647
+                    else:
+                        ref[4 * i + k] = simd.sad_reference(a, i * 3 + 16 * k, b,
+                                                            i * 5 + 16 * k, 16)
+            return out, ref
+        return both
+
+    n = 300
+    a = rng.integers(0, 256, 3 * n + 64, dtype=np.uint8)
+    b = rng.integers(0, 256, 5 * n + 64, dtype=np.uint8)
+    d = rng.integers(0, 60, n).astype(np.int64)
+    mus = rng.integers(0, 60, (n, 4)).astype(np.int64)
+    for width in [w for w in (64, 32, 16) if w <= simd.PSADBW_WIDTH] + [0]:
+        monkeypatch.setattr(simd, "PSADBW_WIDTH", width)
+        out, ref = kernel()(a, b, n, d, mus, 3)
+        assert np.array_equal(out, ref), f"psadbw width {width}"
+        assert (ref == 2147483647).any() and (ref < 2147483647).any()
