@@ -20,10 +20,11 @@ be more than 2 pixels from the border.
 
 Each cost is one vector instruction (:func:`~canopy_stereo.elas.simd.sad16`);
 four neighbouring pixels with the same disparity bounds share one 64-byte SAD per
-candidate (:func:`~canopy_stereo.elas.simd.sad16x4_store`: their descriptors, and
-those of their matches at any one ``d``, lie side by side), each pixel's own window
-and prior applied per lane, and keep their first minima in one vector
-(:func:`~canopy_stereo.elas.simd.first_min4`); rows run in parallel.
+candidate (their descriptors, and those of their matches at any one ``d``, lie side
+by side), each pixel's own window masked in one vector compare
+(:func:`~canopy_stereo.elas.simd.sad16x4_store_outside`) and its own prior added
+(:func:`~canopy_stereo.elas.simd.sad16x4_store`), and keep their first minima in one
+vector (:func:`~canopy_stereo.elas.simd.first_min4`); rows run in parallel.
 """
 from __future__ import annotations
 
