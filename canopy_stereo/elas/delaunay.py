@@ -68,37 +68,11 @@ def fit_planes(u: np.ndarray, v: np.ndarray, d: np.ndarray, triangles: np.ndarra
                        np.ascontiguousarray(np.asarray(triangles, np.int64).reshape(-1, 3)))
 
 
-@njit(cache=True, nogil=True)
-def _triangle_planes(points, right_image):
-    """:func:`triangle_planes` on int64 (N, 3) points, without the GIL."""
-    n = points.shape[0]
-    u_own = np.empty(n, np.float64)
-    u_other = np.empty(n, np.float64)
-    v = np.empty(n, np.float64)
-    d = np.empty(n, np.float64)
-    for i in range(n):
-        u_left = points[i, 0]
-        u_right = u_left - points[i, 2]
-        u_own[i] = u_right if right_image else u_left
-        u_other[i] = u_left if right_image else u_right
-        v[i] = points[i, 1]
-        d[i] = points[i, 2]
-    vertices = np.empty((n, 2), np.float64)
-    vertices[:, 0] = u_own
-    vertices[:, 1] = v
-    triangles = delaunay_kernel(u_own, v)
-    planes = _fit_planes(u_own, v, d, triangles)
-    other = _fit_planes(u_other, v, d, triangles)
-    # a float32 bound: the float32 slopes are compared in float32, as numpy does
-    slope = np.float32(MAX_PLANE_SLOPE)
-    valid = np.empty(triangles.shape[0], np.bool_)
-    for t in range(triangles.shape[0]):
-        valid[t] = abs(planes[t, 0]) < slope and abs(other[t, 0]) < slope
-    return vertices, triangles, planes, valid
-
-
 def triangle_planes(points: np.ndarray, right_image: bool):
-    """Triangulate the support points for one image and fit its planes (without the GIL).
+    """Triangulate the support points for one image and fit its planes.
+
+    The triangulation (:func:`~canopy_stereo.elas.sweephull.delaunay_kernel`) and the
+    plane fits run without the GIL; the numpy glue between them is a few (N,) arrays.
 
     Args:
         points: int (N, 3) support points ``(u, v, d)`` in left-image pixels.
@@ -109,8 +83,17 @@ def triangle_planes(points: np.ndarray, right_image: bool):
         image's own pixels, triangles int32 (T, 3), planes float32 (T, 3) in own
         coordinates, valid bool (T,).
     """
-    points = np.ascontiguousarray(np.asarray(points, dtype=np.int64).reshape(-1, 3))
-    return _triangle_planes(points, bool(right_image))
+    points = np.asarray(points, dtype=np.int64).reshape(-1, 3)
+    u_left, v, d = points[:, 0], points[:, 1], points[:, 2]
+    u_right = u_left - d
+    u_own, u_other = (u_right, u_left) if right_image else (u_left, u_right)
+    vertices = np.column_stack([u_own, v]).astype(np.float64)
+    triangles = delaunay_kernel(np.ascontiguousarray(vertices[:, 0]),
+                                np.ascontiguousarray(vertices[:, 1]))
+    planes = fit_planes(u_own, v, d, triangles)
+    other = fit_planes(u_other, v, d, triangles)
+    valid = (np.abs(planes[:, 0]) < MAX_PLANE_SLOPE) & (np.abs(other[:, 0]) < MAX_PLANE_SLOPE)
+    return vertices, triangles, planes, valid
 
 
 @njit(cache=True, inline="always")

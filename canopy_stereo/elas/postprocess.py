@@ -247,7 +247,10 @@ def _fill_columns(out, max_gap, discon, extrapolate):
 
 @njit(cache=True, nogil=True)
 def _interpolate_gaps(disp, max_gap, discon, extrapolate, out):
-    out[:, :] = disp
+    h, w = disp.shape
+    for v in range(h):      # (a loop: an array-to-array slice assignment compiles for seconds)
+        for u in range(w):
+            out[v, u] = disp[v, u]
     for v in range(out.shape[0]):
         _fill_line(out[v], max_gap, discon, extrapolate)
     _fill_columns(out, max_gap, discon, extrapolate)
@@ -397,7 +400,9 @@ def _median7(t0, t1, t2, t3, t4, t5, t6):
 def _median(disp, radius, rows):
     """Rows pass (into ``rows``) then columns pass of the 7-tap median of valid values."""
     h, w = disp.shape
-    rows[:, :] = disp
+    for v in range(h):      # (a loop: an array-to-array slice assignment compiles for seconds)
+        for u in range(w):
+            rows[v, u] = disp[v, u]
     line = np.full(w + 2 * radius, -1.0, dtype=np.float32)
     for v in range(h):
         src = disp[v]

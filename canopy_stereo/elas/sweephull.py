@@ -19,11 +19,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, types
-from numba.typed import Dict
-
-#: Dictionary key of a point: (x, y).
-_POINT_KEY = types.UniTuple(types.float64, 2)
+from numba import njit
 
 
 @njit(cache=True, inline="always")
@@ -288,19 +284,70 @@ def _sweep(xs, ys, order, i0, i1, i2, ccx, ccy):
 
 
 @njit(cache=True, nogil=True)
+def stable_argsort(keys):
+    """int64 indices that sort float64 ``keys`` ascending, equal keys in index order
+    (what ``np.argsort(keys, kind="stable")`` gives for keys without NaN). A bottom-up
+    merge sort written out: numba's own ``mergesort`` costs seconds to compile."""
+    n = keys.shape[0]
+    order = np.arange(n)
+    buffer = np.empty(n, dtype=np.int64)
+    width = 1
+    while width < n:
+        for lo in range(0, n, 2 * width):
+            mid = min(lo + width, n)
+            hi = min(lo + 2 * width, n)
+            i, j, k = lo, mid, lo
+            while i < mid and j < hi:
+                if keys[order[j]] < keys[order[i]]:
+                    buffer[k] = order[j]
+                    j += 1
+                else:
+                    buffer[k] = order[i]
+                    i += 1
+                k += 1
+            while i < mid:
+                buffer[k] = order[i]
+                i += 1
+                k += 1
+            while j < hi:
+                buffer[k] = order[j]
+                j += 1
+                k += 1
+        order, buffer = buffer, order
+        width *= 2
+    return order
+
+
+@njit(cache=True, nogil=True)
 def _first_occurrences(xs, ys):
     """int64 indices of the first occurrence of every distinct point ``(xs[i], ys[i])``,
-    increasing (``0.0`` and ``-0.0`` are the same coordinate, as for ``np.unique``)."""
-    seen = Dict.empty(key_type=_POINT_KEY, value_type=types.int64)
-    first = np.empty(xs.shape[0], dtype=np.int64)
-    n = 0
-    for i in range(xs.shape[0]):
-        key = (xs[i] + 0.0, ys[i] + 0.0)     # + 0.0 turns -0.0 into 0.0
-        if key not in seen:
-            seen[key] = i
-            first[n] = i
-            n += 1
-    return first[:n]
+    increasing (``0.0`` and ``-0.0`` are the same coordinate, as for ``np.unique``).
+
+    Two stable sorts (by y, then by x) put equal points next to each other in input
+    order, so the first of each run is the first occurrence.
+    """
+    n = xs.shape[0]
+    by_y = stable_argsort(ys)
+    xs_by_y = np.empty(n, dtype=np.float64)
+    for k in range(n):
+        xs_by_y[k] = xs[by_y[k]]
+    by_x = stable_argsort(xs_by_y)
+    is_first = np.zeros(n, dtype=np.bool_)
+    previous = -1
+    for k in range(n):
+        i = by_y[by_x[k]]
+        is_first[i] = previous < 0 or not (xs[i] == xs[previous] and ys[i] == ys[previous])
+        previous = i
+    count = 0
+    for i in range(n):
+        count += is_first[i]
+    first = np.empty(count, dtype=np.int64)
+    count = 0
+    for i in range(n):
+        if is_first[i]:
+            first[count] = i
+            count += 1
+    return first
 
 
 @njit(cache=True, nogil=True)
@@ -311,16 +358,24 @@ def delaunay_kernel(xs_all, ys_all):
     if xs_all.shape[0] < 3:
         return empty
     first = _first_occurrences(xs_all, ys_all)
-    if first.shape[0] < 3:
+    n = first.shape[0]
+    if n < 3:
         return empty
-    xs = xs_all[first]
-    ys = ys_all[first]
+    xs = np.empty(n, dtype=np.float64)
+    ys = np.empty(n, dtype=np.float64)
+    for k in range(n):
+        xs[k] = xs_all[first[k]]
+        ys[k] = ys_all[first[k]]
     i0, i1, i2, ccx, ccy = _seed(xs, ys)
     if i0 < 0:
         return empty
     # insertion order: distance from the seed's circumcentre (stable: ties keep input order)
-    order = np.argsort((xs - ccx) ** 2 + (ys - ccy) ** 2, kind="mergesort")
-    tri = _sweep(xs, ys, order, i0, i1, i2, ccx, ccy)
+    dist = np.empty(n, dtype=np.float64)
+    for k in range(n):
+        dx = xs[k] - ccx
+        dy = ys[k] - ccy
+        dist[k] = dx * dx + dy * dy
+    tri = _sweep(xs, ys, stable_argsort(dist), i0, i1, i2, ccx, ccy)
     out = np.empty_like(tri)
     for t in range(tri.shape[0]):
         for k in range(3):
