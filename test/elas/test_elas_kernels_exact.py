@@ -628,3 +628,15 @@ def test_sad16x4_store_outside_masks_each_pixels_window(rng, monkeypatch):
         out, ref = kernel()(a, b, n, d, mus, 3)
         assert np.array_equal(out, ref), f"psadbw width {width}"
         assert (ref == 2147483647).any() and (ref < 2147483647).any()
+
+
+def test_stable_argsort_equals_numpys_stable_sort(rng):
+    from canopy_stereo.elas.sweephull import stable_argsort
+
+    for n in (0, 1, 2, 3, 7, 64, 1000):
+        keys = rng.integers(0, max(n // 3, 1), n).astype(np.float64)   # many ties
+        keys[rng.random(n) < 0.1] = -0.0
+        keys[rng.random(n) < 0.1] = 0.0
+        assert np.array_equal(stable_argsort(keys), np.argsort(keys, kind="stable"))
+    keys = rng.normal(size=777)
+    assert np.array_equal(stable_argsort(keys), np.argsort(keys, kind="stable"))
