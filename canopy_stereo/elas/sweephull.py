@@ -283,6 +283,10 @@ def _sweep(xs, ys, order, i0, i1, i2, ccx, ccy):
     return out
 
 
+#: :func:`stable_argsort` sorts runs of this many keys by insertion before merging.
+SORT_RUN = 16
+
+
 @njit(cache=True, nogil=True)
 def stable_argsort(keys):
     """int64 indices that sort float64 ``keys`` ascending, equal keys in index order
@@ -291,7 +295,17 @@ def stable_argsort(keys):
     n = keys.shape[0]
     order = np.arange(n)
     buffer = np.empty(n, dtype=np.int64)
-    width = 1
+    # runs of SORT_RUN by insertion (stable: moves past strictly greater keys only)
+    for lo in range(0, n, SORT_RUN):
+        for i in range(lo + 1, min(lo + SORT_RUN, n)):
+            item = order[i]
+            key = keys[item]
+            j = i - 1
+            while j >= lo and keys[order[j]] > key:
+                order[j + 1] = order[j]
+                j -= 1
+            order[j + 1] = item
+    width = SORT_RUN
     while width < n:
         for lo in range(0, n, 2 * width):
             mid = min(lo + width, n)
