@@ -11,6 +11,15 @@ sub-pixel answer and the first-call time of a fresh process.
 Usage:
     python benchmarks/bench_elas.py [--data ../shared/data] [--pairs tsukuba,teddy]
                                     [--reps 5] [--pyelas /path/to/python] [--no-fresh]
+    python benchmarks/bench_elas.py --stages [--left L.png --right R.png | --pairs tsukuba]
+                                    [--preset robotics] [--disp-min 84 --disp-max 167]
+                                    [--scale 2] [--threads 1,2] [--right-map] [--reps 20]
+
+``--stages`` times ELAS alone, stage by stage, on one pair (``--left``/``--right``
+images, any size and colour, or the first of ``--pairs``; ``--scale`` resizes it):
+per stage the median wall ms of ``--reps`` calls after a warm-up, then the median
+wall and CPU ms (``time.process_time``, all threads) of a whole call, for each
+numba thread count of ``--threads``.
 
 libelas: ``--pyelas`` or ``$PYELAS_PYTHON`` names a Python interpreter that can
 ``import elas`` (see elas.md); by default ``/work/pyelas-venv/bin/python`` and
@@ -178,6 +187,80 @@ def fresh_process_times(left, right, workdir: Path) -> tuple[float, float, float
     return tuple(float(x) for x in out)
 
 
+def stage_times(left, right, params, *, reps: int, threads: int, right_map: bool) -> dict:
+    """Median ms per stage (wall), and ``"total wall"`` / ``"total cpu"`` ms of whole
+    :func:`~canopy_stereo.elas.core.elas_run` calls with ``threads`` numba threads."""
+    import numba
+
+    from canopy_stereo.elas.core import elas_run
+
+    before = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        elas_run(left, right, params, want_right=right_map)
+        stages: dict[str, list[float]] = {}
+        wall, cpu = [], []
+        for _ in range(reps):
+            c0, t0 = time.process_time(), time.perf_counter()
+            result = elas_run(left, right, params, want_right=right_map)
+            wall.append(time.perf_counter() - t0)
+            cpu.append(time.process_time() - c0)
+            for name, sec in result.timings.items():
+                stages.setdefault(name, []).append(sec)
+    finally:
+        numba.set_num_threads(before)
+    out = {name: 1000 * float(np.median(v)) for name, v in stages.items()}
+    out["total wall"] = 1000 * float(np.median(wall))
+    out["total cpu"] = 1000 * float(np.median(cpu))
+    return out
+
+
+def stages_main(args) -> int:
+    """``--stages``: per-stage ms of ELAS on one pair (see the module docstring)."""
+    import numba
+
+    from canopy_stereo.elas.params import make_params
+
+    if args.left or args.right:
+        if not (args.left and args.right):
+            print("--stages needs both --left and --right (or neither, with --pairs)")
+            return 2
+        left, right = to_gray(read_image(args.left)), to_gray(read_image(args.right))
+        name = Path(args.left).name
+    else:
+        pairs = find_pairs(Path(args.data))
+        if args.pairs:
+            wanted = {p.lower() for p in args.pairs.split(",")}
+            pairs = [p for p in pairs if p["name"].lower() in wanted]
+        if not pairs:
+            print(f"no pair found (give --left/--right, or --pairs under {args.data})")
+            return 1
+        left, right, _ = load_pair(pairs[0])
+        name = pairs[0]["name"]
+    if args.scale != 1.0:
+        size = (int(round(left.shape[1] * args.scale)), int(round(left.shape[0] * args.scale)))
+        left, right = cv2.resize(left, size), cv2.resize(right, size)
+    params = make_params(args.preset, disp_min=args.disp_min, disp_max=args.disp_max)
+    threads = [int(t) for t in args.threads.split(",")]
+    threads = [t for t in threads if 1 <= t <= numba.config.NUMBA_NUM_THREADS] or [1]
+    print(f"ELAS stages: {name} {left.shape[1]}x{left.shape[0]}, preset {args.preset}, "
+          f"disparities {params.disp_min}..{params.disp_max}, right map "
+          f"{'on' if args.right_map else 'off'}, median of {args.reps} calls after a warm-up, "
+          f"{os.cpu_count()} CPU(s)")
+    results = {t: stage_times(left, right, params, reps=args.reps, threads=t,
+                              right_map=args.right_map) for t in threads}
+    names = list(dict.fromkeys(k for r in results.values() for k in r))
+    header = f"{'stage':<22}" + "".join(f"{f'{t} thread(s)':>14}" for t in threads)
+    print(header)
+    print("-" * len(header))
+    for stage in names:
+        if stage.startswith("total"):
+            print("-" * len(header))
+        print(f"{stage + ' ms':<22}" + "".join(f"{results[t].get(stage, float('nan')):14.2f}"
+                                             for t in threads))
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default=str(REPO.parent / "shared" / "data"))
@@ -185,7 +268,21 @@ def main(argv=None) -> int:
     ap.add_argument("--reps", type=int, default=5, help="timed calls after the warm-up")
     ap.add_argument("--pyelas", default=None, help="a Python interpreter with pyelas")
     ap.add_argument("--no-fresh", action="store_true", help="skip the fresh-process timing")
+    ap.add_argument("--stages", action="store_true",
+                    help="per-stage ms and total CPU ms of ELAS alone on one pair")
+    ap.add_argument("--left", default=None, help="--stages: left image (rectified)")
+    ap.add_argument("--right", default=None, help="--stages: right image (rectified)")
+    ap.add_argument("--preset", default="robotics", choices=["robotics", "middlebury"],
+                    help="--stages: ELAS preset")
+    ap.add_argument("--disp-min", type=int, default=0, help="--stages: smallest disparity")
+    ap.add_argument("--disp-max", type=int, default=255, help="--stages: largest disparity")
+    ap.add_argument("--scale", type=float, default=1.0, help="--stages: resize the pair first")
+    ap.add_argument("--threads", default="1,2", help="--stages: numba thread counts to time")
+    ap.add_argument("--right-map", action="store_true",
+                    help="--stages: also post-process the right map (want_right)")
     args = ap.parse_args(argv)
+    if args.stages:
+        return stages_main(args)
 
     import numba
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from canopy_stereo.elas.sweephull import delaunay_triangles
+from canopy_stereo.elas.sweephull import delaunay_kernel, delaunay_triangles
 
 #: A plane is used as a prior only if its u-slope is below this in both images.
 MAX_PLANE_SLOPE = 0.7
@@ -71,6 +71,9 @@ def fit_planes(u: np.ndarray, v: np.ndarray, d: np.ndarray, triangles: np.ndarra
 def triangle_planes(points: np.ndarray, right_image: bool):
     """Triangulate the support points for one image and fit its planes.
 
+    The triangulation (:func:`~canopy_stereo.elas.sweephull.delaunay_kernel`) and the
+    plane fits run without the GIL; the numpy glue between them is a few (N,) arrays.
+
     Args:
         points: int (N, 3) support points ``(u, v, d)`` in left-image pixels.
         right_image: triangulate on ``(u - d, v)`` instead of ``(u, v)``.
@@ -85,22 +88,56 @@ def triangle_planes(points: np.ndarray, right_image: bool):
     u_right = u_left - d
     u_own, u_other = (u_right, u_left) if right_image else (u_left, u_right)
     vertices = np.column_stack([u_own, v]).astype(np.float64)
-    triangles = triangulate(vertices)
+    triangles = delaunay_kernel(np.ascontiguousarray(vertices[:, 0]),
+                                np.ascontiguousarray(vertices[:, 1]))
     planes = fit_planes(u_own, v, d, triangles)
     other = fit_planes(u_other, v, d, triangles)
     valid = (np.abs(planes[:, 0]) < MAX_PLANE_SLOPE) & (np.abs(other[:, 0]) < MAX_PLANE_SLOPE)
     return vertices, triangles, planes, valid
 
 
+@njit(cache=True, inline="always")
+def _edge_span(x0, y0, x1, y1, vmin, vmax, lo, hi, eps):
+    """Widen the row spans ``lo[v - vmin]``, ``hi[v - vmin]`` by edge (x0, y0) -> (x1, y1)
+    on every row ``v`` in ``[vmin, vmax]`` whose centre line meets it (within ``eps``)."""
+    if y0 == y1:
+        # a horizontal edge counts on the rows within eps of it, with both end points
+        for v in range(max(vmin, int(np.floor(y0)) - 1), min(vmax, int(np.ceil(y0)) + 1) + 1):
+            if abs(float(v) - y0) <= eps:
+                lo[v - vmin] = min(lo[v - vmin], x0, x1)
+                hi[v - vmin] = max(hi[v - vmin], x0, x1)
+        return
+    # rows v with min(y0, y1) - eps <= v <= max(y0, y1) + eps (v integer: ceil / floor)
+    first = max(vmin, int(np.ceil(min(y0, y1) - eps)))
+    last = min(vmax, int(np.floor(max(y0, y1) + eps)))
+    for v in range(first, last + 1):
+        y = float(v)
+        x = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+        lo[v - vmin] = min(lo[v - vmin], x)
+        hi[v - vmin] = max(hi[v - vmin], x)
+
+
 @njit(cache=True, nogil=True)
 def rasterize_triangles(vertices, triangles, height, width):
     """int32 (height, width) map: index of the triangle containing each pixel centre, or -1.
 
-    For every pixel row the triangle's column span is found from its edges, so the
-    work is proportional to the covered area.
+    For every pixel row the triangle's column span is found from its edges (each edge
+    visits only the rows it crosses), so the work is proportional to the covered area.
     """
-    tri_map = np.full((height, width), -1, dtype=np.int32)
+    tri_map = np.empty((height, width), dtype=np.int32)
+    rasterize_triangles_into(vertices, triangles, tri_map)
+    return tri_map
+
+
+@njit(cache=True, nogil=True)
+def rasterize_triangles_into(vertices, triangles, tri_map):
+    """:func:`rasterize_triangles` into an existing int32 (height, width) map (its
+    previous contents are overwritten)."""
+    height, width = tri_map.shape
+    tri_map[:, :] = -1
     eps = 1e-9
+    lo = np.empty(height, dtype=np.float64)
+    hi = np.empty(height, dtype=np.float64)
     for t in range(triangles.shape[0]):
         ax = vertices[triangles[t, 0], 0]
         ay = vertices[triangles[t, 0], 1]
@@ -112,31 +149,19 @@ def rasterize_triangles(vertices, triangles, height, width):
         vmax = int(np.floor(max(ay, by, cy) + eps))
         vmin = max(vmin, 0)
         vmax = min(vmax, height - 1)
+        if vmin > vmax:
+            continue
+        for k in range(vmax - vmin + 1):
+            lo[k] = np.inf
+            hi[k] = -np.inf
+        _edge_span(ax, ay, bx, by, vmin, vmax, lo, hi, eps)
+        _edge_span(bx, by, cx, cy, vmin, vmax, lo, hi, eps)
+        _edge_span(cx, cy, ax, ay, vmin, vmax, lo, hi, eps)
         for v in range(vmin, vmax + 1):
-            y = float(v)
-            lo = np.inf
-            hi = -np.inf
-            for e in range(3):
-                if e == 0:
-                    x0, y0, x1, y1 = ax, ay, bx, by
-                elif e == 1:
-                    x0, y0, x1, y1 = bx, by, cx, cy
-                else:
-                    x0, y0, x1, y1 = cx, cy, ax, ay
-                if y0 == y1:
-                    if abs(y - y0) <= eps:
-                        lo = min(lo, x0, x1)
-                        hi = max(hi, x0, x1)
-                    continue
-                if y < min(y0, y1) - eps or y > max(y0, y1) + eps:
-                    continue
-                x = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
-                lo = min(lo, x)
-                hi = max(hi, x)
-            if lo > hi:
+            if lo[v - vmin] > hi[v - vmin]:
                 continue
-            u0 = max(int(np.ceil(lo - eps)), 0)
-            u1 = min(int(np.floor(hi + eps)), width - 1)
+            u0 = max(int(np.ceil(lo[v - vmin] - eps)), 0)
+            u1 = min(int(np.floor(hi[v - vmin] + eps)), width - 1)
+            row = tri_map[v]
             for u in range(u0, u1 + 1):
-                tri_map[v, u] = t
-    return tri_map
+                row[u] = t

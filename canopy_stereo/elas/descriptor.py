@@ -49,13 +49,20 @@ def _sat_byte(x):
 
 
 @njit(cache=True, nogil=True)
-def _sobel_bytes(img):
-    """``(du, dv)`` uint8 (H, W) gradient bytes; 128 (zero gradient) on the 1-px border."""
+def _sobel_into(img, du, dv):
+    """Fill ``du``, ``dv`` uint8 (H, W) with the gradient bytes of ``img``; 128 (zero
+    gradient) on the 1-px border."""
     h, w = img.shape
-    du = np.full((h, w), 128, dtype=np.uint8)
-    dv = np.full((h, w), 128, dtype=np.uint8)
+    du[0, :] = 128
+    du[h - 1, :] = 128
+    dv[0, :] = 128
+    dv[h - 1, :] = 128
     n = w - 2
     for v in range(1, h - 1):
+        du[v, 0] = 128
+        du[v, w - 1] = 128
+        dv[v, 0] = 128
+        dv[v, w - 1] = 128
         # rows above/at/below, each at columns u-1 (l), u (c), u+1 (r) for u = 1..w-2
         al, ac, ar = img[v - 1, 0:n], img[v - 1, 1:n + 1], img[v - 1, 2:n + 2]
         bl, br = img[v, 0:n], img[v, 2:n + 2]
@@ -69,6 +76,15 @@ def _sobel_bytes(img):
             bottom = np.int32(cl[i]) + 2 * np.int32(cc[i]) + np.int32(cr[i])
             out_u[i] = _sat_byte(left - right)
             out_v[i] = _sat_byte(top - bottom)
+
+
+@njit(cache=True, nogil=True)
+def _sobel_bytes(img):
+    """``(du, dv)`` uint8 (H, W) gradient bytes; 128 (zero gradient) on the 1-px border."""
+    h, w = img.shape
+    du = np.empty((h, w), dtype=np.uint8)
+    dv = np.empty((h, w), dtype=np.uint8)
+    _sobel_into(img, du, dv)
     return du, dv
 
 
@@ -114,19 +130,45 @@ def _pack8(b0, b1, b2, b3, b4, b5, b6, b7):
             | (np.uint64(b7) << np.uint64(56)))
 
 
+@njit(cache=True, inline="always")
+def _centred(x):
+    """``|x - 128|`` of a gradient byte, as int32."""
+    return abs(np.int32(x) - 128)
+
+
 @njit(cache=True, nogil=True)
 def _assemble_words(du, dv):
-    """Descriptor (H, W, 16) written as two little-endian uint64 words per pixel.
+    """Descriptor (H, W, 16) written as two little-endian uint64 words per pixel, and
+    its texture (H, W) int32 from the same bytes (:func:`_assemble_words_into`)."""
+    h, w = du.shape
+    desc = np.empty((h, w, DESC_BYTES), dtype=np.uint8)
+    texture = np.empty((h, w), dtype=np.int32)
+    _assemble_words_into(du, dv, desc, texture)
+    return desc, texture
+
+
+@njit(cache=True, nogil=True)
+def _assemble_words_into(du, dv, desc, texture):
+    """Fill ``desc`` (H, W, 16) uint8 and ``texture`` (H, W) int32.
 
     The same bytes as :func:`_assemble_bytes` with the offsets of :data:`DU_OFFSETS` and
-    :data:`DV_OFFSETS` spelled out, about 3x faster (vectorises over ``u``).
+    :data:`DV_OFFSETS` spelled out, about 3x faster (vectorises over ``u``); the
+    :data:`BORDER` margin is zeroed here, so ``desc`` may hold anything before.
     """
     h, w = du.shape
-    desc = np.zeros((h, w, DESC_BYTES), dtype=np.uint8)
     words = desc.reshape(h, w * DESC_BYTES).view(np.uint64).reshape(h, w, 2)
+    flat_words = words.reshape(-1)
     b = BORDER
     n = w - 2 * b
-    for v in range(b, h - b):
+    for v in range(h):
+        if v < b or v >= h - b:
+            words[v, :, :] = 0
+            texture[v, :] = 0
+            continue
+        words[v, :b, :] = 0
+        words[v, w - b:, :] = 0
+        texture[v, :b] = 0
+        texture[v, w - b:] = 0
         # du samples: (-2,0) (-1,-2) (-1,0) (-1,2) (0,-1) (0,0) (0,0) (0,1)
         #             (1,-2) (1,0) (1,2) (2,0)
         m2c = du[v - 2, b:b + n]
@@ -137,11 +179,20 @@ def _assemble_words(du, dv):
         # dv samples: (-1,0) (0,-1) (0,1) (1,0)
         vm1, vl, vr, vp1 = dv[v - 1, b:b + n], dv[v, b - 1:b - 1 + n], dv[v, b + 1:b + 1 + n], \
             dv[v + 1, b:b + n]
-        out = words[v, b:b + n]
+        tex = texture[v, b:b + n]
+        # the row's words as a 1-D contiguous array: word 2i / 2i+1 of pixel b+i (a 2-D
+        # slice has run-time strides and does not vectorise)
+        out = flat_words[(v * w + b) * 2:(v * w + b + n) * 2]
         for i in range(n):
-            out[i, 0] = _pack8(m2c[i], m1l[i], m1c[i], m1r[i], z_l[i], z_c[i], z_c[i], z_r[i])
-            out[i, 1] = _pack8(p1l[i], p1c[i], p1r[i], p2c[i], vm1[i], vl[i], vr[i], vp1[i])
-    return desc
+            out[2 * i] = _pack8(m2c[i], m1l[i], m1c[i], m1r[i], z_l[i], z_c[i], z_c[i], z_r[i])
+            out[2 * i + 1] = _pack8(p1l[i], p1c[i], p1r[i], p2c[i], vm1[i], vl[i], vr[i],
+                                    vp1[i])
+        for i in range(n):      # a loop of its own: it vectorises (the two together do not)
+            tex[i] = (_centred(m2c[i]) + _centred(m1l[i]) + _centred(m1c[i]) + _centred(m1r[i])
+                      + _centred(z_l[i]) + 2 * _centred(z_c[i]) + _centred(z_r[i])
+                      + _centred(p1l[i]) + _centred(p1c[i]) + _centred(p1r[i])
+                      + _centred(p2c[i]) + _centred(vm1[i]) + _centred(vl[i]) + _centred(vr[i])
+                      + _centred(vp1[i]))
 
 
 def gradient_bytes(gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -149,8 +200,14 @@ def gradient_bytes(gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return _sobel_bytes(np.ascontiguousarray(gray, dtype=np.uint8))
 
 
-def compute_descriptors(gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def compute_descriptors(gray: np.ndarray, *, workspace=None) -> tuple[np.ndarray, np.ndarray]:
     """Descriptors and texture of a uint8 grey image (H, W).
+
+    Args:
+        gray: uint8 (H, W) image.
+        workspace: a :class:`~canopy_stereo.elas.workspace.Workspace` to take the
+            arrays from (reused between calls: the results are overwritten by the
+            next call with the same workspace); fresh arrays when None.
 
     Returns:
         desc: uint8 (H, W, 16), ``desc[v, u]`` is the descriptor of pixel (u, v)
@@ -158,12 +215,19 @@ def compute_descriptors(gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         texture: int32 (H, W), ``sum_k |desc[v, u, k] - 128|`` (0 on the border).
     """
     gray = np.ascontiguousarray(gray, dtype=np.uint8)
-    if gray.shape[0] <= 2 * BORDER or gray.shape[1] <= 2 * BORDER:
-        h, w = gray.shape
+    h, w = gray.shape
+    if h <= 2 * BORDER or w <= 2 * BORDER:
         return np.zeros((h, w, DESC_BYTES), np.uint8), np.zeros((h, w), np.int32)
-    du, dv = _sobel_bytes(gray)
-    if sys.byteorder == "little":
-        desc = _assemble_words(du, dv)
-    else:
+    if workspace is None or sys.byteorder != "little":
+        du, dv = _sobel_bytes(gray)
+        if sys.byteorder == "little":
+            return _assemble_words(du, dv)
         desc = _assemble_bytes(du, dv, _DU_DR, _DU_DC, _DV_DR, _DV_DC)
-    return desc, _texture(desc)
+        return desc, _texture(desc)
+    du = workspace.array("du", (h, w), np.uint8)
+    dv = workspace.array("dv", (h, w), np.uint8)
+    desc = workspace.array("desc", (h, w, DESC_BYTES), np.uint8)
+    texture = workspace.array("texture", (h, w), np.int32)
+    _sobel_into(gray, du, dv)
+    _assemble_words_into(du, dv, desc, texture)
+    return desc, texture

@@ -13,11 +13,12 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def _grid(points, right_image, width, height, grid_size, disp_min, disp_max):
+def _grid(points, right_image, width, height, grid_size, disp_min, disp_max, seed, across,
+          lists, counts):
     gw = (width + grid_size - 1) // grid_size
     gh = (height + grid_size - 1) // grid_size
     ndisp = disp_max + 1
-    seed = np.zeros((gh, gw, ndisp), dtype=np.uint8)
+    seed[:, :, :] = 0
     for p in range(points.shape[0]):
         d = points[p, 2]
         x = points[p, 0] - d if right_image else points[p, 0]
@@ -29,7 +30,7 @@ def _grid(points, right_image, width, height, grid_size, disp_min, disp_max):
         for dd in range(max(d - 1, disp_min), min(d + 1, disp_max) + 1):
             seed[gy, gx, dd] = 1
     # 3x3 union, separably: along x, then along y
-    across = np.zeros((gh, gw, ndisp), dtype=np.uint8)
+    across[:, :, :] = 0
     for gy in range(gh):
         for gx in range(gw):
             dst = across[gy, gx]
@@ -37,8 +38,7 @@ def _grid(points, right_image, width, height, grid_size, disp_min, disp_max):
                 src = seed[gy, nx]
                 for dd in range(ndisp):
                     dst[dd] |= src[dd]
-    lists = np.zeros((gh, gw, ndisp), dtype=np.int32)
-    counts = np.zeros((gh, gw), dtype=np.int32)
+    lists[:, :, :] = 0
     cell = np.zeros(ndisp, dtype=np.uint8)
     for gy in range(gh):
         for gx in range(gw):
@@ -58,7 +58,7 @@ def _grid(points, right_image, width, height, grid_size, disp_min, disp_max):
 
 
 def disparity_grid(points: np.ndarray, image_size: tuple[int, int], grid_size: int,
-                   disp_min: int, disp_max: int, *, right_image: bool = False):
+                   disp_min: int, disp_max: int, *, right_image: bool = False, workspace=None):
     """Per-cell candidate disparities.
 
     Args:
@@ -67,6 +67,8 @@ def disparity_grid(points: np.ndarray, image_size: tuple[int, int], grid_size: i
         grid_size: cell size in pixels.
         disp_min, disp_max: search range (candidates are clipped to it).
         right_image: place points at ``(u - d, v)`` (the right image's grid).
+        workspace: a :class:`~canopy_stereo.elas.workspace.Workspace` to take the
+            arrays from (overwritten by its next use); fresh arrays when None.
 
     Returns:
         ``(lists, counts)``: cell ``(gy, gx)`` (pixels ``gx*grid_size ...``,
@@ -74,6 +76,16 @@ def disparity_grid(points: np.ndarray, image_size: tuple[int, int], grid_size: i
         (int32, increasing); ``lists`` is (gh, gw, disp_max+1).
     """
     pts = np.ascontiguousarray(np.asarray(points, dtype=np.int64).reshape(-1, 3))
-    w, h = image_size
-    return _grid(pts, bool(right_image), int(w), int(h), int(grid_size), int(disp_min),
-                 int(disp_max))
+    w, h = (int(x) for x in image_size)
+    grid_size = int(grid_size)
+    shape = ((h + grid_size - 1) // grid_size, (w + grid_size - 1) // grid_size, int(disp_max) + 1)
+    if workspace is None:
+        arrays = (np.empty(shape, np.uint8), np.empty(shape, np.uint8), np.empty(shape, np.int32),
+                  np.empty(shape[:2], np.int32))
+    else:
+        arrays = (workspace.array("grid_seed", shape, np.uint8),
+                  workspace.array("grid_across", shape, np.uint8),
+                  workspace.array("grid_lists", shape, np.int32),
+                  workspace.array("grid_counts", shape[:2], np.int32))
+    _grid(pts, bool(right_image), w, h, grid_size, int(disp_min), int(disp_max), *arrays)
+    return arrays[2], arrays[3]

@@ -19,7 +19,12 @@ matching the left one and ``(u + d, v)`` when matching the right one; it must al
 be more than 2 pixels from the border.
 
 Each cost is one vector instruction (:func:`~canopy_stereo.elas.simd.sad16`);
-rows run in parallel.
+four neighbouring pixels with the same disparity bounds share one 64-byte SAD per
+candidate (their descriptors, and those of their matches at any one ``d``, lie side
+by side), each pixel's own window masked in one vector compare
+(:func:`~canopy_stereo.elas.simd.sad16x4_store_outside`) and its own prior added
+(:func:`~canopy_stereo.elas.simd.sad16x4_store`), and keep their first minima in one
+vector (:func:`~canopy_stereo.elas.simd.first_min4`); rows run in parallel.
 """
 from __future__ import annotations
 
@@ -29,7 +34,8 @@ import numpy as np
 from numba import njit
 
 from canopy_stereo.elas.parallel import run_row_bands
-from canopy_stereo.elas.simd import DESC_BYTES, sad16
+from canopy_stereo.elas.simd import (MASKED, DESC_BYTES, first_min4, sad16, sad16x4_store,
+                                     sad16x4_store_outside)
 
 #: Pixels closer than this to the left/right border are not matched.
 MATCH_BORDER = 2
@@ -52,14 +58,42 @@ def plane_radius(sigma: float, sradius: float) -> int:
     return max(int(math.ceil(sigma * sradius)), 2)
 
 
+@njit(cache=True, inline="always")
+def _subpixel_offset(flat_own, flat_other, a, sign, best_d, d_lo, d_hi, off_row, c):
+    """Parabola refinement of output column ``c`` (descriptor at byte ``a``, winner
+    ``best_d``), written to ``off_row[c]`` only where the winner is also a local minimum
+    of the cost itself (then the vertex lies within half a pixel)."""
+    if best_d - 1 >= d_lo and best_d + 1 <= d_hi:
+        b = a - sign * best_d * DESC_BYTES
+        c0 = sad16(flat_own, a, flat_other, b)
+        cm = sad16(flat_own, a, flat_other, b + sign * DESC_BYTES)
+        cp = sad16(flat_own, a, flat_other, b - sign * DESC_BYTES)
+        if c0 <= cm and c0 <= cp and cm + cp > 2 * c0:
+            off_row[c] = np.float32(0.5 * (cm - cp) / (cm + cp - 2 * c0))
+
+
 @njit(cache=True, nogil=True)
 def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_lists,
                 grid_counts, grid_size, prior, radius, sign, disp_min, disp_max, match_texture,
                 step, subpixel, out, offsets, row_start, row_stop):
-    """Output rows ``[row_start, row_stop)`` of :func:`match_job` (arguments there)."""
+    """Output rows ``[row_start, row_stop)`` of :func:`match_job` (arguments there).
+
+    With ``step`` 1, four neighbouring pixels of one grid cell that share everything
+    that decides their candidates (all matched, the same plane prediction ``mu``, the
+    same prior flag and disparity bounds) are matched together: each candidate's four
+    costs are four descriptors side by side in both images, and each pixel keeps its
+    own first minimum exactly as when matched alone. (Written out in one function:
+    helpers taking arrays cost reference counting per call.)
+    """
     h, w, _ = desc_own.shape
     flat_own = desc_own.reshape(-1)
     flat_other = desc_other.reshape(-1)
+    lane_best = np.empty(4, np.int64)
+    # the four-pixel path's candidates: grid candidates and the union of the four plane
+    # windows, each at most disp_max + 1 disparities (the window is clipped to the bounds)
+    max_candidates = 2 * (disp_max + 1)
+    quad_costs = np.empty(4 * max_candidates, np.int32)
+    quad_disp = np.empty(max_candidates, np.int64)
     # matched columns x = u - sign*d must satisfy MATCH_BORDER <= x < w - MATCH_BORDER
     n_cells = grid_counts.shape[1]
     for r in range(row_start, row_stop):
@@ -76,57 +110,137 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
             u_first = max(gx * grid_size, MATCH_BORDER)
             u_first = ((u_first + step - 1) // step) * step
             u_stop = min((gx + 1) * grid_size, w - MATCH_BORDER)
-            for u in range(u_first, u_stop, step):
-                t = tri_row[u]
-                if t < 0 or tex_row[u] < match_texture:
-                    continue
-                c = u // step
-                if sign > 0:
-                    d_lo = max(disp_min, u - (w - MATCH_BORDER - 1))
-                    d_hi = min(disp_max, u - MATCH_BORDER)
-                else:
-                    d_lo = max(disp_min, MATCH_BORDER - u)
-                    d_hi = min(disp_max, w - MATCH_BORDER - 1 - u)
-                # truncated, as the original
-                mu = int(planes[t, 0] * u + planes[t, 1] * v + planes[t, 2])
-                w_lo = mu - radius
-                w_hi = mu + radius
-                a = row + u * DESC_BYTES
-                best_e = _NO_COST
-                best_d = -1
-                for j in range(n_grid):
-                    d = cell[j]
-                    if (d >= w_lo and d <= w_hi) or d < d_lo or d > d_hi:
+            u = u_first
+            while u < u_stop:
+                # ---- four pixels u .. u+3 at once, when they share their candidates
+                quad = False
+                if step == 1 and u + 4 <= u_stop:
+                    t0 = tri_row[u]
+                    t1 = tri_row[u + 1]
+                    t2 = tri_row[u + 2]
+                    t3 = tri_row[u + 3]
+                    on0 = (t0 >= 0) & (tex_row[u] >= match_texture)
+                    on1 = (t1 >= 0) & (tex_row[u + 1] >= match_texture)
+                    on2 = (t2 >= 0) & (tex_row[u + 2] >= match_texture)
+                    on3 = (t3 >= 0) & (tex_row[u + 3] >= match_texture)
+                    if not (on0 | on1 | on2 | on3):
+                        u += 4          # none of the four is matched
                         continue
-                    e = sad16(flat_own, a, flat_other, a - sign * d * DESC_BYTES)
-                    if e < best_e:
-                        best_e = e
-                        best_d = d
-                use_prior = plane_valid[t]
-                for d in range(max(w_lo, d_lo), min(w_hi, d_hi) + 1):
-                    e = sad16(flat_own, a, flat_other, a - sign * d * DESC_BYTES)
-                    if use_prior:
-                        e += prior[abs(d - mu)]
-                    if e < best_e:
-                        best_e = e
-                        best_d = d
-                if best_d < 0:
+                    # (bitwise & and |: few, predictable branches)
+                    if on0 & on1 & on2 & on3:
+                        mu0 = int(planes[t0, 0] * u + planes[t0, 1] * v + planes[t0, 2])
+                        mu1 = int(planes[t1, 0] * (u + 1) + planes[t1, 1] * v + planes[t1, 2])
+                        mu2 = int(planes[t2, 0] * (u + 2) + planes[t2, 1] * v + planes[t2, 2])
+                        mu3 = int(planes[t3, 0] * (u + 3) + planes[t3, 1] * v + planes[t3, 2])
+                        if sign > 0:
+                            d_lo = max(disp_min, u - (w - MATCH_BORDER - 1))
+                            d_hi = min(disp_max, u - MATCH_BORDER)
+                            d_lo3 = max(disp_min, u + 3 - (w - MATCH_BORDER - 1))
+                            d_hi3 = min(disp_max, u + 3 - MATCH_BORDER)
+                        else:
+                            d_lo = max(disp_min, MATCH_BORDER - u)
+                            d_hi = min(disp_max, w - MATCH_BORDER - 1 - u)
+                            d_lo3 = max(disp_min, MATCH_BORDER - u - 3)
+                            d_hi3 = min(disp_max, w - MATCH_BORDER - 4 - u)
+                        # (the bounds are monotonic in u: equal at u and u+3 means all equal)
+                        quad = (d_lo == d_lo3) & (d_hi == d_hi3) & (d_lo <= d_hi)
+                if quad:
+                    # the candidates' costs of the four pixels, each pixel seeing its own
+                    # candidates in the order of the one-pixel path (grid candidates
+                    # outside its window, then its window), then each pixel's first minimum
+                    p0 = plane_valid[t0]
+                    p1 = plane_valid[t1]
+                    p2 = plane_valid[t2]
+                    p3 = plane_valid[t3]
+                    a0 = row + u * DESC_BYTES
+                    n_cand = 0
+                    for j in range(n_grid):
+                        d = cell[j]
+                        if d < d_lo or d > d_hi:
+                            continue
+                        sad16x4_store_outside(flat_own, a0, flat_other,
+                                              a0 - sign * d * DESC_BYTES, d, mu0, mu1, mu2,
+                                              mu3, radius, quad_costs, 4 * n_cand)
+                        quad_disp[n_cand] = d
+                        n_cand += 1
+                    mu_lo = min(min(mu0, mu1), min(mu2, mu3))
+                    mu_hi = max(max(mu0, mu1), max(mu2, mu3))
+                    for d in range(max(mu_lo - radius, d_lo), min(mu_hi + radius, d_hi) + 1):
+                        x0 = abs(d - mu0)
+                        x1 = abs(d - mu1)
+                        x2 = abs(d - mu2)
+                        x3 = abs(d - mu3)
+                        b0 = MASKED if x0 > radius else (prior[x0] if p0 else 0)
+                        b1 = MASKED if x1 > radius else (prior[x1] if p1 else 0)
+                        b2 = MASKED if x2 > radius else (prior[x2] if p2 else 0)
+                        b3 = MASKED if x3 > radius else (prior[x3] if p3 else 0)
+                        sad16x4_store(flat_own, a0, flat_other, a0 - sign * d * DESC_BYTES,
+                                      b0, b1, b2, b3, quad_costs, 4 * n_cand)
+                        quad_disp[n_cand] = d
+                        n_cand += 1
+                    best0, best1, best2, best3 = first_min4(quad_costs, quad_disp, n_cand)
+                    lane_best[0] = best0
+                    lane_best[1] = best1
+                    lane_best[2] = best2
+                    lane_best[3] = best3
+                    for k in range(4):
+                        best_d = lane_best[k]
+                        if best_d >= 0:
+                            out_row[u + k] = np.float32(best_d)
+                            if subpixel:
+                                _subpixel_offset(flat_own, flat_other, row + (u + k) * DESC_BYTES,
+                                                 sign, best_d, d_lo, d_hi, off_row, u + k)
+                    u += 4
                     continue
-                out_row[c] = np.float32(best_d)
-                if subpixel and best_d - 1 >= d_lo and best_d + 1 <= d_hi:
-                    b = a - sign * best_d * DESC_BYTES
-                    c0 = sad16(flat_own, a, flat_other, b)
-                    cm = sad16(flat_own, a, flat_other, b + sign * DESC_BYTES)
-                    cp = sad16(flat_own, a, flat_other, b - sign * DESC_BYTES)
-                    # only where the winner is also a local minimum of the cost itself
-                    # (then the vertex lies within half a pixel)
-                    if c0 <= cm and c0 <= cp and cm + cp > 2 * c0:
-                        off_row[c] = np.float32(0.5 * (cm - cp) / (cm + cp - 2 * c0))
+                # ---- one pixel at a time (the definition; the four-pixel path agrees with
+                # it): the pixels of a group of four that did not qualify, or step 2
+                stop = min(u + 4, u_stop) if step == 1 else u + step
+                for uu in range(u, stop, step):
+                    t = tri_row[uu]
+                    if t < 0 or tex_row[uu] < match_texture:
+                        continue
+                    if sign > 0:
+                        d_lo = max(disp_min, uu - (w - MATCH_BORDER - 1))
+                        d_hi = min(disp_max, uu - MATCH_BORDER)
+                    else:
+                        d_lo = max(disp_min, MATCH_BORDER - uu)
+                        d_hi = min(disp_max, w - MATCH_BORDER - 1 - uu)
+                    # truncated, as the original
+                    mu = int(planes[t, 0] * uu + planes[t, 1] * v + planes[t, 2])
+                    w_lo = mu - radius
+                    w_hi = mu + radius
+                    a = row + uu * DESC_BYTES
+                    best_e = _NO_COST
+                    best_d = -1
+                    for j in range(n_grid):
+                        d = cell[j]
+                        if (d >= w_lo and d <= w_hi) or d < d_lo or d > d_hi:
+                            continue
+                        e = sad16(flat_own, a, flat_other, a - sign * d * DESC_BYTES)
+                        if e < best_e:
+                            best_e = e
+                            best_d = d
+                    use_prior = plane_valid[t]
+                    for d in range(max(w_lo, d_lo), min(w_hi, d_hi) + 1):
+                        e = sad16(flat_own, a, flat_other, a - sign * d * DESC_BYTES)
+                        if use_prior:
+                            e += prior[abs(d - mu)]
+                        if e < best_e:
+                            best_e = e
+                            best_d = d
+                    if best_d < 0:
+                        continue
+                    c = uu // step
+                    out_row[c] = np.float32(best_d)
+                    if subpixel:
+                        _subpixel_offset(flat_own, flat_other, a, sign, best_d, d_lo, d_hi,
+                                         off_row, c)
+                u = stop
 
 
 def match_job(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_lists,
               grid_counts, grid_size, prior, radius, sign, disp_min, disp_max, match_texture,
-              step, subpixel):
+              step, subpixel, *, workspace=None):
     """Dense matching of one image as a row job for
     :func:`~canopy_stereo.elas.parallel.run_row_bands`: returns ``(job, disp, offset)``;
     the outputs are filled when the job has run.
@@ -146,6 +260,8 @@ def match_job(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_
         match_texture: minimum texture of a matched pixel.
         step: 1, or 2 for subsampling (every second row and column).
         subpixel: compute the parabola refinement.
+        workspace: a :class:`~canopy_stereo.elas.workspace.Workspace` to take the two
+            output maps from (overwritten by its next use); fresh arrays when None.
 
     Returns:
         ``(disp, offset)``, both float32 (ceil(H/step), ceil(W/step)): ``disp`` holds
@@ -156,8 +272,14 @@ def match_job(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_
     """
     h, w = tri_map.shape
     out_shape = ((h + step - 1) // step, (w + step - 1) // step)
-    disp = np.full(out_shape, -1.0, dtype=np.float32)
-    offsets = np.zeros(out_shape, dtype=np.float32)
+    if workspace is None:
+        disp = np.full(out_shape, -1.0, dtype=np.float32)
+        offsets = np.zeros(out_shape, dtype=np.float32)
+    else:
+        disp = workspace.array("disp", out_shape, np.float32)
+        offsets = workspace.array("offsets", out_shape, np.float32)
+        disp.fill(-1.0)
+        offsets.fill(0.0)
     args = (desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_lists, grid_counts,
             int(grid_size), prior, int(radius), int(sign), int(disp_min), int(disp_max),
             int(match_texture), int(step), bool(subpixel), disp, offsets)

@@ -19,103 +19,157 @@ MEAN_TAPS_AFTER = 3
 MEDIAN_RADIUS = 3
 
 
+@njit(cache=True, inline="always")
+def _lr_keep(d, c2, row_other, threshold):
+    """:data:`INVALID` if ``d`` is valid (>= 0) and its partner ``row_other[c2]`` is
+    missing (``c2`` out of range, partner negative) or differs by more than
+    ``threshold``; else ``d`` (branch-free)."""
+    w = row_other.shape[0]
+    outside = (c2 < 0) | (c2 >= w)
+    partner = row_other[min(max(c2, 0), w - 1)]
+    bad = outside | (partner < 0) | (abs(d - partner) > threshold)
+    return INVALID if (d >= 0) & bad else d
+
+
 @njit(cache=True, nogil=True)
-def _lr_check(d_left, d_right, threshold, step):
+def _lr_check(d_left, d_right, threshold, step, want_right, out_l):
+    """The checked maps (H, W) float32, the left one written to ``out_l``; the right one
+    is not computed (returned as the unchanged ``d_right``) unless ``want_right``."""
     h, w = d_left.shape
-    out_l = d_left.copy()
-    out_r = d_right.copy()
+    out_r = np.empty_like(d_right) if want_right else d_right
     inv_step = 1.0 / step
     for v in range(h):
         row_l = d_left[v]
         row_r = d_right[v]
         dst_l = out_l[v]
-        dst_r = out_r[v]
         for c in range(w):
             d = row_l[c]
-            if d >= 0:
-                # partner column round((c*step - d) / step), rounding half up
-                x = (c * step - d) * inv_step + 0.5
-                c2 = int(x) if x >= 0 else -1
-                if c2 >= w or c2 < 0 or row_r[c2] < 0 or abs(d - row_r[c2]) > threshold:
-                    dst_l[c] = INVALID
-            d = row_r[c]
-            if d >= 0:
-                c1 = int((c * step + d) * inv_step + 0.5)
-                if c1 >= w or row_l[c1] < 0 or abs(d - row_l[c1]) > threshold:
-                    dst_r[c] = INVALID
+            # partner column round((c*step - d) / step), rounding half up
+            x = (c * step - d) * inv_step + 0.5
+            c2 = int(x) if x >= 0 else -1
+            dst_l[c] = _lr_keep(d, c2, row_r, threshold)
+        if want_right:
+            dst_r = out_r[v]
+            for c in range(w):
+                d = row_r[c]
+                x = (c * step + d) * inv_step + 0.5
+                c1 = int(x) if x >= 0 else -1
+                dst_r[c] = _lr_keep(d, c1, row_l, threshold)
     return out_l, out_r
 
 
 def left_right_check(d_left: np.ndarray, d_right: np.ndarray, threshold: float,
-                     *, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
+                     *, step: int = 1, want_right: bool = True, workspace=None):
     """Invalidate pixels whose match in the other map disagrees by more than ``threshold``.
 
     Left pixel ``u`` with disparity ``d`` is checked against the right map at
     ``round(u - d)``, right pixel ``u`` against the left map at ``round(u + d)``
     (columns in full-resolution pixels, ``step`` for subsampled maps).
-    Returns new maps; the inputs are not changed.
+    Returns new maps ``(left, right)`` float32 (H, W); the inputs are not changed.
+    ``want_right=False`` skips the right map's check and returns ``(left, None)``.
+    With a :class:`~canopy_stereo.elas.workspace.Workspace` the left map is the
+    workspace's (overwritten by its next use); the right one is always fresh.
     """
-    return _lr_check(np.ascontiguousarray(d_left, np.float32),
-                     np.ascontiguousarray(d_right, np.float32), float(threshold), int(step))
+    d_left = np.ascontiguousarray(d_left, np.float32)
+    out_l = np.empty_like(d_left) if workspace is None else \
+        workspace.array("lr_left", d_left.shape, np.float32)
+    out_l, out_r = _lr_check(d_left, np.ascontiguousarray(d_right, np.float32),
+                             float(threshold), int(step), bool(want_right), out_l)
+    return out_l, (out_r if want_right else None)
+
+
+@njit(cache=True, inline="always")
+def _find_root(parent, r):
+    """Root of ``r`` in the union-find forest ``parent``, halving the path on the way."""
+    while parent[r] != r:
+        parent[r] = parent[parent[r]]
+        r = parent[r]
+    return r
 
 
 @njit(cache=True, nogil=True)
-def _remove_small_segments(disp, sim_threshold, min_size):
+def _remove_small_segments(disp, sim_threshold, min_size, label, parent, run_size, out):
+    """Connected segments of row runs with union-find, then one pass that invalidates
+    the pixels of small segments.
+
+    Two neighbouring pixels are joined when both are valid (>= 0) and differ by at most
+    ``sim_threshold`` (a symmetric relation, so the segments are those of a flood fill).
+    A row run is a maximal horizontally joined stretch; runs are united through their
+    vertical joins (consecutive joins between the same two runs are united once). A
+    NaN pixel joins nothing: a segment of its own, as in a flood fill seeded there.
+    ``label`` int32 (H, W), ``parent`` and ``run_size`` int32 (H*W,) are scratch.
+    """
     h, w = disp.shape
-    out = disp.copy()
-    label = np.zeros((h, w), dtype=np.int32)
-    stack = np.empty(h * w, dtype=np.int64)
-    members = np.empty(h * w, dtype=np.int64)
-    current = 0
-    for v0 in range(h):
-        for u0 in range(w):
-            if disp[v0, u0] < 0 or label[v0, u0] != 0:
+    n_runs = 0
+    for v in range(h):
+        row = disp[v]
+        lab = label[v]
+        last_above = -1
+        last_here = -1
+        for u in range(w):
+            d = row[u]
+            if d < 0:
+                lab[u] = -1
                 continue
-            current += 1
-            label[v0, u0] = current
-            top = 0
-            n = 0
-            stack[top] = v0 * w + u0
-            top += 1
-            while top > 0:
-                top -= 1
-                p = stack[top]
-                members[n] = p
-                n += 1
-                v = p // w
-                u = p - v * w
-                d = disp[v, u]
-                for k in range(4):
-                    if k == 0:
-                        vv, uu = v, u - 1
-                    elif k == 1:
-                        vv, uu = v, u + 1
-                    elif k == 2:
-                        vv, uu = v - 1, u
-                    else:
-                        vv, uu = v + 1, u
-                    if vv < 0 or vv >= h or uu < 0 or uu >= w or label[vv, uu] != 0:
-                        continue
-                    d2 = disp[vv, uu]
-                    if d2 >= 0 and abs(d2 - d) <= sim_threshold:
-                        label[vv, uu] = current
-                        stack[top] = vv * w + uu
-                        top += 1
-            if n < min_size:
-                for i in range(n):
-                    p = members[i]
-                    out[p // w, p % w] = INVALID
+            if u > 0 and d >= 0 and row[u - 1] >= 0 and abs(row[u - 1] - d) <= sim_threshold:
+                r = lab[u - 1]
+                run_size[r] += 1
+            else:
+                r = n_runs
+                n_runs += 1
+                parent[r] = r
+                run_size[r] = 1
+            lab[u] = r
+            if v > 0:
+                above = disp[v - 1, u]
+                if above >= 0 and d >= 0 and abs(above - d) <= sim_threshold:
+                    ra = label[v - 1, u]
+                    if ra != last_above or r != last_here:
+                        last_above = ra
+                        last_here = r
+                        x = _find_root(parent, ra)
+                        y = _find_root(parent, r)
+                        if x < y:
+                            parent[y] = x
+                        elif y < x:
+                            parent[x] = y
+    # segment sizes at the roots, then each run's root
+    for r in range(n_runs):
+        if parent[r] != r:
+            run_size[_find_root(parent, r)] += run_size[r]
+    for r in range(n_runs):
+        parent[r] = _find_root(parent, r)
+    for v in range(h):
+        row = disp[v]
+        lab = label[v]
+        dst = out[v]
+        for u in range(w):
+            r = lab[u]
+            dst[u] = INVALID if r >= 0 and run_size[parent[r]] < min_size else row[u]
     return out
 
 
-def remove_small_segments(disp: np.ndarray, sim_threshold: float, min_size: int) -> np.ndarray:
+def remove_small_segments(disp: np.ndarray, sim_threshold: float, min_size: int,
+                          *, workspace=None) -> np.ndarray:
     """Invalidate 4-connected segments smaller than ``min_size`` pixels.
 
     Neighbouring valid pixels belong to one segment when their disparities differ
     by at most ``sim_threshold`` (chained, so a segment may drift slowly).
+    Returns a new float32 (H, W) map, or with a
+    :class:`~canopy_stereo.elas.workspace.Workspace` the workspace's map (overwritten
+    by its next use) and scratch from it.
     """
-    return _remove_small_segments(np.ascontiguousarray(disp, np.float32), float(sim_threshold),
-                                  int(min_size))
+    disp = np.ascontiguousarray(disp, np.float32)
+    h, w = disp.shape
+    if workspace is None:
+        scratch = (np.empty((h, w), np.int32), np.empty(h * w, np.int32),
+                   np.empty(h * w, np.int32), np.empty_like(disp))
+    else:
+        scratch = (workspace.array("segments_label", (h, w), np.int32),
+                   workspace.array("segments_parent", (h * w,), np.int32),
+                   workspace.array("segments_run_size", (h * w,), np.int32),
+                   workspace.array("segments", (h, w), np.float32))
+    return _remove_small_segments(disp, float(sim_threshold), int(min_size), *scratch)
 
 
 @njit(cache=True, nogil=True)
@@ -151,20 +205,61 @@ def _fill_line(line, max_gap, discon, extrapolate):
                 break
 
 
+@njit(cache=True, inline="always")
+def _gap_fill(d1, d2, discon):
+    """Value of a gap between valid ends ``d1`` and ``d2`` (float32)."""
+    if abs(d1 - d2) < discon:
+        return np.float32(0.5 * (d1 + d2))
+    return min(d1, d2)
+
+
 @njit(cache=True, nogil=True)
-def _interpolate_gaps(disp, max_gap, discon, extrapolate):
+def _fill_columns(out, max_gap, discon, extrapolate):
+    """:func:`_fill_line` on every column of ``out`` (H, W) in place, scanning whole rows
+    (contiguous) with one run counter per column instead of transposing the map."""
+    h, w = out.shape
+    count = np.zeros(w, dtype=np.int64)
+    for i in range(h):
+        row = out[i]
+        for u in range(w):
+            if row[u] >= 0:
+                n = count[u]
+                if n >= 1 and n <= max_gap and i - n > 0:
+                    fill = _gap_fill(out[i - n - 1, u], row[u], discon)
+                    for j in range(i - n, i):
+                        out[j, u] = fill
+                count[u] = 0
+            else:
+                count[u] += 1
+    if extrapolate:
+        for u in range(w):
+            for i in range(h):
+                if out[i, u] >= 0:
+                    for j in range(max(i - max_gap, 0), i):
+                        out[j, u] = out[i, u]
+                    break
+            for i in range(h - 1, -1, -1):
+                if out[i, u] >= 0:
+                    for j in range(i + 1, min(i + 1 + max_gap, h)):
+                        out[j, u] = out[i, u]
+                    break
+
+
+@njit(cache=True, nogil=True)
+def _interpolate_gaps(disp, max_gap, discon, extrapolate, out):
     h, w = disp.shape
-    out = disp.copy()
-    for v in range(h):
+    for v in range(h):      # (a loop: an array-to-array slice assignment compiles for seconds)
+        for u in range(w):
+            out[v, u] = disp[v, u]
+    for v in range(out.shape[0]):
         _fill_line(out[v], max_gap, discon, extrapolate)
-    t = np.ascontiguousarray(out.T)
-    for u in range(w):
-        _fill_line(t[u], max_gap, discon, extrapolate)
-    return np.ascontiguousarray(t.T)
+    _fill_columns(out, max_gap, discon, extrapolate)
+    return out
 
 
 def interpolate_gaps(disp: np.ndarray, max_gap: int, *, extrapolate: bool = False,
-                     discontinuity: float = DISCONTINUITY_THRESHOLD) -> np.ndarray:
+                     discontinuity: float = DISCONTINUITY_THRESHOLD,
+                     workspace=None) -> np.ndarray:
     """Fill runs of at most ``max_gap`` invalid pixels between two valid ones, rows first,
     then columns.
 
@@ -172,30 +267,38 @@ def interpolate_gaps(disp: np.ndarray, max_gap: int, *, extrapolate: bool = Fals
     ``discontinuity`` pixels, otherwise with the smaller one (the background).
     With ``extrapolate`` the first/last valid value of each row and column is also
     copied up to ``max_gap`` pixels towards the image border.
+    Returns a new map, or the :class:`~canopy_stereo.elas.workspace.Workspace`'s
+    (overwritten by its next use) when one is given.
     """
-    return _interpolate_gaps(np.ascontiguousarray(disp, np.float32), int(max_gap),
-                             float(discontinuity), bool(extrapolate))
+    disp = np.ascontiguousarray(disp, np.float32)
+    out = np.empty_like(disp) if workspace is None else \
+        workspace.array("interpolated", disp.shape, np.float32)
+    return _interpolate_gaps(disp, int(max_gap), float(discontinuity), bool(extrapolate), out)
 
 
 @njit(cache=True, inline="always")
 def _mean_weight(d, c, linear):
-    """Weight of tap value ``d`` for centre ``c`` (0 for an invalid tap), as arithmetic
-    on 0/1 factors (``linear`` is 0.0 or 1.0) so that the loops stay branch-free."""
+    """Weight of tap value ``d`` for centre ``c`` (0 for an invalid tap): the step
+    weights, or the ramp with ``linear`` (a loop-invariant bool: LLVM compiles one
+    branch-free loop per value). Bit for bit the former single formula
+    ``(l * ramp + (1 - l) * step) * valid`` with ``l`` 0.0 or 1.0, for finite maps."""
     delta = abs(d - c)
-    step = np.float32(2.0) * np.float32(delta < 8.0) + np.float32(2.0) * np.float32(delta < 2.0)
-    ramp = max(np.float32(0.0), np.float32(4.0) - delta)
-    return (linear * ramp + (np.float32(1.0) - linear) * step) * np.float32(d >= 0)
+    if linear:
+        weight = max(np.float32(0.0), np.float32(4.0) - delta)
+    else:
+        weight = (np.float32(2.0) * np.float32(delta < 8.0)
+                  + np.float32(2.0) * np.float32(delta < 2.0))
+    return weight * np.float32(d >= 0)
 
 
 @njit(cache=True, nogil=True)
-def _adaptive_mean(disp, linear, before, after):
+def _adaptive_mean(disp, linear, before, after, rows):
     """Rows pass (taps along u) then columns pass (taps along v, whole rows at a time);
     invalid taps and taps outside the image weigh nothing. The tap counts are
     arguments, not constants, so that LLVM does not unroll the tap loops (which
     multiplied the compile time by ten)."""
     h, w = disp.shape
     # rows: a padded copy of each row; tap k of pixel u is line[u + k]
-    rows = np.empty_like(disp)
     line = np.full(w + before + after, -1.0, dtype=np.float32)
     s = np.empty(w, dtype=np.float32)
     sw = np.empty(w, dtype=np.float32)
@@ -233,16 +336,18 @@ def _adaptive_mean(disp, linear, before, after):
     return out
 
 
-def adaptive_mean(disp: np.ndarray, linear: bool = False) -> np.ndarray:
+def adaptive_mean(disp: np.ndarray, linear: bool = False, *, workspace=None) -> np.ndarray:
     """Separable 8-tap adaptive mean (rows, then columns; taps at -4..+3).
 
     Each valid tap is weighted by its difference ``dd`` to the centre: 4 if
     ``|dd| < 2``, 2 if ``2 <= |dd| < 8``, else 0 (the original as compiled), or
-    ``max(0, 4 - |dd|)`` with ``linear``. Invalid pixels stay invalid.
+    ``max(0, 4 - |dd|)`` with ``linear``. Invalid pixels stay invalid. Returns a new
+    map; the rows pass's scratch comes from ``workspace`` when given.
     """
-    return _adaptive_mean(np.ascontiguousarray(disp, np.float32),
-                          np.float32(1.0 if linear else 0.0),
-                          MEAN_TAPS_BEFORE, MEAN_TAPS_AFTER)
+    disp = np.ascontiguousarray(disp, np.float32)
+    rows = np.empty_like(disp) if workspace is None else \
+        workspace.array("adaptive_mean_rows", disp.shape, np.float32)
+    return _adaptive_mean(disp, bool(linear), MEAN_TAPS_BEFORE, MEAN_TAPS_AFTER, rows)
 
 
 #: An optimal 16-comparator sorting network for 7 values (checked exhaustively on
@@ -292,10 +397,12 @@ def _median7(t0, t1, t2, t3, t4, t5, t6):
 
 
 @njit(cache=True, nogil=True)
-def _median(disp, radius):
-    """Rows pass then columns pass of the 7-tap median of valid values."""
+def _median(disp, radius, rows):
+    """Rows pass (into ``rows``) then columns pass of the 7-tap median of valid values."""
     h, w = disp.shape
-    rows = disp.copy()
+    for v in range(h):      # (a loop: an array-to-array slice assignment compiles for seconds)
+        for u in range(w):
+            rows[v, u] = disp[v, u]
     line = np.full(w + 2 * radius, -1.0, dtype=np.float32)
     for v in range(h):
         src = disp[v]
@@ -323,6 +430,12 @@ def _median(disp, radius):
     return out
 
 
-def median_filter(disp: np.ndarray) -> np.ndarray:
-    """Separable 7-tap median of the valid taps (rows, then columns); invalid stays invalid."""
-    return _median(np.ascontiguousarray(disp, np.float32), MEDIAN_RADIUS)
+def median_filter(disp: np.ndarray, *, workspace=None) -> np.ndarray:
+    """Separable 7-tap median of the valid taps (rows, then columns); invalid stays invalid.
+
+    Returns a new map; the rows pass's scratch comes from ``workspace`` when given.
+    """
+    disp = np.ascontiguousarray(disp, np.float32)
+    rows = np.empty_like(disp) if workspace is None else \
+        workspace.array("median_rows", disp.shape, np.float32)
+    return _median(disp, MEDIAN_RADIUS, rows)

@@ -8,13 +8,22 @@ A plain loop is what numba would otherwise emit, and it does not vectorise
 (about 10x slower), which is why this one function is written in IR.
 
 :func:`sad64` does the same over 64 bytes (the four descriptors of a support
-candidate). :func:`sad_reference` is the plain-loop computation, for tests.
+candidate). :func:`sad16x4_store` gives the four 16-byte SADs of 64 bytes at once
+(dense matching of four neighbouring pixels): there the per-block sums need x86's
+``psadbw`` by name (the generic pattern becomes a long zero-extend-and-add chain),
+so :func:`psadbw_width` picks the instruction numba's target has, with the generic
+IR elsewhere. :func:`first_min4` keeps four running minima in one vector.
+:func:`sad_reference` is the plain-loop computation, for tests.
 """
 from __future__ import annotations
 
+import platform
+
 import numpy as np
+from llvmlite import binding as llvm_binding
 from llvmlite import ir
 from numba import njit, types
+from numba.core import cgutils, config
 from numba.extending import intrinsic
 
 #: Bytes per descriptor.
@@ -78,6 +87,219 @@ def sad64(typingctx, a, offset_a, b, offset_b):
     """:func:`sad16` over 64 bytes (four descriptors side by side)."""
     sig = _sad_signature(a, offset_a, b, offset_b)
     return (sig, _sad_codegen(64)) if sig is not None else None
+
+
+def psadbw_width() -> int:
+    """Bytes per x86 ``psadbw`` instruction the compiled code may use: 64 (AVX-512BW),
+    32 (AVX2), 16 (SSE2, every x86-64), or 0 (not x86: portable IR instead).
+
+    Follows numba's target: a fixed ``NUMBA_CPU_NAME`` (portable caches) gets the
+    SSE2 baseline; otherwise the host CPU's features decide (numba's cache is keyed by
+    the CPU, so a cache compiled here is not loaded on a CPU without them).
+    """
+    if platform.machine().lower() not in ("x86_64", "amd64"):
+        return 0
+    if config.CPU_NAME not in (None, "host"):
+        return 16
+    features = llvm_binding.get_host_cpu_features()
+    if features.get("avx512bw", False):
+        return 64
+    if features.get("avx2", False):
+        return 32
+    return 16
+
+
+PSADBW_WIDTH = psadbw_width()
+
+
+def _block_sums(builder, va, vb):
+    """``<4 x i32>``: the SAD of each 16-byte block of two ``<64 x i8>`` vectors."""
+    i8, i32, i64 = ir.IntType(8), ir.IntType(32), ir.IntType(64)
+    module = builder.module
+
+    def lanes(vec, start, count):
+        mask = ir.Constant(ir.VectorType(i32, count), [i32(start + k) for k in range(count)])
+        return builder.shuffle_vector(vec, ir.Constant(vec.type, ir.Undefined), mask)
+
+    if PSADBW_WIDTH:
+        width = PSADBW_WIDTH
+        name = {64: "llvm.x86.avx512.psad.bw.512", 32: "llvm.x86.avx2.psad.bw",
+                16: "llvm.x86.sse2.psad.bw"}[width]
+        vin = ir.VectorType(i8, width)
+        vout = ir.VectorType(i64, width // 8)
+        psad = _llvm_function(module, name, vout, [vin, vin])
+        parts = [builder.call(psad, [lanes(va, k, width), lanes(vb, k, width)])
+                 for k in range(0, 64, width)]
+        # concatenate to <8 x i64>: (low, high) half-sums of blocks 0..3
+        while len(parts) > 1:
+            n = parts[0].type.count
+            mask = ir.Constant(ir.VectorType(i32, 2 * n), [i32(k) for k in range(2 * n)])
+            parts = [builder.shuffle_vector(parts[k], parts[k + 1], mask)
+                     for k in range(0, len(parts), 2)]
+        halves = parts[0]
+        even = ir.Constant(ir.VectorType(i32, 4), [i32(2 * k) for k in range(4)])
+        odd = ir.Constant(ir.VectorType(i32, 4), [i32(2 * k + 1) for k in range(4)])
+        undef = ir.Constant(halves.type, ir.Undefined)
+        total = builder.add(builder.shuffle_vector(halves, undef, even),
+                            builder.shuffle_vector(halves, undef, odd))
+        return builder.trunc(total, ir.VectorType(i32, 4))
+    vec_i8 = ir.VectorType(i8, 64)
+    hi = builder.call(_llvm_function(module, "llvm.umax.v64i8", vec_i8, [vec_i8, vec_i8]), [va, vb])
+    lo = builder.call(_llvm_function(module, "llvm.umin.v64i8", vec_i8, [vec_i8, vec_i8]), [va, vb])
+    diff = builder.sub(hi, lo)
+    reduce_add = _llvm_function(module, "llvm.vector.reduce.add.v16i32", i32,
+                                [ir.VectorType(i32, 16)])
+    out = ir.Constant(ir.VectorType(i32, 4), [i32(0)] * 4)
+    for k in range(4):
+        part = builder.zext(lanes(diff, 16 * k, 16), ir.VectorType(i32, 16))
+        out = builder.insert_element(out, builder.call(reduce_add, [part]), i32(k))
+    return out
+
+
+def _element_pointer(context, builder, array_type, array, index, index_type, elem_type):
+    arr = context.make_array(array_type)(context, builder, array)
+    idx = context.cast(builder, index, index_type, types.intp)
+    return builder.bitcast(builder.gep(arr.data, [idx]), elem_type.as_pointer())
+
+
+#: A :func:`sad16x4_store` bonus at least this large masks its lane (cost INT32_MAX).
+MASKED = 1 << 30
+
+
+@intrinsic
+def sad16x4_store(typingctx, a, offset_a, b, offset_b, bonus0, bonus1, bonus2, bonus3, out,
+                  out_offset):
+    """Store the four :func:`sad16` of 16-byte blocks ``k = 0..3`` plus a bonus per block,
+    ``sad16(a, offset_a + 16k, b, offset_b + 16k) + bonus_k``, as int32 at
+    ``out[out_offset + k]``; a bonus of :data:`MASKED` or more stores INT32_MAX instead.
+
+    One 64-byte load from each uint8 array and x86 ``psadbw`` (one on AVX-512BW,
+    two on AVX2, four on SSE2; portable IR elsewhere). No bounds checking: the
+    caller guarantees ``offset + 64 <= len`` and ``out_offset + 4 <= len(out)``.
+    """
+    if _sad_signature(a, offset_a, b, offset_b) is None:
+        return None
+    bonuses = (bonus0, bonus1, bonus2, bonus3)
+    if not (isinstance(out, types.Array) and out.dtype == types.int32 and out.ndim == 1
+            and all(isinstance(x, types.Integer) for x in bonuses)
+            and isinstance(out_offset, types.Integer)):
+        return None
+    sig = types.void(a, offset_a, b, offset_b, *bonuses, out, out_offset)
+
+    def codegen(context, builder, signature, args):
+        i32 = ir.IntType(32)
+        vec_i8 = ir.VectorType(ir.IntType(8), 64)
+        vec_i32 = ir.VectorType(i32, 4)
+        ta, tb = signature.args[0], signature.args[2]
+        pa = _element_pointer(context, builder, ta, args[0], args[1], signature.args[1], vec_i8)
+        pb = _element_pointer(context, builder, tb, args[2], args[3], signature.args[3], vec_i8)
+        sums = _block_sums(builder, builder.load(pa, align=1), builder.load(pb, align=1))
+        extra = ir.Constant(vec_i32, ir.Undefined)
+        for k in range(4):
+            value = context.cast(builder, args[4 + k], signature.args[4 + k], types.int32)
+            extra = builder.insert_element(extra, value, i32(k))
+        masked = builder.icmp_signed(">=", extra, ir.Constant(vec_i32, [i32(MASKED)] * 4))
+        cost = builder.select(masked, ir.Constant(vec_i32, [i32(2147483647)] * 4),
+                              builder.add(sums, extra))
+        po = _element_pointer(context, builder, signature.args[8], args[8], args[9],
+                              signature.args[9], vec_i32)
+        builder.store(cost, po, align=4)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def sad16x4_store_outside(typingctx, a, offset_a, b, offset_b, d, mu0, mu1, mu2, mu3, radius,
+                          out, out_offset):
+    """:func:`sad16x4_store` of candidate disparity ``d`` with block ``k`` masked
+    (INT32_MAX) where ``|d - mu_k| <= radius`` (inside that pixel's plane window) and no
+    bonus elsewhere; the masks are one vector compare."""
+    if _sad_signature(a, offset_a, b, offset_b) is None:
+        return None
+    scalars = (d, mu0, mu1, mu2, mu3, radius, out_offset)
+    if not (isinstance(out, types.Array) and out.dtype == types.int32 and out.ndim == 1
+            and all(isinstance(x, types.Integer) for x in scalars)):
+        return None
+    sig = types.void(a, offset_a, b, offset_b, d, mu0, mu1, mu2, mu3, radius, out, out_offset)
+
+    def codegen(context, builder, signature, args):
+        i64 = ir.IntType(64)
+        i32 = ir.IntType(32)
+        vec_i8 = ir.VectorType(ir.IntType(8), 64)
+        vec_i32 = ir.VectorType(i32, 4)
+        vec_i64 = ir.VectorType(i64, 4)
+        ta, tb = signature.args[0], signature.args[2]
+        pa = _element_pointer(context, builder, ta, args[0], args[1], signature.args[1], vec_i8)
+        pb = _element_pointer(context, builder, tb, args[2], args[3], signature.args[3], vec_i8)
+        sums = _block_sums(builder, builder.load(pa, align=1), builder.load(pb, align=1))
+
+        def as_i64(k):
+            return context.cast(builder, args[k], signature.args[k], types.int64)
+
+        mus = ir.Constant(vec_i64, ir.Undefined)
+        for k in range(4):
+            mus = builder.insert_element(mus, as_i64(5 + k), i32(k))
+        undef = ir.Constant(vec_i64, ir.Undefined)
+        zeros = ir.Constant(vec_i32, [i32(0)] * 4)
+        dvec = builder.shuffle_vector(builder.insert_element(undef, as_i64(4), i32(0)), undef,
+                                      zeros)
+        rvec = builder.shuffle_vector(builder.insert_element(undef, as_i64(9), i32(0)), undef,
+                                      zeros)
+        diff = builder.sub(dvec, mus)
+        neg = builder.sub(ir.Constant(vec_i64, [i64(0)] * 4), diff)
+        dist = builder.select(builder.icmp_signed("<", diff, ir.Constant(vec_i64, [i64(0)] * 4)),
+                              neg, diff)
+        inside = builder.icmp_signed("<=", dist, rvec)
+        cost = builder.select(inside, ir.Constant(vec_i32, [i32(2147483647)] * 4), sums)
+        po = _element_pointer(context, builder, signature.args[10], args[10], args[11],
+                              signature.args[11], vec_i32)
+        builder.store(cost, po, align=4)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def first_min4(typingctx, costs, values, count):
+    """Per lane ``k = 0..3``: ``values[j]`` of the first ``j < count`` with the lowest
+    ``costs[4j + k]`` (int32), or -1 when ``count`` is 0; a tuple of four int64.
+
+    The same as ``best = INT32_MAX; for j: if costs[4j+k] < best: ...`` for each lane,
+    with the four lanes in one vector compare-and-select.
+    """
+    if not (isinstance(costs, types.Array) and costs.dtype == types.int32 and costs.ndim == 1
+            and isinstance(values, types.Array) and values.dtype == types.int64
+            and values.ndim == 1 and isinstance(count, types.Integer)):
+        return None
+    sig = types.UniTuple(types.int64, 4)(costs, values, count)
+
+    def codegen(context, builder, signature, args):
+        i32, i64 = ir.IntType(32), ir.IntType(64)
+        v4i32, v4i64 = ir.VectorType(i32, 4), ir.VectorType(i64, 4)
+        best_e = cgutils.alloca_once_value(builder, ir.Constant(v4i32, [i32(2147483647)] * 4))
+        best_v = cgutils.alloca_once_value(builder, ir.Constant(v4i64, [i64(-1)] * 4))
+        n = context.cast(builder, args[2], signature.args[2], types.intp)
+        carr = context.make_array(signature.args[0])(context, builder, args[0])
+        varr = context.make_array(signature.args[1])(context, builder, args[1])
+        with cgutils.for_range(builder, n) as loop:
+            j = loop.index
+            pc = builder.bitcast(builder.gep(carr.data, [builder.mul(j, j.type(4))]),
+                                 v4i32.as_pointer())
+            cost = builder.load(pc, align=4)
+            value = builder.load(builder.gep(varr.data, [j]))
+            splat = builder.insert_element(ir.Constant(v4i64, ir.Undefined), value, i32(0))
+            splat = builder.shuffle_vector(splat, ir.Constant(v4i64, ir.Undefined),
+                                           ir.Constant(v4i32, [i32(0)] * 4))
+            old_e = builder.load(best_e)
+            lower = builder.icmp_signed("<", cost, old_e)
+            builder.store(builder.select(lower, cost, old_e), best_e)
+            builder.store(builder.select(lower, splat, builder.load(best_v)), best_v)
+        result = builder.load(best_v)
+        items = [builder.extract_element(result, i32(k)) for k in range(4)]
+        return context.make_tuple(builder, signature.return_type, items)
+
+    return sig, codegen
 
 
 @njit(cache=True)

@@ -43,32 +43,27 @@ REDUNDANT_THRESHOLD = 1
 SUPPORT_BYTES = 4 * DESC_BYTES
 
 
-@njit(cache=True, nogil=True)
-def _sample_rows(words, step, out, row_start, row_stop):
-    """Candidate-row cost vectors: ``out[i, x]`` (8 uint64 = 64 bytes) holds the
+@njit(cache=True, inline="always")
+def _sample_row(words, v, dst):
+    """Cost vectors of candidate row ``v``: ``dst[x]`` (8 uint64 = 64 bytes) holds the
     descriptors at ``(x - 2, v - 2)``, ``(x + 2, v - 2)``, ``(x - 2, v + 2)``,
-    ``(x + 2, v + 2)`` with ``v = i * step``, for the rows and columns that have them.
+    ``(x + 2, v + 2)`` for ``2 <= x < W - 2`` (other columns are left as they are).
 
-    ``words`` is the (H, W, 2) uint64 view of the descriptors.
+    ``words`` is the (H, W, 2) uint64 view of the descriptors, ``dst`` (W, 8) uint64.
     """
-    h, w, _ = words.shape
+    w = words.shape[1]
     off = SUPPORT_SAMPLE_OFFSET
-    for i in range(row_start, row_stop):
-        v = i * step
-        if v < SUPPORT_MARGIN or v > h - 1 - SUPPORT_MARGIN:
-            continue
-        top = words[v - off]
-        bottom = words[v + off]
-        dst = out[i]
-        for x in range(off, w - off):
-            dst[x, 0] = top[x - off, 0]
-            dst[x, 1] = top[x - off, 1]
-            dst[x, 2] = top[x + off, 0]
-            dst[x, 3] = top[x + off, 1]
-            dst[x, 4] = bottom[x - off, 0]
-            dst[x, 5] = bottom[x - off, 1]
-            dst[x, 6] = bottom[x + off, 0]
-            dst[x, 7] = bottom[x + off, 1]
+    top = words[v - off]
+    bottom = words[v + off]
+    for x in range(off, w - off):
+        dst[x, 0] = top[x - off, 0]
+        dst[x, 1] = top[x - off, 1]
+        dst[x, 2] = top[x + off, 0]
+        dst[x, 3] = top[x + off, 1]
+        dst[x, 4] = bottom[x - off, 0]
+        dst[x, 5] = bottom[x - off, 1]
+        dst[x, 6] = bottom[x + off, 0]
+        dst[x, 7] = bottom[x + off, 1]
 
 
 @njit(cache=True, inline="always")
@@ -77,7 +72,7 @@ def _candidate_disparity(flat_own, flat_other, texture_own, row_base, width, u, 
     """Best disparity of candidate (u, v) of the *own* image, or -1.
 
     ``flat_own``/``flat_other`` are the candidate-row cost vectors (see
-    :func:`_sample_rows`) flattened; ``row_base`` is the byte offset of this
+    :func:`_sample_row`) flattened; ``row_base`` is the byte offset of this
     candidate row. ``sign`` is +1 for the left image (match at ``u - d`` in the
     right image) and -1 for the right image (match at ``u + d``).
     """
@@ -93,48 +88,53 @@ def _candidate_disparity(flat_own, flat_other, texture_own, row_base, width, u, 
     if dmax - dmin + 1 < MIN_SUPPORT_DISPARITIES:
         return -1
     a = row_base + u * SUPPORT_BYTES
+    # best and second-best cost, branch-free (a new best pushes the old one to second;
+    # ties keep the first best). At least MIN_SUPPORT_DISPARITIES (> 1) costs are
+    # seen, so both exist.
     best_e = np.int32(2147483647)
     second_e = np.int32(2147483647)
     best_d = -1
-    second_d = -1
     for d in range(dmin, dmax + 1):
         e = sad64(flat_own, a, flat_other, a - sign * d * SUPPORT_BYTES)
-        if e < best_e:
-            second_e = best_e
-            second_d = best_d
-            best_e = e
-            best_d = d
-        elif e < second_e:
-            second_e = e
-            second_d = d
-    unique = np.float32(best_e) < support_threshold * np.float32(second_e)
-    if best_d >= 0 and second_d >= 0 and unique:
+        lower = e < best_e
+        second_e = best_e if lower else min(e, second_e)
+        best_d = d if lower else best_d
+        best_e = e if lower else best_e
+    if np.float32(best_e) < support_threshold * np.float32(second_e):
         return best_d
     return -1
 
 
 @njit(cache=True, nogil=True)
-def _candidate_rows(samples_left, samples_right, tex_left, tex_right, step, disp_min, disp_max,
+def _candidate_rows(words_left, words_right, tex_left, tex_right, step, disp_min, disp_max,
                     support_texture, support_threshold, lr_threshold, grid, row_start, row_stop):
-    rows, w, _ = samples_left.shape
-    h = tex_left.shape[0]
-    flat_l = samples_left.reshape(-1).view(np.uint8)
-    flat_r = samples_right.reshape(-1).view(np.uint8)
+    """Candidate cells of rows ``[row_start, row_stop)`` of :func:`candidate_grid`.
+
+    Each candidate row's cost vectors (:func:`_sample_row`) are gathered into two
+    row buffers (W, 8) uint64 that this call reuses for all its rows (gathering whole
+    images cost ~8 MB of fresh pages per frame at 640x480).
+    """
+    h, w, _ = words_left.shape
+    buf_l = np.zeros((w, SUPPORT_BYTES // 8), np.uint64)
+    buf_r = np.zeros((w, SUPPORT_BYTES // 8), np.uint64)
+    flat_l = buf_l.reshape(-1).view(np.uint8)
+    flat_r = buf_r.reshape(-1).view(np.uint8)
     cols = grid.shape[1]
     for i in range(row_start, row_stop):
         v = i * step
         if v < SUPPORT_MARGIN or v > h - 1 - SUPPORT_MARGIN:
             continue
-        base = i * w * SUPPORT_BYTES
+        _sample_row(words_left, v, buf_l)
+        _sample_row(words_right, v, buf_r)
         for j in range(cols):
             u = j * step
             if u < SUPPORT_MARGIN or u > w - 1 - SUPPORT_MARGIN:
                 continue
-            d = _candidate_disparity(flat_l, flat_r, tex_left, base, w, u, v, 1, disp_min,
+            d = _candidate_disparity(flat_l, flat_r, tex_left, 0, w, u, v, 1, disp_min,
                                      disp_max, support_texture, support_threshold)
             if d < 0:
                 continue
-            d_back = _candidate_disparity(flat_r, flat_l, tex_right, base, w, u - d, v, -1,
+            d_back = _candidate_disparity(flat_r, flat_l, tex_right, 0, w, u - d, v, -1,
                                           disp_min, disp_max, support_texture, support_threshold)
             if d_back >= 0 and abs(d - d_back) <= lr_threshold:
                 grid[i, j] = d
@@ -152,12 +152,9 @@ def candidate_grid(desc_left, desc_right, tex_left, tex_right, step, disp_min, d
     h, w = desc_left.shape[:2]
     rows, cols = (h - 1) // step + 1, (w - 1) // step + 1
     grid = np.full((rows, cols), -1, dtype=np.int32)
-    samples = [np.empty((rows, w, SUPPORT_BYTES // 8), np.uint64) for _ in range(2)]
     words = [np.ascontiguousarray(d).reshape(h, w * DESC_BYTES).view(np.uint64).reshape(h, w, 2)
              for d in (desc_left, desc_right)]
-    run_row_bands((_sample_rows, rows, (words[0], int(step), samples[0])),
-                  (_sample_rows, rows, (words[1], int(step), samples[1])))
-    args = (samples[0], samples[1], tex_left, tex_right, int(step), int(disp_min), int(disp_max),
+    args = (words[0], words[1], tex_left, tex_right, int(step), int(disp_min), int(disp_max),
             int(support_texture), np.float32(support_threshold), int(lr_threshold), grid)
     run_row_bands((_candidate_rows, rows, args))
     return grid

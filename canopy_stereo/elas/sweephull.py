@@ -283,25 +283,126 @@ def _sweep(xs, ys, order, i0, i1, i2, ccx, ccy):
     return out
 
 
+#: :func:`stable_argsort` sorts runs of this many keys by insertion before merging.
+SORT_RUN = 16
+
+
+@njit(cache=True, nogil=True)
+def stable_argsort(keys):
+    """int64 indices that sort float64 ``keys`` ascending, equal keys in index order
+    (what ``np.argsort(keys, kind="stable")`` gives for keys without NaN). A bottom-up
+    merge sort written out: numba's own ``mergesort`` costs seconds to compile."""
+    n = keys.shape[0]
+    order = np.arange(n)
+    buffer = np.empty(n, dtype=np.int64)
+    # runs of SORT_RUN by insertion (stable: moves past strictly greater keys only)
+    for lo in range(0, n, SORT_RUN):
+        for i in range(lo + 1, min(lo + SORT_RUN, n)):
+            item = order[i]
+            key = keys[item]
+            j = i - 1
+            while j >= lo and keys[order[j]] > key:
+                order[j + 1] = order[j]
+                j -= 1
+            order[j + 1] = item
+    width = SORT_RUN
+    while width < n:
+        for lo in range(0, n, 2 * width):
+            mid = min(lo + width, n)
+            hi = min(lo + 2 * width, n)
+            i, j, k = lo, mid, lo
+            while i < mid and j < hi:
+                if keys[order[j]] < keys[order[i]]:
+                    buffer[k] = order[j]
+                    j += 1
+                else:
+                    buffer[k] = order[i]
+                    i += 1
+                k += 1
+            while i < mid:
+                buffer[k] = order[i]
+                i += 1
+                k += 1
+            while j < hi:
+                buffer[k] = order[j]
+                j += 1
+                k += 1
+        order, buffer = buffer, order
+        width *= 2
+    return order
+
+
+@njit(cache=True, nogil=True)
+def _first_occurrences(xs, ys):
+    """int64 indices of the first occurrence of every distinct point ``(xs[i], ys[i])``,
+    increasing (``0.0`` and ``-0.0`` are the same coordinate, as for ``np.unique``).
+
+    Two stable sorts (by y, then by x) put equal points next to each other in input
+    order, so the first of each run is the first occurrence.
+    """
+    n = xs.shape[0]
+    by_y = stable_argsort(ys)
+    xs_by_y = np.empty(n, dtype=np.float64)
+    for k in range(n):
+        xs_by_y[k] = xs[by_y[k]]
+    by_x = stable_argsort(xs_by_y)
+    is_first = np.zeros(n, dtype=np.bool_)
+    previous = -1
+    for k in range(n):
+        i = by_y[by_x[k]]
+        is_first[i] = previous < 0 or not (xs[i] == xs[previous] and ys[i] == ys[previous])
+        previous = i
+    count = 0
+    for i in range(n):
+        count += is_first[i]
+    first = np.empty(count, dtype=np.int64)
+    count = 0
+    for i in range(n):
+        if is_first[i]:
+            first[count] = i
+            count += 1
+    return first
+
+
+@njit(cache=True, nogil=True)
+def delaunay_kernel(xs_all, ys_all):
+    """:func:`delaunay_triangles` of points ``(xs_all[i], ys_all[i])`` (float64 (N,)),
+    without the GIL: int32 (T, 3) indices into the input, counter-clockwise."""
+    empty = np.zeros((0, 3), np.int32)
+    if xs_all.shape[0] < 3:
+        return empty
+    first = _first_occurrences(xs_all, ys_all)
+    n = first.shape[0]
+    if n < 3:
+        return empty
+    xs = np.empty(n, dtype=np.float64)
+    ys = np.empty(n, dtype=np.float64)
+    for k in range(n):
+        xs[k] = xs_all[first[k]]
+        ys[k] = ys_all[first[k]]
+    i0, i1, i2, ccx, ccy = _seed(xs, ys)
+    if i0 < 0:
+        return empty
+    # insertion order: distance from the seed's circumcentre (stable: ties keep input order)
+    dist = np.empty(n, dtype=np.float64)
+    for k in range(n):
+        dx = xs[k] - ccx
+        dy = ys[k] - ccy
+        dist[k] = dx * dx + dy * dy
+    tri = _sweep(xs, ys, stable_argsort(dist), i0, i1, i2, ccx, ccy)
+    out = np.empty_like(tri)
+    for t in range(tri.shape[0]):
+        for k in range(3):
+            out[t, k] = first[tri[t, k]]
+    return out
+
+
 def delaunay_triangles(points: np.ndarray) -> np.ndarray:
     """Delaunay triangles of 2-D points as int32 (T, 3) indices, counter-clockwise.
 
     Duplicate points are triangulated once (the first occurrence is used); fewer
-    than 3 distinct points, or all of them on one line, give (0, 3).
+    than 3 distinct points, or all of them on one line, give (0, 3). All the work
+    runs in :func:`delaunay_kernel`, without the GIL.
     """
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    if len(pts) < 3:
-        return np.zeros((0, 3), np.int32)
-    _, first = np.unique(pts, axis=0, return_index=True)
-    first = np.sort(first)                     # keep the input order of first occurrences
-    xs = np.ascontiguousarray(pts[first, 0])
-    ys = np.ascontiguousarray(pts[first, 1])
-    if len(xs) < 3:
-        return np.zeros((0, 3), np.int32)
-    i0, i1, i2, ccx, ccy = _seed(xs, ys)
-    if i0 < 0:
-        return np.zeros((0, 3), np.int32)
-    # insertion order: distance from the seed's circumcentre (sorted here, in numpy)
-    order = np.argsort((xs - ccx) ** 2 + (ys - ccy) ** 2, kind="stable")
-    tri = _sweep(xs, ys, order, int(i0), int(i1), int(i2), float(ccx), float(ccy))
-    return first[tri].astype(np.int32)
+    return delaunay_kernel(np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]))

@@ -91,8 +91,10 @@ def test_descriptor_word_and_byte_assembly_agree(rng):
     du, dv = descriptor.gradient_bytes(img)
     by_bytes = descriptor._assemble_bytes(du, dv, descriptor._DU_DR, descriptor._DU_DC,
                                           descriptor._DV_DR, descriptor._DV_DC)
-    by_words = descriptor._assemble_words(du, dv)
+    by_words, texture_words = descriptor._assemble_words(du, dv)
     assert np.array_equal(by_bytes, by_words)
+    assert np.array_equal(texture_words, descriptor._texture(by_bytes))
+    assert texture_words.dtype == np.int32
     # against a direct transcription of the offset tables
     desc, texture = descriptor.compute_descriptors(img)
     v, u = 12, 20

@@ -1,0 +1,642 @@
+"""The optimised ELAS kernels give exactly (bit for bit) what straightforward
+implementations of the same definitions give.
+
+Each reference below is a plain transcription of the stage's definition (the
+kernels as they were before they were tuned for speed), kept here on purpose: the
+package's kernels are free to change their loops, memory layout and branches, never
+their output. Inputs: random maps/images, and the real intermediate maps of an ELAS
+run on the bundled Middlebury Plants pair (examples/plants).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from canopy_stereo.elas import delaunay, descriptor, grid, matching, postprocess, support
+from canopy_stereo.elas.core import elas_run
+from canopy_stereo.elas.params import make_params
+from canopy_stereo.io.images import read_image
+
+REPO = Path(__file__).resolve().parents[2]
+INVALID = np.float32(-1.0)
+
+
+def same_bits(a, b) -> bool:
+    """Equal shape, dtype and bytes (so -0.0 != 0.0 and NaN == NaN of the same payload)."""
+    a, b = np.asarray(a), np.asarray(b)
+    return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
+
+
+# --------------------------------------------------------------------------- inputs
+@pytest.fixture(scope="module")
+def plants():
+    """A 320x240 grey crop of the real Plants pair and its ELAS intermediates."""
+    left = read_image(REPO / "examples" / "plants" / "left.png", color=False)
+    right = read_image(REPO / "examples" / "plants" / "right.png", color=False)
+    gl = np.ascontiguousarray(left[120:360, 240:560])
+    gr = np.ascontiguousarray(right[120:360, 240:560])
+    p = make_params("robotics", disp_min=0, disp_max=120)
+    desc_l, tex_l = descriptor.compute_descriptors(gl)
+    desc_r, tex_r = descriptor.compute_descriptors(gr)
+    pts = support.support_points(desc_l, desc_r, tex_l, tex_r, p)
+    maps = {}
+    for right_image in (False, True):
+        own, other, tex = (desc_r, desc_l, tex_r) if right_image else (desc_l, desc_r, tex_l)
+        vert, tri, planes, valid = delaunay.triangle_planes(pts, right_image=right_image)
+        lists, counts = grid.disparity_grid(pts, (gl.shape[1], gl.shape[0]), p.grid_size,
+                                            p.disp_min, p.disp_max, right_image=right_image)
+        tri_map = delaunay.rasterize_triangles(vert, tri, *gl.shape)
+        radius = matching.plane_radius(p.sigma, p.sradius)
+        prior = matching.prior_table(p.beta, p.gamma, p.sigma, radius + 1)
+        maps[right_image] = dict(desc_own=own, desc_other=other, tex_own=tex, tri_map=tri_map,
+                                 planes=planes, valid=valid, lists=lists, counts=counts,
+                                 prior=prior, radius=radius, vertices=vert, triangles=tri)
+    disp_l, _ = matching.dense_match(*_match_args(maps[False], p, 1, 1, False))
+    disp_r, _ = matching.dense_match(*_match_args(maps[True], p, -1, 1, False))
+    return dict(left=gl, right=gr, params=p, desc=(desc_l, desc_r), tex=(tex_l, tex_r),
+                support=pts, maps=maps, disp=(disp_l, disp_r))
+
+
+def _match_args(m, p, sign, step, subpixel):
+    return (m["desc_own"], m["desc_other"], m["tex_own"], m["tri_map"], m["planes"], m["valid"],
+            m["lists"], m["counts"], p.grid_size, m["prior"], m["radius"], sign, p.disp_min,
+            p.disp_max, p.match_texture, step, subpixel)
+
+
+def random_disparity(rng, shape, *, invalid=0.3, integer=True, lo=0, hi=40):
+    """float32 map with smooth-ish patches, ``invalid`` share of -1 pixels."""
+    d = rng.integers(lo, hi, shape).astype(np.float32)
+    d = np.round(0.5 * d + 0.5 * np.roll(d, 1, axis=1)) if integer else \
+        (0.5 * d + 0.5 * np.roll(d, 1, axis=1) + rng.uniform(-0.5, 0.5, shape)).astype(np.float32)
+    d = d.astype(np.float32)
+    d[rng.random(shape) < invalid] = INVALID
+    return d
+
+
+# ------------------------------------------------------------- left-right check
+def reference_lr_check(d_left, d_right, threshold, step):
+    h, w = d_left.shape
+    out_l, out_r = d_left.copy(), d_right.copy()
+    inv_step = 1.0 / step
+    for v in range(h):
+        for c in range(w):
+            d = d_left[v, c]
+            if d >= 0:
+                x = (c * step - float(d)) * inv_step + 0.5
+                c2 = int(x) if x >= 0 else -1
+                if c2 >= w or c2 < 0 or d_right[v, c2] < 0 or \
+                        abs(d - d_right[v, c2]) > threshold:
+                    out_l[v, c] = INVALID
+            d = d_right[v, c]
+            if d >= 0:
+                c1 = int((c * step + float(d)) * inv_step + 0.5)
+                if c1 >= w or d_left[v, c1] < 0 or abs(d - d_left[v, c1]) > threshold:
+                    out_r[v, c] = INVALID
+    return out_l, out_r
+
+
+@pytest.mark.parametrize("step", [1, 2])
+@pytest.mark.parametrize("integer", [True, False])
+def test_left_right_check_is_exact_on_random_maps(rng, step, integer):
+    shape = (37, 53)
+    d_left = random_disparity(rng, shape, integer=integer, hi=30)
+    d_right = random_disparity(rng, shape, integer=integer, hi=30)
+    # make many pairs consistent so that both outcomes occur
+    for v in range(shape[0]):
+        for c in range(shape[1]):
+            x = int((c * step - float(d_left[v, c])) / step + 0.5)
+            if d_left[v, c] >= 0 and 0 <= x < shape[1] and rng.random() < 0.6:
+                d_right[v, x] = d_left[v, c] + np.float32(rng.choice([0.0, 1.0, 2.5]))
+    ref_l, ref_r = reference_lr_check(d_left, d_right, 2.0, step)
+    got_l, got_r = postprocess.left_right_check(d_left, d_right, 2.0, step=step)
+    assert same_bits(got_l, ref_l) and same_bits(got_r, ref_r)
+    assert (ref_l < 0).sum() > (d_left < 0).sum()         # the check did something
+    only_l, none_r = postprocess.left_right_check(d_left, d_right, 2.0, step=step,
+                                                  want_right=False)
+    assert none_r is None and same_bits(only_l, ref_l)
+
+
+def test_left_right_check_is_exact_on_real_maps(plants):
+    disp_l, disp_r = plants["disp"]
+    ref_l, ref_r = reference_lr_check(disp_l, disp_r, 2, 1)
+    got_l, got_r = postprocess.left_right_check(disp_l, disp_r, 2, step=1)
+    assert same_bits(got_l, ref_l) and same_bits(got_r, ref_r)
+
+
+# ------------------------------------------------------- small-segment removal
+def reference_remove_small_segments(disp, sim_threshold, min_size):
+    h, w = disp.shape
+    out = disp.copy()
+    label = np.zeros((h, w), np.int64)
+    current = 0
+    for v0 in range(h):
+        for u0 in range(w):
+            if disp[v0, u0] < 0 or label[v0, u0]:
+                continue
+            current += 1
+            label[v0, u0] = current
+            stack, members = [(v0, u0)], []
+            while stack:
+                v, u = stack.pop()
+                members.append((v, u))
+                for vv, uu in ((v, u - 1), (v, u + 1), (v - 1, u), (v + 1, u)):
+                    if 0 <= vv < h and 0 <= uu < w and not label[vv, uu] and \
+                            disp[vv, uu] >= 0 and abs(disp[vv, uu] - disp[v, u]) <= sim_threshold:
+                        label[vv, uu] = current
+                        stack.append((vv, uu))
+            if len(members) < min_size:
+                for v, u in members:
+                    out[v, u] = INVALID
+    return out
+
+
+@pytest.mark.parametrize("integer", [True, False])
+def test_small_segment_removal_is_exact_on_random_maps(rng, integer):
+    disp = random_disparity(rng, (41, 57), integer=integer, hi=6, invalid=0.25)
+    disp[0, :] = 3.0                   # segments touching every border
+    disp[:, -1] = 5.0
+    disp[5, 5] = np.nan                # a NaN pixel is a segment of its own
+    for min_size in (1, 4, 30):
+        ref = reference_remove_small_segments(disp, 1.0, min_size)
+        assert same_bits(postprocess.remove_small_segments(disp, 1.0, min_size), ref)
+
+
+def test_small_segment_removal_is_exact_on_real_maps(plants):
+    for disp in plants["disp"]:
+        ref = reference_remove_small_segments(disp, 1.0, 200)
+        got = postprocess.remove_small_segments(disp, 1.0, 200)
+        assert same_bits(got, ref)
+        assert (got < 0).sum() > (disp < 0).sum()
+
+
+# -------------------------------------------------------------- support points
+def reference_candidate_grid(desc_l, desc_r, tex_l, tex_r, step, disp_min, disp_max,
+                             support_texture, support_threshold, lr_threshold):
+    """Candidate cells by the definition in canopy_stereo.elas.support (numpy per candidate)."""
+    h, w = desc_l.shape[:2]
+    off, border, margin = support.SUPPORT_SAMPLE_OFFSET, descriptor.BORDER, support.SUPPORT_MARGIN
+    thr = np.float32(support_threshold)
+
+    def cost_vector(desc, u, v):
+        return np.concatenate([desc[v - off, u - off], desc[v - off, u + off],
+                               desc[v + off, u - off], desc[v + off, u + off]]).astype(np.int32)
+
+    def best(desc_own, desc_other, tex_own, u, v, sign):
+        if tex_own[v, u] < support_texture:
+            return -1
+        dmax = min(disp_max, u - off - border) if sign > 0 else \
+            min(disp_max, w - 1 - border - off - u)
+        dmin = max(disp_min, 0)
+        if dmax - dmin + 1 < 11:
+            return -1
+        own = cost_vector(desc_own, u, v)
+        costs = np.array([np.abs(own - cost_vector(desc_other, u - sign * d, v)).sum()
+                          for d in range(dmin, dmax + 1)], np.int64)
+        k = int(np.argmin(costs))
+        second = np.min(np.delete(costs, k))
+        ok = np.float32(costs[k]) < thr * np.float32(second)
+        return dmin + k if ok else -1
+
+    rows, cols = (h - 1) // step + 1, (w - 1) // step + 1
+    out = np.full((rows, cols), -1, np.int32)
+    for i in range(rows):
+        v = i * step
+        if v < margin or v > h - 1 - margin:
+            continue
+        for j in range(cols):
+            u = j * step
+            if u < margin or u > w - 1 - margin:
+                continue
+            d = best(desc_l, desc_r, tex_l, u, v, 1)
+            if d < 0:
+                continue
+            d_back = best(desc_r, desc_l, tex_r, u - d, v, -1)
+            if d_back >= 0 and abs(d - d_back) <= lr_threshold:
+                out[i, j] = d
+    return out
+
+
+def test_support_candidates_are_exact_on_real_images(plants):
+    (dl, dr), (tl, tr) = plants["desc"], plants["tex"]
+    for step, dmin, dmax, thr in ((5, 0, 120, 0.85), (4, 20, 60, 0.95)):
+        ref = reference_candidate_grid(dl, dr, tl, tr, step, dmin, dmax, 10, thr, 2)
+        got = support.candidate_grid(dl, dr, tl, tr, step, dmin, dmax, 10, thr, 2)
+        assert same_bits(got, ref)
+        assert (ref >= 0).sum() > 100
+
+
+def test_support_candidates_are_exact_on_random_images(rng):
+    img = rng.integers(0, 256, (45, 70), dtype=np.uint8)
+    shifted = np.roll(img, -7, axis=1)
+    dl, tl = descriptor.compute_descriptors(img)
+    dr, tr = descriptor.compute_descriptors(shifted)
+    ref = reference_candidate_grid(dl, dr, tl, tr, 3, 0, 30, 10, 0.9, 2)
+    assert same_bits(support.candidate_grid(dl, dr, tl, tr, 3, 0, 30, 10, 0.9, 2), ref)
+    assert (ref == 7).sum() > 10
+
+
+# ------------------------------------------------------------------- the whole run
+def test_elas_run_is_deterministic_across_thread_counts(plants):
+    import numba
+
+    p = make_params("middlebury", disp_min=0, disp_max=120, subpixel=True)
+    before = numba.get_num_threads()
+    try:
+        runs = []
+        for threads in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
+            numba.set_num_threads(threads)
+            runs.append(elas_run(plants["left"], plants["right"], p, want_right=True))
+    finally:
+        numba.set_num_threads(before)
+    for other in runs[1:]:
+        for name in ("disp_left", "disp_right", "support", "triangles_left", "triangles_right"):
+            assert same_bits(getattr(other, name), getattr(runs[0], name))
+
+
+# --------------------------------------------------------------- SIMD intrinsics
+def _sad16x4_both():
+    """A fresh (uncached) kernel: sad16x4_store next to the plain loop, so that it is
+    compiled with the current simd.PSADBW_WIDTH."""
+    from numba import njit
+
+    from canopy_stereo.elas.simd import MASKED, sad16x4_store, sad_reference
+
+    @njit
+    def both(a, b, n, bonuses):
+        out = np.zeros(4 * n, np.int32)
+        ref = np.zeros(4 * n, np.int32)
+        for i in range(n):
+            sad16x4_store(a, i * 3, b, i * 5, bonuses[i, 0], bonuses[i, 1], bonuses[i, 2],
+                          bonuses[i, 3], out, 4 * i)
+            for k in range(4):
+                if bonuses[i, k] >= MASKED:
+                    ref[4 * i + k] = 2147483647
+                else:
+                    ref[4 * i + k] = sad_reference(a, i * 3 + 16 * k, b, i * 5 + 16 * k,
+                                                   16) + bonuses[i, k]
+        return out, ref
+
+    return both
+
+
+def test_sad16x4_store_equals_four_plain_sads_with_every_instruction_width(rng, monkeypatch):
+    from canopy_stereo.elas import simd
+
+    n = 300
+    a = rng.integers(0, 256, 3 * n + 64, dtype=np.uint8)
+    b = rng.integers(0, 256, 5 * n + 64, dtype=np.uint8)
+    bonuses = rng.integers(-60, 1, (n, 4)).astype(np.int64)
+    bonuses[rng.random((n, 4)) < 0.2] = simd.MASKED
+    a[:64], b[:64] = 0, 255                       # the largest sum, 16 * 255 per block
+    widths = [w for w in (64, 32, 16) if w <= simd.PSADBW_WIDTH] + [0]
+    for width in widths:
+        monkeypatch.setattr(simd, "PSADBW_WIDTH", width)
+        out, ref = _sad16x4_both()(a, b, n, bonuses)
+        assert np.array_equal(out, ref), f"psadbw width {width}"
+    assert ref[0] == 16 * 255 + bonuses[0, 0] or bonuses[0, 0] >= simd.MASKED
+
+
+def test_first_min4_keeps_each_lanes_first_minimum(rng):
+    from numba import njit
+
+    from canopy_stereo.elas.simd import first_min4
+
+    @njit
+    def run(costs, values, n):
+        return first_min4(costs, values, n)
+
+    for _ in range(300):
+        n = int(rng.integers(0, 15))
+        costs = rng.integers(-3, 4, 4 * n).astype(np.int32)   # many ties
+        costs[rng.random(4 * n) < 0.2] = 2147483647
+        values = rng.integers(0, 300, n).astype(np.int64)
+        expect = []
+        for k in range(4):
+            best, value = 2147483647, -1
+            for j in range(n):
+                if costs[4 * j + k] < best:
+                    best, value = costs[4 * j + k], values[j]
+            expect.append(value)
+        assert run(costs, values, n) == tuple(expect)
+
+
+# ------------------------------------------------------------------ dense matching
+def _reference_match_kernel():
+    """The dense matching definition, one pixel at a time (matching.py's module
+    docstring), compiled fresh for the test."""
+    from numba import njit
+
+    from canopy_stereo.elas.simd import sad_reference
+
+    @njit
+    def match(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_lists,
+              grid_counts, grid_size, prior, radius, sign, disp_min, disp_max, match_texture,
+              step, subpixel):
+        h, w, _ = desc_own.shape
+        fo = desc_own.reshape(-1)
+        ft = desc_other.reshape(-1)
+        oh, ow = (h + step - 1) // step, (w + step - 1) // step
+        disp = np.full((oh, ow), -1.0, np.float32)
+        offs = np.zeros((oh, ow), np.float32)
+        for r in range(oh):
+            v = r * step
+            for c in range(ow):
+                u = c * step
+                if u < 2 or u >= w - 2:
+                    continue
+                t = tri_map[v, u]
+                if t < 0 or tex_own[v, u] < match_texture:
+                    continue
+                if sign > 0:
+                    d_lo, d_hi = max(disp_min, u - (w - 3)), min(disp_max, u - 2)
+                else:
+                    d_lo, d_hi = max(disp_min, 2 - u), min(disp_max, w - 3 - u)
+                mu = int(planes[t, 0] * u + planes[t, 1] * v + planes[t, 2])
+                a = (v * w + u) * 16
+                best_e, best_d = 2147483647, -1
+                gy, gx = v // grid_size, u // grid_size
+                for j in range(grid_counts[gy, gx]):
+                    d = grid_lists[gy, gx, j]
+                    if abs(d - mu) <= radius or d < d_lo or d > d_hi:
+                        continue
+                    e = sad_reference(fo, a, ft, a - sign * d * 16, 16)
+                    if e < best_e:
+                        best_e, best_d = e, d
+                for d in range(max(mu - radius, d_lo), min(mu + radius, d_hi) + 1):
+                    e = sad_reference(fo, a, ft, a - sign * d * 16, 16)
+                    if plane_valid[t]:
+                        e += prior[abs(d - mu)]
+                    if e < best_e:
+                        best_e, best_d = e, d
+                if best_d < 0:
+                    continue
+                disp[r, c] = best_d
+                if subpixel and best_d - 1 >= d_lo and best_d + 1 <= d_hi:
+                    b = a - sign * best_d * 16
+                    c0 = sad_reference(fo, a, ft, b, 16)
+                    cm = sad_reference(fo, a, ft, b + sign * 16, 16)
+                    cp = sad_reference(fo, a, ft, b - sign * 16, 16)
+                    if c0 <= cm and c0 <= cp and cm + cp > 2 * c0:
+                        offs[r, c] = np.float32(0.5 * (cm - cp) / (cm + cp - 2 * c0))
+        return disp, offs
+
+    return match
+
+
+@pytest.mark.parametrize("subpixel", [False, True])
+@pytest.mark.parametrize("step", [1, 2])
+def test_dense_matching_is_exact_on_real_images(plants, subpixel, step):
+    reference = _reference_match_kernel()
+    p = plants["params"]
+    for right_image, sign in ((False, 1), (True, -1)):
+        args = _match_args(plants["maps"][right_image], p, sign, step, subpixel)
+        ref = reference(*args)
+        got = matching.dense_match(*args)
+        assert same_bits(got[0], ref[0]) and same_bits(got[1], ref[1])
+        assert (ref[0] >= 0).mean() > 0.3
+
+
+def test_dense_matching_is_exact_with_steep_random_planes(plants, rng):
+    """Random planes: neighbouring pixels get different predictions and prior flags
+    (the four-pixel path masks each pixel's own window), also near the borders."""
+    reference = _reference_match_kernel()
+    p = plants["params"]
+    m = dict(plants["maps"][False])
+    n_tri = len(m["planes"])
+    planes = np.zeros((n_tri, 3), np.float32)
+    planes[:, 0] = rng.uniform(-0.9, 0.9, n_tri)
+    planes[:, 1] = rng.uniform(-0.3, 0.3, n_tri)
+    planes[:, 2] = rng.uniform(0, 120, n_tri)
+    m["planes"] = planes
+    m["valid"] = rng.random(n_tri) < 0.5
+    for sign, own in ((1, False), (-1, True)):
+        mm = dict(m, desc_own=plants["maps"][own]["desc_own"],
+                  desc_other=plants["maps"][own]["desc_other"])
+        args = _match_args(mm, p, sign, 1, True)
+        ref = reference(*args)
+        got = matching.dense_match(*args)
+        assert same_bits(got[0], ref[0]) and same_bits(got[1], ref[1])
+
+
+# ---------------------------------------------------------- gap interpolation
+def reference_fill_line(line, max_gap, discon, extrapolate):
+    n, count = len(line), 0
+    for i in range(n):
+        if line[i] >= 0:
+            if 1 <= count <= max_gap and i - count > 0:
+                d1, d2 = line[i - count - 1], line[i]
+                fill = np.float32(0.5 * (float(d1) + float(d2))) if abs(d1 - d2) < discon \
+                    else min(d1, d2)
+                line[i - count:i] = fill
+            count = 0
+        else:
+            count += 1
+    if extrapolate:
+        valid = np.flatnonzero(line >= 0)
+        if len(valid):
+            first, last = valid[0], valid[-1]
+            line[max(first - max_gap, 0):first] = line[first]
+            line[last + 1:min(last + 1 + max_gap, n)] = line[last]
+
+
+def reference_interpolate_gaps(disp, max_gap, extrapolate):
+    out = disp.copy()
+    for v in range(out.shape[0]):
+        reference_fill_line(out[v], max_gap, 3.0, extrapolate)
+    for u in range(out.shape[1]):
+        column = out[:, u].copy()
+        reference_fill_line(column, max_gap, 3.0, extrapolate)
+        out[:, u] = column
+    return out
+
+
+@pytest.mark.parametrize("max_gap,extrapolate", [(3, False), (5, True), (5000, True)])
+def test_gap_interpolation_is_exact(rng, plants, max_gap, extrapolate):
+    maps = [random_disparity(rng, (45, 61), integer=False, hi=30, invalid=0.4),
+            postprocess.remove_small_segments(plants["disp"][0], 1.0, 200)]
+    for disp in maps:
+        ref = reference_interpolate_gaps(disp, max_gap, extrapolate)
+        assert same_bits(postprocess.interpolate_gaps(disp, max_gap, extrapolate=extrapolate),
+                         ref)
+
+
+# ------------------------------------------------------------------- adaptive mean
+def reference_adaptive_mean(disp, linear):
+    """The former single weight formula ``(l * ramp + (1 - l) * step) * valid`` in float32,
+    taps -4..+3 in order, rows then columns."""
+    f32 = np.float32
+    lin = f32(1.0 if linear else 0.0)
+
+    def weight(d, c):
+        delta = abs(d - c)
+        step = f32(2.0) * f32(delta < 8.0) + f32(2.0) * f32(delta < 2.0)
+        ramp = max(f32(0.0), f32(4.0) - delta)
+        return (lin * ramp + (f32(1.0) - lin) * step) * f32(d >= 0)
+
+    def one_pass(x):
+        h, w = x.shape
+        out = x.copy()
+        for v in range(h):
+            for u in range(w):
+                c = x[v, u]
+                if not c >= 0:
+                    continue
+                s, sw = f32(0.0), f32(0.0)
+                for k in range(-4, 4):
+                    d = x[v, u + k] if 0 <= u + k < w else f32(-1.0)
+                    wt = weight(d, c)
+                    s = f32(s + f32(wt * d))
+                    sw = f32(sw + wt)
+                out[v, u] = f32(s / sw)
+        return out
+
+    return np.ascontiguousarray(one_pass(np.ascontiguousarray(one_pass(disp).T)).T)
+
+
+@pytest.mark.parametrize("linear", [False, True])
+def test_adaptive_mean_is_exact(rng, plants, linear):
+    crop = postprocess.interpolate_gaps(plants["disp"][0], 3)[100:140, 150:210]
+    for disp in (random_disparity(rng, (23, 31), integer=False, hi=12, invalid=0.25), crop):
+        ref = reference_adaptive_mean(np.ascontiguousarray(disp), linear)
+        assert same_bits(postprocess.adaptive_mean(disp, linear=linear), ref)
+
+
+# ----------------------------------------------------------- Delaunay and planes
+def reference_delaunay(points):
+    """The former numpy glue around the sweep: np.unique for first occurrences, a
+    stable numpy argsort for the insertion order."""
+    from canopy_stereo.elas import sweephull
+
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    if len(pts) < 3:
+        return np.zeros((0, 3), np.int32)
+    _, first = np.unique(pts, axis=0, return_index=True)
+    first = np.sort(first)
+    xs, ys = np.ascontiguousarray(pts[first, 0]), np.ascontiguousarray(pts[first, 1])
+    if len(xs) < 3:
+        return np.zeros((0, 3), np.int32)
+    i0, i1, i2, ccx, ccy = sweephull._seed(xs, ys)
+    if i0 < 0:
+        return np.zeros((0, 3), np.int32)
+    order = np.argsort((xs - ccx) ** 2 + (ys - ccy) ** 2, kind="stable")
+    tri = sweephull._sweep(xs, ys, order, int(i0), int(i1), int(i2), float(ccx), float(ccy))
+    return first[tri].astype(np.int32)
+
+
+def reference_triangle_planes(points, right_image):
+    points = np.asarray(points, dtype=np.int64).reshape(-1, 3)
+    u_left, v, d = points[:, 0], points[:, 1], points[:, 2]
+    u_own, u_other = (u_left - d, u_left) if right_image else (u_left, u_left - d)
+    vertices = np.column_stack([u_own, v]).astype(np.float64)
+    triangles = reference_delaunay(vertices)
+    planes = delaunay.fit_planes(u_own, v, d, triangles)
+    other = delaunay.fit_planes(u_other, v, d, triangles)
+    valid = (np.abs(planes[:, 0]) < delaunay.MAX_PLANE_SLOPE) & \
+        (np.abs(other[:, 0]) < delaunay.MAX_PLANE_SLOPE)
+    return vertices, triangles, planes, valid
+
+
+def test_delaunay_and_planes_are_exact(rng, plants):
+    grid_pts = np.stack(np.meshgrid(np.arange(0, 60, 5), np.arange(0, 40, 5)), -1).reshape(-1, 2)
+    cases = [plants["support"][:, :2],                  # real support points
+             grid_pts,                                   # co-circular quadruples
+             np.vstack([grid_pts, grid_pts[::3]]),       # repeated points
+             np.vstack([grid_pts * -1.0, [[0.0, -0.0]]]),  # -0.0 equals 0.0
+             rng.integers(0, 50, (200, 2)),              # many duplicates
+             np.array([[0, 0], [1, 1], [2, 2], [3, 3]]),  # collinear
+             np.zeros((2, 2))]
+    for pts in cases:
+        assert same_bits(delaunay.triangulate(pts), reference_delaunay(pts))
+    for right_image in (False, True):
+        got = delaunay.triangle_planes(plants["support"], right_image=right_image)
+        ref = reference_triangle_planes(plants["support"], right_image)
+        assert all(same_bits(a, b) for a, b in zip(got, ref))
+        assert 0 < got[3].sum() < len(got[3]) or got[3].all()
+
+
+# ------------------------------------------------------------------- rasterisation
+def reference_rasterize(vertices, triangles, height, width):
+    tri_map = np.full((height, width), -1, np.int32)
+    eps = 1e-9
+    for t, (i, j, k) in enumerate(triangles):
+        (ax, ay), (bx, by), (cx, cy) = vertices[i], vertices[j], vertices[k]
+        vmin = max(int(np.ceil(min(ay, by, cy) - eps)), 0)
+        vmax = min(int(np.floor(max(ay, by, cy) + eps)), height - 1)
+        for v in range(vmin, vmax + 1):
+            y, lo, hi = float(v), np.inf, -np.inf
+            for x0, y0, x1, y1 in ((ax, ay, bx, by), (bx, by, cx, cy), (cx, cy, ax, ay)):
+                if y0 == y1:
+                    if abs(y - y0) <= eps:
+                        lo, hi = min(lo, x0, x1), max(hi, x0, x1)
+                    continue
+                if y < min(y0, y1) - eps or y > max(y0, y1) + eps:
+                    continue
+                x = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+                lo, hi = min(lo, x), max(hi, x)
+            if lo > hi:
+                continue
+            u0, u1 = max(int(np.ceil(lo - eps)), 0), min(int(np.floor(hi + eps)), width - 1)
+            if u1 >= u0:
+                tri_map[v, u0:u1 + 1] = t
+    return tri_map
+
+
+def test_rasterisation_is_exact(rng, plants):
+    for right_image in (False, True):
+        m = plants["maps"][right_image]
+        h, w = plants["left"].shape
+        ref = reference_rasterize(m["vertices"], m["triangles"], h, w)
+        assert same_bits(delaunay.rasterize_triangles(m["vertices"], m["triangles"], h, w), ref)
+    # non-integer vertices, horizontal edges, triangles leaving the image
+    vertices = np.vstack([rng.uniform(-10, 70, (30, 2)), [[5.0, 7.0], [25.0, 7.0], [15.0, 20.5]]])
+    triangles = np.vstack([rng.integers(0, 30, (40, 3)), [[30, 31, 32]]]).astype(np.int32)
+    ref = reference_rasterize(vertices, triangles, 50, 60)
+    assert same_bits(delaunay.rasterize_triangles(vertices, triangles, 50, 60), ref)
+
+
+def test_sad16x4_store_outside_masks_each_pixels_window(rng, monkeypatch):
+    from numba import njit
+
+    from canopy_stereo.elas import simd
+
+    def kernel():
+        @njit
+        def both(a, b, n, d, mus, radius):
+            out = np.zeros(4 * n, np.int32)
+            ref = np.zeros(4 * n, np.int32)
+            for i in range(n):
+                simd.sad16x4_store_outside(a, i * 3, b, i * 5, d[i], mus[i, 0], mus[i, 1],
+                                           mus[i, 2], mus[i, 3], radius, out, 4 * i)
+                for k in range(4):
+                    if abs(d[i] - mus[i, k]) <= radius:
+                        ref[4 * i + k] = 2147483647
+                    else:
+                        ref[4 * i + k] = simd.sad_reference(a, i * 3 + 16 * k, b,
+                                                            i * 5 + 16 * k, 16)
+            return out, ref
+        return both
+
+    n = 300
+    a = rng.integers(0, 256, 3 * n + 64, dtype=np.uint8)
+    b = rng.integers(0, 256, 5 * n + 64, dtype=np.uint8)
+    d = rng.integers(0, 60, n).astype(np.int64)
+    mus = rng.integers(0, 60, (n, 4)).astype(np.int64)
+    for width in [w for w in (64, 32, 16) if w <= simd.PSADBW_WIDTH] + [0]:
+        monkeypatch.setattr(simd, "PSADBW_WIDTH", width)
+        out, ref = kernel()(a, b, n, d, mus, 3)
+        assert np.array_equal(out, ref), f"psadbw width {width}"
+        assert (ref == 2147483647).any() and (ref < 2147483647).any()
+
+
+def test_stable_argsort_equals_numpys_stable_sort(rng):
+    from canopy_stereo.elas.sweephull import stable_argsort
+
+    for n in (0, 1, 2, 3, 7, 64, 1000):
+        keys = rng.integers(0, max(n // 3, 1), n).astype(np.float64)   # many ties
+        keys[rng.random(n) < 0.1] = -0.0
+        keys[rng.random(n) < 0.1] = 0.0
+        assert np.array_equal(stable_argsort(keys), np.argsort(keys, kind="stable"))
+    keys = rng.normal(size=777)
+    assert np.array_equal(stable_argsort(keys), np.argsort(keys, kind="stable"))
