@@ -77,6 +77,15 @@ def find_pairs(data: Path) -> list[dict]:
     return pairs
 
 
+def selected_pairs(data: Path, names: str) -> list[dict]:
+    """The ground-truth pairs under ``data`` named in the comma-separated ``names`` (all if empty)."""
+    pairs = find_pairs(data)
+    if names:
+        wanted = {p.lower() for p in names.split(",")}
+        pairs = [p for p in pairs if p["name"].lower() in wanted]
+    return pairs
+
+
 def load_pair(pair: dict):
     left = to_gray(read_image(pair["left"]))
     right = to_gray(read_image(pair["right"]))
@@ -228,10 +237,7 @@ def stages_main(args) -> int:
         left, right = to_gray(read_image(args.left)), to_gray(read_image(args.right))
         name = Path(args.left).name
     else:
-        pairs = find_pairs(Path(args.data))
-        if args.pairs:
-            wanted = {p.lower() for p in args.pairs.split(",")}
-            pairs = [p for p in pairs if p["name"].lower() in wanted]
+        pairs = selected_pairs(Path(args.data), args.pairs)
         if not pairs:
             print(f"no pair found (give --left/--right, or --pairs under {args.data})")
             return 1
@@ -289,10 +295,7 @@ def main(argv=None) -> int:
     from canopy_stereo.elas import elas_disparity
 
     data = Path(args.data)
-    pairs = find_pairs(data)
-    if args.pairs:
-        wanted = {p.lower() for p in args.pairs.split(",")}
-        pairs = [p for p in pairs if p["name"].lower() in wanted]
+    pairs = selected_pairs(data, args.pairs)
     if not pairs:
         print(f"no ground-truth pairs found under {data}")
         return 1

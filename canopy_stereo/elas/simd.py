@@ -112,6 +112,15 @@ def psadbw_width() -> int:
 PSADBW_WIDTH = psadbw_width()
 
 
+def _argument_block_sums(context, builder, signature, args):
+    """``<4 x i32>`` block SADs of the 64 bytes at ``(a, offset_a)`` and ``(b, offset_b)``,
+    an intrinsic's first four arguments (unaligned loads)."""
+    vec_i8 = ir.VectorType(ir.IntType(8), 64)
+    pa = _element_pointer(context, builder, signature.args[0], args[0], args[1], signature.args[1], vec_i8)
+    pb = _element_pointer(context, builder, signature.args[2], args[2], args[3], signature.args[3], vec_i8)
+    return _block_sums(builder, builder.load(pa, align=1), builder.load(pb, align=1))
+
+
 def _block_sums(builder, va, vb):
     """``<4 x i32>``: the SAD of each 16-byte block of two ``<64 x i8>`` vectors."""
     i8, i32, i64 = ir.IntType(8), ir.IntType(32), ir.IntType(64)
@@ -188,12 +197,8 @@ def sad16x4_store(typingctx, a, offset_a, b, offset_b, bonus0, bonus1, bonus2, b
 
     def codegen(context, builder, signature, args):
         i32 = ir.IntType(32)
-        vec_i8 = ir.VectorType(ir.IntType(8), 64)
         vec_i32 = ir.VectorType(i32, 4)
-        ta, tb = signature.args[0], signature.args[2]
-        pa = _element_pointer(context, builder, ta, args[0], args[1], signature.args[1], vec_i8)
-        pb = _element_pointer(context, builder, tb, args[2], args[3], signature.args[3], vec_i8)
-        sums = _block_sums(builder, builder.load(pa, align=1), builder.load(pb, align=1))
+        sums = _argument_block_sums(context, builder, signature, args)
         extra = ir.Constant(vec_i32, ir.Undefined)
         for k in range(4):
             value = context.cast(builder, args[4 + k], signature.args[4 + k], types.int32)
@@ -226,13 +231,9 @@ def sad16x4_store_outside(typingctx, a, offset_a, b, offset_b, d, mu0, mu1, mu2,
     def codegen(context, builder, signature, args):
         i64 = ir.IntType(64)
         i32 = ir.IntType(32)
-        vec_i8 = ir.VectorType(ir.IntType(8), 64)
         vec_i32 = ir.VectorType(i32, 4)
         vec_i64 = ir.VectorType(i64, 4)
-        ta, tb = signature.args[0], signature.args[2]
-        pa = _element_pointer(context, builder, ta, args[0], args[1], signature.args[1], vec_i8)
-        pb = _element_pointer(context, builder, tb, args[2], args[3], signature.args[3], vec_i8)
-        sums = _block_sums(builder, builder.load(pa, align=1), builder.load(pb, align=1))
+        sums = _argument_block_sums(context, builder, signature, args)
 
         def as_i64(k):
             return context.cast(builder, args[k], signature.args[k], types.int64)
