@@ -68,6 +68,25 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     prog = f"canopy-stereo {args.command}"
     try:
+        return _run_command(args, prog)
+    finally:
+        _forget_caught_interrupts()
+
+
+def _forget_caught_interrupts() -> None:
+    """Clear CPython's "unhandled KeyboardInterrupt" mark before exiting.
+
+    CPython sets that mark whenever an interrupt ends a string ``exec``/``eval``
+    (dataclasses, namedtuple and numba build code that way) even when a caller catches
+    it, and under ``python -m`` it then exits by SIGINT (status -2) instead of the
+    status returned here (130 after Ctrl-C/SIGTERM). Every string eval resets the
+    mark first, so an empty one clears it: this function has handled everything.
+    """
+    exec("", {})  # noqa: S102 - a constant empty string
+
+
+def _run_command(args, prog: str) -> int:
+    try:
         return int(args._run(args) or 0)
     except CanopyStereoError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
