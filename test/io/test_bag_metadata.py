@@ -90,6 +90,7 @@ def test_bag_record_writes_metadata_and_rig(tmp_path):
     from canopy_stereo.ros.bag import BagReader
     from canopy_stereo.ros.context import private_domain_id, ros_context, wait_for
     from canopy_stereo.ros.qos import publisher_qos
+    from test.support.ros_harness import killed_at_exit
 
     out = tmp_path / "rec.mcap"
     domain = private_domain_id()
@@ -99,7 +100,7 @@ def test_bag_record_writes_metadata_and_rig(tmp_path):
     proc = subprocess.Popen([sys.executable, "-c", code, "-o", str(out), "/meta_test/left",
                              "--metadata", "plant_id=A12", "plot=row1", "date=2026-05-04",
                              "--rig", str(rig_file)], env=env, stderr=subprocess.PIPE, text=True)
-    try:
+    with killed_at_exit(proc):
         with ros_context(domain) as ctx:
             node = Node("meta_test_pub", context=ctx, start_parameter_services=False)
             pub = node.create_publisher(Image, "/meta_test/left", publisher_qos("reliable", 10))
@@ -112,10 +113,6 @@ def test_bag_record_writes_metadata_and_rig(tmp_path):
             node.destroy_node()
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     assert proc.returncode == 0, err
     bag = BagReader(out)
     assert bag.topics["/meta_test/left"].message_count == 3
@@ -142,6 +139,7 @@ def test_graph_recording_from_cameras_is_measured_without_a_rig(tmp_path):
     from canopy_stereo.ros.bundled import bundled_bag, bundled_rig
     from canopy_stereo.ros.context import private_domain_id
     from canopy_stereo.ros.convert import msg_to_image
+    from test.support.ros_harness import killed_at_exit
 
     src = BagReader(bundled_bag("croton"))
     for side in ("left", "right"):
@@ -156,7 +154,7 @@ def test_graph_recording_from_cameras_is_measured_without_a_rig(tmp_path):
                              "--fps", str(fps), "--matcher", "sgbm", "--no-segment", "--record", str(out),
                              "--metadata", "plant_id=C1", "treatment=control", "date=2026-05-04"],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
+    with killed_at_exit(proc):
         deadline = time.monotonic() + 90
         while time.monotonic() < deadline and proc.poll() is None:
             if out.is_file() and out.stat().st_size > 3_000_000:  # a few raw pairs flushed
@@ -164,10 +162,6 @@ def test_graph_recording_from_cameras_is_measured_without_a_rig(tmp_path):
             time.sleep(0.25)
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     assert proc.returncode == 0, err
     row = process_bag(out, BatchOptions(max_frames=1, sync_slop_s=0.5 / fps, matcher="sgbm"))
     assert row["metadata"] == {"plant_id": "C1", "treatment": "control", "date": "2026-05-04"}

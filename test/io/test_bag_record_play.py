@@ -20,6 +20,7 @@ from canopy_stereo.ros.context import private_domain_id, ros_context, wait_for  
 from canopy_stereo.ros.player import BagPlayer, parse_remaps, recorded_reliability  # noqa: E402
 from canopy_stereo.ros.qos import publisher_qos, recording_qos  # noqa: E402
 from canopy_stereo.ros.recorder import header_stamp_from_cdr  # noqa: E402
+from test.support.ros_harness import killed_at_exit  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -42,7 +43,7 @@ def test_bag_record_survives_signals_with_a_valid_file(tmp_path, sig):
     proc = subprocess.Popen([sys.executable, "-c", code, "-o", str(out), "/rec_test/images"],
                             env=env, stderr=subprocess.PIPE, text=True)
     msgs = _images(5)
-    try:
+    with killed_at_exit(proc):
         with ros_context(domain) as ctx:
             node = Node("rec_test_pub", context=ctx, start_parameter_services=False)
             pub = node.create_publisher(Image, "/rec_test/images", publisher_qos("reliable", 10))
@@ -55,10 +56,6 @@ def test_bag_record_survives_signals_with_a_valid_file(tmp_path, sig):
             node.destroy_node()
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     assert proc.returncode == 0, err
     assert "wrote" in err
     bag = BagReader(out)

@@ -18,6 +18,7 @@ rosbags = pytest.importorskip("rosbags.highlevel")
 from canopy_stereo.ros.bag import BagError, BagReader, BagWriter, repair_bag, split_file_path  # noqa: E402
 from canopy_stereo.ros.bundled import bundled_bag, bundled_rig  # noqa: E402
 from canopy_stereo.ros.context import private_domain_id  # noqa: E402
+from test.support.ros_harness import killed_at_exit  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -118,7 +119,7 @@ def test_sigterm_at_three_moments_of_run_record_leaves_complete_bags(slow_bag, t
                 {n: procs[n].poll() for n in running}
             time.sleep(0.25)
 
-    try:
+    with killed_at_exit(*procs.values()):
         for name, proc in procs.items():
             _wait_for_file(paths[name], proc)
         procs["startup"].send_signal(signal.SIGTERM)
@@ -133,11 +134,6 @@ def test_sigterm_at_three_moments_of_run_record_leaves_complete_bags(slow_bag, t
                    ("late",))
         procs["late"].send_signal(signal.SIGTERM)
         results = {name: proc.communicate(timeout=90) for name, proc in procs.items()}
-    finally:
-        for proc in procs.values():
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
     counts = {}
     for name in ("startup", "early", "late"):
         out, err = results[name]
@@ -216,14 +212,10 @@ def test_graph_loop_record_appends_every_pass_and_closes_on_signals(tmp_path, si
     out = tmp_path / "loop.mcap"
     proc = _graph(["--bag", bundled_bag("croton"), "--rate", "0", "--loop", "--record", out],
                   private_domain_id())
-    try:
+    with killed_at_exit(proc):
         _wait_for_passes(proc, 3)
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     assert proc.returncode == 0, err
     bag = _complete(out)
     clouds = bag.topics["/stereo/points2"].message_count
@@ -238,16 +230,12 @@ def test_graph_loop_record_splits_like_rosbag2(tmp_path):
     out = tmp_path / "split.mcap"
     proc = _graph(["--bag", bundled_bag("croton"), "--rate", "2", "--loop", "--record", out,
                    "--split-duration", "0.6"], private_domain_id())
-    try:
+    with killed_at_exit(proc):
         # one graph loops the 0.3 s bag: at rate 2 three passes take ~0.45 s, less than one split
         # duration; run until the outputs span more than two
         _wait_for_passes(proc, 3, min_span_s=1.5)
         proc.send_signal(signal.SIGTERM)
         stdout, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     assert proc.returncode == 0, err
     assert not out.exists()
     files = sorted(tmp_path.glob("split_*.mcap"), key=lambda p: int(p.stem.rsplit("_", 1)[1]))
@@ -298,7 +286,7 @@ def test_graph_cameras_record_closes_on_sigterm(tmp_path):
     out = tmp_path / "live.mcap"
     proc = _graph(["--cameras", tmp_path / "left_%03d.png", tmp_path / "right_%03d.png", "--fps", "5",
                    "--record", out], private_domain_id())
-    try:
+    with killed_at_exit(proc):
         _wait_for_file(out, proc)
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and proc.poll() is None:
@@ -310,10 +298,6 @@ def test_graph_cameras_record_closes_on_sigterm(tmp_path):
                 pass
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     assert proc.returncode == 0, err
     bag = _complete(out)
     # every recorded left frame is one of the camera's, pixel for pixel

@@ -15,6 +15,7 @@ from sensor_msgs.msg import Image  # noqa: E402
 
 from canopy_stereo.ros import convert  # noqa: E402
 from canopy_stereo.ros.context import private_domain_id, wait_for  # noqa: E402
+from test.support.ros_harness import killed_at_exit  # noqa: E402
 
 from test.ros.test_ros_nodes import TIMEOUT, node_kwargs  # noqa: E402
 
@@ -40,7 +41,7 @@ def test_camera_node_on_a_fifo_logs_the_stall_and_stops_within_2s_of_sigint(tmp_
     os.mkfifo(fifo)
     log = tmp_path / "camera.log"
     proc = _camera_process(fifo, log, "open_timeout:=1.0")
-    try:
+    with killed_at_exit(proc):
         assert wait_for(lambda: "did not finish within 1 s; retrying with back-off" in log.read_text(), 60.0), \
             log.read_text()
         assert proc.poll() is None
@@ -48,10 +49,6 @@ def test_camera_node_on_a_fifo_logs_the_stall_and_stops_within_2s_of_sigint(tmp_
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=10)
         stopped_s = time.monotonic() - t0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     text = log.read_text()
     assert stopped_s < 2.0, f"stopped {stopped_s:.2f} s after SIGINT"
     assert proc.returncode == 0, text
@@ -67,17 +64,13 @@ def test_camera_node_sigterm_on_a_healthy_sequence_stops_within_2s(tmp_path):
         cv2.imwrite(str(tmp_path / f"f_{k:03d}.png"), np.full((48, 64, 3), 50 * k, np.uint8))
     log = tmp_path / "camera.log"
     proc = _camera_process(tmp_path / "f_%03d.png", log, "fps:=30.0")
-    try:
+    with killed_at_exit(proc):
         assert wait_for(lambda: "opened" in log.read_text(), 60.0), log.read_text()
         time.sleep(0.5)
         t0 = time.monotonic()
         proc.send_signal(signal.SIGTERM)
         proc.wait(timeout=10)
         stopped_s = time.monotonic() - t0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     assert stopped_s < 2.0 and proc.returncode == 0, log.read_text()
 
 

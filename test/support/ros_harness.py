@@ -28,6 +28,7 @@ import subprocess
 import sys
 import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -48,6 +49,19 @@ MODULES = {
 
 #: The processing nodes of the graph, in data-flow order.
 PROCESSING_NODES = ("rectify_node", "disparity_node", "segment_node", "point_cloud_node")
+
+
+@contextmanager
+def killed_at_exit(*procs: subprocess.Popen):
+    """Run the block; then SIGKILL and reap each of ``procs`` still running (a failed
+    assertion or a timeout inside the block leaves no process behind)."""
+    try:
+        yield
+    finally:
+        for proc in procs:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
 
 
 def executable_command(name: str) -> list[str]:
