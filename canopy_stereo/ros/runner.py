@@ -178,6 +178,26 @@ class _FrameBook:
             self.cond.notify_all()
 
 
+def stereo_input_remap(topics, *, namespace: str, remap: dict[str, str] | None = None) -> dict[str, str]:
+    """``remap`` plus, when the bag has no ``<namespace>/left|right/image_raw`` after it, the
+    remapping of the bag's one raw stereo pair recorded under another namespace (the bundled
+    ``/stereo/...`` bags played into ``/rig_a``): ``/stereo/left/image_raw ->
+    /rig_a/left/image_raw`` and the same for the right camera. A bag with several such pairs
+    is left alone (the caller then names the topics it has)."""
+    remap = dict(remap or {})
+    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+    wanted = {f"{ns}/left/image_raw", f"{ns}/right/image_raw"}
+    if wanted <= {remap.get(t, t) for t in topics}:
+        return remap
+    prefixes = [t[: -len("/left/image_raw")] for t in topics if t.endswith("/left/image_raw")
+                and t[: -len("/left/image_raw")] + "/right/image_raw" in topics and t not in remap]
+    if len(prefixes) != 1:
+        return remap
+    for side in ("left", "right"):
+        remap[f"{prefixes[0]}/{side}/image_raw"] = f"{ns}/{side}/image_raw"
+    return remap
+
+
 def open_input_bag(bag_path, *, namespace: str = "stereo", remap: dict[str, str] | None = None):
     """Open a bag for the graph and check it has both raw image topics (after ``remap``).
 
@@ -188,7 +208,7 @@ def open_input_bag(bag_path, *, namespace: str = "stereo", remap: dict[str, str]
     preparing the kernels.
     """
     bag = BagReader(bag_path)
-    remap = dict(remap or {})
+    remap = stereo_input_remap(bag.topics, namespace=namespace, remap=remap)
     damaged = bag.truncated or bool(bag.damage)
     ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
     in_left, in_right = f"{ns}/left/image_raw", f"{ns}/right/image_raw"
@@ -228,7 +248,9 @@ def run_bag(bag_path, rig: Rig, *, rate: float = 1.0, record=None, options: Grap
         timeout_s: give up waiting for any single frame after this long.
         keep: output topics whose messages are returned in :attr:`RunResult.outputs`
             (names relative to the namespace, e.g. ``"points2"``).
-        remap: bag topic -> topic to publish it on.
+        remap: bag topic -> topic to publish it on (a bag with one raw stereo pair under
+            another namespace is remapped into ``options.namespace`` without it:
+            :func:`stereo_input_remap`).
         progress: optional ``f(frames_out)`` callback per cloud.
         compression: chunk compression of the output bag (lz4 keeps up with the graph;
             zstd is smaller but costs about 20 ms per megabyte of output on this machine).
@@ -254,8 +276,8 @@ def run_bag(bag_path, rig: Rig, *, rate: float = 1.0, record=None, options: Grap
         raise CanopyStereoError(f"rate must be >= 0, got {rate}")
     if max_in_flight < 1:
         raise CanopyStereoError(f"max_in_flight must be >= 1, got {max_in_flight}")
-    remap = dict(remap or {})
     bag, play_topics, in_left = open_input_bag(bag_path, namespace=options.namespace, remap=remap)
+    remap = stereo_input_remap(bag.topics, namespace=options.namespace, remap=remap)
     ns = "/" + options.namespace.strip("/") if options.namespace.strip("/") else ""
     left_topics = {t for t in play_topics if remap.get(t, t) == in_left}
     outputs = {"points2": PointCloud2, "disparity": DisparityImage, "left/depth": Image,
@@ -322,10 +344,11 @@ def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, r
         graph = CanopyGraph(rig, ctx, options)
         io_node = CanopyNode("canopy_run", context=ctx, namespace=ns or "/",
                              start_parameter_services=False)
-        if writer is not None:  # the rig's frames, always in the bag (REP 105 /tf_static)
+        tf_transforms = graph.nodes["rectify_node"].tf_transforms
+        if writer is not None and tf_transforms:  # the rig's frames in the bag (REP 105 /tf_static)
             from canopy_stereo.ros.tf import write_static_transforms
 
-            write_static_transforms(writer, graph.nodes["rectify_node"].transforms, time.time_ns())
+            write_static_transforms(writer, tf_transforms, time.time_ns())
         try:
             def on_output(rel: str, data: bytes) -> None:
                 now = time.monotonic()

@@ -131,7 +131,8 @@ def write_static_transforms(writer, transforms, log_time_ns: int, *, topic: str 
 
 
 class StaticTransformPublisher:
-    """Publish transforms once on ``/tf_static`` (latched) when tf2_msgs is importable.
+    """Publish transforms once on ``/tf_static`` (latched) when tf2_msgs is importable (none
+    when ``transforms`` is empty).
 
     Attributes:
         available: True when tf2_msgs was found and the transforms were published.
@@ -141,7 +142,7 @@ class StaticTransformPublisher:
         cls = tf_message_class()
         self.available = cls is not None
         self.publisher = None
-        if not self.available:
+        if not self.available or not transforms:
             return
         stamp = node.get_clock().now().nanoseconds if stamp_ns is None else int(stamp_ns)
         self.publisher = node.create_publisher(cls, TF_STATIC_TOPIC, latched_qos())

@@ -16,8 +16,19 @@ frame's stamp:
   matrices);
 * ``stereo_geometry`` (latched): what a ``CameraInfo`` cannot carry
   (:mod:`canopy_stereo.ros.stereo_geometry`);
-* ``/tf_static`` (latched, when tf2_msgs is importable): ``canopy_world_z_up ->
-  canopy_world -> {left,right}_camera_optical_frame, {left,right}_camera_rect_optical_frame``.
+* ``/tf_static`` (latched, when tf2_msgs is importable and ``publish_tf`` is true):
+  ``canopy_world_z_up -> canopy_world -> {left,right}_camera_optical_frame,
+  {left,right}_camera_rect_optical_frame``; mounted (``parent_frame`` set):
+  ``parent_frame -> canopy_world -> {the cameras, canopy_world_z_up}``.
+
+Mounting on a robot (REP 105): ``parent_frame`` (the robot frame carrying the rig, e.g.
+``base_link`` or ``tool0``; "" = the world frame is a root), ``mount`` (seven numbers
+``x y z qx qy qz qw``, metres: the rig's world frame in ``parent_frame``) or instead
+``camera_mount`` (seven numbers: the raw left camera's optical frame in ``parent_frame``,
+as a hand-eye calibration gives it), ``publish_tf`` (false when the robot's URDF and
+robot_state_publisher already own the camera frames: then nothing goes to ``/tf_static``;
+``stereo_geometry`` still carries the rig's transforms), ``frame_prefix`` (prepended to
+every frame the rig names, e.g. ``rig_a/``, so that two rigs share one TF tree).
 
 Parameters: the rig (:mod:`canopy_stereo.ros.params`), ``method`` (empty = the rig's),
 ``H_left``/``H_right`` (unset = the rig's; the rectification is
@@ -25,7 +36,8 @@ Parameters: the rig (:mod:`canopy_stereo.ros.params`), ``method`` (empty = the r
 stamps), ``sync_slop`` (s; -1 = half a frame period at ``fps``), ``queue_size``,
 ``frame_id`` (rectified left optical frame) and ``right_frame_id``, ``world_frame``,
 ``world_z_up_frame`` ("" = none), ``left_camera_frame``/``right_camera_frame`` (raw
-optical frames in the transforms), ``reliability``, ``diagnostic_period``.
+optical frames in the transforms), the mounting parameters above, ``reliability``,
+``diagnostic_period``.
 
 Stamps that go back further than the pairing tolerance (a looping bag, a
 restarted driver) reset the pairing with one log line; pairing goes on.
@@ -41,13 +53,15 @@ from __future__ import annotations
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import String
 
-from canopy_stereo.geometry.frames import DEFAULT_FRAMES, WORLD_FRAME, WORLD_Z_UP_FRAME, FrameNames, stereo_transforms
+from canopy_stereo.geometry.frames import (DEFAULT_FRAMES, WORLD_FRAME, WORLD_Z_UP_FRAME, FrameNames,
+                                           prefixed_frames, stereo_transforms)
 from canopy_stereo.geometry.rectification import StereoRectifier
 from canopy_stereo.io.images import to_gray
 from canopy_stereo.ros.convert import (COLOUR_ENCODINGS, image_to_msg, msg_to_bgr, rectified_camera_info,
                                        stamp_to_ns, uncalibrated_camera_info)
 from canopy_stereo.ros.limits import check_image_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
+from canopy_stereo.ros.mounting import declare_mount_parameters, mount_from_node
 from canopy_stereo.ros.params import declare_rig_parameters, rectification_from_node, rig_from_node
 from canopy_stereo.ros.stereo_geometry import STEREO_GEOMETRY_TOPIC, stereo_geometry_msg
 from canopy_stereo.ros.sync import ApproximateTimePairer, FramePeriodEstimator, slop_for_rate
@@ -92,13 +106,16 @@ class RectifyNode(CanopyNode):
                             minimum=1, maximum=100, read_only=True)
         for name, (default, desc) in _FRAME_PARAMETERS.items():
             self.declare_text(name, default, desc, read_only=True)
+        declare_mount_parameters(self)
         self.rig = rig_from_node(self)
         self.rect = rectification_from_node(self, self.rig)
         self.rectifier = StereoRectifier(self.rig, self.rect)
         p = {name: str(self.get_parameter(name).value) for name in _FRAME_PARAMETERS}
-        self.frames = FrameNames(world=p["world_frame"], world_z_up=p["world_z_up_frame"],
-                                 raw_left=p["left_camera_frame"], raw_right=p["right_camera_frame"],
-                                 rect_left=p["frame_id"], rect_right=p["right_frame_id"])
+        mounting = mount_from_node(self, self.rig)
+        self.frames = prefixed_frames(FrameNames(
+            world=p["world_frame"], world_z_up=p["world_z_up_frame"], raw_left=p["left_camera_frame"],
+            raw_right=p["right_camera_frame"], rect_left=p["frame_id"], rect_right=p["right_frame_id"],
+            parent=mounting.parent_frame), mounting.frame_prefix)
         self.frame_id = self.frames.rect_left
         slop = float(self.get_parameter("sync_slop").value)
         fps = float(self.get_parameter("fps").value)
@@ -117,15 +134,22 @@ class RectifyNode(CanopyNode):
         self.pub_info_right = self.make_publisher(CameraInfo, RECT_INFO_TOPICS[1])
         # geometry for the nodes downstream and the static transforms, once, latched
         self.pub_geometry = self.create_publisher(String, STEREO_GEOMETRY_TOPIC, latched_qos())
-        self.pub_geometry.publish(stereo_geometry_msg(self.rig, self.rect, self.frames))
-        self.transforms = stereo_transforms(self.rig, self.rect, names=self.frames)
-        self.tf_static = StaticTransformPublisher(self, self.transforms)
+        #: the rig's transform tree ``[(parent, child, T_parent_child)]`` (metres), mount included
+        self.transforms = stereo_transforms(self.rig, self.rect, names=self.frames, mount=mounting.T_parent_world)
+        self.pub_geometry.publish(stereo_geometry_msg(self.rig, self.rect, self.frames,
+                                                      transforms=self.transforms))
+        #: what goes to /tf_static (and into recordings): nothing when the robot owns the frames
+        self.tf_transforms = self.transforms if mounting.publish_tf else []
+        self.tf_static = StaticTransformPublisher(self, self.tf_transforms)
         self.sub_left = self.make_subscription(Image, "left/image_raw", lambda m: self._on_image(0, m))
         self.sub_right = self.make_subscription(Image, "right/image_raw", lambda m: self._on_image(1, m))
         if self.rect.method != "fusiello":
             self.get_logger().info("hartley rectification: the rectified camera_info is uncalibrated "
                                    "(a projective rectification has no metric camera)")
-        if not self.tf_static.available:
+        if not mounting.publish_tf:
+            self.get_logger().info("publish_tf is false: no /tf_static (the robot's URDF owns the frames "
+                                   f"{', '.join(c for _, c, _ in self.transforms)})")
+        elif not self.tf_static.available:
             self.get_logger().info("tf2_msgs is not installed: no /tf_static (the transforms are on "
                                    f"{STEREO_GEOMETRY_TOPIC} and in recorded bags)")
         w, h = self.rig.image_size
