@@ -156,7 +156,7 @@ class TransformBuffer:
         ends = [self._links[c].stamps[-1] for c in links if not self._links[c].static]
         return min(ends) if ends else 0
 
-    def lookup(self, target: str, source: str, stamp_ns: int = 0) -> np.ndarray:
+    def lookup(self, target: str, source: str, *, stamp_ns: int = 0) -> np.ndarray:
         """``T_target_source`` (4x4, metres) at ``stamp_ns`` (0 = the latest time every
         dynamic link on the path has). Raises :class:`TransformLookupError`."""
         known = self.frames()
@@ -182,10 +182,10 @@ class TransformBuffer:
             T_common_target = self._link_at(child, stamp) @ T_common_target
         return invert_transform(T_common_target) @ T_common_source
 
-    def can_transform(self, target: str, source: str, stamp_ns: int = 0) -> bool:
+    def can_transform(self, target: str, source: str, *, stamp_ns: int = 0) -> bool:
         """Whether :meth:`lookup` would succeed."""
         try:
-            self.lookup(target, source, stamp_ns)
+            self.lookup(target, source, stamp_ns=stamp_ns)
         except TransformLookupError:
             return False
         return True

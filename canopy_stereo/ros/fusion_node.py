@@ -196,7 +196,7 @@ class FusionNode(CanopyNode):
         """The cloud's pose (4x4, cloud frame -> fusion frame), or None when not (yet) known."""
         if self.tf is not None:
             try:
-                return self.tf.lookup(self.fixed_frame, frame, stamp)
+                return self.tf.lookup(self.fixed_frame, frame, stamp_ns=stamp)
             except TransformLookupError:
                 return None
         slop = int(float(self.get_parameter("pose_slop").value) * 1e9)
@@ -230,7 +230,7 @@ class FusionNode(CanopyNode):
 
     def _drop_without_transform(self, stamp: int, frame: str, waited_s: float) -> None:
         try:
-            self.tf.lookup(self.fixed_frame, frame, stamp)
+            self.tf.lookup(self.fixed_frame, frame, stamp_ns=stamp)
             reason = "its transform arrived too late"
         except TransformLookupError as exc:
             reason = str(exc)

@@ -119,7 +119,7 @@ class TransformListener:
                     continue  # a malformed transform (NaN, one frame twice) is not kept
                 self.received += 1
 
-    def lookup(self, target: str, source: str, stamp_ns: int) -> np.ndarray:
+    def lookup(self, target: str, source: str, *, stamp_ns: int) -> np.ndarray:
         """``T_target_source`` (4x4, metres) at ``stamp_ns``, interpolated; raises
         :class:`~canopy_stereo.geometry.tf_buffer.TransformLookupError` naming why not
         (unknown frame, not connected, extrapolation into the past/future)."""
@@ -132,4 +132,4 @@ class TransformListener:
                 raise TransformLookupError(str(exc)) from None
             return msg_to_transform(msg)[2]
         with self._lock:
-            return self._buffer.lookup(target, source, int(stamp_ns))
+            return self._buffer.lookup(target, source, stamp_ns=int(stamp_ns))

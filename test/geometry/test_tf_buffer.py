@@ -40,16 +40,16 @@ def test_lookup_chains_static_and_dynamic_links_like_written_out_products(rng):
     buf.set_transform("arm", "tool", B, 0, static=True)
     buf.set_transform("tool", "cam", C, 0, static=True)
     buf.set_transform("base", "other", D, 0, static=True)
-    np.testing.assert_allclose(buf.lookup("base", "cam", 1 * S), A[1] @ B @ C, atol=1e-12)
-    np.testing.assert_allclose(buf.lookup("cam", "base", 2 * S), invert_transform(A[2] @ B @ C), atol=1e-12)
-    np.testing.assert_allclose(buf.lookup("other", "tool", 0), invert_transform(D) @ A[2] @ B, atol=1e-12)
+    np.testing.assert_allclose(buf.lookup("base", "cam", stamp_ns=1 * S), A[1] @ B @ C, atol=1e-12)
+    np.testing.assert_allclose(buf.lookup("cam", "base", stamp_ns=2 * S), invert_transform(A[2] @ B @ C), atol=1e-12)
+    np.testing.assert_allclose(buf.lookup("other", "tool", stamp_ns=0), invert_transform(D) @ A[2] @ B, atol=1e-12)
     np.testing.assert_allclose(buf.lookup("tool", "cam"), C, atol=1e-15)     # all static: any time
     # interpolated: translation linear, rotation slerp, at 1.25 s
-    T = buf.lookup("base", "arm", int(1.25 * S))
+    T = buf.lookup("base", "arm", stamp_ns=int(1.25 * S))
     np.testing.assert_allclose(T[:3, 3], 0.75 * A[1][:3, 3] + 0.25 * A[2][:3, 3], atol=1e-12)
     ref = Slerp([1.0, 2.0], Rotation.from_matrix(np.stack([A[1][:3, :3], A[2][:3, :3]])))(1.25).as_matrix()
     np.testing.assert_allclose(T[:3, :3], ref, atol=1e-12)
-    np.testing.assert_allclose(buf.lookup("base", "cam", int(1.25 * S)), T @ B @ C, atol=1e-12)
+    np.testing.assert_allclose(buf.lookup("base", "cam", stamp_ns=int(1.25 * S)), T @ B @ C, atol=1e-12)
 
 
 def test_motion_sampled_at_50_hz_interpolates_a_turn_to_micrometres():
@@ -65,7 +65,7 @@ def test_motion_sampled_at_50_hz_interpolates_a_turn_to_micrometres():
     for k in range(100):
         buf.set_transform("base_link", "tool0", truth(k * 0.02), k * S // 50)
     for t in np.linspace(0.013, 1.9, 37):
-        err = buf.lookup("base_link", "tool0", int(t * S)) - truth(t)
+        err = buf.lookup("base_link", "tool0", stamp_ns=int(t * S)) - truth(t)
         assert np.abs(err[:3, 3]).max() < 20e-6 and np.abs(err[:3, :3]).max() < 1e-9
 
 
@@ -75,14 +75,14 @@ def test_lookup_errors_name_the_problem():
     buf.set_transform("base", "arm", np.eye(4), 11 * S)
     buf.set_transform("world", "island", np.eye(4), 0, static=True)
     with pytest.raises(TransformLookupError, match="source frame 'cam' does not exist"):
-        buf.lookup("base", "cam", 10 * S)
+        buf.lookup("base", "cam", stamp_ns=10 * S)
     with pytest.raises(TransformLookupError, match="not connected"):
-        buf.lookup("island", "arm", 10 * S)
+        buf.lookup("island", "arm", stamp_ns=10 * S)
     with pytest.raises(TransformLookupError, match=r"extrapolation into the future: base -> arm .*\(0.500 s later"):
-        buf.lookup("base", "arm", int(11.5 * S))
+        buf.lookup("base", "arm", stamp_ns=int(11.5 * S))
     with pytest.raises(TransformLookupError, match="extrapolation into the past"):
-        buf.lookup("arm", "base", 9 * S)
-    assert buf.can_transform("arm", "base", 10 * S) and not buf.can_transform("arm", "base", 12 * S)
+        buf.lookup("arm", "base", stamp_ns=9 * S)
+    assert buf.can_transform("arm", "base", stamp_ns=10 * S) and not buf.can_transform("arm", "base", stamp_ns=12 * S)
 
 
 def test_latest_common_time_and_cache():
@@ -94,8 +94,8 @@ def test_latest_common_time_and_cache():
     # time 0: the newest stamp both links have (2.5 s) -> arm at x = 25
     np.testing.assert_allclose(buf.lookup("base", "tool")[:3, 3], [25, 2, 0])
     with pytest.raises(TransformLookupError, match="past"):
-        buf.lookup("base", "arm", int(1.85 * S))   # older than the cache
-    np.testing.assert_allclose(buf.lookup("base", "arm", int(1.95 * S))[:3, 3], [19.5, 0, 0], atol=1e-9)
+        buf.lookup("base", "arm", stamp_ns=int(1.85 * S))   # older than the cache
+    np.testing.assert_allclose(buf.lookup("base", "arm", stamp_ns=int(1.95 * S))[:3, 3], [19.5, 0, 0], atol=1e-9)
     # a frame given a new parent is re-attached (as tf2)
     buf.set_transform("world", "arm", np.eye(4), 0, static=True)
     assert buf.parent("arm") == "world" and "base" not in buf.frames()
