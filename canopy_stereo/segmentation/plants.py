@@ -40,6 +40,9 @@ from canopy_stereo.segmentation.colour_model import (
 )
 from canopy_stereo.segmentation.grabcut import GC_BGD, GC_FGD, GC_PR_BGD, GC_PR_FGD, labels_to_mask
 from canopy_stereo.segmentation.shape import (
+    attached_parts,
+    caps,
+    edge_density,
     fit_planes,
     grounded_solids,
     inverse_depth,
@@ -66,6 +69,12 @@ class PlantSegmenterSettings:
         stick_ratio: a plant region that is a straight stick (a stake) is not a plant: its
             spread (standard deviation) along its main axis is above this multiple of its
             largest inscribed radius and across it below 1.5 times that radius.
+        texture: edge density (fraction of Canny edge pixels in the window) above which a
+            pixel is textured (foliage), below which it may belong to a plain solid.
+        ungrounded_solids: take smooth plain regions for solid objects even when they do not
+            stand on the ground plane (for scenes whose table has no depth).
+        colour_space: ``"lab"`` or ``"bgr"``: the colours the learned models see.
+        cap_fraction: height of the band above a solid (its soil), as a fraction of its width.
         use_colour: learn colour models from the shape cue and cut with them.
     """
 
@@ -76,6 +85,10 @@ class PlantSegmenterSettings:
     min_solid: float = 0.002
     min_region: float = 0.0005
     stick_ratio: float = 6.0
+    texture: float = 0.12
+    ungrounded_solids: bool = False
+    colour_space: str = "lab"
+    cap_fraction: float = 0.15
     use_colour: bool = True
 
     def replace(self, **changes) -> "PlantSegmenterSettings":
@@ -115,47 +128,60 @@ def _resize_map(arr: np.ndarray, size) -> np.ndarray:
     return cv2.resize(arr, size, interpolation=cv2.INTER_NEAREST)
 
 
-def shape_seed(q: np.ndarray, settings: PlantSegmenterSettings = PLANT_SEGMENTER) -> tuple[np.ndarray, dict]:
-    """GrabCut labels (uint8 (h, w)) from the inverse-depth map ``q`` alone, and the cue maps.
+def shape_seed(q: np.ndarray, image_bgr: np.ndarray, *,
+               settings: PlantSegmenterSettings = PLANT_SEGMENTER) -> tuple[np.ndarray, dict]:
+    """GrabCut labels (uint8 (h, w)) from the inverse-depth map ``q`` and the image's texture,
+    and the cue maps.
 
-    Sure background: pixels on a dominant plane where the depth is smooth, and solid
-    objects (grounded smooth regions, grown by the window); probable background: the
-    rest of the planes and pixels without depth; sure plant: rough pixels off the
-    planes away from solids; probable plant: other pixels off the planes.
+    Sure background: smooth pixels of the dominant planes, and solid objects (regions
+    smooth in depth and plain in texture that stand on the ground) with the parts
+    attached to them without a depth jump (handles, spouts, rims); probable background:
+    the rest of the planes, pixels without depth and the band above each solid (the soil
+    in a pot); sure plant: textured pixels off the planes away from solids; probable
+    plant: other pixels off the planes.
     """
     h, w = q.shape
     valid = np.isfinite(q)
     if valid.sum() < 50:
         raise ImageError("the depth cue has fewer than 50 valid pixels")
     noise = float(settings.noise)
+    r = int(settings.window)
     planes = fit_planes(q, tolerance=2.5 * noise)
     on_plane = np.zeros((h, w), bool)
+    near_plane = np.zeros((h, w), bool)  # within 4 tolerances of a plane or behind it: matching noise
     ground = np.zeros((h, w), bool)
     qmed = float(np.nanmedian(q))
     for plane in planes:
         on_plane |= plane.inliers
+        with np.errstate(invalid="ignore"):
+            near_plane |= plane.residual(q) < 10.0 * noise
         if plane.is_ground(qmed, h):
             ground |= plane.inliers
-    rms, missing = local_roughness(q, int(settings.window))
+    rms, missing = local_roughness(q, r)
     rough = (rms > 1.5 * noise) | (missing > settings.max_missing)
+    textured = edge_density(image_bgr, r) > settings.texture
+    plain = edge_density(image_bgr, 2 * r) < 0.1 * settings.texture  # no edge in a wide window
     edges = jump_edges(q, 4.0 * noise)
-    smooth = valid & ~rough & ~edges & ~on_plane
-    r = int(settings.window)
+    objects = valid & ~on_plane
+    smooth = objects & ~rough & ~edges & ~textured
     below = np.zeros((h, w), bool)
     below[:-1] = ground[1:]
     contact = cv2.dilate(below.astype(np.uint8), np.ones((2 * r + 1, 3), np.uint8)).astype(bool)
     contact[h - 1 - r:] = True
+    if settings.ungrounded_solids:
+        contact[:] = True
     solids = grounded_solids(smooth, contact, min_pixels=max(20, int(settings.min_solid * h * w)))
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 3, 2 * r + 3))
+    solids = attached_parts(solids, q, objects, jump=2.0 * noise, reach=3 * r)
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
     solids_grown = cv2.dilate(solids.astype(np.uint8), k).astype(bool) & ~on_plane
-    objects = valid & ~on_plane
+    cap = caps(solids, fraction=settings.cap_fraction) & ~solids_grown
     labels = np.full((h, w), GC_PR_BGD, np.uint8)
-    labels[objects & ~solids_grown] = GC_PR_FGD
-    sure_fg = objects & rough & ~solids_grown & (missing < 0.7)
-    labels[sure_fg] = GC_FGD
+    labels[objects & ~solids_grown & ~cap & ~plain] = GC_PR_FGD
+    labels[objects & textured & ~solids_grown & ~cap & ~edges & ~near_plane] = GC_FGD
     labels[on_plane & ~rough & ~cv2.dilate(objects.astype(np.uint8), k).astype(bool)] = GC_BGD
     labels[solids] = GC_BGD
-    cues = {"planes": on_plane, "ground": ground, "solids": solids_grown, "rough": rough, "q": q}
+    cues = {"planes": on_plane, "ground": ground, "solids": solids_grown, "rough": rough,
+            "textured": textured, "plain": plain & ~solids_grown, "caps": cap, "q": q}
     return labels, cues
 
 
@@ -191,9 +217,10 @@ def segment_plants(image_bgr, *, disparity=None, points=None, depth=None, camera
     q = _resize_map(q_full, size)
     if disparity is not None:
         q = q * (size[0] / w)  # disparities shrink with the image
-    labels, cues = shape_seed(q, settings)
+    labels, cues = shape_seed(q, small, settings=settings)
     if settings.use_colour:
-        labels = _colour_cut(small, labels)
+        colours = cv2.cvtColor(small, cv2.COLOR_BGR2LAB) if settings.colour_space == "lab" else small
+        labels = _colour_cut(colours, labels, cues["plain"] & (labels == GC_PR_BGD))
     mask = labels_to_mask(labels) > 0
     cues["seed"] = labels
     if mask.shape != (h, w):
@@ -204,18 +231,23 @@ def segment_plants(image_bgr, *, disparity=None, points=None, depth=None, camera
                              plants=plants, cues=cues)
 
 
-def _colour_cut(img: np.ndarray, labels: np.ndarray) -> np.ndarray:
-    """Labels after relabelling by colour models learned from the sure pixels and a graph cut."""
+def _colour_cut(img: np.ndarray, labels: np.ndarray, plain: np.ndarray) -> np.ndarray:
+    """Labels after relabelling by colour models learned from the sure pixels (and, for the
+    background, the ``plain`` pixels: walls and objects without texture) and a graph cut."""
     k = np.ones((3, 3), np.uint8)
-    plant = cv2.erode((labels == GC_FGD).astype(np.uint8), k).astype(bool)
-    background = labels == GC_BGD
+    plant = cv2.erode((labels == GC_FGD).astype(np.uint8), k, iterations=2).astype(bool)
+    background = (labels == GC_BGD) | plain
     if plant.sum() < MIN_SAMPLES or background.sum() < MIN_SAMPLES:
         return labels
+    # plant training pixels whose colour the background explains best are the background
+    # a matcher spread between leaves: leave them out of the plant's model
+    llr, _, _ = colour_log_ratio(img, plant, background)
+    cleaner = plant & (llr > 0)
+    if cleaner.sum() >= MIN_SAMPLES:
+        plant = cleaner
     llr, plant_gmm, background_gmm = colour_log_ratio(img, plant, background)
     relabelled = relabel_by_colour(labels, llr, sure=SURE_LOG_RATIO)
-    # the shape cue's sure labels stand: colour only decides the unsure pixels
-    relabelled[labels == GC_BGD] = GC_BGD
-    relabelled[labels == GC_FGD] = GC_FGD
+    relabelled[labels == GC_BGD] = GC_BGD  # the shape cue's background stands
     return grabcut_with_models(img, relabelled, plant_gmm, background_gmm)
 
 

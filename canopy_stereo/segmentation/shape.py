@@ -225,3 +225,51 @@ def grounded_solids(smooth: np.ndarray, contact: np.ndarray, *, min_pixels: int)
     touching[np.unique(lab[contact & smooth])] = True
     touching[0] = False
     return (touching & (sizes >= min_pixels))[lab]
+
+
+def edge_density(image_bgr: np.ndarray, radius: int, *, low: int = 40, high: int = 100) -> np.ndarray:
+    """Fraction of Canny edge pixels (thresholds ``low``, ``high`` on the grey image) in each
+    (2 radius + 1)^2 window: the texture energy of foliage (many leaf outlines and veins)
+    against the plain surfaces of pots, cans and boxes."""
+    grey = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY) if image_bgr.ndim == 3 else image_bgr
+    edges = (cv2.Canny(grey, low, high) > 0).astype(np.float32)
+    return cv2.boxFilter(edges, cv2.CV_32F, (2 * radius + 1, 2 * radius + 1), borderType=cv2.BORDER_REFLECT)
+
+
+def attached_parts(solids: np.ndarray, q: np.ndarray, allowed: np.ndarray, *, jump: float,
+                   reach: int) -> np.ndarray:
+    """Pixels reached from ``solids`` through ``allowed`` pixels without a depth jump above
+    ``jump`` between 4-neighbours, within ``reach`` steps: the handle, spout and rim of a
+    solid object, thin themselves but continuous with its body."""
+    out = solids.copy()
+    qf = np.where(np.isfinite(q), q, np.nan)
+    frontier = solids.copy()
+    for _ in range(int(reach)):
+        grown = np.zeros_like(frontier)
+        for dv, du in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+            src = np.roll(frontier, (dv, du), axis=(0, 1))
+            qs = np.roll(qf, (dv, du), axis=(0, 1))
+            with np.errstate(invalid="ignore"):
+                grown |= src & (np.abs(qs - qf) <= jump)
+        grown &= allowed & ~out
+        if not grown.any():
+            break
+        out |= grown
+        frontier = grown
+    return out
+
+
+def caps(solids: np.ndarray, *, fraction: float = 0.3) -> np.ndarray:
+    """The band above each column of each solid region, ``fraction`` of the region's width
+    high: where the soil in a pot (or whatever lies on the object) is seen."""
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(solids.astype(np.uint8), connectivity=8)
+    out = np.zeros(solids.shape, bool)
+    rows = np.arange(solids.shape[0])[:, None]
+    for i in range(1, n):
+        x, w = stats[i, cv2.CC_STAT_LEFT], stats[i, cv2.CC_STAT_WIDTH]
+        part = lab[:, x:x + w] == i
+        has = part.any(axis=0)
+        top = np.where(has, part.argmax(axis=0), solids.shape[0])
+        band = max(2, int(fraction * w))
+        out[:, x:x + w] |= (rows < top[None, :]) & (rows >= top[None, :] - band) & has[None, :]
+    return out
