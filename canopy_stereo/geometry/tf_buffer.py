@@ -130,7 +130,7 @@ class TransformBuffer:
     def _link_at(self, child: str, stamp_ns: int) -> np.ndarray:
         """``T_parent_child`` of one link at ``stamp_ns`` (0 = its latest)."""
         link = self._links[child]
-        if link.static:
+        if link.T_static is not None:  # a static link
             return link.T_static
         stamps = link.stamps
         if stamp_ns == 0:

@@ -22,8 +22,7 @@ import pytest
 pytest.importorskip("rclpy")
 
 from canopy_stereo.geometry.frames import pose_matrix, pose_values  # noqa: E402
-from canopy_stereo.geometry.transforms import (invert_transform, make_transform,  # noqa: E402
-                                               rotation_about_axis, transform_points)
+from canopy_stereo.geometry.transforms import invert_transform, make_transform, rotation_about_axis, transform_points  # noqa: E402
 from test.support.build_tf2_msgs import environment  # noqa: E402
 from test.support.ros_harness import REPO, Probe, wait_for  # noqa: E402
 

@@ -21,8 +21,7 @@ pytest.importorskip("rclpy")
 
 from canopy_stereo.geometry.frames import pose_values  # noqa: E402
 from canopy_stereo.geometry.tf_buffer import TransformBuffer  # noqa: E402
-from canopy_stereo.geometry.transforms import (make_transform, rotation_about_axis,  # noqa: E402
-                                               transform_points)
+from canopy_stereo.geometry.transforms import make_transform, rotation_about_axis, transform_points  # noqa: E402
 from test.support.ros_harness import REPO, Probe, wait_for  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -35,7 +34,7 @@ MOUNTS = {
 
 def _recorded(path):
     """``(topics, static transforms [(parent, child, T)], points2 by stamp, frame of points2)``."""
-    from canopy_stereo.ros.bag import BagReader
+    from canopy_stereo.bag import BagReader
     from canopy_stereo.ros.convert import cloud2_to_points, stamp_to_ns
     from canopy_stereo.ros.tf import parse_tf_message
 
