@@ -63,33 +63,30 @@ def test_two_rigs_side_by_side_on_one_robot(ros_processes, tmp_path):
                             "--frame-prefix", f"{ns}/", "--parent-frame", "base_link",
                             "--mount", *pose_values(T), "--record", tmp_path / f"{ns}.mcap")
             for ns, T in MOUNTS.items()}
-        seen_nodes = set()
-
-        def both_running():
-            seen_nodes.update(f"{ns.rstrip('/')}/{n}" for n, ns in probe.node.get_node_names_and_namespaces())
-            return all(f"/{ns}/rectify_node" in seen_nodes for ns in MOUNTS)
-
-        wait_for(both_running, 60.0)
         assert wait_for(lambda: not any(g.alive() for g in graphs.values()), 240.0), group.logs()
         codes = {ns: g.stop() for ns, g in graphs.items()}
         with diagnostics.lock:
-            arrays = [deserialize_message(d, DiagnosticArray) for _, _, d in diagnostics.items]
+            arrays = [(t, deserialize_message(d, DiagnosticArray)) for t, _, d in diagnostics.items]
     finally:
         probe.close()
     assert codes == {"rig_a": 0, "rig_b": 0}, group.logs()
-    # both graphs were up at once, each node once per namespace
-    for node in ("rectify_node", "disparity_node", "segment_node", "point_cloud_node"):
-        assert {f"/rig_a/{node}", f"/rig_b/{node}"} <= seen_nodes, sorted(seen_nodes)
-    names = {st.name for a in arrays for st in a.status}
-    assert any(n.startswith("rig_a/rectify_node") for n in names), names
-    assert any(n.startswith("rig_b/rectify_node") for n in names), names
-    assert not any(n.startswith("rectify_node") for n in names)  # no status name both rigs share
+    # both graphs ran at once, every node once per namespace, no status name shared
+    statuses = [(t, st) for t, a in arrays for st in a.status]
+    ids = {st.hardware_id for _, st in statuses}
+    for node in ("rectify_node", "disparity_node", "point_cloud_node"):
+        assert {f"/rig_a/{node}", f"/rig_b/{node}"} <= ids, sorted(ids)
+    names = {st.name for _, st in statuses}
+    assert {"rig_a/rectify_node: pipeline", "rig_b/rectify_node: pipeline"} <= names, sorted(names)
+    assert not any(n.startswith("rectify_node") for n in names)
+    spans = {ns: [t for t, st in statuses if st.hardware_id.startswith(f"/{ns}/")] for ns in MOUNTS}
+    assert max(min(v) for v in spans.values()) < min(max(v) for v in spans.values()), "not side by side"
 
     rec = {ns: _recorded(tmp_path / f"{ns}.mcap") for ns in MOUNTS}
     # each recording: only its own rig's topics
     for ns, (topics, _, clouds, frames) in rec.items():
         assert topics - {"/tf_static"} and all(t.startswith(f"/{ns}/") for t in topics - {"/tf_static"}), topics
-        assert f"/{ns}/points2" in topics and len(clouds) == 4 and frames == {f"{ns}/canopy_world"}
+        assert f"/{ns}/points2" in topics and len(clouds) == 4 and frames == {f"{ns}/canopy_world"}, (
+            sorted(topics), len(clouds), frames, group.logs())
     # the union of /tf_static: one tree, no frame twice, rooted at base_link
     union = rec["rig_a"][1] + rec["rig_b"][1]
     children = [c for _, c, _ in union]
