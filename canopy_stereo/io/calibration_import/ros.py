@@ -22,6 +22,7 @@ import numpy as np
 import yaml
 
 from canopy_stereo.errors import CalibrationError
+from canopy_stereo.geometry.frames import CameraCalibration
 from canopy_stereo.io.calibration_import.stereo import (CameraIntrinsics, distortion, image_size, intrinsics,
                                                         matrix, rig_from_cameras, rotation, unknown_field)
 
@@ -210,6 +211,60 @@ def rig_from_ros(cams: list[_RosCamera], *, unit: str = ROS_UNIT):
     R = right.R.T @ left.R
     T = right.R.T @ t
     return rig_from_cameras(left.cam, right.cam, R, T, unit=unit, source=source)
+
+
+def calibration_of(camera: _RosCamera) -> CameraCalibration:
+    """A camera_info file's camera as a :class:`~canopy_stereo.geometry.frames.CameraCalibration`."""
+    w, h = camera.cam.size
+    return CameraCalibration(width=w, height=h, K=camera.cam.K, D=camera.cam.D, R=camera.R, P=camera.P,
+                             distortion_model=camera.cam.model)
+
+
+def load_camera_info_yaml(path) -> tuple[CameraCalibration, str]:
+    """``(calibration, camera_name)`` of a camera_info YAML file (camera_calibration_parsers'
+    format, as ``camera_info_url`` names); :class:`CalibrationError` (one line) when bad."""
+    camera = read_camera_info_yaml(path)
+    return calibration_of(camera), camera.name
+
+
+def camera_info_yaml(calibration: CameraCalibration, camera_name: str) -> str:
+    """The camera_info YAML text of ``calibration`` (camera_calibration_parsers' layout)."""
+    c = calibration
+
+    def block(name, a):
+        a = np.asarray(a, np.float64)
+        rows, cols = (1, a.size) if a.ndim == 1 else a.shape
+        return {name: {"rows": int(rows), "cols": int(cols), "data": [float(v) for v in a.ravel()]}}
+    doc = {"image_width": int(c.width), "image_height": int(c.height), "camera_name": str(camera_name),
+           **block("camera_matrix", c.K), "distortion_model": c.distortion_model,
+           **block("distortion_coefficients", c.D), **block("rectification_matrix", c.R),
+           **block("projection_matrix", c.P)}
+    return yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=200)
+
+
+def _camera_of(c: CameraCalibration, name: str, where: str) -> _RosCamera:
+    model = c.distortion_model or None
+    D = distortion(c.D, model, where, "D")
+    model = model or ("plumb_bob" if D.size <= 5 else "rational_polynomial")
+    cam = CameraIntrinsics(K=intrinsics(c.K, where, "K"), D=D, model=model,
+                           size=image_size(c.width, c.height, where))
+    return _RosCamera(cam, rotation(c.R, where, "R"), matrix(c.P, (3, 4), where, "P"), name, where)
+
+
+def checked_calibration(calibration: CameraCalibration, *, source: str) -> CameraCalibration:
+    """``calibration`` (e.g. from a ``CameraInfo`` message) checked as a file's would be
+    (camera matrix, rotation, coefficients for the model, size); :class:`CalibrationError`
+    naming ``source`` otherwise."""
+    return calibration_of(_camera_of(calibration, "", source))
+
+
+def rig_from_camera_infos(left: CameraCalibration, right: CameraCalibration, *, source: str,
+                          unit: str = ROS_UNIT):
+    """The rig of a stereo pair's two raw camera infos (a driver's calibration, REP 104; world
+    frame = the left camera's optical frame, metres); :class:`CalibrationError` when they are
+    not one stereo calibration."""
+    return rig_from_ros([_camera_of(left, "left", f"{source} left"), _camera_of(right, "right", f"{source} right")],
+                        unit=unit)
 
 
 def import_ros_yaml(paths, *, unit: str | None = None):

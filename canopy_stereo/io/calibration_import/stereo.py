@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from canopy_stereo.errors import CalibrationError, RigError
-from canopy_stereo.geometry.distortion import check_distortion
+from canopy_stereo.geometry.distortion import check_distortion, distortion_is_identity
 from canopy_stereo.geometry.rig import Rig, unit_to_metres
 
 #: Largest deviation of ``R^T R`` from the identity accepted as a rotation (files round to
@@ -135,7 +135,9 @@ def rig_from_cameras(left: CameraIntrinsics, right: CameraIntrinsics, R, T, *, u
     P_left = left.K @ np.hstack([np.eye(3), np.zeros((3, 1))])
     P_right = right.K @ np.hstack([R, T.reshape(3, 1)])
     model = "equidistant" if left.model == "equidistant" else None
-    Dl, Dr = left.D, right.D
+    # a zero distortion written in another form (k1..k3 == k4..k6, as our camera infos do) is zeros
+    Dl, Dr = (np.zeros(5) if model is None and distortion_is_identity(c.D, model=c.model) else c.D
+              for c in (left, right))
     if model is None and Dl.size != Dr.size:  # one OpenCV coefficient vector length for both
         n = max(Dl.size, Dr.size, 5)
         Dl, Dr = (np.concatenate([d, np.zeros(n - d.size)]) for d in (Dl, Dr))
