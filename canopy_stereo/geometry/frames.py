@@ -167,7 +167,7 @@ def camera_info_distortion(D, model: str | None, R) -> tuple[np.ndarray, str]:
     return np.array(ZERO_DISTORTION_RECTIFIABLE), "rational_polynomial"
 
 
-def stereo_info_frame(names: "FrameNames", kind: str) -> str:
+def stereo_info_frame(names: FrameNames, kind: str) -> str:
     """Frame id of BOTH ``CameraInfos`` (and images) of a pair: the left camera's
     (``kind`` ``"raw"`` or ``"rect"``), as image_geometry's ``StereoCameraModel`` requires."""
     return names.raw_left if kind == "raw" else names.rect_left

@@ -93,8 +93,8 @@ def write_stereo_bag(path, frames, *, truth_depths=None, compression: str = "zst
         metadata, rig: optional ``canopy_stereo`` KEY=VALUE metadata and rig, stored
             as the bag's metadata records (:mod:`canopy_stereo.bag.metadata`).
     """
-    from canopy_stereo.bag.metadata import recording_metadata
     from canopy_stereo.bag import BagWriter
+    from canopy_stereo.bag.metadata import recording_metadata
     from canopy_stereo.ros.convert import image_to_msg
 
     frame = RAW_FRAME
@@ -161,8 +161,8 @@ def make_plants(bag_path, rig_path, scene_folder) -> tuple[Path, Path]:
     """Write the Middlebury 2014 Plants pair as a one-frame bag and its rig file
     (world frame = left camera, millimetres; disparity range from ``ndisp``)."""
     from canopy_stereo.geometry.rectification import fusiello_rectify
-    from canopy_stereo.io.middlebury import read_middlebury_calib, rig_from_middlebury
     from canopy_stereo.io.images import read_image
+    from canopy_stereo.io.middlebury import read_middlebury_calib, rig_from_middlebury
 
     folder = Path(scene_folder)
     calib = read_middlebury_calib(folder / "calib.txt")

@@ -14,8 +14,14 @@ from canopy_stereo.geometry.rig import Rig
 from canopy_stereo.io.calibration_import import import_calibration
 from canopy_stereo.io.rig import load_rig
 from test.conftest import run_cli_subprocess
-from test.support.calibration_files import (verged_rig, write_kalibr, write_middlebury, write_opencv, write_ros_ini,
-                                            write_ros_yaml)
+from test.support.calibration_files import (
+    verged_rig,
+    write_kalibr,
+    write_middlebury,
+    write_opencv,
+    write_ros_ini,
+    write_ros_yaml,
+)
 
 PLUMB_BOB = ([-0.21, 0.08, 0.0011, -0.0007, -0.015], [-0.18, 0.05, -0.0006, 0.0009, 0.01])
 RATIONAL = ([-0.30, 0.11, 0.0011, -0.0007, 0.02, 0.05, 0.01, 0.003],

@@ -33,10 +33,10 @@ pytest.importorskip("rosbags")
 
 from sensor_msgs.msg import Image  # noqa: E402
 
+from canopy_stereo.bag import BagReader, BagWriter  # noqa: E402
 from canopy_stereo.geometry.frames import raw_camera_calibration  # noqa: E402
 from canopy_stereo.io.rig import load_rig  # noqa: E402
 from canopy_stereo.ros import convert  # noqa: E402
-from canopy_stereo.bag import BagReader, BagWriter  # noqa: E402
 from canopy_stereo.ros.bundled import bundled_bag, bundled_rig  # noqa: E402
 from canopy_stereo.ros.graph import GraphOptions  # noqa: E402
 from canopy_stereo.ros.runner import run_bag  # noqa: E402

@@ -13,10 +13,10 @@ from rclpy.serialization import deserialize_message  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 from stereo_msgs.msg import DisparityImage  # noqa: E402
 
+from canopy_stereo.bag import BagReader  # noqa: E402
 from canopy_stereo.geometry.rectification import fusiello_rectify  # noqa: E402
 from canopy_stereo.io.rig import load_rig  # noqa: E402
 from canopy_stereo.ros import convert  # noqa: E402
-from canopy_stereo.bag import BagReader  # noqa: E402
 from canopy_stereo.ros.bundled import (  # noqa: E402
     bundled_bag,
     bundled_rig,

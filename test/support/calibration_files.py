@@ -1,3 +1,4 @@
+# ruff: noqa: UP031 - the ROS writers below keep calibrator.py's own %-formatting, digit for digit
 """Calibration files written the way each tool writes them, from a known (true) rig.
 
 * ROS ``camera_calibration``: ``lryaml``/``lrost`` of image_pipeline's calibrator.py (its
@@ -104,7 +105,8 @@ def write_kalibr(rig: Rig, folder) -> list[Path]:
 
     def cam(K, D, topic):
         return {"camera_model": "pinhole", "distortion_coeffs": [float(v) for v in np.asarray(D)[:4]],
-                "distortion_model": model, "intrinsics": [float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])],
+                "distortion_model": model,
+                "intrinsics": [float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])],
                 "resolution": list(rig.image_size), "rostopic": topic}
     doc = {"cam0": {"cam_overlaps": [1], **cam(K1, D1, "/cam0/image_raw")},
            "cam1": {"T_cn_cnm1": [[float(v) for v in row] for row in Tm], "cam_overlaps": [0],
@@ -117,8 +119,8 @@ def write_kalibr(rig: Rig, folder) -> list[Path]:
 def write_opencv(rig: Rig, folder, ext: str = "yml") -> list[Path]:
     """The stereo_calib sample's two files (intrinsics + extrinsics), ``ext`` yml or xml."""
     K1, D1, K2, D2, R, T = stereo_parts(rig)
-    R1, R2, P1, P2, Q, *_ = cv2.stereoRectify(K1, np.asarray(D1), K2, np.asarray(D2), rig.image_size, R, T.reshape(3, 1),
-                                              flags=cv2.CALIB_ZERO_DISPARITY, alpha=-1)
+    R1, R2, P1, P2, Q, *_ = cv2.stereoRectify(K1, np.asarray(D1), K2, np.asarray(D2), rig.image_size, R,
+                                              T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=-1)
     folder = Path(folder)
     paths = [folder / f"intrinsics.{ext}", folder / f"extrinsics.{ext}"]
     fs = cv2.FileStorage(str(paths[0]), cv2.FILE_STORAGE_WRITE)

@@ -14,8 +14,16 @@ import numpy as np
 import yaml
 
 from canopy_stereo.errors import CalibrationError
-from canopy_stereo.io.calibration_import.stereo import (CameraIntrinsics, distortion, image_size, intrinsics,
-                                                        matrix, rig_from_cameras, rotation, unknown_field)
+from canopy_stereo.io.calibration_import.stereo import (
+    CameraIntrinsics,
+    distortion,
+    image_size,
+    intrinsics,
+    matrix,
+    rig_from_cameras,
+    rotation,
+    unknown_field,
+)
 
 CAMERA_FIELDS = ("camera_model", "intrinsics", "distortion_model", "distortion_coeffs", "resolution",
                  "T_cn_cnm1", "T_cam_imu", "cam_overlaps", "rostopic", "timeshift_cam_imu",

@@ -9,8 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from canopy_stereo.errors import CalibrationError
-from canopy_stereo.io.calibration_import.stereo import (CameraIntrinsics, image_size, intrinsics,
-                                                        rig_from_cameras)
+from canopy_stereo.io.calibration_import.stereo import CameraIntrinsics, image_size, intrinsics, rig_from_cameras
 
 FIELDS = ("cam0", "cam1", "doffs", "baseline", "width", "height", "ndisp", "isint", "vmin", "vmax",
           "dyavg", "dymax")

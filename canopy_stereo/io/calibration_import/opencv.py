@@ -12,13 +12,22 @@ both (their fields are merged). FileStorage keeps no image size unless the write
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 
 from canopy_stereo.errors import CalibrationError
-from canopy_stereo.io.calibration_import.stereo import (CameraIntrinsics, distortion, image_size, intrinsics,
-                                                        matrix, rig_from_cameras, rotation, unknown_field)
+from canopy_stereo.io.calibration_import.stereo import (
+    CameraIntrinsics,
+    distortion,
+    image_size,
+    intrinsics,
+    matrix,
+    rig_from_cameras,
+    rotation,
+    unknown_field,
+)
 
 REQUIRED = ("M1", "D1", "M2", "D2", "R", "T")
 OPTIONAL = ("R1", "R2", "P1", "P2", "Q", "E", "F", "image_width", "image_height", "imageSize", "image_size",
@@ -40,7 +49,7 @@ def read_filestorage(path) -> dict:
         if not fs.isOpened():
             raise CalibrationError(f"{path} is not an OpenCV FileStorage file (YAML or XML)")
         root = fs.root()
-        out = {}
+        out: dict[str, Any] = {}
         for name in root.keys():
             node = fs.getNode(name)
             if node.isString():
@@ -113,6 +122,9 @@ def _check_rectification(fields: dict, R, T, source: str) -> None:
     P1, P2 = matrix(fields["P1"], (3, 4), source, "P1"), matrix(fields["P2"], (3, 4), source, "P2")
     if not (P2[0, 0] > 0 and P2[1, 1] > 0):
         raise CalibrationError(f"{source}: P2 has no focal length")
+    if not np.allclose(P1[:, :3], P2[:, :3], rtol=1e-6, atol=1e-6) or np.any(P1[:, 3]):
+        raise CalibrationError(f"{source}: P1 and P2 are not one rectified pair (different intrinsics, "
+                               "or P1 has a baseline)")
     # the rectified right camera sits at R1 C_right in the rectified frame: P2's (Tx, Ty) / f
     t_rect = np.array([P2[0, 3] / P2[0, 0], P2[1, 3] / P2[1, 1], P2[2, 3]])
     want = R2 @ T

@@ -23,8 +23,16 @@ import yaml
 
 from canopy_stereo.errors import CalibrationError
 from canopy_stereo.geometry.frames import CameraCalibration
-from canopy_stereo.io.calibration_import.stereo import (CameraIntrinsics, distortion, image_size, intrinsics,
-                                                        matrix, rig_from_cameras, rotation, unknown_field)
+from canopy_stereo.io.calibration_import.stereo import (
+    CameraIntrinsics,
+    distortion,
+    image_size,
+    intrinsics,
+    matrix,
+    rig_from_cameras,
+    rotation,
+    unknown_field,
+)
 
 YAML_FIELDS = ("image_width", "image_height", "camera_name", "camera_matrix", "distortion_model",
                "distortion_coefficients", "rectification_matrix", "projection_matrix")
@@ -103,7 +111,10 @@ def read_ost_ini(path) -> list[_RosCamera]:
     source = str(path)
     cams: list[_RosCamera] = []
     size = None
-    section, fields, key, rows = None, {}, None, []
+    section: str | None = None
+    key: str | None = None
+    fields: dict[str, list[list[float]]] = {}
+    rows: list[list[float]] = []
 
     def close_key():
         nonlocal key, rows
