@@ -108,7 +108,8 @@ def test_rectify_node_pairs_by_approximate_time_and_publishes_ros_camera_info(ha
     assert PL[0, 2] - PR[0, 2] == pytest.approx(rect.doffs) == 0.0  # one principal point
     assert (info_l[0].width, info_l[0].height) == (640, 480)
     assert info_l[0].header.frame_id == color[0].header.frame_id == "left_camera_rect_optical_frame"
-    assert info_r[0].header.frame_id == rect_r[0].header.frame_id == "right_camera_rect_optical_frame"
+    # one frame for the pair (image_geometry's StereoCameraModel asserts it): the left one
+    assert info_r[0].header.frame_id == rect_r[0].header.frame_id == "left_camera_rect_optical_frame"
     assert driver_info == []
     assert node.stats()["drops"] == {}
 
