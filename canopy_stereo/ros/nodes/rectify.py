@@ -21,7 +21,10 @@ frame's stamp:
 * ``/tf_static`` (latched, when tf2_msgs is importable): ``canopy_world_z_up ->
   canopy_world -> {left,right}_camera_optical_frame, {left,right}_camera_rect_optical_frame``.
 
-Parameters: the rig (:mod:`canopy_stereo.ros.params`), ``method`` (empty = the rig's),
+Parameters: the rig (:mod:`canopy_stereo.ros.params`), or ``use_camera_info`` (true: the rig
+from the drivers' ``left/camera_info`` and ``right/camera_info``, as image_pipeline takes it;
+frames before both arrive are dropped; :mod:`canopy_stereo.ros.camera_info_rig`),
+``method`` (empty = the rig's),
 ``H_left``/``H_right`` (unset = the rig's; the rectification is
 :func:`~canopy_stereo.geometry.rig_rectification.rectification_for_rig`'s), ``fps`` (the cameras' frame rate, 0 = measured from the
 stamps), ``sync_slop`` (s; -1 = half a frame period at ``fps``), ``queue_size``,
@@ -110,9 +113,10 @@ class RectifyNode(CanopyNode):
                             minimum=1, maximum=100, read_only=True)
         for name, (default, desc) in _FRAME_PARAMETERS.items():
             self.declare_text(name, default, desc, read_only=True)
-        self.rig = rig_from_node(self)
-        self.rect = rectification_from_node(self, self.rig)
-        self.rectifier = StereoRectifier(self.rig, self.rect)
+        self.declare_flag("use_camera_info", False, "take the rig from the drivers' left/camera_info and "
+                          "right/camera_info (REP 104, as image_pipeline does) instead of a rig file",
+                          read_only=True)
+        self.rig = None
         p = {name: str(self.get_parameter(name).value) for name in _FRAME_PARAMETERS}
         self.frames = FrameNames(world=p["world_frame"], world_z_up=p["world_z_up_frame"],
                                  raw_left=p["left_camera_frame"], raw_right=p["right_camera_frame"],
@@ -136,13 +140,25 @@ class RectifyNode(CanopyNode):
         self.pub_color = self.make_publisher(Image, "left/image_rect_color")
         self.pub_info_left = self.make_publisher(CameraInfo, RECT_INFO_TOPICS[0])
         self.pub_info_right = self.make_publisher(CameraInfo, RECT_INFO_TOPICS[1])
-        # geometry for the nodes downstream and the static transforms, once, latched
         self.pub_geometry = self.create_publisher(String, STEREO_GEOMETRY_TOPIC, latched_qos())
+        self.sub_left = self.make_subscription(Image, "left/image_raw", lambda m: self._on_image(0, m))
+        self.sub_right = self.make_subscription(Image, "right/image_raw", lambda m: self._on_image(1, m))
+        if self.get_parameter("use_camera_info").value:
+            from canopy_stereo.ros.camera_info_rig import CameraInfoRig
+
+            self.camera_info_rig = CameraInfoRig(self, self.guarded(self._use_rig))
+            self.get_logger().info("waiting for left/camera_info and right/camera_info (the rig)")
+        else:
+            self._use_rig(rig_from_node(self))
+
+    def _use_rig(self, rig) -> None:
+        """Rectify with ``rig`` from now on; publish its geometry and static transforms (latched)."""
+        self.rect = rectification_from_node(self, rig)
+        self.rectifier = StereoRectifier(rig, self.rect)
+        self.rig = rig
         self.pub_geometry.publish(stereo_geometry_msg(self.rig, self.rect, self.frames))
         self.transforms = stereo_transforms(self.rig, self.rect, names=self.frames)
         self.tf_static = StaticTransformPublisher(self, self.transforms)
-        self.sub_left = self.make_subscription(Image, "left/image_raw", lambda m: self._on_image(0, m))
-        self.sub_right = self.make_subscription(Image, "right/image_raw", lambda m: self._on_image(1, m))
         if self.rect.method != "fusiello":
             self.get_logger().info("hartley rectification: the rectified camera_info is uncalibrated "
                                    "(a projective rectification has no metric camera)")
@@ -157,6 +173,9 @@ class RectifyNode(CanopyNode):
     def _on_image(self, side: int, msg: Image) -> None:
         name = ("left", "right")[side]
         self.count(f"{name}_received")
+        if self.rig is None:
+            self.drop("no rig yet (waiting for left/camera_info and right/camera_info)", f"{name} frame")
+            return
         try:
             check_image_msg(msg, expected_size=self.rig.image_size, encodings=COLOUR_ENCODINGS)
             bgr = msg_to_bgr(msg, expected_size=self.rig.image_size)
