@@ -93,8 +93,8 @@ def generate_launch_description():
         Node(package=PACKAGE, executable="camera_node", name=f"{side}_camera", namespace=ns,
              condition=UnlessCondition(use_bag),
              parameters=[rig, {"camera_name": side, "device": LaunchConfiguration(f"{side}_device"),
-                               "fps": fps, "frame_id": [prefix, f"{side}_camera_optical_frame"]}])
-        # rig: <side>/camera_info
+                               "fps": fps, "frame_id": [prefix, "left_camera_optical_frame"]}])
+        # rig: <side>/camera_info; both cameras in the left optical frame (one stereo frame, REP 104)
         for side in ("left", "right")
     ]
     loop = PythonExpression(["'", LaunchConfiguration("loop"), "'.lower() == 'true'"])

@@ -30,8 +30,8 @@ from dataclasses import dataclass, field
 from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
 
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.geometry.frames import DEFAULT_FRAMES
 from canopy_stereo.io.rig import Rig
+from canopy_stereo.ros.camera_info import default_camera_frame
 from canopy_stereo.ros.intra_process import IntraProcessBus
 from canopy_stereo.ros.params import parameters_from_dict, rig_parameter_overrides
 
@@ -162,7 +162,7 @@ class CanopyGraph:
                 for side, params in zip(("left", "right"), cameras):
                     values = {"camera_name": side, **common, **params}
                     if o.frame_prefix and "frame_id" not in values:
-                        values["frame_id"] = o.frame_prefix + DEFAULT_FRAMES[("raw", side)]
+                        values["frame_id"] = o.frame_prefix + default_camera_frame(side)
                     self._add(f"{side}_camera", CameraNode, values, rig_params=True)  # camera_info
             for name, cls in classes.items():
                 if name == "segment_node" and not (o.segment or o.use_mask):

@@ -17,7 +17,7 @@ import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor
 
 from canopy_stereo.errors import RigError
-from canopy_stereo.geometry.frames import FrameNames, mount_transform, prefixed_frames
+from canopy_stereo.geometry.frames import FrameNames, mount_transform, pose_matrix, prefixed_frames
 from canopy_stereo.io.rig import Rig
 
 #: parameter -> description
@@ -39,15 +39,22 @@ class Mounting:
 
     Attributes:
         parent_frame: robot frame ("" = none).
-        T_parent_world: (4, 4) the rig's world frame in ``parent_frame`` (metres).
+        mount, camera_mount: seven numbers each, or None (see the module docstring).
         publish_tf: whether the rig's frames go to ``/tf_static``.
         frame_prefix: prefix of the rig's frame ids.
     """
 
     parent_frame: str = ""
-    T_parent_world: np.ndarray | None = None
+    mount: tuple | None = None
+    camera_mount: tuple | None = None
     publish_tf: bool = True
     frame_prefix: str = ""
+
+    def transform(self, rig: Rig) -> np.ndarray | None:
+        """``T_parent_world`` (4x4, metres) for ``rig``, or None when not mounted."""
+        if not self.parent_frame:
+            return None
+        return mount_transform(rig, mount=self.mount, camera_mount=self.camera_mount)
 
 
 def declare_mount_parameters(node) -> None:
@@ -67,16 +74,21 @@ def _numbers(node, name):
     return list(value)
 
 
-def mount_from_node(node, rig: Rig) -> Mounting:
+def mount_from_node(node) -> Mounting:
     """The node's :class:`Mounting` (raises :class:`RigError` naming the bad parameter)."""
     parent = str(node.get_parameter("parent_frame").value or "")
     prefix = str(node.get_parameter("frame_prefix").value or "")
     mount, camera_mount = _numbers(node, "mount"), _numbers(node, "camera_mount")
     if (mount is not None or camera_mount is not None) and not parent:
         raise RigError("mount/camera_mount need parent_frame (the robot frame the rig is mounted on)")
+    if mount is not None and camera_mount is not None:
+        raise RigError("give the rig's mount or the left camera's mount (camera_mount), not both")
     if parent.startswith("/"):
         raise RigError(f"parent_frame must not start with '/' (tf2 frame ids do not), got {parent!r}")
-    prefixed_frames(FrameNames(), prefix)  # raises on a bad prefix, before anything is built
-    T = mount_transform(rig, mount=mount, camera_mount=camera_mount) if parent else None
-    return Mounting(parent_frame=parent, T_parent_world=T, publish_tf=bool(node.get_parameter("publish_tf").value),
-                    frame_prefix=prefix)
+    prefixed_frames(FrameNames(), prefix)  # raise on a bad prefix before anything is built
+    for name, values in (("mount", mount), ("camera_mount", camera_mount)):
+        if values is not None:
+            pose_matrix(values, name=name)
+    return Mounting(parent_frame=parent, mount=None if mount is None else tuple(mount),
+                    camera_mount=None if camera_mount is None else tuple(camera_mount),
+                    publish_tf=bool(node.get_parameter("publish_tf").value), frame_prefix=prefix)

@@ -9,7 +9,9 @@ frame's stamp:
 * ``left/image_rect_color``: bgr8 rectified left image;
 * ``left/image_rect/camera_info``, ``right/image_rect/camera_info``: the rectified
   cameras (REP 104: ``D = 0``, ``R = I``, ``P = [K | (Tx, 0, 0)]``, ``Tx = -f B`` for the
-  right one, one principal point for both) in the rectified optical frames. They sit
+  right one, one principal point for both), both in the LEFT rectified optical frame
+  (``frame_id``), as the right rectified image: image_geometry's ``StereoCameraModel``
+  asserts one frame for the pair (``right_frame_id`` overrides it). They sit
   beside their images, away from ``left/camera_info``, which is the *raw* camera's
   (a camera driver's, e.g. ``camera_node``). A Hartley rectification is projective
   and has no metric camera: its infos are the uncalibrated ones (size only, zero
@@ -30,11 +32,16 @@ robot_state_publisher already own the camera frames: then nothing goes to ``/tf_
 ``stereo_geometry`` still carries the rig's transforms), ``frame_prefix`` (prepended to
 every frame the rig names, e.g. ``rig_a/``, so that two rigs share one TF tree).
 
-Parameters: the rig (:mod:`canopy_stereo.ros.params`), ``method`` (empty = the rig's),
+Parameters: the rig (:mod:`canopy_stereo.ros.params`), or ``use_camera_info`` (true: the rig
+from the drivers' ``left/camera_info`` and ``right/camera_info``, as image_pipeline takes it;
+frames before both arrive are dropped; :mod:`canopy_stereo.ros.camera_info_rig`),
+``method`` (empty = the rig's),
 ``H_left``/``H_right`` (unset = the rig's; the rectification is
-:func:`~canopy_stereo.geometry.rig_rectification.rectification_for_rig`'s), ``fps`` (the cameras' frame rate, 0 = measured from the
-stamps), ``sync_slop`` (s; -1 = half a frame period at ``fps``), ``queue_size``,
-``frame_id`` (rectified left optical frame) and ``right_frame_id``, ``world_frame``,
+:func:`~canopy_stereo.geometry.rig_rectification.rectification_for_rig`'s), ``fps`` (the
+cameras' frame rate, 0 = measured from the stamps), ``sync_slop`` (s; -1 = half a frame
+period at ``fps``), ``queue_size``,
+``frame_id`` (rectified left optical frame) and ``right_frame_id`` ("" = ``frame_id`` in the
+messages, ``right_camera_rect_optical_frame`` in the transforms), ``world_frame``,
 ``world_z_up_frame`` ("" = none), ``left_camera_frame``/``right_camera_frame`` (raw
 optical frames in the transforms), the mounting parameters above, ``reliability``,
 ``diagnostic_period``.
@@ -60,6 +67,7 @@ from canopy_stereo.geometry.frames import (
     WORLD_Z_UP_FRAME,
     FrameNames,
     prefixed_frames,
+    stereo_info_frame,
     stereo_transforms,
 )
 from canopy_stereo.geometry.rectification import StereoRectifier
@@ -85,7 +93,9 @@ RECT_INFO_TOPICS = ("left/image_rect/camera_info", "right/image_rect/camera_info
 _FRAME_PARAMETERS = {
     "frame_id": (DEFAULT_FRAMES[("rect", "left")], "optical frame of the rectified left camera "
                  "(rectified images, disparity, depth)"),
-    "right_frame_id": (DEFAULT_FRAMES[("rect", "right")], "optical frame of the rectified right camera"),
+    "right_frame_id": ("", "frame of the right rectified image and camera_info ('' = frame_id: "
+                       "image_geometry needs one frame for a stereo pair; the right camera's own "
+                       f"frame is {DEFAULT_FRAMES[('rect', 'right')]} in /tf_static)"),
     "world_frame": (WORLD_FRAME, "the rig's world frame (the frame of the rig file's P, in metres)"),
     "world_z_up_frame": (WORLD_Z_UP_FRAME, "z-up view of the world frame for RViz ('' = none)"),
     "left_camera_frame": (DEFAULT_FRAMES[("raw", "left")], "optical frame of the raw left camera"),
@@ -118,17 +128,22 @@ class RectifyNode(CanopyNode):
                             minimum=1, maximum=100, read_only=True)
         for name, (default, desc) in _FRAME_PARAMETERS.items():
             self.declare_text(name, default, desc, read_only=True)
+        self.declare_flag("use_camera_info", False, "take the rig from the drivers' left/camera_info and "
+                          "right/camera_info (REP 104, as image_pipeline does) instead of a rig file",
+                          read_only=True)
         declare_mount_parameters(self)
-        self.rig = rig_from_node(self)
-        self.rect = rectification_from_node(self, self.rig)
-        self.rectifier = StereoRectifier(self.rig, self.rect)
+        self.rig = None
         p = {name: str(self.get_parameter(name).value) for name in _FRAME_PARAMETERS}
-        mounting = mount_from_node(self, self.rig)
+        self.mounting = mount_from_node(self)
         self.frames = prefixed_frames(FrameNames(
             world=p["world_frame"], world_z_up=p["world_z_up_frame"], raw_left=p["left_camera_frame"],
-            raw_right=p["right_camera_frame"], rect_left=p["frame_id"], rect_right=p["right_frame_id"],
-            parent=mounting.parent_frame), mounting.frame_prefix)
+            raw_right=p["right_camera_frame"], rect_left=p["frame_id"],
+            rect_right=p["right_frame_id"] or DEFAULT_FRAMES[("rect", "right")],
+            parent=self.mounting.parent_frame), self.mounting.frame_prefix)
         self.frame_id = self.frames.rect_left
+        #: frame ids of the left and right rectified messages (one, unless right_frame_id is set)
+        self.message_frames = (self.frame_id, self.frames.rect_right if p["right_frame_id"]
+                               else stereo_info_frame(self.frames, "rect"))
         slop = float(self.get_parameter("sync_slop").value)
         fps = float(self.get_parameter("fps").value)
         # sync_slop >= 0 is fixed; otherwise half a frame period, measured unless fps is given
@@ -144,21 +159,37 @@ class RectifyNode(CanopyNode):
         self.pub_color = self.make_publisher(Image, "left/image_rect_color")
         self.pub_info_left = self.make_publisher(CameraInfo, RECT_INFO_TOPICS[0])
         self.pub_info_right = self.make_publisher(CameraInfo, RECT_INFO_TOPICS[1])
-        # geometry for the nodes downstream and the static transforms, once, latched
         self.pub_geometry = self.create_publisher(String, STEREO_GEOMETRY_TOPIC, latched_qos())
-        #: the rig's transform tree ``[(parent, child, T_parent_child)]`` (metres), mount included
-        self.transforms = stereo_transforms(self.rig, self.rect, names=self.frames, mount=mounting.T_parent_world)
-        self.pub_geometry.publish(stereo_geometry_msg(self.rig, self.rect, self.frames,
-                                                      transforms=self.transforms))
-        #: what goes to /tf_static (and into recordings): nothing when the robot owns the frames
-        self.tf_transforms = self.transforms if mounting.publish_tf else []
-        self.tf_static = StaticTransformPublisher(self, self.tf_transforms)
         self.sub_left = self.make_subscription(Image, "left/image_raw", lambda m: self._on_image(0, m))
         self.sub_right = self.make_subscription(Image, "right/image_raw", lambda m: self._on_image(1, m))
+        #: the rig's transform tree ``[(parent, child, T_parent_child)]`` (metres), mount included,
+        #: and what of it goes to /tf_static and into recordings (nothing when the robot owns the
+        #: frames); empty until the rig is known
+        self.transforms: list = []
+        self.tf_transforms: list = []
+        if self.get_parameter("use_camera_info").value:
+            from canopy_stereo.ros.camera_info_rig import CameraInfoRig
+
+            self.camera_info_rig = CameraInfoRig(self, self.guarded(self._use_rig))
+            self.get_logger().info("waiting for left/camera_info and right/camera_info (the rig)")
+        else:
+            self._use_rig(rig_from_node(self))
+
+    def _use_rig(self, rig) -> None:
+        """Rectify with ``rig`` from now on; publish its geometry and static transforms (latched)."""
+        self.rect = rectification_from_node(self, rig)
+        self.rectifier = StereoRectifier(rig, self.rect)
+        self.rig = rig
+        self.transforms = stereo_transforms(self.rig, self.rect, names=self.frames,
+                                            mount=self.mounting.transform(rig))
+        self.pub_geometry.publish(stereo_geometry_msg(self.rig, self.rect, self.frames,
+                                                      transforms=self.transforms))
+        self.tf_transforms = self.transforms if self.mounting.publish_tf else []
+        self.tf_static = StaticTransformPublisher(self, self.tf_transforms)
         if self.rect.method != "fusiello":
             self.get_logger().info("hartley rectification: the rectified camera_info is uncalibrated "
                                    "(a projective rectification has no metric camera)")
-        if not mounting.publish_tf:
+        if not self.mounting.publish_tf:
             self.get_logger().info("publish_tf is false: no /tf_static (the robot's URDF owns the frames "
                                    f"{', '.join(c for _, c, _ in self.transforms)})")
         elif not self.tf_static.available:
@@ -172,6 +203,9 @@ class RectifyNode(CanopyNode):
     def _on_image(self, side: int, msg: Image) -> None:
         name = ("left", "right")[side]
         self.count(f"{name}_received")
+        if self.rig is None:
+            self.drop("no rig yet (waiting for left/camera_info and right/camera_info)", f"{name} frame")
+            return
         try:
             check_image_msg(msg, expected_size=self.rig.image_size, encodings=COLOUR_ENCODINGS)
             bgr = msg_to_bgr(msg, expected_size=self.rig.image_size)
@@ -205,7 +239,7 @@ class RectifyNode(CanopyNode):
 
     def camera_infos(self, stamp_ns: int) -> tuple[CameraInfo, CameraInfo]:
         """The rectified ``CameraInfo`` pair stamped ``stamp_ns``."""
-        fl, fr = self.frames.rect_left, self.frames.rect_right
+        fl, fr = self.message_frames
         if self.rect.K_rect_left is None:
             return (uncalibrated_camera_info(self.rect.size, stamp_ns, frame_id=fl),
                     uncalibrated_camera_info(self.rect.size, stamp_ns, frame_id=fr))
@@ -231,7 +265,7 @@ class RectifyNode(CanopyNode):
         info_l, info_r = self.camera_infos(stamp_ns)
         self.pub_info_left.publish(info_l)
         self.pub_info_right.publish(info_r)
-        fl, fr = self.frames.rect_left, self.frames.rect_right
+        fl, fr = self.message_frames
         self.pub_color.publish(image_to_msg(left_r, "bgr8", stamp_ns=stamp_ns, frame_id=fl))
         self.pub_left.publish(image_to_msg(to_gray(left_r), "mono8", stamp_ns=stamp_ns, frame_id=fl))
         self.pub_right.publish(image_to_msg(to_gray(right_r), "mono8", stamp_ns=stamp_ns, frame_id=fr))
