@@ -135,7 +135,8 @@ def calibrate_stereo_chessboard(left_images, right_images, *, pattern=(9, 6), sq
         A :class:`StereoCalibration` with ``P``/``D`` per camera, the stereo
         RMS (``rms_stereo``, pixels) and the corner triangulation check.
     """
-    views = detect_stereo_chessboards(left_images, right_images, pattern=pattern, square_size=square_size, progress=progress)
+    views = detect_stereo_chessboards(left_images, right_images, pattern=pattern, square_size=square_size,
+                                      progress=progress)
     obj = [views.object_points.astype(np.float32).reshape(-1, 1, 3)] * len(views.left)
     il = [c.astype(np.float32).reshape(-1, 1, 2) for c in views.left]
     ir = [c.astype(np.float32).reshape(-1, 1, 2) for c in views.right]

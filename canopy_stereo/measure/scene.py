@@ -175,7 +175,8 @@ def measure_scene(organized, leaf_ids=None, *, mask=None, ground="auto", unit: s
         else:
             background_mask = None if plant is None else (finite & ~plant)
             viewpoint = None if P is None else camera_centre(P)
-            kept = clean_canopy(organized, plant_valid, background=background_mask, viewpoint=viewpoint, all_plant=all_plant)
+            kept = clean_canopy(organized, plant_valid, background=background_mask, viewpoint=viewpoint,
+                                all_plant=all_plant)
             rest_pts = drop_isolated_points(median_along_rays(organized, kept, viewpoint)
                                             if viewpoint is not None else organized[kept])
     canopy_pts = np.concatenate(leaf_surfaces + [rest_pts])

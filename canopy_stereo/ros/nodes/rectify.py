@@ -21,7 +21,8 @@ frame's stamp:
 
 Parameters: the rig (:mod:`canopy_stereo.ros.params`), ``method`` (empty = the rig's),
 ``H_left``/``H_right`` (unset = the rig's; the rectification is
-:func:`~canopy_stereo.geometry.rig_rectification.rectification_for_rig`'s), ``fps`` (the cameras' frame rate, 0 = measured from the
+:func:`~canopy_stereo.geometry.rig_rectification.rectification_for_rig`'s), ``fps`` (the cameras' frame rate, 0 =
+measured from the
 stamps), ``sync_slop`` (s; -1 = half a frame period at ``fps``), ``queue_size``,
 ``frame_id`` (rectified left optical frame) and ``right_frame_id``, ``world_frame``,
 ``world_z_up_frame`` ("" = none), ``left_camera_frame``/``right_camera_frame`` (raw
