@@ -116,6 +116,7 @@ def detect_stereo_chessboards(left_images, right_images, *, pattern=(9, 6), squa
     if len(lefts) < 3:
         raise CalibrationError(
             f"the {pattern[0]}x{pattern[1]} board was found in only {len(lefts)} pair(s); need at least 3")
+    assert size is not None  # set by the first pair
     return ChessboardViews(obj, lefts, rights, names, size)
 
 

@@ -101,7 +101,7 @@ class MaskPropagator:
 
     def reset(self) -> None:
         """Forget the models: the next frame is cut in full."""
-        self._models = None  # (plant, background) ColourGMM
+        self._models: tuple | None = None  # (plant, background) ColourGMM
         self._since_full = 0
         self._full_area = 0.0  # plant share of the image at the last full cut
 
