@@ -116,9 +116,13 @@ class SimResult:
         labels_left, labels_right: (H, W) uint8 pixel class
             (:data:`~canopy_stereo.sim.primitives.LABEL_NAMES`).
         truth: JSON-ready dict: scene, seed, frame, world_unit, background, leaves (id,
-            name, marked, length, width, chords, area, pose, visible pixels per view), ...
+            name, marked, length, width, chords, area, pose, visible pixels per view),
+            plants (per plant: index, reference surface, top, height; see
+            :meth:`~canopy_stereo.sim.scene.Scene.plants_truth`), ...
         timings: seconds per stage: ``left``, ``right`` (ray casting of each view,
             run on two threads) and ``sensor`` (sensor model and truth).
+        plants_left, plants_right: (H, W) uint16 plant number (``truth["plants"]`` index)
+            at each pixel centre, 0 = no plant (all 0 for scenes without plants).
     """
 
     scene: Scene
@@ -133,6 +137,8 @@ class SimResult:
     labels_right: np.ndarray
     truth: dict
     timings: dict = field(default_factory=dict)
+    plants_left: np.ndarray | None = None
+    plants_right: np.ndarray | None = None
 
     @property
     def seed(self) -> int:
@@ -183,6 +189,8 @@ def render_pair(scene: Scene, rig, *, supersample: int = 2, effects: CameraEffec
     lookup_labels = np.append(packed.labels, 0).astype(np.uint8)
     leaf_ids = [lookup_ids[v.prim_index] for v in views]  # index -1 -> the appended 0
     labels = [lookup_labels[v.prim_index] for v in views]
+    lookup_plants = np.append(scene.plant_of_primitive(), 0).astype(np.uint16)
+    plants = [lookup_plants[v.prim_index] for v in views]
     truth = scene.truth()
     counts = [np.bincount(ids.ravel(), minlength=int(lookup_ids.max()) + 1) for ids in leaf_ids]
     for lf in truth["leaves"]:
@@ -195,7 +203,8 @@ def render_pair(scene: Scene, rig, *, supersample: int = 2, effects: CameraEffec
     return SimResult(scene=scene, rig=rig, left=images[0], right=images[1],
                      xyz_left=views[0].xyz, xyz_right=views[1].xyz,
                      leaf_ids_left=leaf_ids[0], leaf_ids_right=leaf_ids[1],
-                     labels_left=labels[0], labels_right=labels[1], truth=truth, timings=timings)
+                     labels_left=labels[0], labels_right=labels[1], truth=truth, timings=timings,
+                     plants_left=plants[0], plants_right=plants[1])
 
 
 def first_hits(scene: Scene, origins, directions) -> tuple[np.ndarray, np.ndarray]:
