@@ -241,6 +241,8 @@ def test_stereo_image_proc_and_image_proc_run_on_our_recording(tmp_path):
             assert inside.mean() > 0.8
             diffs.append(float(np.median(np.abs(a - b)[inside])))
     assert max(diffs) <= 1, diffs
+    print(f"stereo_image_proc point_cloud2 vs our points2: worst relative difference {worst:.2e} over "
+          f"{n_compared} clouds; image_proc image_rect vs ours: median grey-level differences {diffs}")
 
 
 def _stamp(msg) -> int:
