@@ -2,8 +2,12 @@
 
 The one node that holds the rig (camera matrices as parameters: the rig file).
 Subscribes ``left/image_raw`` and ``right/image_raw`` (``sensor_msgs/Image``,
-bgr8/rgb8/mono8/bgra8/rgba8 of the rig's image size). Publishes, with the left
-frame's stamp:
+bgr8/rgb8/mono8/bgra8/rgba8 of the rig's image size), or with ``image_transport:
+compressed`` (image_transport's convention, the parameter stereo_image_proc has)
+``left/image_raw/compressed`` and ``right/image_raw/compressed``
+(``sensor_msgs/CompressedImage``, JPEG or PNG in any ``format`` drivers write:
+:mod:`canopy_stereo.io.image_codec`; each frame decoded once, a corrupt one dropped
+with its reason). Publishes, with the left frame's stamp:
 
 * ``left/image_rect``, ``right/image_rect``: mono8 rectified images;
 * ``left/image_rect_color``: bgr8 rectified left image;
@@ -24,7 +28,7 @@ Parameters: the rig (:mod:`canopy_stereo.ros.params`), ``method`` (empty = the r
 :func:`~canopy_stereo.geometry.rig_rectification.rectification_for_rig`'s), ``fps`` (the cameras' frame rate, 0 = measured from the
 stamps), ``sync_slop`` (s; -1 = half a frame period at ``fps``), ``queue_size``,
 ``frame_id`` (rectified left optical frame) and ``right_frame_id``, ``world_frame``,
-``world_z_up_frame`` ("" = none), ``left_camera_frame``/``right_camera_frame`` (raw
+``world_z_up_frame`` ("" = none), ``image_transport`` (``raw``/``compressed``), ``left_camera_frame``/``right_camera_frame`` (raw
 optical frames in the transforms), ``reliability``, ``diagnostic_period``.
 
 Stamps that go back further than the pairing tolerance (a looping bag, a
@@ -38,12 +42,13 @@ longer than 2 s are pauses, not losses.
 """
 from __future__ import annotations
 
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import String
 
 from canopy_stereo.geometry.frames import DEFAULT_FRAMES, WORLD_FRAME, WORLD_Z_UP_FRAME, FrameNames, stereo_transforms
 from canopy_stereo.geometry.rectification import StereoRectifier
 from canopy_stereo.io.images import to_gray
+from canopy_stereo.ros.compressed import TRANSPORTS, compressed_msg_to_bgr, input_topic
 from canopy_stereo.ros.convert import (COLOUR_ENCODINGS, image_to_msg, msg_to_bgr, rectified_camera_info,
                                        stamp_to_ns, uncalibrated_camera_info)
 from canopy_stereo.ros.limits import check_image_msg
@@ -92,6 +97,10 @@ class RectifyNode(CanopyNode):
                             minimum=1, maximum=100, read_only=True)
         for name, (default, desc) in _FRAME_PARAMETERS.items():
             self.declare_text(name, default, desc, read_only=True)
+        self.declare_text("image_transport", "raw", "input transport: raw (<side>/image_raw, Image) or "
+                          "compressed (<side>/image_raw/compressed, CompressedImage: JPEG/PNG)",
+                          choices=TRANSPORTS, read_only=True)
+        self.transport = str(self.get_parameter("image_transport").value)
         self.rig = rig_from_node(self)
         self.rect = rectification_from_node(self, self.rig)
         self.rectifier = StereoRectifier(self.rig, self.rect)
@@ -120,8 +129,11 @@ class RectifyNode(CanopyNode):
         self.pub_geometry.publish(stereo_geometry_msg(self.rig, self.rect, self.frames))
         self.transforms = stereo_transforms(self.rig, self.rect, names=self.frames)
         self.tf_static = StaticTransformPublisher(self, self.transforms)
-        self.sub_left = self.make_subscription(Image, "left/image_raw", lambda m: self._on_image(0, m))
-        self.sub_right = self.make_subscription(Image, "right/image_raw", lambda m: self._on_image(1, m))
+        in_type = Image if self.transport == "raw" else CompressedImage
+        self.sub_left = self.make_subscription(in_type, input_topic("left/image_raw", self.transport),
+                                               lambda m: self._on_image(0, m))
+        self.sub_right = self.make_subscription(in_type, input_topic("right/image_raw", self.transport),
+                                                lambda m: self._on_image(1, m))
         if self.rect.method != "fusiello":
             self.get_logger().info("hartley rectification: the rectified camera_info is uncalibrated "
                                    "(a projective rectification has no metric camera)")
@@ -133,12 +145,18 @@ class RectifyNode(CanopyNode):
                                f"sync slop {self.pairer.slop_ns / 1e9:g} s"
                                + (" until the frame period is measured" if self.period_estimator else ""))
 
-    def _on_image(self, side: int, msg: Image) -> None:
+    def _to_bgr(self, msg):
+        """uint8 BGR of an input frame (raw or compressed), checked against the rig's size."""
+        if isinstance(msg, CompressedImage):
+            return compressed_msg_to_bgr(msg, expected_size=self.rig.image_size)
+        check_image_msg(msg, expected_size=self.rig.image_size, encodings=COLOUR_ENCODINGS)
+        return msg_to_bgr(msg, expected_size=self.rig.image_size)
+
+    def _on_image(self, side: int, msg) -> None:
         name = ("left", "right")[side]
         self.count(f"{name}_received")
         try:
-            check_image_msg(msg, expected_size=self.rig.image_size, encodings=COLOUR_ENCODINGS)
-            bgr = msg_to_bgr(msg, expected_size=self.rig.image_size)
+            bgr = self._to_bgr(msg)
         except Exception as exc:
             self.drop(str(exc), f"{name} frame")
             return
