@@ -1,14 +1,15 @@
 """``canopy-stereo run``: replay a bag through the ROS 2 node graph and record the outputs."""
 from __future__ import annotations
 
-from canopy_stereo.cli.common import add_rig_argument, check_at_least
+from canopy_stereo.cli.common import add_compression_arguments, add_rig_argument, check_at_least, compression_from_args
 from canopy_stereo.disparity import DEFAULT_MATCHER, default_matcher, matcher_names, matcher_spec
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.ros.bag import add_split_arguments, split_options
 
 COMMAND = "run"
 HELP = "replay a stereo bag through the ROS 2 nodes and record their outputs"
-DESCRIPTION = """Publish the bag's /stereo/left/image_raw and /stereo/right/image_raw into the
+DESCRIPTION = """Publish the bag's /stereo/left/image_raw and /stereo/right/image_raw (or, in a bag of
+compressed images, their /compressed topics) into the
 real nodes (rectify, disparity, segment, point cloud), built in this process on a private
 DDS domain, and record /stereo/disparity, /stereo/points2, /stereo/left/mask and the camera
 infos to OUT.mcap. --rate 0 plays as fast as the graph goes. Prints frames in/out, frames
@@ -39,6 +40,7 @@ def add_arguments(p):
     p.add_argument("--compression", choices=("lz4", "zstd", "none"), default="lz4",
                    help="chunk compression of the recorded bag (default lz4)")
     add_split_arguments(p)
+    add_compression_arguments(p)
     p.add_argument("--view", action="store_true",
                    help="stream the outputs live to the Rerun viewer (extra 'viz'): a window, or the "
                         "web viewer on localhost when there is no display (served until Ctrl-C)")
@@ -94,7 +96,8 @@ def run(args) -> int:
                          domain_id=args.domain_id, max_in_flight=args.max_in_flight,
                          remap=parse_remaps(args.remap), compression=args.compression,
                          extra_outputs=view.extra_outputs if view else None,
-                         on_output=view.on_output if view else None, **split_options(args))
+                         on_output=view.on_output if view else None,
+                         image_compression=compression_from_args(args), **split_options(args))
         for line in result.summary_lines():
             print(line, flush=True)
     finally:

@@ -26,6 +26,9 @@ from canopy_stereo.io.image_codec import DEFAULT_JPEG_QUALITY, decode_compressed
 #: The message type's name in bags.
 COMPRESSED_IMAGE_TYPE = "sensor_msgs/msg/CompressedImage"
 
+#: The raw image type's name in bags.
+IMAGE_TYPE = "sensor_msgs/msg/Image"
+
 #: Suffix of image_transport's compressed topics.
 COMPRESSED_SUFFIX = "/compressed"
 

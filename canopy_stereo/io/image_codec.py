@@ -49,6 +49,7 @@ _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 _PNG_END = b"IEND\xaeB`\x82"
 _CODEC_NAMES = {"jpeg": "jpeg", "jpg": "jpeg", "mjpeg": "jpeg", "mjpg": "jpeg", "png": "png"}
 _READ_FLAGS = cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION
+_GREY_FLAGS = cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION
 
 
 @dataclass(frozen=True)
@@ -117,13 +118,14 @@ def _check_complete(buf: np.ndarray, codec: str) -> None:
         raise ImageError(f"corrupt PNG: cut short (no IEND chunk; {buf.size} bytes)")
 
 
-def decode_compressed(data, fmt: str = "", *, expected_size=None) -> np.ndarray:
-    """Decode a compressed camera frame to uint8 BGR (H, W, 3).
+def decode_compressed(data, fmt: str = "", *, expected_size=None, grey: bool = False) -> np.ndarray:
+    """Decode a compressed camera frame to uint8 BGR (H, W, 3) (``grey``: uint8 (H, W)).
 
     Args:
         data: the message's ``data`` (bytes, bytearray, memoryview, ``array('B')`` or a uint8 array).
         fmt: its ``format`` string (any form of the module docstring; empty: sniffed).
         expected_size: ``(width, height)`` the frame must have, or None.
+        grey: decode to one grey channel (a mono8 image, a mask) instead of BGR.
 
     Raises :class:`ImageError` naming the problem: empty data, bytes that are neither JPEG
     nor PNG, a frame cut short or that the decoder rejects, a size other than ``expected_size``.
@@ -137,7 +139,7 @@ def decode_compressed(data, fmt: str = "", *, expected_size=None) -> np.ndarray:
         raise ImageError(f"compressed image (format {fmt!r}) is neither JPEG nor PNG "
                          f"(first bytes {bytes(buf[:4]).hex()})")
     _check_complete(buf, codec)
-    image = cv2.imdecode(buf, _READ_FLAGS)
+    image = cv2.imdecode(buf, _GREY_FLAGS if grey else _READ_FLAGS)
     if image is None or image.size == 0:
         raise ImageError(f"corrupt {codec.upper()}: the decoder rejected it ({buf.size} bytes)")
     h, w = image.shape[:2]

@@ -12,12 +12,12 @@ from __future__ import annotations
 import array
 
 import numpy as np
-from sensor_msgs.msg import CompressedImage
+from sensor_msgs.msg import CompressedImage, Image
 
 from canopy_stereo.errors import CanopyStereoError, ImageError
-from canopy_stereo.io.compressed_image import compressed_topic
-from canopy_stereo.io.image_codec import DEFAULT_JPEG_QUALITY, decode_compressed, encode_compressed
-from canopy_stereo.ros.convert import make_header
+from canopy_stereo.io.compressed_image import COMPRESSED_IMAGE_TYPE, IMAGE_TYPE, compressed_topic
+from canopy_stereo.io.image_codec import DEFAULT_JPEG_QUALITY, decode_compressed, encode_compressed, parse_format
+from canopy_stereo.ros.convert import COLOUR_ENCODINGS, image_to_msg, make_header, msg_to_bgr, msg_to_image
 from canopy_stereo.ros.limits import MAX_IMAGE_BYTES
 
 #: Values of the ``image_transport`` parameter.
@@ -55,3 +55,61 @@ def compressed_msg_to_bgr(msg: CompressedImage, expected_size=None) -> np.ndarra
     if n > MAX_IMAGE_BYTES:
         raise ImageError(f"compressed image of {n} bytes is larger than {MAX_IMAGE_BYTES} bytes")
     return decode_compressed(msg.data, msg.format, expected_size=expected_size)
+
+
+def recording_codec(topic: str) -> str:
+    """Codec of a recorded image topic: PNG (lossless) for masks, whose pixels are labels;
+    JPEG for camera images."""
+    return "png" if topic.rstrip("/").endswith("mask") else "jpeg"
+
+
+def compress_image_cdr(data, *, codec: str = "jpeg", quality: int = DEFAULT_JPEG_QUALITY) -> bytes | None:
+    """CDR bytes of a ``sensor_msgs/Image`` -> CDR bytes of its ``CompressedImage`` (same
+    header; image_transport's format string), or None when the image is not 8-bit colour or
+    mono (e.g. a 32FC1 depth image: JPEG and 8-bit PNG cannot hold it)."""
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    msg = deserialize_message(bytes(data), Image)
+    if msg.encoding not in COLOUR_ENCODINGS:
+        return None
+    image = msg_to_image(msg, COLOUR_ENCODINGS)
+    image = msg_to_bgr(msg) if image.ndim == 3 else image
+    out = image_to_compressed_msg(image, codec=codec, quality=quality)
+    out.header = msg.header
+    return serialize_message(out)
+
+
+class RecordingCompression:
+    """Store ``sensor_msgs/Image`` topics compressed while recording: each 8-bit image goes to
+    image_transport's ``<topic>/compressed`` as a ``CompressedImage`` (JPEG at ``quality``;
+    PNG for masks, :func:`recording_codec`); other images (depth) stay raw on ``<topic>``.
+
+    :meth:`convert` maps one recorded message ``(topic, type, CDR)`` to what is written.
+    """
+
+    def __init__(self, *, quality: int = DEFAULT_JPEG_QUALITY):
+        if not 1 <= int(quality) <= 100:
+            raise CanopyStereoError(f"JPEG quality must be in 1..100, got {quality}")
+        self.quality = int(quality)
+
+    def convert(self, topic: str, type_name: str, data) -> tuple[str, str, bytes]:
+        """``(topic, type, CDR)`` to write for a message received on ``topic``."""
+        if type_name != IMAGE_TYPE:
+            return topic, type_name, data
+        packed = compress_image_cdr(data, codec=recording_codec(topic), quality=self.quality)
+        if packed is None:
+            return topic, type_name, data
+        return compressed_topic(topic), COMPRESSED_IMAGE_TYPE, packed
+
+
+def decompress_image_cdr(data) -> bytes:
+    """CDR bytes of a ``CompressedImage`` -> CDR bytes of the ``sensor_msgs/Image`` it holds
+    (same header): mono8 when its format says mono8 (masks), else bgr8."""
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    msg = deserialize_message(bytes(data), CompressedImage)
+    grey = parse_format(msg.format).encoding in ("mono8", "8uc1")
+    image = decode_compressed(msg.data, msg.format, grey=grey)
+    out = image_to_msg(image, "mono8" if grey else "bgr8")
+    out.header = msg.header
+    return serialize_message(out)

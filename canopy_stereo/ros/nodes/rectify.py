@@ -129,11 +129,14 @@ class RectifyNode(CanopyNode):
         self.pub_geometry.publish(stereo_geometry_msg(self.rig, self.rect, self.frames))
         self.transforms = stereo_transforms(self.rig, self.rect, names=self.frames)
         self.tf_static = StaticTransformPublisher(self, self.transforms)
-        in_type = Image if self.transport == "raw" else CompressedImage
+        # compressed frames (30-160 kB) cross processes best effort without loss on Fast DDS
+        # (benchmarks/bench_transport_qos.py), raw ones (0.9 MB) do not: REP 2003's
+        # sensor-data QoS for compressed input, which also matches best-effort drivers
+        in_type, packed = (Image, False) if self.transport == "raw" else (CompressedImage, True)
         self.sub_left = self.make_subscription(in_type, input_topic("left/image_raw", self.transport),
-                                               lambda m: self._on_image(0, m))
+                                               lambda m: self._on_image(0, m), sensor_data=packed)
         self.sub_right = self.make_subscription(in_type, input_topic("right/image_raw", self.transport),
-                                                lambda m: self._on_image(1, m))
+                                                lambda m: self._on_image(1, m), sensor_data=packed)
         if self.rect.method != "fusiello":
             self.get_logger().info("hartley rectification: the rectified camera_info is uncalibrated "
                                    "(a projective rectification has no metric camera)")
