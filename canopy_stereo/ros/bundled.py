@@ -87,15 +87,15 @@ def write_stereo_bag(path, frames, *, truth_depths=None, compression: str = "zst
             as 16UC1 millimetres (REP 118; 0 = nothing). Rounding to 0.5 mm is
             below 0.1 % of the scene's depth and keeps the bag small.
         metadata, rig: optional ``canopy_stereo`` KEY=VALUE metadata and rig, stored
-            as the bag's metadata records (:mod:`canopy_stereo.io.bag_metadata`).
+            as the bag's metadata records (:mod:`canopy_stereo.bag.metadata`).
         image_format: ``"raw"`` (bgr8 ``Image`` on :data:`LEFT_TOPIC`, :data:`RIGHT_TOPIC`),
             or ``"jpeg"`` / ``"png"``: ``CompressedImage`` on image_transport's
             ``<topic>/compressed`` only, as robot bags usually hold them
             (:mod:`canopy_stereo.io.compressed_image`).
         jpeg_quality: JPEG quality (1-100) of ``image_format="jpeg"``.
     """
-    from canopy_stereo.io.bag_metadata import recording_metadata
-    from canopy_stereo.ros.bag import BagWriter
+    from canopy_stereo.bag.metadata import recording_metadata
+    from canopy_stereo.bag import BagWriter
     from canopy_stereo.io.compressed_image import COMPRESSED_IMAGE_TYPE, compressed_topic, encode_frame_cdr
     from canopy_stereo.ros.convert import image_to_msg
 
@@ -198,7 +198,7 @@ def read_truth_depths(bag_path) -> dict:
     """Left stamp (ns) -> truth depth map (float32 (H, W), metres, NaN = nothing)
     of a bag's :data:`TRUTH_DEPTH_TOPIC` (empty if it has none). Accepts 16UC1
     millimetres (REP 118) and 32FC1 metres."""
-    from canopy_stereo.ros.bag import BagReader
+    from canopy_stereo.bag import BagReader
     from canopy_stereo.ros.convert import msg_to_image, stamp_to_ns
 
     bag = BagReader(bag_path)

@@ -42,7 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--height", type=int, default=0, help="camera height (default: the rig's)")
     p.add_argument("--fourcc", default="", help="camera pixel format, e.g. MJPG")
     p.add_argument("--record", metavar="OUT.mcap", help="record the outputs")
-    from canopy_stereo.ros.bag import add_split_arguments
+    from canopy_stereo.bag.split import add_split_arguments
 
     add_split_arguments(p)
     add_compression_arguments(p)
@@ -145,7 +145,8 @@ def main(args=None) -> int:
         rig = load_rig(opts.rig)
         compression = compression_from_args(opts)  # checks --jpeg-quality
         if opts.record:
-            from canopy_stereo.ros.bag import BagWriter, split_options
+            from canopy_stereo.bag import BagWriter
+            from canopy_stereo.bag.split import split_options
 
             # one writer for every pass of --loop: passes append (or split), never overwrite
             writer = BagWriter(opts.record, compression="lz4", **split_options(opts))
@@ -170,7 +171,7 @@ def main(args=None) -> int:
                                              "right/camera_info", "left/image_raw", "right/image_raw")]
             if compression is not None:
                 topics = [t + "/compressed" if t.endswith("/image_raw") else t for t in topics]
-            from canopy_stereo.io.bag_metadata import parse_key_values, recording_metadata
+            from canopy_stereo.bag.metadata import parse_key_values, recording_metadata
 
             for name, data in recording_metadata(parse_key_values(opts.metadata), rig).items():
                 writer.add_metadata(name, data)

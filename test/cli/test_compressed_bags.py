@@ -15,7 +15,7 @@ pytest.importorskip("stereo_msgs.msg")
 
 from canopy_stereo.io.compressed_image import COMPRESSED_IMAGE_TYPE  # noqa: E402
 from canopy_stereo.io.rig import load_rig  # noqa: E402
-from canopy_stereo.ros.bag import BagReader  # noqa: E402
+from canopy_stereo.bag import BagReader  # noqa: E402
 from canopy_stereo.ros.bundled import bundled_bag, bundled_rig, write_stereo_bag  # noqa: E402
 from canopy_stereo.ros.convert import msg_to_image, stamp_to_ns  # noqa: E402
 
