@@ -134,7 +134,7 @@ def image_to_bgr(img: RawImage | CompressedFrame) -> np.ndarray:
     return cv2.cvtColor(arr, code) if code is not None else arr
 
 
-def stereo_topics(bag, left_topic: str = LEFT_TOPIC, right_topic: str = RIGHT_TOPIC) -> tuple[str, str]:
+def stereo_topics(bag, left_topic: str = LEFT_TOPIC, *, right_topic: str = RIGHT_TOPIC) -> tuple[str, str]:
     """The bag's topics for the stereo pair: ``left_topic`` and ``right_topic`` when the bag has
     them, else their image_transport ``/compressed`` topics when it has those (a bag holding
     only compressed images), else the given ones (:func:`raw_stereo_pairs` then names them)."""

@@ -164,7 +164,7 @@ def process_bag(path, options: BatchOptions | None = None) -> dict:
         raise CanopyStereoError("no rig: the bag has no canopy_stereo_rig metadata record; give --rig RIG.yaml")
     rig_source = (options.rig_source or "given") if options.rig is not None else "bag"
     # at most max_frames pairs, spread over the pairs the bag can hold (its smaller stream)
-    left_topic, right_topic = stereo_topics(bag, options.left_topic, options.right_topic)  # or /compressed
+    left_topic, right_topic = stereo_topics(bag, options.left_topic, right_topic=options.right_topic)  # or /compressed
     n_pairs = min((bag.topics[t].message_count if t in bag.topics else 0) for t in (left_topic, right_topic))
     keep = _spread(n_pairs, options.max_frames)
     last = max(keep, default=0)

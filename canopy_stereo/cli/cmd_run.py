@@ -1,7 +1,8 @@
 """``canopy-stereo run``: replay a bag through the ROS 2 node graph and record the outputs."""
 from __future__ import annotations
 
-from canopy_stereo.cli.common import add_compression_arguments, add_rig_argument, check_at_least, compression_from_args
+from canopy_stereo.cli.common import add_rig_argument, check_at_least
+from canopy_stereo.io.compressed_image import add_compression_arguments
 from canopy_stereo.disparity import DEFAULT_MATCHER, default_matcher, matcher_names, matcher_spec
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.bag.split import add_split_arguments, split_options
@@ -55,6 +56,7 @@ def run(args) -> int:
     install_stop_signals()  # SIGTERM/SIGHUP stop like Ctrl-C: the recording is closed validly
     from canopy_stereo.io.rig import load_rig
     from canopy_stereo.ros.graph import GraphOptions
+    from canopy_stereo.ros.compressed import compression_from_args
     from canopy_stereo.ros.player import parse_remaps
     from canopy_stereo.ros.runner import open_input_bag, run_bag
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 import argparse
 
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.io.image_codec import DEFAULT_JPEG_QUALITY
 
 
 def parse_int_list(text: str, count: int, name: str, *, sep: str = ",") -> list[int]:
@@ -48,21 +47,3 @@ def check_at_least(value: int, minimum: int, flag: str) -> int:
     if value < minimum:
         raise CanopyStereoError(f"{flag} must be at least {minimum}, got {value}")
     return value
-
-
-def add_compression_arguments(p) -> None:
-    """``--compress-images`` and ``--jpeg-quality`` (bag_record, run, canopy_graph)."""
-    p.add_argument("--compress-images", action="store_true",
-                   help="store 8-bit images as <topic>/compressed (sensor_msgs/CompressedImage: JPEG, "
-                        "PNG for masks; depth stays raw), as image_transport names them")
-    p.add_argument("--jpeg-quality", type=int, default=DEFAULT_JPEG_QUALITY, metavar="Q",
-                   help=f"JPEG quality 1-100 of --compress-images (default {DEFAULT_JPEG_QUALITY})")
-
-
-def compression_from_args(args):
-    """The :class:`~canopy_stereo.ros.compressed.RecordingCompression` the options ask for, or None."""
-    if not getattr(args, "compress_images", False):
-        return None
-    from canopy_stereo.ros.compressed import RecordingCompression
-
-    return RecordingCompression(quality=args.jpeg_quality)

@@ -117,3 +117,12 @@ def parse_compressed_image_cdr(data) -> CompressedFrame:
     fmt = r.string()
     payload = r.take(r.u32())
     return CompressedFrame(sec * _NS + nsec, frame_id, fmt, payload)
+
+
+def add_compression_arguments(p) -> None:
+    """``--compress-images`` and ``--jpeg-quality`` (bag_record, run, canopy_graph)."""
+    p.add_argument("--compress-images", action="store_true",
+                   help="store 8-bit images as <topic>/compressed (sensor_msgs/CompressedImage: JPEG, "
+                        "PNG for masks; depth stays raw), as image_transport names them")
+    p.add_argument("--jpeg-quality", type=int, default=DEFAULT_JPEG_QUALITY, metavar="Q",
+                   help=f"JPEG quality 1-100 of --compress-images (default {DEFAULT_JPEG_QUALITY})")

@@ -16,7 +16,8 @@ import sys
 import threading
 import time
 
-from canopy_stereo.cli.common import add_compression_arguments, compression_from_args
+from canopy_stereo.io.compressed_image import add_compression_arguments
+from canopy_stereo.ros.compressed import compression_from_args
 from canopy_stereo.disparity import DEFAULT_MATCHER, matcher_names
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.ros.context import tune_node_process

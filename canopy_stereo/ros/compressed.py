@@ -113,3 +113,10 @@ def decompress_image_cdr(data) -> bytes:
     out = image_to_msg(image, "mono8" if grey else "bgr8")
     out.header = msg.header
     return serialize_message(out)
+
+
+def compression_from_args(args):
+    """The :class:`~canopy_stereo.ros.compressed.RecordingCompression` the options ask for, or None."""
+    if not getattr(args, "compress_images", False):
+        return None
+    return RecordingCompression(quality=args.jpeg_quality)

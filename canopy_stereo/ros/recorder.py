@@ -33,7 +33,8 @@ import time
 from rclpy.node import Node
 from rclpy.qos import ReliabilityPolicy
 
-from canopy_stereo.cli.common import add_compression_arguments, compression_from_args
+from canopy_stereo.io.compressed_image import add_compression_arguments
+from canopy_stereo.ros.compressed import compression_from_args
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.compressed_image import IMAGE_TYPE
 from canopy_stereo.bag import BagWriter

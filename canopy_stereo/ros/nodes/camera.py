@@ -125,8 +125,11 @@ def open_capture(source: str, width: int = 0, *, height: int = 0, fps: float = 0
 def driver_time_ns(cap: cv2.VideoCapture) -> int | None:
     """The capture time of the frame just read, as the backend reports it (V4L2: the buffer
     timestamp on CLOCK_MONOTONIC, in ``CAP_PROP_POS_MSEC``), in ns; None when it has none."""
+    get = getattr(cap, "get", None)  # a capture-like source may have no properties
+    if get is None:
+        return None
     try:
-        ms = float(cap.get(cv2.CAP_PROP_POS_MSEC))
+        ms = float(get(cv2.CAP_PROP_POS_MSEC))
     except cv2.error:
         return None
     return int(ms * 1e6) if ms > 0 else None
