@@ -22,15 +22,19 @@ them when the raw topics are absent, and :func:`image_to_bgr` decodes either kin
 from __future__ import annotations
 
 import struct
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Iterator
 
 import cv2
 import numpy as np
 
 from canopy_stereo.errors import ImageError
-from canopy_stereo.io.compressed_image import (COMPRESSED_IMAGE_TYPE, CompressedFrame, compressed_topic,
-                                               parse_compressed_image_cdr)
+from canopy_stereo.io.compressed_image import (
+    COMPRESSED_IMAGE_TYPE,
+    CompressedFrame,
+    compressed_topic,
+    parse_compressed_image_cdr,
+)
 
 #: Default stereo topics of canopy_stereo's raw recordings.
 LEFT_TOPIC = "/stereo/left/image_raw"

@@ -99,14 +99,11 @@ def prepare_frame(frame: np.ndarray, *, layout: str = "mono", transport: str = "
     want_raw, want_jpeg = transport in ("raw", "both"), transport in ("compressed", "both")
     if is_encoded(frame):
         data = frame.reshape(-1)
-        if layout == "mono" and not want_raw:  # the device's bytes as they came
-            decoded = None
-        else:
-            decoded = decode_compressed(data, DEVICE_JPEG_FORMAT)
-        if layout == "mono":
+        if layout == "mono":  # the device's bytes as they came; decoded only for a raw image
+            decoded = decode_compressed(data, DEVICE_JPEG_FORMAT) if want_raw else None
             shape = decoded.shape[:2] if decoded is not None else _jpeg_shape(data)
             return [SideFrame(0, decoded, (DEVICE_JPEG_FORMAT, data.tobytes()) if want_jpeg else None, shape)]
-        frame = decoded
+        frame = decode_compressed(data, DEVICE_JPEG_FORMAT)
     views = split_views(_bgr(frame), layout)
     out = []
     for side, view in enumerate(views):

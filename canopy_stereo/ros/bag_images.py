@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from canopy_stereo.io.image_codec import DEFAULT_JPEG_QUALITY
 from canopy_stereo.bag import BagError, BagReader, BagWriter
+from canopy_stereo.io.image_codec import DEFAULT_JPEG_QUALITY
 from canopy_stereo.ros.compressed import RecordingCompression
 
 

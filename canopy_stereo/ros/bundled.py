@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.geometry.frames import FrameNames, stereo_info_frame
 from canopy_stereo.io.rig import Rig, save_rig
 
 #: scene -> (bag file, rig file)
@@ -29,6 +30,10 @@ BUNDLED = {"croton": ("croton.mcap", "croton_rig.yaml"), "plants": ("plants.mcap
 LEFT_TOPIC = "/stereo/left/image_raw"
 RIGHT_TOPIC = "/stereo/right/image_raw"
 TRUTH_DEPTH_TOPIC = "/truth/left/depth"
+#: frame_id of both raw images (and the truth depth): the left camera's optical frame, the
+#: frame rectify_node's /tf_static names and camera_node uses for a stereo pair
+#: (:func:`canopy_stereo.geometry.frames.stereo_info_frame`).
+RAW_FRAME = stereo_info_frame(FrameNames(), "raw")
 
 #: Stamp of the first frame of the bundled bags (2024-01-01T00:00:00Z), ns.
 EPOCH_NS = 1_704_067_200_000_000_000
@@ -94,19 +99,20 @@ def write_stereo_bag(path, frames, *, truth_depths=None, compression: str = "zst
             (:mod:`canopy_stereo.io.compressed_image`).
         jpeg_quality: JPEG quality (1-100) of ``image_format="jpeg"``.
     """
-    from canopy_stereo.bag.metadata import recording_metadata
     from canopy_stereo.bag import BagWriter
+    from canopy_stereo.bag.metadata import recording_metadata
     from canopy_stereo.io.compressed_image import COMPRESSED_IMAGE_TYPE, compressed_topic, encode_frame_cdr
     from canopy_stereo.ros.convert import image_to_msg
 
     if image_format not in ("raw", "jpeg", "png"):
         raise CanopyStereoError(f"image_format must be raw, jpeg or png, got {image_format!r}")
+    frame = RAW_FRAME
 
-    def write_image(bag, topic, image, stamp_ns, frame_id, log_ns):
+    def write_image(bag, topic, image, stamp_ns, log_ns):
         if image_format == "raw":
-            bag.write(topic, image_to_msg(image, "bgr8", stamp_ns=stamp_ns, frame_id=frame_id), log_ns)
+            bag.write(topic, image_to_msg(image, "bgr8", stamp_ns=stamp_ns, frame_id=frame), log_ns)
         else:
-            bag.write(compressed_topic(topic), encode_frame_cdr(image, stamp_ns=stamp_ns, frame_id=frame_id,
+            bag.write(compressed_topic(topic), encode_frame_cdr(image, stamp_ns=stamp_ns, frame_id=frame,
                                                                 codec=image_format, quality=jpeg_quality),
                       log_ns, publish_time_ns=stamp_ns, msg_type=COMPRESSED_IMAGE_TYPE)
 
@@ -114,13 +120,13 @@ def write_stereo_bag(path, frames, *, truth_depths=None, compression: str = "zst
     with BagWriter(path, compression=compression,
                    metadata=recording_metadata(metadata, rig)) as bag:
         for k, (left, right, t_left, t_right) in enumerate(frames):
-            write_image(bag, LEFT_TOPIC, left, t_left, "left_camera", t_left + transport_ns)
-            write_image(bag, RIGHT_TOPIC, right, t_right, "right_camera", t_right + transport_ns)
+            write_image(bag, LEFT_TOPIC, left, t_left, t_left + transport_ns)
+            write_image(bag, RIGHT_TOPIC, right, t_right, t_right + transport_ns)
             if truth_depths is not None:
                 depth_mm = np.rint(np.nan_to_num(np.asarray(truth_depths[k], np.float64) * 1000.0,
                                                  nan=0.0)).clip(0, 65535).astype(np.uint16)
                 bag.write(TRUTH_DEPTH_TOPIC, image_to_msg(depth_mm, "16UC1", stamp_ns=t_left,
-                                                          frame_id="left_camera"),
+                                                          frame_id=frame),
                           t_left + transport_ns + 1)
     return Path(path)
 
@@ -170,8 +176,8 @@ def make_plants(bag_path, rig_path, scene_folder) -> tuple[Path, Path]:
     """Write the Middlebury 2014 Plants pair as a one-frame bag and its rig file
     (world frame = left camera, millimetres; disparity range from ``ndisp``)."""
     from canopy_stereo.geometry.rectification import fusiello_rectify
-    from canopy_stereo.io.middlebury import read_middlebury_calib, rig_from_middlebury
     from canopy_stereo.io.images import read_image
+    from canopy_stereo.io.middlebury import read_middlebury_calib, rig_from_middlebury
 
     folder = Path(scene_folder)
     calib = read_middlebury_calib(folder / "calib.txt")

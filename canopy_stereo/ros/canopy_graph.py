@@ -16,10 +16,10 @@ import sys
 import threading
 import time
 
-from canopy_stereo.io.compressed_image import add_compression_arguments
-from canopy_stereo.ros.compressed import compression_from_args
 from canopy_stereo.disparity import DEFAULT_MATCHER, matcher_names
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.io.compressed_image import add_compression_arguments
+from canopy_stereo.ros.compressed import compression_from_args
 from canopy_stereo.ros.context import tune_node_process
 from canopy_stereo.ros.graph import DEFAULT_THREADS, EXECUTOR_CHOICES, CanopyGraph, GraphOptions
 from canopy_stereo.ros.runner import run_bag

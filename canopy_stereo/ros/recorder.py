@@ -33,14 +33,13 @@ import time
 from rclpy.node import Node
 from rclpy.qos import ReliabilityPolicy
 
-from canopy_stereo.io.compressed_image import add_compression_arguments
-from canopy_stereo.ros.compressed import compression_from_args
-from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.io.compressed_image import IMAGE_TYPE
 from canopy_stereo.bag import BagWriter
-from canopy_stereo.bag.split import add_split_arguments, split_options
 from canopy_stereo.bag.messages import qos_profiles_yaml
 from canopy_stereo.bag.msgdefs import message_class, type_name
+from canopy_stereo.bag.split import add_split_arguments, split_options
+from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.io.compressed_image import IMAGE_TYPE, add_compression_arguments
+from canopy_stereo.ros.compressed import compression_from_args
 from canopy_stereo.ros.qos import recording_qos
 
 #: Topics never recorded by ``--all`` (ROS internals).

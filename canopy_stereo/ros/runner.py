@@ -27,14 +27,14 @@ from pathlib import Path
 
 import numpy as np
 
+from canopy_stereo.bag import BagError, BagReader, BagWriter
+from canopy_stereo.bag.messages import qos_profiles_yaml
+from canopy_stereo.bag.msgdefs import type_name
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.compressed_image import COMPRESSED_SUFFIX, IMAGE_TYPE, compressed_topic
 from canopy_stereo.io.rig import Rig
-from canopy_stereo.bag import BagError, BagReader, BagWriter
-from canopy_stereo.bag.messages import qos_profiles_yaml
 from canopy_stereo.ros.context import ros_context, wait_for, wait_for_subscribers
 from canopy_stereo.ros.graph import CanopyGraph, GraphOptions
-from canopy_stereo.bag.msgdefs import type_name
 from canopy_stereo.ros.nodes.base import CanopyNode
 from canopy_stereo.ros.player import BagPlayer
 from canopy_stereo.ros.qos import recording_qos
@@ -313,7 +313,7 @@ def run_bag(bag_path, rig: Rig, *, rate: float = 1.0, record=None, options: Grap
             result.recorded_files = list(writer.paths)
     result.truncated, result.problem = bag.truncated, bag.problem
     result.damage = [d.describe(bag.path).split(": ", 1)[1] for d in bag.damage]
-    if book.frames_in == 0 and (result.invalid_messages or damaged or bag.damage):
+    if book.frames_in == 0 and (result.invalid_messages or bag.truncated or bag.damage):
         why = (f"{len(result.invalid_messages)} input messages are not valid CDR (first: "
                f"{result.invalid_messages[0]})" if result.invalid_messages else
                f"the bag is {'truncated' if bag.truncated else 'damaged'} ({bag.problem})")

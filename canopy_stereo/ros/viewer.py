@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from canopy_stereo.io.compressed_image import COMPRESSED_SUFFIX, compressed_topic
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.io.compressed_image import COMPRESSED_SUFFIX, compressed_topic
 from canopy_stereo.viz.rerun_log import CameraPose, FrameLogger, camera_pose_from_rig
 
 #: Name of the MCAP metadata record that holds the rig of a bag.
@@ -255,9 +255,8 @@ def bag_kind(bag) -> tuple[str, str]:
 def show_recorded_outputs(bag, namespace: str, logger: FrameLogger, *, rig=None, measure: bool = False) -> int:
     """Log a bag of recorded graph outputs frame by frame (grouped by header stamp); returns
     the number of frames (clouds) logged."""
-    from canopy_stereo.ros.recorder import header_stamp_from_cdr
-
     from canopy_stereo.ros.compressed import decompress_image_cdr
+    from canopy_stereo.ros.recorder import header_stamp_from_cdr
 
     prefix = namespace.rstrip("/") + "/"
     # images recorded compressed (run --record --compress-images) are read from <topic>/compressed
@@ -312,7 +311,7 @@ class LiveView:
                  printer=print):
         from sensor_msgs.msg import Image
 
-        from canopy_stereo.viz.rerun_log import has_display, open_recording, port_free, serve_web
+        from canopy_stereo.viz.rerun_log import has_display, port_free, serve_web
 
         self.printer = printer
         if port is None:

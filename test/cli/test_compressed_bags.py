@@ -13,9 +13,9 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("stereo_msgs.msg")
 
+from canopy_stereo.bag import BagReader  # noqa: E402
 from canopy_stereo.io.compressed_image import COMPRESSED_IMAGE_TYPE  # noqa: E402
 from canopy_stereo.io.rig import load_rig  # noqa: E402
-from canopy_stereo.bag import BagReader  # noqa: E402
 from canopy_stereo.ros.bundled import bundled_bag, bundled_rig, write_stereo_bag  # noqa: E402
 from canopy_stereo.ros.convert import msg_to_image, stamp_to_ns  # noqa: E402
 
@@ -30,7 +30,7 @@ def bags(tmp_path_factory):
     src = BagReader(bundled_bag("croton"))
     lefts = [(stamp_to_ns(m.header.stamp), msg_to_image(m).copy()) for _, m in src.read("/stereo/left/image_raw")]
     rights = [(stamp_to_ns(m.header.stamp), msg_to_image(m).copy()) for _, m in src.read("/stereo/right/image_raw")]
-    frames = [(l, r, tl, tr) for (tl, l), (tr, r) in zip(lefts, rights)]
+    frames = [(left, right, tl, tr) for (tl, left), (tr, right) in zip(lefts, rights)]
     rig = load_rig(bundled_rig("croton"))
     out = {}
     for name, fmt in (("raw", "raw"), ("jpeg", "jpeg")):
@@ -83,7 +83,8 @@ def test_run_on_compressed_images_matches_the_raw_bag_and_records_compressed(bag
 
     from canopy_stereo.io.image_codec import decode_compressed
 
-    raw_masks = {stamp_to_ns(m.header.stamp): msg_to_image(m) for _, m in BagReader(rec["raw"]).read("/stereo/left/mask")}
+    raw_masks = {stamp_to_ns(m.header.stamp): msg_to_image(m)
+                 for _, m in BagReader(rec["raw"]).read("/stereo/left/mask")}
     for m in BagReader(rec["jpeg"]).messages(["/stereo/left/mask/compressed"]):
         msg = deserialize_message(m.data, CompressedImage)
         assert msg.format == "mono8; png compressed mono8"

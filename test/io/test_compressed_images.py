@@ -7,8 +7,12 @@ import pytest
 from canopy_stereo.errors import CanopyStereoError, ImageError
 from canopy_stereo.io.camera_frames import is_encoded, prepare_frame, split_views
 from canopy_stereo.io.capture_stamps import MAX_DRIVER_LATENCY_S, CaptureClock
-from canopy_stereo.io.compressed_image import (compressed_image_cdr, compressed_topic, encode_frame_cdr,
-                                               parse_compressed_image_cdr)
+from canopy_stereo.io.compressed_image import (
+    compressed_image_cdr,
+    compressed_topic,
+    encode_frame_cdr,
+    parse_compressed_image_cdr,
+)
 from canopy_stereo.io.image_codec import decode_compressed, encode_compressed, parse_format, sniff_codec
 
 
@@ -116,10 +120,10 @@ def test_compressed_image_cdr_round_trips_through_rclpy():
 
 def test_side_by_side_and_top_bottom_frames_split_into_left_and_right():
     left, right = _scene(seed=1), _scene(seed=2)
-    l, r = split_views(np.concatenate([left, right], axis=1), "side_by_side")
-    assert np.array_equal(l, left) and np.array_equal(r, right)
-    l, r = split_views(np.concatenate([left, right], axis=0), "top_bottom")
-    assert np.array_equal(l, left) and np.array_equal(r, right)
+    a, b = split_views(np.concatenate([left, right], axis=1), "side_by_side")
+    assert np.array_equal(a, left) and np.array_equal(b, right)
+    a, b = split_views(np.concatenate([left, right], axis=0), "top_bottom")
+    assert np.array_equal(a, left) and np.array_equal(b, right)
     with pytest.raises(ImageError, match="even width"):
         split_views(np.zeros((4, 5, 3), np.uint8), "side_by_side")
     with pytest.raises(ImageError, match="layout must be"):

@@ -15,8 +15,8 @@ from rclpy.serialization import deserialize_message  # noqa: E402
 from sensor_msgs.msg import CompressedImage, Image, PointCloud2  # noqa: E402
 
 from canopy_stereo.io.image_codec import encode_compressed  # noqa: E402
-from canopy_stereo.ros.context import private_domain_id  # noqa: E402
 from canopy_stereo.ros.compressed import compressed_msg  # noqa: E402
+from canopy_stereo.ros.context import private_domain_id  # noqa: E402
 from canopy_stereo.ros.convert import msg_to_image  # noqa: E402
 from test.conftest import REPO  # noqa: E402
 from test.support.ros_harness import Probe, ProcessGroup, croton_frames, feed_pairs, wait_for  # noqa: E402

@@ -15,6 +15,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2  # n
 from canopy_stereo.io.image_codec import decode_compressed  # noqa: E402
 from canopy_stereo.io.rig import load_rig  # noqa: E402
 from canopy_stereo.ros import convert  # noqa: E402
+from canopy_stereo.ros.camera_info import default_camera_frame  # noqa: E402
 from canopy_stereo.ros.context import private_domain_id, wait_for  # noqa: E402
 from test.conftest import REPO  # noqa: E402
 from test.ros.test_ros_nodes import TIMEOUT, node_kwargs  # noqa: E402
@@ -70,7 +71,7 @@ def test_side_by_side_mjpeg_is_split_with_one_stamp_for_both_sides(harness, side
     assert _psnr(left, frames[0][0]) > 30 and _psnr(right, frames[0][1]) > 30  # the right halves, in order
     assert _psnr(left, frames[0][1]) < _psnr(left, frames[0][0]) - 3
     jpeg = out["right/image_raw/compressed"][0]
-    assert jpeg.format == "bgr8; jpeg compressed bgr8" and jpeg.header.frame_id == "right_camera_optical_frame"
+    assert jpeg.format == "bgr8; jpeg compressed bgr8" and jpeg.header.frame_id == default_camera_frame("right")
     assert _psnr(decode_compressed(jpeg.data, jpeg.format), frames[0][1]) > 30
     info = out["right/camera_info"][0]
     assert (info.width, info.height) == (640, 480) and info.p[3] < 0  # the rig's right camera (Tx = -f B)

@@ -386,7 +386,7 @@ def feed_pairs(pub_left, pub_right, frames, stamps_ns, rate_hz: float, right_off
         def make_msg(image, frame_id):
             return image_to_msg(image, "bgr8", stamp_ns=0, frame_id=frame_id)
 
-    msgs = [(make_msg(l, "left_camera"), make_msg(r, "right_camera")) for l, r in frames]
+    msgs = [(make_msg(left, "left_camera"), make_msg(right, "right_camera")) for left, right in frames]
     sent = {}
     t0 = time.monotonic()
     for k, stamp in enumerate(stamps_ns):

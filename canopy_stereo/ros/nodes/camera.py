@@ -14,8 +14,10 @@ as JPEG ``sensor_msgs/CompressedImage`` on ``<camera_name>/image_raw/compressed`
 * ``layout``: ``mono`` (default), ``side_by_side`` or ``top_bottom``: one capture holding
   both views of a synchronized stereo webcam (left view left / on top) is split into
   ``left/image_raw`` and ``right/image_raw`` (and their compressed topics and
-  ``left|right/camera_info``, frames ``left|right_camera_optical_frame``), both with one
-  stamp; ``camera_name`` and ``frame_id`` then do not apply;
+  ``left|right/camera_info``, in the pair's one frame as for two cameras; calibration
+  parameters ``left.camera_info_url``, ``right.camera_info_url``, services
+  ``left/set_camera_info``, ``right/set_camera_info``), both with one stamp;
+  ``camera_name`` and ``frame_id`` then do not apply;
 * stamps: the driver's capture time where the backend gives one (V4L2 buffer timestamps,
   ``CAP_PROP_POS_MSEC`` of OpenCV's V4L2 backend, on ``CLOCK_MONOTONIC``), mapped onto
   the ROS clock; else the reception time minus ``stamp_latency`` (s, default 0)
@@ -29,9 +31,15 @@ Parameters:
   image-sequence pattern (``frames/left_%03d.png``, OpenCV numbering);
 * ``width``, ``height``, ``fps``, ``fourcc`` (e.g. ``MJPG``): requested capture
   settings (0/empty = the device's default; ``fps`` also paces files);
-* ``frame_id`` (default ``<camera_name>_camera_optical_frame``, REP 103), ``camera_name`` (``left``);
-* the rig (``--params-file RIG.yaml`` or ``rig_file``): then ``<camera_name>/camera_info``
-  is published with each frame (REP 104, :mod:`canopy_stereo.ros.camera_info`);
+* ``frame_id`` (default ``left_camera_optical_frame`` for the ``left`` and the ``right`` camera of
+  a stereo pair, image_geometry's convention: one frame for both infos, the right camera's pose
+  in its ``P`` and ``/tf_static``; ``<camera_name>_camera_optical_frame`` for another name,
+  REP 103), ``camera_name`` (``left``);
+* ``camera_info_url`` (``file://``, ``package://``, ``${NAME}``, ``${ROS_HOME}``) or the rig
+  (``--params-file RIG.yaml`` or ``rig_file``): then ``<camera_name>/camera_info`` is published
+  with each frame (REP 104); ``~/set_camera_info`` (``sensor_msgs/srv/SetCameraInfo``) takes a
+  new calibration (``cameracalibrator``'s commit) and stores it at the URL
+  (:mod:`canopy_stereo.ros.camera_info`);
 * ``loop``: restart a file or sequence at its end (otherwise stop there).
 
 * ``open_timeout`` (s, default 5), ``read_timeout`` (s, default 0 = ten frame periods,
@@ -61,7 +69,7 @@ from canopy_stereo.io.camera_frames import CAMERA_TRANSPORTS, LAYOUTS, prepare_f
 from canopy_stereo.io.capture_stamps import CaptureClock
 from canopy_stereo.io.compressed_image import compressed_topic
 from canopy_stereo.io.image_codec import DEFAULT_JPEG_QUALITY
-from canopy_stereo.ros.camera_info import RawCameraInfoPublisher
+from canopy_stereo.ros.camera_info import RawCameraInfoPublisher, default_camera_frame
 from canopy_stereo.ros.compressed import compressed_msg
 from canopy_stereo.ros.convert import image_to_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
@@ -214,7 +222,9 @@ class CameraNode(CanopyNode):
                           read_only=True)
         self.declare_text("camera_name", "left", "camera name: images go to <camera_name>/image_raw",
                           read_only=True)
-        self.declare_text("frame_id", "", "frame_id of the images (empty = <camera_name>_camera)",
+        self.declare_text("frame_id", "", "frame_id of the images and camera_info (empty = "
+                          "left_camera_optical_frame for left and right, one frame for a stereo pair as "
+                          "image_geometry requires; else <camera_name>_camera_optical_frame)",
                           read_only=True)
         self.declare_flag("loop", True, "restart a video file or image sequence at its end",
                           read_only=True)
@@ -238,7 +248,7 @@ class CameraNode(CanopyNode):
                             minimum=0.0, maximum=600.0, read_only=True)
         self.source = str(self.get_parameter("device").value)
         self.camera_name = self.get_parameter("camera_name").value
-        self.frame_id = self.get_parameter("frame_id").value or f"{self.camera_name}_camera_optical_frame"
+        self.frame_id = self.get_parameter("frame_id").value or default_camera_frame(self.camera_name)
         self.settings = dict(width=int(self.get_parameter("width").value),
                              height=int(self.get_parameter("height").value),
                              fps=float(self.get_parameter("fps").value),
@@ -263,14 +273,14 @@ class CameraNode(CanopyNode):
         self.settings["device_jpeg"] = self.transport == "compressed" and self.layout == "mono"
         sides = [self.camera_name] if self.layout == "mono" else ["left", "right"]
         self.frame_ids = ([self.frame_id] if self.layout == "mono"
-                          else [f"{side}_camera_optical_frame" for side in sides])
+                          else [default_camera_frame(side) for side in sides])
         self.pubs = [self.make_publisher(Image, f"{side}/image_raw") if self.transport != "compressed" else None
                      for side in sides]
         self.pubs_compressed = [self.make_publisher(CompressedImage, compressed_topic(f"{side}/image_raw"))
                                 if self.transport != "raw" else None for side in sides]
         self.pub = self.pubs[0]
         # <side>/camera_info with a rig
-        self.infos = [RawCameraInfoPublisher(self, side) for side in sides]
+        self.infos = [RawCameraInfoPublisher(self, side, of_pair=self.layout != "mono") for side in sides]
         self.info = self.infos[0]
         self.session: CaptureSession | None = None
         self.abandoned: list[CaptureSession] = []  # sessions still blocked inside OpenCV
