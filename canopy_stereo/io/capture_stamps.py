@@ -91,5 +91,5 @@ class CaptureClock:
         (ms), or None before three frames."""
         if len(self._stamps) < 3:
             return None
-        intervals = np.diff(np.asarray(self._stamps, dtype=np.float64)) / 1e6
+        intervals = np.diff(np.asarray(self._stamps, dtype=np.int64)).astype(np.float64) / 1e6
         return float(np.sqrt(np.mean((intervals - np.median(intervals)) ** 2)))
