@@ -18,7 +18,7 @@ from sensor_msgs.msg import CameraInfo
 from canopy_stereo.errors import RigError
 from canopy_stereo.geometry.frames import raw_camera_calibration
 from canopy_stereo.ros.convert import camera_info_msg
-from canopy_stereo.ros.params import RIG_PARAMETERS, declare_rig_parameters, rig_from_node
+from canopy_stereo.ros.params import RIG_PARAMETERS, declare_rig_parameters, rig_from_node, rig_given
 
 CAMERA_SIDES = ("left", "right")
 
@@ -43,6 +43,8 @@ class RawCameraInfoPublisher:
         try:
             rig = rig_from_node(node)
         except RigError as exc:
+            if rig_given(node):  # a broken rig stops the node (exit 2), as in the other nodes
+                raise
             node.get_logger().info(f"camera {camera_name}: no camera_info ({exc})")
             return
         self.calibration = raw_camera_calibration(rig, camera_name)

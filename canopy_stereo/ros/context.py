@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 import sys
 import tempfile
 import threading
@@ -18,6 +19,9 @@ from pathlib import Path
 
 import rclpy
 from rclpy.context import Context
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
+from canopy_stereo.errors import CanopyStereoError
 
 #: Domains used for private runs: 100 .. 199, clear of the default 0
 #: and inside the range every DDS vendor accepts (0..232).
@@ -278,6 +282,88 @@ def tune_node_process() -> None:
     tune_thread_switching()
     tune_memory_allocator()
     use_bounded_dds_memory()
+
+
+def init_ros(argv, *, context=None, domain_id: int | None = None) -> None:
+    """``rclpy.init`` for an executable's command line, with its problems as one line.
+
+    The ``--params-file`` files of ``argv``'s ``--ros-args`` are checked first
+    (:func:`~canopy_stereo.ros.params.check_parameter_file`: missing, unreadable, not UTF-8,
+    not YAML, not shaped like a parameter file); anything rcl still refuses (a list mixing
+    types, a malformed ``-p`` or ``-r`` rule) is raised as :class:`CanopyStereoError` with
+    rcl's reason, without its source locations, and rcl's own log line is held back. No
+    signal handlers are installed (executables install :func:`install_stop_signals`).
+    """
+    from canopy_stereo.ros.params import check_parameter_file, parameter_files
+
+    for path in parameter_files(argv):
+        check_parameter_file(path)
+    kwargs = {} if domain_id is None else {"domain_id": int(domain_id)}
+    try:
+        with _c_stderr_held():
+            rclpy.init(args=list(argv), context=context,
+                       signal_handler_options=rclpy.signals.SignalHandlerOptions.NO, **kwargs)
+    except _rclpy.RCLError as exc:
+        raise CanopyStereoError(rcl_error_reason(str(exc))) from None
+
+
+def strip_ros_args(argv) -> list[str]:
+    """``argv`` without its ``--ros-args`` sections (rclpy's ``remove_ros_args``), for an
+    executable's own argument parser; a bad ``--params-file`` or ``--ros-args`` is raised as
+    :class:`CanopyStereoError` in one line, as :func:`init_ros` does."""
+    from rclpy.utilities import remove_ros_args
+
+    from canopy_stereo.ros.params import check_parameter_file, parameter_files
+
+    for path in parameter_files(argv):
+        check_parameter_file(path)
+    try:
+        with _c_stderr_held():
+            return list(remove_ros_args(list(argv)))
+    except _rclpy.RCLError as exc:
+        raise CanopyStereoError(rcl_error_reason(str(exc))) from None
+
+
+def rcl_error_reason(text: str) -> str:
+    """rcl's error text as one readable line: source locations (``, at /x/y.c:12``) removed,
+    a parameter file's problem as ``parameter file PATH: reason``."""
+    text = re.sub(r",? at /\S+:\d+", "", " ".join(text.split())).strip()
+    for prefix in ("failed to initialize rcl: ", "Failed to parse ROS arguments: "):
+        text = text.removeprefix(prefix)
+    m = re.match(r"Couldn't parse params file: '--params-file (.*?)'\. Error: (.*)", text)
+    if m:
+        return f"parameter file {m.group(1)}: {m.group(2)}"
+    m = re.match(r"Couldn't parse (.*?): '(.*?)'\. Error: (.*)", text)
+    if m:
+        return f"invalid --ros-args {m.group(1)} {m.group(2)!r}: {m.group(3)}"
+    return text
+
+
+@contextmanager
+def _c_stderr_held():
+    """Send what C code writes to file descriptor 2 to a temporary file while the block runs;
+    written out afterwards when the block succeeds, dropped when it raises (rcl logs its
+    own line for a command line it refuses, which the caller reports in its words)."""
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):  # no usable stderr: nothing to hold
+        yield
+        return
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        ok = False
+        try:
+            yield
+            ok = True
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            if ok:
+                held.seek(0)
+                data = held.read()
+                if data:
+                    os.write(2, data)
 
 
 @contextmanager

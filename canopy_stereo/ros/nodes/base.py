@@ -46,7 +46,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.ros.context import tune_node_process
+from canopy_stereo.ros.context import init_ros, tune_node_process
 from canopy_stereo.ros.diagnostics import DEFAULT_PERIOD_S, NodeDiagnostics
 from canopy_stereo.ros.intra_process import IntraProcessBus, LocalSubscription
 from canopy_stereo.ros.params import flag_descriptor, number_descriptor, text_descriptor
@@ -442,14 +442,19 @@ def run_node(factory, args=None) -> int:
     """Entry point body of a node executable: init, build, spin until Ctrl-C/SIGTERM.
 
     ``factory()`` builds the node after ``rclpy.init`` (so ``--ros-args`` apply).
-    A configuration error (:class:`CanopyStereoError`, e.g. no rig) is printed as
-    one line and gives exit status 2.
+    A configuration error (:class:`CanopyStereoError`: no rig, a broken rig file, a bad
+    ``--params-file`` or ``--ros-args``, see :func:`~canopy_stereo.ros.context.init_ros`)
+    is printed as one line and gives exit status 2.
     """
     from rclpy.executors import SingleThreadedExecutor
 
     args = sys.argv if args is None else args
     tune_node_process()
-    rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    try:
+        init_ros(args)  # a bad --params-file or --ros-args: one line, exit 2
+    except CanopyStereoError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     install_stop_signals()
     node = executor = None
     try:
