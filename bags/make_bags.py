@@ -12,7 +12,7 @@ from pathlib import Path
 
 from canopy_stereo.io.rig import load_rig
 from canopy_stereo.ros.bundled import make_croton, make_plants
-from canopy_stereo.ros.bag import BagReader
+from canopy_stereo.bag import BagReader
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -52,7 +52,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from canopy_stereo.cli import main as cli_main  # noqa: E402
 from canopy_stereo.io.rig import load_rig  # noqa: E402
-from canopy_stereo.ros.bag import BagReader  # noqa: E402
+from canopy_stereo.bag import BagReader  # noqa: E402
 from canopy_stereo.ros.bundled import bundled_bag, bundled_rig, write_stereo_bag  # noqa: E402
 from canopy_stereo.ros.convert import msg_to_image  # noqa: E402
 from canopy_stereo.ros.graph import GraphOptions  # noqa: E402

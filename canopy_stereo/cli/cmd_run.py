@@ -4,7 +4,7 @@ from __future__ import annotations
 from canopy_stereo.cli.common import add_rig_argument, check_at_least
 from canopy_stereo.disparity import DEFAULT_MATCHER, default_matcher, matcher_names, matcher_spec
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.ros.bag import add_split_arguments, split_options
+from canopy_stereo.bag.split import add_split_arguments, split_options
 
 COMMAND = "run"
 HELP = "replay a stereo bag through the ROS 2 nodes and record their outputs"

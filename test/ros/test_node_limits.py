@@ -209,7 +209,7 @@ EXPECTED_LOG = {
 @pytest.mark.slow
 @pytest.mark.ros
 def test_hostile_burst_into_node_processes_is_dropped_logged_and_memory_returns(harness, tmp_path):
-    from canopy_stereo.ros.bag import BagReader
+    from canopy_stereo.bag import BagReader
 
     rig_file = REPO / "config" / "croton_rig.yaml"
     bag = BagReader(REPO / "bags" / "croton.mcap")

@@ -432,7 +432,7 @@ def test_bag_recorder_writes_tf_static_from_rectify_node(harness, paper_rig, tmp
     """bag_record / canopy_graph --record without tf2_msgs: the transforms of rectify_node's
     stereo_geometry go into the bag as /tf_static; bag_play then leaves that topic out
     (type not installed here) instead of failing."""
-    from canopy_stereo.ros.bag import BagReader, BagWriter
+    from canopy_stereo.bag import BagReader, BagWriter
     from canopy_stereo.ros.nodes.rectify import RectifyNode
     from canopy_stereo.ros.player import BagPlayer
     from canopy_stereo.ros.recorder import BagRecorder

@@ -18,7 +18,7 @@ def iou(a, b) -> float:
 
 
 def bundled_lefts(scene: str) -> list[np.ndarray]:
-    from canopy_stereo.ros.bag import BagReader
+    from canopy_stereo.bag import BagReader
     from canopy_stereo.ros.bundled import bundled_bag
     from canopy_stereo.ros.convert import msg_to_image
 

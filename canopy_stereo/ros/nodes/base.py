@@ -212,7 +212,7 @@ class CanopyNode(Node):
             self.counts[what] += n
 
     def time_jump_handler(self, stream_names):
-        """An ``on_jump`` callback for the synchronizers of :mod:`canopy_stereo.ros.sync`:
+        """An ``on_jump`` callback for the synchronizers of :mod:`canopy_stereo.bag.pairing`:
         one log line per backwards time jump, counted in the diagnostics."""
         def on_jump(jump) -> None:
             self.count("time_jumps")

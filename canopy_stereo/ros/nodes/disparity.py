@@ -55,7 +55,7 @@ from canopy_stereo.ros.limits import check_image_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.nodes.rectify import RECT_INFO_TOPICS
 from canopy_stereo.ros.params import number_descriptor
-from canopy_stereo.ros.sync import ExactTimeSynchronizer
+from canopy_stereo.bag.pairing import ExactTimeSynchronizer
 
 _RANGE = ("disp_min", "disp_max")
 

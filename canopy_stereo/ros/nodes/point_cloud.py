@@ -50,7 +50,7 @@ from canopy_stereo.ros.limits import check_disparity_msg, check_image_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.nodes.rectify import RECT_INFO_TOPICS
 from canopy_stereo.ros.stereo_geometry import STEREO_GEOMETRY_TOPIC, parse_stereo_geometry
-from canopy_stereo.ros.sync import ExactTimeSynchronizer
+from canopy_stereo.bag.pairing import ExactTimeSynchronizer
 from canopy_stereo.ros.tf import latched_qos
 
 #: Values of the ``cloud_frame`` parameter.

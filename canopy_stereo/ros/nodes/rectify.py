@@ -50,7 +50,7 @@ from canopy_stereo.ros.limits import check_image_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.params import declare_rig_parameters, rectification_from_node, rig_from_node
 from canopy_stereo.ros.stereo_geometry import STEREO_GEOMETRY_TOPIC, stereo_geometry_msg
-from canopy_stereo.ros.sync import ApproximateTimePairer, FramePeriodEstimator, slop_for_rate
+from canopy_stereo.bag.pairing import ApproximateTimePairer, FramePeriodEstimator, slop_for_rate
 from canopy_stereo.ros.tf import StaticTransformPublisher, latched_qos
 
 #: Rectified CameraInfo topics (beside their images; ``<side>/camera_info`` is the raw camera's).
