@@ -51,6 +51,7 @@ from canopy_stereo.ros.diagnostics import DEFAULT_PERIOD_S, NodeDiagnostics
 from canopy_stereo.ros.intra_process import IntraProcessBus, LocalSubscription
 from canopy_stereo.ros.params import flag_descriptor, number_descriptor, text_descriptor
 from canopy_stereo.ros.qos import OUTPUT_DEPTH, RELIABILITY_CHOICES, publisher_qos, subscription_qos
+from canopy_stereo.ros.stamps import ZERO_STAMP_CHOICES, StampCheck
 
 #: Namespace of the nodes when none is given (``--ros-args -r __ns:=/x`` overrides it).
 DEFAULT_NAMESPACE = "/stereo"
@@ -92,6 +93,7 @@ class CanopyNode(Node):
         self.counts: Counter = Counter()
         self.busy_s = 0.0
         self.drops: Counter = Counter()
+        self.warnings: Counter = Counter()  # reason -> inputs kept with a warning (see warn)
         self._drop_logged: dict[str, float] = {}
         self._jump_logged = float("-inf")
         self._jumps_unlogged = 0
@@ -172,12 +174,16 @@ class CanopyNode(Node):
             self._local_topics.append(pub.topic_name)
         return _CountedPublisher(pub, self.diagnostics, self.intra_process)
 
-    def make_subscription(self, msg_type, topic: str, callback, *, depth: int | None = None, **kwargs):
+    def make_subscription(self, msg_type, topic: str, callback, *, depth: int | None = None,
+                          with_info: bool = False, **kwargs):
         """Reliable keep-last subscription (:func:`~canopy_stereo.ros.qos.subscription_qos`)
         whose callback is :meth:`guarded` and counted in the node's diagnostics.
 
         ``qos_overrides.<topic>.subscription.reliability: best_effort`` (a node parameter)
         accepts a best-effort publisher (large messages between processes may then be lost).
+
+        ``with_info``: ``callback(msg, info)`` with rclpy's message info (a dict with
+        ``received_timestamp`` and ``source_timestamp``, ns; None from an intra-process bus).
 
         With an intra-process bus, a topic that another node of the bus publishes is
         received from the bus instead (a :class:`~canopy_stereo.ros.intra_process.LocalSubscription`
@@ -186,10 +192,10 @@ class CanopyNode(Node):
         diagnostics = self.diagnostics
         name = topic
 
-        def counted(msg):
+        def counted(msg, info=None):
             stamp = _header_stamp_ns(msg)
             diagnostics.received(name, stamp)
-            return callback(msg)
+            return callback(msg, info) if with_info else callback(msg)
 
         if self.intra_process is not None and not kwargs:
             resolved = self.resolve_topic_name(topic)
@@ -199,7 +205,12 @@ class CanopyNode(Node):
                                                    int(subscription_qos(depth).depth))
                 self.local_subscriptions.append(sub)
                 return sub
-        sub = self.create_subscription(msg_type, topic, self.guarded(counted), subscription_qos(depth),
+        guarded = self.guarded(counted)
+        if with_info:  # rclpy passes the message info to callbacks of exactly two arguments
+            def with_message_info(msg, info):
+                return guarded(msg, info)
+        sub = self.create_subscription(msg_type, topic, with_message_info if with_info else guarded,
+                                       subscription_qos(depth),
                                        qos_overriding_options=QoSOverridingOptions.with_default_policies(),
                                        **kwargs)
         name = sub.topic_name
@@ -248,6 +259,48 @@ class CanopyNode(Node):
         suffix = f" ({n} so far)" if n > 1 else ""
         detail = f" (last: {reason})" if key.endswith(": other reasons") else ""
         self.get_logger().warning(f"dropped {key}{detail}{suffix}")
+
+    def warn(self, reason: str, what: str = "message") -> None:
+        """Report an input that is kept but suspicious (WARN on /diagnostics; logged at most
+        every :data:`DROP_LOG_PERIOD_S` per reason)."""
+        key = f"{what}: {reason}"
+        self.diagnostics.warned(key)
+        now = time.monotonic()
+        with self._stats_lock:
+            self.warnings[key] += 1
+            n = self.warnings[key]
+            last = self._drop_logged.get(key)
+            if last is not None and now - last < DROP_LOG_PERIOD_S:
+                return
+            self._drop_logged[key] = now
+        self.get_logger().warning(f"{key}" + (f" ({n} so far)" if n > 1 else ""))
+
+    def declare_stamp_checks(self, n_streams: int) -> StampCheck:
+        """Declare ``zero_stamps`` and ``max_stamp_gap`` and return the :class:`StampCheck` of
+        ``n_streams`` input streams they configure (:mod:`canopy_stereo.ros.stamps`)."""
+        self.declare_text("zero_stamps", "restamp", "frames stamped 0 (a driver that does not stamp): "
+                          "restamp = use the receive time, drop = drop them; a warning either way",
+                          choices=ZERO_STAMP_CHOICES, read_only=True)
+        self.declare_number("max_stamp_gap", 0.0, "seconds a frame's stamp may differ from its receive "
+                            "time before a warning naming the gap (0 = never; a bag played with its "
+                            "recorded stamps is far from now)", minimum=0.0, maximum=1e9, read_only=True)
+        zero = self.get_parameter("zero_stamps").value
+        if zero not in ZERO_STAMP_CHOICES:
+            raise CanopyStereoError(f"zero_stamps must be one of {', '.join(ZERO_STAMP_CHOICES)}, got {zero!r}")
+        return StampCheck(n_streams, zero_stamps=zero, max_gap_s=float(self.get_parameter("max_stamp_gap").value))
+
+    def checked_stamp(self, check: StampCheck, stream: int, stamp_ns: int, what: str,
+                      info: dict | None = None) -> int | None:
+        """The stamp to use for an input of ``stream`` stamped ``stamp_ns`` (None: dropped as a
+        duplicate or a zero stamp), warnings and drops reported as ``what``. The receive time is
+        the middleware's (``info['received_timestamp']``, see :meth:`make_subscription`), else now."""
+        received = (info or {}).get("received_timestamp") or self.get_clock().now().nanoseconds
+        verdict = check.check(stream, stamp_ns, int(received))
+        for reason in verdict.warnings:
+            self.warn(reason, what)
+        if verdict.stamp_ns is None:
+            self.drop(verdict.drop_reason, what)
+        return verdict.stamp_ns
 
     def guarded(self, fn):
         """Wrap a callback: user-fixable errors drop the message, anything else is

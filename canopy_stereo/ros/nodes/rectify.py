@@ -25,10 +25,17 @@ Parameters: the rig (:mod:`canopy_stereo.ros.params`), ``method`` (empty = the r
 stamps), ``sync_slop`` (s; -1 = half a frame period at ``fps``), ``queue_size``,
 ``frame_id`` (rectified left optical frame) and ``right_frame_id``, ``world_frame``,
 ``world_z_up_frame`` ("" = none), ``left_camera_frame``/``right_camera_frame`` (raw
-optical frames in the transforms), ``reliability``, ``diagnostic_period``.
+optical frames in the transforms), ``zero_stamps``, ``max_stamp_gap``, ``reliability``,
+``diagnostic_period``.
 
 Stamps that go back further than the pairing tolerance (a looping bag, a
 restarted driver) reset the pairing with one log line; pairing goes on.
+
+Stamps that make no sense (:mod:`canopy_stereo.ros.stamps`): a zero stamp is restamped with
+the receive time (``zero_stamps: restamp``, the default) or dropped (``drop``), a warning on
+``/diagnostics`` either way; a stamp repeated by the driver is dropped as ``duplicate stamp``
+(and its gap not counted as lost); ``max_stamp_gap`` (s, 0 = off) warns about stamps that far
+from the receive time, naming the gap.
 
 Frames that never reached the node (overwritten in its keep-last input queue while it
 was busy, or lost upstream) are counted as drops (``left frame: missed ...``, in
@@ -106,6 +113,7 @@ class RectifyNode(CanopyNode):
         self.period_estimator = FramePeriodEstimator() if slop < 0 and fps <= 0 else None
         if slop < 0:
             slop = slop_for_rate(fps) if fps > 0 else INITIAL_SLOP_S
+        self.stamp_check = self.declare_stamp_checks(2)  # zero, duplicate, far-off stamps
         self.left_gaps = FramePeriodEstimator(1, max_interval_s=MISSED_MAX_GAP_S)
         self._last_left_ns = None
         self.pairer = ApproximateTimePairer(slop, int(self.get_parameter("queue_size").value),
@@ -120,8 +128,10 @@ class RectifyNode(CanopyNode):
         self.pub_geometry.publish(stereo_geometry_msg(self.rig, self.rect, self.frames))
         self.transforms = stereo_transforms(self.rig, self.rect, names=self.frames)
         self.tf_static = StaticTransformPublisher(self, self.transforms)
-        self.sub_left = self.make_subscription(Image, "left/image_raw", lambda m: self._on_image(0, m))
-        self.sub_right = self.make_subscription(Image, "right/image_raw", lambda m: self._on_image(1, m))
+        self.sub_left = self.make_subscription(Image, "left/image_raw", lambda m, i: self._on_image(0, m, i),
+                                               with_info=True)
+        self.sub_right = self.make_subscription(Image, "right/image_raw", lambda m, i: self._on_image(1, m, i),
+                                                with_info=True)
         if self.rect.method != "fusiello":
             self.get_logger().info("hartley rectification: the rectified camera_info is uncalibrated "
                                    "(a projective rectification has no metric camera)")
@@ -133,7 +143,7 @@ class RectifyNode(CanopyNode):
                                f"sync slop {self.pairer.slop_ns / 1e9:g} s"
                                + (" until the frame period is measured" if self.period_estimator else ""))
 
-    def _on_image(self, side: int, msg: Image) -> None:
+    def _on_image(self, side: int, msg: Image, info: dict | None = None) -> None:
         name = ("left", "right")[side]
         self.count(f"{name}_received")
         try:
@@ -142,7 +152,9 @@ class RectifyNode(CanopyNode):
         except Exception as exc:
             self.drop(str(exc), f"{name} frame")
             return
-        stamp = stamp_to_ns(msg.header.stamp)
+        stamp = self.checked_stamp(self.stamp_check, side, stamp_to_ns(msg.header.stamp), f"{name} frame", info)
+        if stamp is None:  # a duplicate, or a zero stamp with zero_stamps: drop
+            return
         if side == 0:
             self._count_missed(stamp)
         if self.period_estimator is not None:
@@ -159,12 +171,13 @@ class RectifyNode(CanopyNode):
         """Count the left frames missing between the previous left stamp and ``stamp_ns``."""
         period_s = self.left_gaps.observe(0, stamp_ns)
         last, self._last_left_ns = self._last_left_ns, stamp_ns
+        duplicates = self.stamp_check.take_duplicates(0)  # sent, with a repeated stamp: not lost
         if period_s is None or last is None:
             return
         gap_s = (stamp_ns - last) / 1e9
         if gap_s <= 1.5 * period_s or gap_s > MISSED_MAX_GAP_S:
             return
-        for _ in range(int(round(gap_s / period_s)) - 1):
+        for _ in range(int(round(gap_s / period_s)) - 1 - duplicates):
             self.drop(MISSED_REASON, "left frame")
 
     def camera_infos(self, stamp_ns: int) -> tuple[CameraInfo, CameraInfo]:
