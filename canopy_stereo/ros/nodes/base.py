@@ -59,6 +59,9 @@ DEFAULT_NAMESPACE = "/stereo"
 #: Seconds between repeated log lines for the same drop reason.
 DROP_LOG_PERIOD_S = 5.0
 
+#: Frame size (width, height) nodes warm up on when the rig's image size is not given.
+WARM_UP_SIZE = (640, 480)
+
 #: Distinct drop reasons counted one by one; later ones count as "other reasons" (a sender
 #: varying its image sizes must not grow the counters without bound).
 MAX_DROP_REASONS = 64
@@ -94,6 +97,7 @@ class CanopyNode(Node):
         self.busy_s = 0.0
         self.drops: Counter = Counter()
         self.warnings: Counter = Counter()  # reason -> inputs kept with a warning (see warn)
+        self.warm_up_s = 0.0  # seconds the warm-up before subscribing took (see warm_up)
         self._drop_logged: dict[str, float] = {}
         self._jump_logged = float("-inf")
         self._jumps_unlogged = 0
@@ -259,6 +263,40 @@ class CanopyNode(Node):
         suffix = f" ({n} so far)" if n > 1 else ""
         detail = f" (last: {reason})" if key.endswith(": other reasons") else ""
         self.get_logger().warning(f"dropped {key}{detail}{suffix}")
+
+    def declare_frame_size(self) -> None:
+        """Declare ``image_width`` and ``image_height`` (the rig file sets them): the size of the
+        frames the node prepares for before subscribing (see :meth:`warm_up_size`)."""
+        for name in ("image_width", "image_height"):
+            self.declare_number(name, 0, f"{name.split('_')[1]} of the rig's images in pixels (the rig file "
+                                "sets it): kernels and buffers are prepared on frames of this size before "
+                                f"the node subscribes; 0 = {WARM_UP_SIZE[0]}x{WARM_UP_SIZE[1]}",
+                                minimum=0, maximum=16384, read_only=True)
+
+    def warm_up_size(self) -> tuple[int, int]:
+        """``(width, height)`` of the frame to warm up on: ``image_width``/``image_height`` when
+        declared and set, else :data:`WARM_UP_SIZE`."""
+        if self.has_parameter("image_width") and self.has_parameter("image_height"):
+            w, h = (int(self.get_parameter(n).value or 0) for n in ("image_width", "image_height"))
+            if w > 0 and h > 0:
+                return w, h
+        return WARM_UP_SIZE
+
+    def warm_up(self, what: str, fn) -> float:
+        """Run ``fn()`` once before the node subscribes: its numba kernels are loaded (or, with
+        an empty cache, compiled) and its buffers allocated on a frame of the rig's size, so
+        that the first frame of a stream is processed as fast as the others. Logs how long it
+        took; a failure is logged and the node goes on (the first frame then pays). Returns the
+        seconds spent."""
+        t0 = time.perf_counter()
+        try:
+            fn()
+        except Exception as exc:  # noqa: BLE001 - a warm-up never stops a node
+            self.get_logger().warning(f"warm-up failed ({type(exc).__name__}: {exc}); the first "
+                                      "frame will load the kernels")
+        self.warm_up_s = time.perf_counter() - t0
+        self.get_logger().info(f"ready in {self.warm_up_s:.2f} s ({what}) before subscribing")
+        return self.warm_up_s
 
     def warn(self, reason: str, what: str = "message") -> None:
         """Report an input that is kept but suspicious (WARN on /diagnostics; logged at most

@@ -45,6 +45,7 @@ longer than 2 s are pauses, not losses.
 """
 from __future__ import annotations
 
+import numpy as np
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import String
 
@@ -128,6 +129,8 @@ class RectifyNode(CanopyNode):
         self.pub_geometry.publish(stereo_geometry_msg(self.rig, self.rect, self.frames))
         self.transforms = stereo_transforms(self.rig, self.rect, names=self.frames)
         self.tf_static = StaticTransformPublisher(self, self.transforms)
+        w, h = self.rig.image_size
+        self.warm_up(f"rectification of {w}x{h} pairs", self._warm_up)
         self.sub_left = self.make_subscription(Image, "left/image_raw", lambda m, i: self._on_image(0, m, i),
                                                with_info=True)
         self.sub_right = self.make_subscription(Image, "right/image_raw", lambda m, i: self._on_image(1, m, i),
@@ -166,6 +169,15 @@ class RectifyNode(CanopyNode):
         if pair is not None:
             self.diagnostics.sample("pair offset ms", pair.skew_ns / 1e6)
             self._publish(pair.stamps_ns[0], *pair.items)
+
+    def _warm_up(self) -> None:
+        """One pair of the rig's size through conversion and rectification, nothing published."""
+        w, h = self.rig.image_size
+        frame = np.random.default_rng(0).integers(0, 256, (h, w, 3), dtype=np.uint8)
+        bgr = msg_to_bgr(image_to_msg(frame, "bgr8", stamp_ns=1, frame_id=""), expected_size=(w, h))
+        left_r, right_r = self.rectifier.rectify(bgr, bgr)
+        image_to_msg(left_r, "bgr8", stamp_ns=1, frame_id="")
+        image_to_msg(to_gray(right_r), "mono8", stamp_ns=1, frame_id="")
 
     def _count_missed(self, stamp_ns: int) -> None:
         """Count the left frames missing between the previous left stamp and ``stamp_ns``."""

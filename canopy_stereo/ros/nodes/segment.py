@@ -55,7 +55,7 @@ from stereo_msgs.msg import DisparityImage
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.ros.convert import COLOUR_ENCODINGS, image_to_msg, msg_to_bgr, msg_to_disparity, stamp_to_ns
 from canopy_stereo.ros.limits import SEGMENT_MIN_SIZE, check_disparity_msg, check_image_msg
-from canopy_stereo.ros.nodes.base import CanopyNode, run_node
+from canopy_stereo.ros.nodes.base import WARM_UP_SIZE, CanopyNode, run_node
 from canopy_stereo.bag.pairing import ExactTimeSynchronizer
 from canopy_stereo.segmentation.auto import VIDEO_SEEDER, decode_setting, seeder_fields
 from canopy_stereo.segmentation.grabcut import clip_rect
@@ -108,8 +108,22 @@ class SegmentNode(CanopyNode):
             self.sync = ExactTimeSynchronizer(2, max(depth, 5), on_jump=self.time_jump_handler(_STREAMS))
             self.sub_disp = self.make_subscription(DisparityImage, "disparity", lambda m: self._on(1, m),
                                                    depth=depth)
+        w, h = self.expected_size or WARM_UP_SIZE
+        self.warm_up(f"segmentation of {w}x{h} images", self._warm_up)
         self.sub = self.make_subscription(Image, "left/image_rect_color", lambda m: self._on(0, m),
                                           depth=depth)
+
+    def _warm_up(self) -> None:
+        """A full cut and a propagated frame on a synthetic image of the rig's size, with a
+        propagator of its own (the node's starts fresh), nothing published."""
+        from canopy_stereo.sim.stereo_pair import synthetic_pair
+
+        w, h = self.expected_size or WARM_UP_SIZE
+        left, _, disparity = synthetic_pair(w, h, plane=(0.0, 0.0, 20.0), texture="blocks", colour=True)
+        propagator = self._settings({})["propagator"]
+        for _ in range(2):
+            mask = propagator.segment(left, disparity=disparity if self.depth_cue else None)
+        image_to_msg(mask, "mono8", stamp_ns=1, frame_id="")
 
     def _settings(self, changes: dict) -> dict:
         """``{"rect": (x, y, w, h) or None, "seeder": SeederSettings}`` of the parameters with
