@@ -138,6 +138,13 @@ class NodeDiagnostics:
         with self._lock:
             self._jumps += 1
 
+    def restart(self) -> None:
+        """Start the window (and the report timer's period) now, e.g. once the node is ready."""
+        with self._lock:
+            self._window_start = time.monotonic()
+        if self.timer is not None:
+            self.timer.reset()
+
     # ------------------------------------------------------------------ report
     def status(self, reset: bool = True) -> DiagnosticStatus:
         """The status over the window since the last report (``reset``: start a new window)."""

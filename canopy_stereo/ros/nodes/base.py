@@ -295,6 +295,7 @@ class CanopyNode(Node):
             self.get_logger().warning(f"warm-up failed ({type(exc).__name__}: {exc}); the first "
                                       "frame will load the kernels")
         self.warm_up_s = time.perf_counter() - t0
+        self.diagnostics.restart()  # the first report covers the node's time ready, not its warm-up
         self.get_logger().info(f"ready in {self.warm_up_s:.2f} s ({what}) before subscribing")
         return self.warm_up_s
 
