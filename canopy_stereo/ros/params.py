@@ -16,7 +16,7 @@ from rclpy.parameter import Parameter
 
 from canopy_stereo.errors import CanopyStereoError, RigError
 from canopy_stereo.geometry.rectification import Rectification
-from canopy_stereo.geometry.rig_rectification import RECTIFICATION_METHODS, rectification_for_rig
+from canopy_stereo.geometry.rig_rectification import rectification_for_rig
 from canopy_stereo.io.rig import Rig, load_rig, rig_from_parameters
 from canopy_stereo.io.yaml_files import read_yaml_file
 
@@ -68,6 +68,7 @@ def _yaml_kind(value) -> str:
     return f"{type(value).__name__} ({value!r:.40})"
 
 
+
 def number_descriptor(description: str, *, minimum, maximum, step=0, integer: bool,
                       read_only: bool = False, dynamic: bool = False) -> ParameterDescriptor:
     """Descriptor of a numeric parameter with its ``IntegerRange``/``FloatingPointRange``
@@ -102,8 +103,10 @@ def flag_descriptor(description: str, *, read_only: bool = False) -> ParameterDe
 RIG_PARAMETERS = {
     "P_left": "left 3x4 projection matrix, world -> original pixels (12 numbers, row-major)",
     "P_right": "right 3x4 projection matrix (12 numbers, row-major)",
-    "D_left": "left distortion coefficients (OpenCV order), optional",
-    "D_right": "right distortion coefficients (OpenCV order), optional",
+    "D_left": "left distortion coefficients (OpenCV order, or k1-k4 for equidistant), optional",
+    "D_right": "right distortion coefficients (OpenCV order, or k1-k4 for equidistant), optional",
+    "distortion_model": "lens model of D_left/D_right: plumb_bob | rational_polynomial | equidistant "
+                        "(empty = OpenCV's model, by the number of coefficients)",
     "image_width": "width of the raw images in pixels",
     "image_height": "height of the raw images in pixels",
     "world_unit": "unit of the world frame of P (m, cm, mm, ...)",
