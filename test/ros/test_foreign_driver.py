@@ -41,8 +41,8 @@ def test_a_driver_on_fast_dds_defaults_gets_95_percent_of_its_pairs_as_clouds(tm
                         and clouds.subscription.get_publisher_count() >= 1, 180.0, group=group), group.logs()
         env = foreign_env(group.env)
         assert not any(k in env for k in DDS_SETTINGS)
-        driver = subprocess.run([sys.executable, "-m", "test.support.foreign_driver", "--rate", "10", "--frames", "200"],
-                                cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+        driver = subprocess.run([sys.executable, "-m", "test.support.foreign_driver", "--rate", "10",
+                                 "--frames", "200"], cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
         assert driver.returncode == 0, driver.stderr[-3000:]
         sent = {int(k): t for k, t in json.loads(driver.stdout.strip().splitlines()[-1])["sent"].items()}
         wait_for(lambda: set(sent) <= set(clouds.stamps()), 5.0, group=group)

@@ -59,7 +59,7 @@ def test_zero_stamps_are_restamped_with_a_warn_on_diagnostics(harness, paper_rig
     for k in range(5):
         pl.publish(convert.image_to_msg(left, "bgr8", stamp_ns=0, frame_id="left_camera"))
         pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=0, frame_id="right_camera"))
-        assert wait_for(lambda: len(out) == k + 1, TIMEOUT)
+        assert wait_for(lambda k=k: len(out) == k + 1, TIMEOUT)
         time.sleep(0.1)
     stamps = [convert.stamp_to_ns(m.header.stamp) for m in out]
     assert all(s >= before for s in stamps) and len(set(stamps)) == 5
@@ -94,7 +94,7 @@ def test_duplicated_stamps_are_counted_as_duplicates_not_lost_frames(harness, pa
     for n, t in enumerate(stamps):
         pl.publish(convert.image_to_msg(left, "bgr8", stamp_ns=t, frame_id="left_camera"))
         pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=t + 3_000_000, frame_id="right_camera"))
-        assert wait_for(lambda: len(out) + sum(node.drops.values()) // 2 == n + 1, TIMEOUT), node.drops
+        assert wait_for(lambda n=n: len(out) + sum(node.drops.values()) // 2 == n + 1, TIMEOUT), node.drops
     drops = node.stats()["drops"]
     assert not any(MISSED_REASON in k for k in drops), drops
     assert sum(n for k, n in drops.items() if "duplicate stamp" in k) == 4, drops  # left and right

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 
@@ -70,8 +69,8 @@ def main(argv=None) -> int:
             return 1
         time.sleep(0.05)
     time.sleep(0.5)
-    msgs = [(image_to_msg(l, "bgr8", frame_id="left_camera_optical_frame"),
-             image_to_msg(r, "bgr8", frame_id="right_camera_optical_frame")) for l, r in frames]
+    msgs = [(image_to_msg(left, "bgr8", frame_id="left_camera_optical_frame"),
+             image_to_msg(right, "bgr8", frame_id="right_camera_optical_frame")) for left, right in frames]
     sent = {}
     t0 = time.monotonic()
     for k in range(opts.frames):

@@ -38,6 +38,7 @@ from collections import Counter, deque
 
 import rclpy
 from rcl_interfaces.msg import ParameterType
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException, ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -212,12 +213,21 @@ class CanopyNode(Node):
         if with_info:  # rclpy passes the message info to callbacks of exactly two arguments
             def with_message_info(msg, info):
                 return guarded(msg, info)
+        kwargs.setdefault("event_callbacks", SubscriptionEventCallbacks(
+            message_lost=lambda info: self._samples_lost(topic, info)))
         sub = self.create_subscription(msg_type, topic, with_message_info if with_info else guarded,
                                        subscription_qos(depth),
                                        qos_overriding_options=QoSOverridingOptions.with_default_policies(),
                                        **kwargs)
         name = sub.topic_name
         return sub
+
+    def _samples_lost(self, topic: str, info) -> None:
+        """Fast DDS reports samples a publisher sent that will never arrive (its history dropped
+        them before this reader had them all): drops on /diagnostics, naming the topic."""
+        for _ in range(max(0, int(getattr(info, "total_count_change", 0)))):
+            self.drop("lost in transport: the publisher's sample never arrived whole (DDS sample lost; "
+                      "README: camera drivers that are not ours)", self.resolve_topic_name(topic))
 
     # ------------------------------------------------------------------ accounting
     def count(self, what: str, n: int = 1) -> None:
