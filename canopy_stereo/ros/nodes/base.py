@@ -550,7 +550,7 @@ def run_node(factory, args=None) -> int:
     from rclpy.executors import SingleThreadedExecutor
 
     args = sys.argv if args is None else args
-    tune_node_process()
+    tune_node_process(args)  # before rclpy.init: the DDS profile for this node's topics
     try:
         init_ros(args)  # a bad --params-file or --ros-args: one line, exit 2
     except CanopyStereoError as exc:
