@@ -260,3 +260,19 @@ def test_segment_node_checks_rect_against_the_image_size(ctx):
         assert node.set_parameters([Parameter("rect", value=[100, 80, 300, 250])])[0].successful
     finally:
         node.destroy_node()
+
+
+def test_disparity_node_checks_disp_max_against_the_image_width(ctx):
+    """The rig's image_width is known: a disp_max at or beyond it is refused at start and by a
+    later ``ros2 param set``."""
+    from canopy_stereo.ros.nodes.disparity import DisparityNode
+
+    with pytest.raises(CanopyStereoError, match=r"disp_max \(700\) must be smaller than the image width \(640 px\)"):
+        _make(ctx, DisparityNode, True, disp_max=700)
+    node = _make(ctx, DisparityNode, True)
+    try:
+        result = node.set_parameters([Parameter("disp_max", value=640)])[0]
+        assert not result.successful and "image width (640 px)" in result.reason
+        assert node.set_parameters([Parameter("disp_max", value=96)])[0].successful
+    finally:
+        node.destroy_node()

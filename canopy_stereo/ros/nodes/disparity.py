@@ -136,6 +136,7 @@ class DisparityNode(CanopyNode):
                 self.declare_parameter(f"{matcher}.{parameter.name}", None,
                                        matcher_parameter_descriptor(spec, parameter))
         self.declare_frame_size()
+        self.image_width_seen = 0  # width of the latest rectified camera_info (0: none yet)
         self._config_lock = threading.Lock()
         self.config = self._build_config({})
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -172,6 +173,9 @@ class DisparityNode(CanopyNode):
         dmin, dmax = (None if dmin < 0 else dmin), (None if dmax < 0 else dmax)
         if dmin is not None and dmax is not None and dmax <= dmin:
             raise CanopyStereoError(f"disp_max ({dmax}) must be greater than disp_min ({dmin})")
+        width = self.image_width_seen or int(self.get_parameter("image_width").value)
+        if dmax is not None and width > 0 and dmax >= width:  # the image size is known: check against it
+            raise CanopyStereoError(f"disp_max ({dmax}) must be smaller than the image width ({width} px)")
         params = {}
         for name in available_matchers():  # every value set is checked; the active matcher's are used
             for parameter in matcher_spec(name).parameters:
@@ -215,6 +219,7 @@ class DisparityNode(CanopyNode):
         self.count(f"{('left', 'right')[stream - 2]}_camera_info_received")
         if msg.width > 0 and msg.height > 0:  # images must have the rectified cameras' size
             self.expected_size = (int(msg.width), int(msg.height))
+            self.image_width_seen = int(msg.width)
         self._push(stream, msg, msg)
 
     def _push(self, stream: int, msg, item) -> None:
