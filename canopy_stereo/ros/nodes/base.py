@@ -337,7 +337,7 @@ class CanopyNode(Node):
             raise CanopyStereoError(f"zero_stamps must be one of {', '.join(ZERO_STAMP_CHOICES)}, got {zero!r}")
         return StampCheck(n_streams, zero_stamps=zero, max_gap_s=float(self.get_parameter("max_stamp_gap").value))
 
-    def checked_stamp(self, check: StampCheck, stream: int, stamp_ns: int, what: str,
+    def checked_stamp(self, check: StampCheck, stream: int, stamp_ns: int, what: str, *,
                       info: dict | None = None) -> int | None:
         """The stamp to use for an input of ``stream`` stamped ``stamp_ns`` (None: dropped as a
         duplicate or a zero stamp), warnings and drops reported as ``what``. The receive time is

@@ -200,7 +200,8 @@ class RectifyNode(CanopyNode):
         except Exception as exc:
             self.drop(str(exc), f"{name} frame")
             return
-        stamp = self.checked_stamp(self.stamp_check, side, stamp_to_ns(msg.header.stamp), f"{name} frame", info)
+        stamp = self.checked_stamp(self.stamp_check, side, stamp_to_ns(msg.header.stamp), f"{name} frame",
+                                   info=info)
         if stamp is None:  # a duplicate, or a zero stamp with zero_stamps: drop
             return
         if side == 0:
