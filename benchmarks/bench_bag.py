@@ -109,7 +109,7 @@ def bench_record(tmp: Path, repeat: int) -> None:
 
     small = serialize_message(CameraInfo())
     big = next(m.data for m in BagReader(bundled_bag("croton")).messages("/stereo/left/image_raw"))
-    print("recording cost per message (us; lz4; best of {}):".format(repeat))
+    print(f"recording cost per message (us; lz4; best of {repeat}):")
     print(f"  {'message':<22} {'BagWriter, thread':>18} {'BagWriter, main':>16} {'mcap bare':>10} "
           f"{'overhead (thread)':>18}")
     for label, data, n in ((f"CameraInfo {len(small)} B", small, 20000), (f"Image {len(big)} B", big, 300)):

@@ -43,7 +43,7 @@ def type_name(msg_or_class) -> str:
     return f"{module[0]}/{module[1]}/{cls.__name__}"
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def message_class(name: str):
     """The Python class of a type name (``"sensor_msgs/msg/Image"`` or ``"sensor_msgs/Image"``)."""
     parts = name.split("/")
@@ -143,7 +143,7 @@ def own_definition(name: str) -> str:
     return text if text is not None else _generated_text(message_class(name))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def message_definition(name: str) -> str:
     """Full ``ros2msg`` definition of ``name`` with every nested type, as rosbag2 writes it."""
     name = type_name(message_class(name))

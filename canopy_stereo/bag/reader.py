@@ -18,15 +18,36 @@ import heapq
 import os
 import struct
 import zlib
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Callable, Iterator
 
 from canopy_stereo.bag.check import BagCheck, BagDamage
 from canopy_stereo.bag.errors import BagError, _one_line
 from canopy_stereo.bag.mcap_records import (
-    _CHANNEL, _CHUNK, _CHUNK_INDEX, _COMPRESSIONS, _DATA_END, _FOOTER, _FOOTER_SIZE, _HEADER, _MAGIC,
-    _MESSAGE, _MESSAGE_INDEX, _METADATA, _SCHEMA, _STATISTICS, _TOPIC_RE, MAX_CHUNK_BYTES,
-    ChannelRecord, SchemaRecord, _Chunk, _Cursor, _Malformed, _parse_channel, _parse_schema)
+    _CHANNEL,
+    _CHUNK,
+    _CHUNK_INDEX,
+    _COMPRESSIONS,
+    _DATA_END,
+    _FOOTER,
+    _FOOTER_SIZE,
+    _HEADER,
+    _MAGIC,
+    _MESSAGE,
+    _MESSAGE_INDEX,
+    _METADATA,
+    _SCHEMA,
+    _STATISTICS,
+    _TOPIC_RE,
+    MAX_CHUNK_BYTES,
+    ChannelRecord,
+    SchemaRecord,
+    _Chunk,
+    _Cursor,
+    _Malformed,
+    _parse_channel,
+    _parse_schema,
+)
 from canopy_stereo.bag.messages import BagMessage, TopicInfo, _normal_type
 
 

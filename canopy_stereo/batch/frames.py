@@ -17,8 +17,8 @@ bytes; strings include their terminating NUL).
 from __future__ import annotations
 
 import struct
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Iterator
 
 import cv2
 import numpy as np

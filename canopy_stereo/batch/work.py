@@ -148,9 +148,9 @@ def process_bag(path, options: BatchOptions | None = None) -> dict:
     stereo pair, or no frame could be measured.
     """
     from canopy_stereo import __version__
-    from canopy_stereo.batch.frames import image_to_bgr, raw_stereo_pairs
-    from canopy_stereo.bag.metadata import canopy_metadata, matches_selection
     from canopy_stereo.bag import BagReader
+    from canopy_stereo.bag.metadata import canopy_metadata, matches_selection
+    from canopy_stereo.batch.frames import image_to_bgr, raw_stereo_pairs
 
     options = options or BatchOptions()
     bag = BagReader(path)

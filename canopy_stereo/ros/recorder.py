@@ -30,11 +30,11 @@ import time
 from rclpy.node import Node
 from rclpy.qos import ReliabilityPolicy
 
-from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.bag import BagWriter
-from canopy_stereo.bag.split import add_split_arguments, split_options
 from canopy_stereo.bag.messages import qos_profiles_yaml
 from canopy_stereo.bag.msgdefs import message_class, type_name
+from canopy_stereo.bag.split import add_split_arguments, split_options
+from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.ros.qos import recording_qos
 
 #: Topics never recorded by ``--all`` (ROS internals).

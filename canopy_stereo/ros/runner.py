@@ -27,13 +27,13 @@ from pathlib import Path
 
 import numpy as np
 
-from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.io.rig import Rig
 from canopy_stereo.bag import BagError, BagReader, BagWriter
 from canopy_stereo.bag.messages import qos_profiles_yaml
+from canopy_stereo.bag.msgdefs import type_name
+from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.io.rig import Rig
 from canopy_stereo.ros.context import ros_context, wait_for, wait_for_subscribers
 from canopy_stereo.ros.graph import CanopyGraph, GraphOptions
-from canopy_stereo.bag.msgdefs import type_name
 from canopy_stereo.ros.nodes.base import CanopyNode
 from canopy_stereo.ros.player import BagPlayer
 from canopy_stereo.ros.qos import recording_qos

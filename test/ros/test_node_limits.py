@@ -25,7 +25,6 @@ from canopy_stereo.errors import ImageError  # noqa: E402
 from canopy_stereo.ros import convert, limits  # noqa: E402
 from canopy_stereo.ros.context import private_domain_id, wait_for  # noqa: E402
 from canopy_stereo.ros.qos import publisher_qos, recording_qos  # noqa: E402
-
 from test.conftest import REPO  # noqa: E402
 
 T0 = 1_700_000_000_000_000_000

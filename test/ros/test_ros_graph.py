@@ -13,10 +13,10 @@ from rclpy.serialization import deserialize_message  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 from stereo_msgs.msg import DisparityImage  # noqa: E402
 
+from canopy_stereo.bag import BagReader  # noqa: E402
 from canopy_stereo.geometry.rectification import fusiello_rectify  # noqa: E402
 from canopy_stereo.io.rig import load_rig  # noqa: E402
 from canopy_stereo.ros import convert  # noqa: E402
-from canopy_stereo.bag import BagReader  # noqa: E402
 from canopy_stereo.ros.bundled import (  # noqa: E402
     bundled_bag,
     bundled_rig,
@@ -244,7 +244,7 @@ def test_graph_from_cameras(croton, tmp_path):
         finally:
             graph.shutdown()
             sink.destroy_node()
-    assert infos[0].header.frame_id == "right_camera_optical_frame" and infos[0].p[3] < 0
+    assert infos[0].header.frame_id == "left_camera_optical_frame" and infos[0].p[3] < 0  # one frame per pair
     pts, _ = convert.cloud2_to_points(clouds[0])
     # the croton and its backdrop lie 0.5 to 1.1 m in front of the paper's rig
     z = np.median(pts[:, 2])

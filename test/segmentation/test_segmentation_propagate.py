@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from canopy_stereo.errors import CanopyStereoError, ImageError
-from canopy_stereo.segmentation.propagate import MaskPropagator
 from canopy_stereo.segmentation.auto import segment_plant
+from canopy_stereo.segmentation.propagate import MaskPropagator
 
 pytest.importorskip("mcap")
 
