@@ -148,7 +148,7 @@ def shape_seed(q: np.ndarray, image_bgr: np.ndarray, *,
         raise ImageError("the depth cue has fewer than 50 valid pixels")
     noise = float(settings.noise)
     r = int(settings.window)
-    planes = fit_planes(q, tolerance=2.5 * noise)
+    planes = fit_planes(q, tolerance=2.5 * noise, iterations=120)
     on_plane = np.zeros((h, w), bool)
     lead = np.full((h, w), np.inf)  # how far each pixel stands in front of every plane
     ground = np.zeros((h, w), bool)
@@ -252,11 +252,11 @@ def _colour_cut(img: np.ndarray, labels: np.ndarray, plain: np.ndarray) -> np.nd
         return labels
     # plant training pixels whose colour the background explains best are the background
     # a matcher spread between leaves: leave them out of the plant's model
-    llr, _, _ = colour_log_ratio(img, plant, background)
+    llr, _, background_gmm = colour_log_ratio(img, plant, background)
     cleaner = plant & (llr > 0)
     if cleaner.sum() >= MIN_SAMPLES:
         plant = cleaner
-    llr, plant_gmm, background_gmm = colour_log_ratio(img, plant, background)
+    llr, plant_gmm, background_gmm = colour_log_ratio(img, plant, background, background_gmm=background_gmm)
     relabelled = relabel_by_colour(labels, llr, sure=SURE_LOG_RATIO)
     relabelled[labels == GC_BGD] = GC_BGD  # the shape cue's background stands
     return grabcut_with_models(img, relabelled, plant_gmm, background_gmm)
