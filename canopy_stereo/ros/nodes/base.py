@@ -50,7 +50,7 @@ from canopy_stereo.ros.context import init_ros, tune_node_process
 from canopy_stereo.ros.diagnostics import DEFAULT_PERIOD_S, NodeDiagnostics
 from canopy_stereo.ros.intra_process import IntraProcessBus, LocalSubscription
 from canopy_stereo.ros.params import flag_descriptor, number_descriptor, text_descriptor
-from canopy_stereo.ros.qos import OUTPUT_DEPTH, RELIABILITY_CHOICES, publisher_qos, subscription_qos
+from canopy_stereo.ros.qos import OUTPUT_DEPTH, RELIABILITY_CHOICES, publisher_qos, sensor_data_qos, subscription_qos
 from canopy_stereo.ros.stamps import ZERO_STAMP_CHOICES, StampCheck
 
 #: Namespace of the nodes when none is given (``--ros-args -r __ns:=/x`` overrides it).
@@ -179,9 +179,11 @@ class CanopyNode(Node):
         return _CountedPublisher(pub, self.diagnostics, self.intra_process)
 
     def make_subscription(self, msg_type, topic: str, callback, *, depth: int | None = None,
-                          with_info: bool = False, **kwargs):
+                          sensor_data: bool = False, with_info: bool = False, **kwargs):
         """Reliable keep-last subscription (:func:`~canopy_stereo.ros.qos.subscription_qos`)
         whose callback is :meth:`guarded` and counted in the node's diagnostics.
+        ``sensor_data``: REP 2003's sensor-data QoS instead (best effort, keep last), for
+        inputs small enough to cross processes best effort (compressed images).
 
         ``qos_overrides.<topic>.subscription.reliability: best_effort`` (a node parameter)
         accepts a best-effort publisher (large messages between processes may then be lost).
@@ -209,14 +211,14 @@ class CanopyNode(Node):
                                                    int(subscription_qos(depth).depth))
                 self.local_subscriptions.append(sub)
                 return sub
+        qos = sensor_data_qos(depth) if sensor_data else subscription_qos(depth)
         guarded = self.guarded(counted)
         if with_info:  # rclpy passes the message info to callbacks of exactly two arguments
             def with_message_info(msg, info):
                 return guarded(msg, info)
         kwargs.setdefault("event_callbacks", SubscriptionEventCallbacks(
             message_lost=lambda info: self._samples_lost(topic, info)))
-        sub = self.create_subscription(msg_type, topic, with_message_info if with_info else guarded,
-                                       subscription_qos(depth),
+        sub = self.create_subscription(msg_type, topic, with_message_info if with_info else guarded, qos,
                                        qos_overriding_options=QoSOverridingOptions.with_default_policies(),
                                        **kwargs)
         name = sub.topic_name
