@@ -129,13 +129,17 @@ def main(args=None) -> int:
     """``canopy_graph`` executable (``--ros-args`` after the options are passed to every node)."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
-    from rclpy.utilities import remove_ros_args
 
     from canopy_stereo.io.rig import load_rig
+    from canopy_stereo.ros.context import init_ros, strip_ros_args
     from canopy_stereo.ros.nodes.base import install_stop_signals
 
     argv = sys.argv if args is None else args
-    opts = build_parser().parse_args(remove_ros_args(argv)[1:])
+    try:
+        opts = build_parser().parse_args(strip_ros_args(argv)[1:])
+    except CanopyStereoError as exc:
+        print(f"canopy_graph: error: {exc}", file=sys.stderr)
+        return 2
     if opts.metadata and not (opts.cameras and opts.record):
         print("canopy_graph: error: --metadata describes a recording from cameras: use it with "
               "--cameras and --record", file=sys.stderr)
@@ -157,7 +161,11 @@ def main(args=None) -> int:
             return 2
         # (CanopyGraph gives rectify_node the cameras' fps: pairing within half a frame period)
     tune_node_process()
-    rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    try:
+        init_ros(argv)  # a bad --params-file or --ros-args: one line, exit 2
+    except CanopyStereoError as exc:
+        print(f"canopy_graph: error: {exc}", file=sys.stderr)
+        return 2
     install_stop_signals()
     context = rclpy.get_default_context()
     graph = recorder = writer = None

@@ -49,10 +49,17 @@ period at ``fps``), ``queue_size``,
 messages, ``right_camera_rect_optical_frame`` in the transforms), ``world_frame``,
 ``world_z_up_frame`` ("" = none), ``image_transport`` (``raw``/``compressed``),
 ``left_camera_frame``/``right_camera_frame`` (raw optical frames in the transforms),
-the mounting parameters above, ``reliability``, ``diagnostic_period``.
+``zero_stamps``, ``max_stamp_gap``, the mounting parameters above, ``reliability``,
+``diagnostic_period``.
 
 Stamps that go back further than the pairing tolerance (a looping bag, a
 restarted driver) reset the pairing with one log line; pairing goes on.
+
+Stamps that make no sense (:mod:`canopy_stereo.ros.stamps`): a zero stamp is restamped with
+the receive time (``zero_stamps: restamp``, the default) or dropped (``drop``), a warning on
+``/diagnostics`` either way; a stamp repeated by the driver is dropped as ``duplicate stamp``
+(and its gap not counted as lost); ``max_stamp_gap`` (s, 0 = off) warns about stamps that far
+from the receive time, naming the gap.
 
 Frames that never reached the node (overwritten in its keep-last input queue while it
 was busy, or lost upstream) are counted as drops (``left frame: missed ...``, in
@@ -62,6 +69,7 @@ longer than 2 s are pauses, not losses.
 """
 from __future__ import annotations
 
+import numpy as np
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import String
 
@@ -160,6 +168,7 @@ class RectifyNode(CanopyNode):
         self.period_estimator = FramePeriodEstimator() if slop < 0 and fps <= 0 else None
         if slop < 0:
             slop = slop_for_rate(fps) if fps > 0 else INITIAL_SLOP_S
+        self.stamp_check = self.declare_stamp_checks(2)  # zero, duplicate, far-off stamps
         self.left_gaps = FramePeriodEstimator(1, max_interval_s=MISSED_MAX_GAP_S)
         self._last_left_ns = None
         self.pairer = ApproximateTimePairer(slop, int(self.get_parameter("queue_size").value),
@@ -170,14 +179,6 @@ class RectifyNode(CanopyNode):
         self.pub_info_left = self.make_publisher(CameraInfo, RECT_INFO_TOPICS[0])
         self.pub_info_right = self.make_publisher(CameraInfo, RECT_INFO_TOPICS[1])
         self.pub_geometry = self.create_publisher(String, STEREO_GEOMETRY_TOPIC, latched_qos())
-        # compressed frames (30-160 kB) cross processes best effort without loss on Fast DDS
-        # (benchmarks/bench_transport_qos.py), raw ones (0.9 MB) do not: REP 2003's
-        # sensor-data QoS for compressed input, which also matches best-effort drivers
-        in_type, packed = (Image, False) if self.transport == "raw" else (CompressedImage, True)
-        self.sub_left = self.make_subscription(in_type, input_topic("left/image_raw", self.transport),
-                                               lambda m: self._on_image(0, m), sensor_data=packed)
-        self.sub_right = self.make_subscription(in_type, input_topic("right/image_raw", self.transport),
-                                                lambda m: self._on_image(1, m), sensor_data=packed)
         #: the rig's transform tree ``[(parent, child, T_parent_child)]`` (metres), mount included,
         #: and what of it goes to /tf_static and into recordings (nothing when the robot owns the
         #: frames); empty until the rig is known
@@ -186,10 +187,25 @@ class RectifyNode(CanopyNode):
         if self.get_parameter("use_camera_info").value:
             from canopy_stereo.ros.camera_info_rig import CameraInfoRig
 
+            self._subscribe()
             self.camera_info_rig = CameraInfoRig(self, self.guarded(self._use_rig))
             self.get_logger().info("waiting for left/camera_info and right/camera_info (the rig)")
         else:
-            self._use_rig(rig_from_node(self))
+            self._use_rig(rig_from_node(self))  # warmed up on the rig's size, then subscribed
+            self._subscribe()
+
+    def _subscribe(self) -> None:
+        """The camera image subscriptions (with the middleware's receive time, for zero stamps).
+        Compressed frames (30-160 kB) cross processes best effort without loss on Fast DDS
+        (benchmarks/bench_transport_qos.py), raw ones (0.9 MB) do not: REP 2003's sensor-data
+        QoS for compressed input, which also matches best-effort drivers."""
+        in_type, packed = (Image, False) if self.transport == "raw" else (CompressedImage, True)
+        self.sub_left = self.make_subscription(in_type, input_topic("left/image_raw", self.transport),
+                                               lambda m, i: self._on_image(0, m, i), sensor_data=packed,
+                                               with_info=True)
+        self.sub_right = self.make_subscription(in_type, input_topic("right/image_raw", self.transport),
+                                                lambda m, i: self._on_image(1, m, i), sensor_data=packed,
+                                                with_info=True)
 
     def _use_rig(self, rig) -> None:
         """Rectify with ``rig`` from now on; publish its geometry and static transforms (latched)."""
@@ -212,6 +228,7 @@ class RectifyNode(CanopyNode):
             self.get_logger().info("tf2_msgs is not installed: no /tf_static (the transforms are on "
                                    f"{STEREO_GEOMETRY_TOPIC} and in recorded bags)")
         w, h = self.rig.image_size
+        self.warm_up(f"rectification of {w}x{h} pairs", self._warm_up)
         self.get_logger().info(f"rectifying {w}x{h} pairs ({self.rect.method}), "
                                f"sync slop {self.pairer.slop_ns / 1e9:g} s"
                                + (" until the frame period is measured" if self.period_estimator else ""))
@@ -223,7 +240,7 @@ class RectifyNode(CanopyNode):
         check_image_msg(msg, expected_size=self.rig.image_size, encodings=COLOUR_ENCODINGS)
         return msg_to_bgr(msg, expected_size=self.rig.image_size)
 
-    def _on_image(self, side: int, msg) -> None:
+    def _on_image(self, side: int, msg, info: dict | None = None) -> None:
         name = ("left", "right")[side]
         self.count(f"{name}_received")
         if self.rig is None:
@@ -234,7 +251,10 @@ class RectifyNode(CanopyNode):
         except Exception as exc:
             self.drop(str(exc), f"{name} frame")
             return
-        stamp = stamp_to_ns(msg.header.stamp)
+        stamp = self.checked_stamp(self.stamp_check, side, stamp_to_ns(msg.header.stamp), f"{name} frame",
+                                   info=info)
+        if stamp is None:  # a duplicate, or a zero stamp with zero_stamps: drop
+            return
         if side == 0:
             self._count_missed(stamp)
         if self.period_estimator is not None:
@@ -247,16 +267,26 @@ class RectifyNode(CanopyNode):
             self.diagnostics.sample("pair offset ms", pair.skew_ns / 1e6)
             self._publish(pair.stamps_ns[0], *pair.items)
 
+    def _warm_up(self) -> None:
+        """One pair of the rig's size through conversion and rectification, nothing published."""
+        w, h = self.rig.image_size
+        frame = np.random.default_rng(0).integers(0, 256, (h, w, 3), dtype=np.uint8)
+        bgr = msg_to_bgr(image_to_msg(frame, "bgr8", stamp_ns=1, frame_id=""), expected_size=(w, h))
+        left_r, right_r = self.rectifier.rectify(bgr, bgr)
+        image_to_msg(left_r, "bgr8", stamp_ns=1, frame_id="")
+        image_to_msg(to_gray(right_r), "mono8", stamp_ns=1, frame_id="")
+
     def _count_missed(self, stamp_ns: int) -> None:
         """Count the left frames missing between the previous left stamp and ``stamp_ns``."""
         period_s = self.left_gaps.observe(0, stamp_ns)
         last, self._last_left_ns = self._last_left_ns, stamp_ns
+        duplicates = self.stamp_check.take_duplicates(0)  # sent, with a repeated stamp: not lost
         if period_s is None or last is None:
             return
         gap_s = (stamp_ns - last) / 1e9
         if gap_s <= 1.5 * period_s or gap_s > MISSED_MAX_GAP_S:
             return
-        for _ in range(int(round(gap_s / period_s)) - 1):
+        for _ in range(int(round(gap_s / period_s)) - 1 - duplicates):
             self.drop(MISSED_REASON, "left frame")
 
     def camera_infos(self, stamp_ns: int) -> tuple[CameraInfo, CameraInfo]:
