@@ -62,3 +62,40 @@ def test_recorder_stores_images_compressed_masks_lossless_depth_raw(harness, tmp
     assert png.format == "mono8; png compressed mono8"
     assert np.array_equal(decode_compressed(bytes(png.data), png.format, grey=True), mask)  # labels exact
     assert got["/stereo/left/depth"][0].encoding == "32FC1"
+
+
+def test_canopy_graph_records_the_cameras_jpeg_and_batch_measures_it(tmp_path):
+    """``canopy_graph --cameras L R --record OUT --compress-images``: the cameras publish JPEG too and
+    the recording holds it (no raw frames); ``batch``'s reader measures that bag."""
+    import time
+
+    from canopy_stereo.batch.work import BatchOptions, process_bag
+    from canopy_stereo.ros.bundled import bundled_bag, bundled_rig
+    from canopy_stereo.ros.context import private_domain_id
+    from test.support.ros_harness import ProcessGroup
+
+    for side in ("left", "right"):
+        for k, (_, m) in enumerate(BagReader(bundled_bag("croton")).read(f"/stereo/{side}/image_raw")):
+            cv2.imwrite(str(tmp_path / f"{side}_{k:03d}.png"), convert.msg_to_image(m))
+    out, fps = tmp_path / "rec.mcap", 4.0
+    group = ProcessGroup(private_domain_id(), tmp_path / "logs")
+    graph = group.start("canopy_graph", "--rig", bundled_rig("croton"), "--cameras", tmp_path / "left_%03d.png",
+                        tmp_path / "right_%03d.png", "--fps", fps, "--matcher", "sgbm", "--record", out,
+                        "--compress-images", "--metadata", "plant_id=C2")
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and graph.alive():
+            if out.is_file() and out.stat().st_size > 1_500_000:  # a few JPEG pairs and masks flushed
+                break
+            time.sleep(0.25)
+    finally:
+        code = graph.stop(timeout_s=60)  # SIGINT: the recording is closed validly
+    assert code == 0, graph.log()[-3000:]
+    topics = BagReader(out).topics
+    for side in ("left", "right"):
+        assert topics[f"/stereo/{side}/image_raw/compressed"].type_name == COMPRESSED_IMAGE_TYPE
+        assert f"/stereo/{side}/image_raw" not in topics
+    assert topics["/stereo/left/mask/compressed"].type_name == COMPRESSED_IMAGE_TYPE
+    row = process_bag(out, BatchOptions(max_frames=1, sync_slop_s=0.5 / fps, matcher="sgbm"))
+    assert row["metadata"]["plant_id"] == "C2" and row["frames"] == 1
+    assert 300 < row["canopy_height_mm"] < 600  # the croton stands about 45 cm tall
