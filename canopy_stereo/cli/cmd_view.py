@@ -118,7 +118,8 @@ def _show_bag(src: Path, args) -> int:
         logger = FrameLogger(rec, with_measurements=not args.no_measure)
         try:
             if kind == "raw":
-                from canopy_stereo.cli.progress import Progress, warm_up_kernels
+                from canopy_stereo.cli.progress import warm_up_kernels
+                from canopy_stereo.progress import Progress
 
                 warm_up_kernels()
                 total = bag.topics[f"{ns}/left/image_raw"].message_count
