@@ -242,8 +242,7 @@ class PointCloudNode(CanopyNode):
             return
         stamp = stamp_to_ns(msg.header.stamp)
         items, dropped = self.sync.push(stream, stamp, item)
-        for d in dropped:
-            self.drop(d.reason, _STREAMS[d.stream], log=not d.reason.startswith("time jumped back"))
+        self.drop_unpaired(dropped, _STREAMS)
         if items is None:
             return
         if self.geometry is None and self._needs_geometry(items[2]):
