@@ -35,7 +35,7 @@ def disparity_image_reprojection(f: float, t: float, P_left) -> np.ndarray:
     return reprojection_matrix(Pl, Pr)
 
 
-def check_cloud_inputs(disp: np.ndarray, colours: np.ndarray, mask=None, size=None) -> None:
+def check_cloud_inputs(disp: np.ndarray, colours: np.ndarray, *, mask=None, size=None) -> None:
     """:class:`~canopy_stereo.errors.ImageError` unless the colour image, the optional mask
     and the rectified ``size`` ``(w, h)`` (if given) have the disparity's grid."""
     h, w = disp.shape
@@ -65,7 +65,7 @@ def cloud_from_disparity(disp: np.ndarray, colours: np.ndarray, rect, P_left, P_
     Returns ``(points, colours)``: float32 world points times ``scale``, (Hr, Wr, 3) and the
     colours as given when ``organized``, else (N, 3) and the N colours of those pixels.
     """
-    check_cloud_inputs(disp, colours, mask, rect.size)
+    check_cloud_inputs(disp, colours, mask=mask, size=rect.size)
     h, w = disp.shape
     points, index = triangulate_disparity_points(disp, rect, P_left, P_right, scale=scale, mask=mask,
                                                  organized=organized)

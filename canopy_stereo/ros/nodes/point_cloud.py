@@ -211,7 +211,7 @@ class PointCloudNode(CanopyNode):
                 raise CanopyStereoError(f"no {STEREO_GEOMETRY_TOPIC} from rectify_node yet (needed for "
                                         f"the {cloud_frame} frame)")
         h, w = frame.disparity.shape
-        check_cloud_inputs(frame.disparity, bgr, mask)
+        check_cloud_inputs(frame.disparity, bgr, mask=mask)
         if (info.width, info.height) != (w, h):
             raise ImageError(f"camera_info is {info.width}x{info.height}, disparity {w}x{h}")
         optical = info.header.frame_id
