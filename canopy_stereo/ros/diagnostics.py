@@ -3,8 +3,9 @@
 ``diagnostic_updater`` is not on PyPI, so this is a small publisher of the same
 messages: every :class:`~canopy_stereo.ros.nodes.base.CanopyNode` reports, about
 once per second (parameter ``diagnostic_period``), one ``DiagnosticStatus``
-named ``"<node name>: pipeline"`` (``hardware_id`` the node's fully qualified
-name, or the camera device) with these key/values over the last window:
+named ``"<namespace>/<node name>: pipeline"`` (the fully qualified name without its
+leading ``/``, so that two rigs in their own namespaces never share a status name;
+``hardware_id`` the node's fully qualified name, or the camera device) with these key/values over the last window:
 
 * ``in <topic> Hz`` / ``out <topic> Hz``: messages received / published per second
   (and ``... total`` since start);
@@ -60,7 +61,7 @@ class NodeDiagnostics:
 
     def __init__(self, node, period_s: float = DEFAULT_PERIOD_S, hardware_id: str = ""):
         self.node = node
-        self.name = f"{node.get_name()}: pipeline"
+        self.name = f"{node.get_fully_qualified_name().lstrip('/')}: pipeline"
         self.hardware_id = hardware_id or node.get_fully_qualified_name()
         self._lock = threading.Lock()
         self._arrivals: OrderedDict = OrderedDict()

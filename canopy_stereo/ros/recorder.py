@@ -94,7 +94,7 @@ class BagRecorder(Node):
         self.received = {}
         self._lock = threading.Lock()
         self._pending = [self.resolve_topic_name(t) for t in topics]
-        if static_transforms is not None:
+        if static_transforms:  # [] (publish_tf false: the robot owns the frames): none written
             from canopy_stereo.ros.tf import write_static_transforms
 
             write_static_transforms(writer, static_transforms, time.time_ns())

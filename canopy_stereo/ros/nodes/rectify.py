@@ -23,22 +23,34 @@ frame's stamp:
   matrices);
 * ``stereo_geometry`` (latched): what a ``CameraInfo`` cannot carry
   (:mod:`canopy_stereo.ros.stereo_geometry`);
-* ``/tf_static`` (latched, when tf2_msgs is importable): ``canopy_world_z_up ->
-  canopy_world -> {left,right}_camera_optical_frame, {left,right}_camera_rect_optical_frame``.
+* ``/tf_static`` (latched, when tf2_msgs is importable and ``publish_tf`` is true):
+  ``canopy_world_z_up -> canopy_world -> {left,right}_camera_optical_frame,
+  {left,right}_camera_rect_optical_frame``; mounted (``parent_frame`` set):
+  ``parent_frame -> canopy_world -> {the cameras, canopy_world_z_up}``.
+
+Mounting on a robot (REP 105): ``parent_frame`` (the robot frame carrying the rig, e.g.
+``base_link`` or ``tool0``; "" = the world frame is a root), ``mount`` (seven numbers
+``x y z qx qy qz qw``, metres: the rig's world frame in ``parent_frame``) or instead
+``camera_mount`` (seven numbers: the raw left camera's optical frame in ``parent_frame``,
+as a hand-eye calibration gives it), ``publish_tf`` (false when the robot's URDF and
+robot_state_publisher already own the camera frames: then nothing goes to ``/tf_static``;
+``stereo_geometry`` still carries the rig's transforms), ``frame_prefix`` (prepended to
+every frame the rig names, e.g. ``rig_a/``, so that two rigs share one TF tree).
 
 Parameters: the rig (:mod:`canopy_stereo.ros.params`), or ``use_camera_info`` (true: the rig
 from the drivers' ``left/camera_info`` and ``right/camera_info``, as image_pipeline takes it;
 frames before both arrive are dropped; :mod:`canopy_stereo.ros.camera_info_rig`),
 ``method`` (empty = the rig's),
 ``H_left``/``H_right`` (unset = the rig's; the rectification is
-:func:`~canopy_stereo.geometry.rig_rectification.rectification_for_rig`'s), ``fps`` (the cameras' frame rate, 0 =
-measured from the
-stamps), ``sync_slop`` (s; -1 = half a frame period at ``fps``), ``queue_size``,
+:func:`~canopy_stereo.geometry.rig_rectification.rectification_for_rig`'s), ``fps`` (the
+cameras' frame rate, 0 = measured from the stamps), ``sync_slop`` (s; -1 = half a frame
+period at ``fps``), ``queue_size``,
 ``frame_id`` (rectified left optical frame) and ``right_frame_id`` ("" = ``frame_id`` in the
 messages, ``right_camera_rect_optical_frame`` in the transforms), ``world_frame``,
 ``world_z_up_frame`` ("" = none), ``image_transport`` (``raw``/``compressed``),
 ``left_camera_frame``/``right_camera_frame`` (raw optical frames in the transforms),
-``zero_stamps``, ``max_stamp_gap``, ``reliability``, ``diagnostic_period``.
+``zero_stamps``, ``max_stamp_gap``, the mounting parameters above, ``reliability``,
+``diagnostic_period``.
 
 Stamps that go back further than the pairing tolerance (a looping bag, a
 restarted driver) reset the pairing with one log line; pairing goes on.
@@ -67,6 +79,7 @@ from canopy_stereo.geometry.frames import (
     WORLD_FRAME,
     WORLD_Z_UP_FRAME,
     FrameNames,
+    prefixed_frames,
     stereo_info_frame,
     stereo_transforms,
 )
@@ -82,6 +95,7 @@ from canopy_stereo.ros.convert import (
     uncalibrated_camera_info,
 )
 from canopy_stereo.ros.limits import check_image_msg
+from canopy_stereo.ros.mounting import declare_mount_parameters, mount_from_node
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.params import declare_rig_parameters, rectification_from_node, rig_from_node
 from canopy_stereo.ros.stereo_geometry import STEREO_GEOMETRY_TOPIC, stereo_geometry_msg
@@ -135,15 +149,19 @@ class RectifyNode(CanopyNode):
         self.declare_flag("use_camera_info", False, "take the rig from the drivers' left/camera_info and "
                           "right/camera_info (REP 104, as image_pipeline does) instead of a rig file",
                           read_only=True)
+        declare_mount_parameters(self)
         self.rig = None
         p = {name: str(self.get_parameter(name).value) for name in _FRAME_PARAMETERS}
-        self.frames = FrameNames(world=p["world_frame"], world_z_up=p["world_z_up_frame"],
-                                 raw_left=p["left_camera_frame"], raw_right=p["right_camera_frame"],
-                                 rect_left=p["frame_id"],
-                                 rect_right=p["right_frame_id"] or DEFAULT_FRAMES[("rect", "right")])
+        self.mounting = mount_from_node(self)
+        self.frames = prefixed_frames(FrameNames(
+            world=p["world_frame"], world_z_up=p["world_z_up_frame"], raw_left=p["left_camera_frame"],
+            raw_right=p["right_camera_frame"], rect_left=p["frame_id"],
+            rect_right=p["right_frame_id"] or DEFAULT_FRAMES[("rect", "right")],
+            parent=self.mounting.parent_frame), self.mounting.frame_prefix)
         self.frame_id = self.frames.rect_left
         #: frame ids of the left and right rectified messages (one, unless right_frame_id is set)
-        self.message_frames = (self.frame_id, p["right_frame_id"] or stereo_info_frame(self.frames, "rect"))
+        self.message_frames = (self.frame_id, self.frames.rect_right if p["right_frame_id"]
+                               else stereo_info_frame(self.frames, "rect"))
         slop = float(self.get_parameter("sync_slop").value)
         fps = float(self.get_parameter("fps").value)
         # sync_slop >= 0 is fixed; otherwise half a frame period, measured unless fps is given
@@ -161,6 +179,11 @@ class RectifyNode(CanopyNode):
         self.pub_info_left = self.make_publisher(CameraInfo, RECT_INFO_TOPICS[0])
         self.pub_info_right = self.make_publisher(CameraInfo, RECT_INFO_TOPICS[1])
         self.pub_geometry = self.create_publisher(String, STEREO_GEOMETRY_TOPIC, latched_qos())
+        #: the rig's transform tree ``[(parent, child, T_parent_child)]`` (metres), mount included,
+        #: and what of it goes to /tf_static and into recordings (nothing when the robot owns the
+        #: frames); empty until the rig is known
+        self.transforms: list = []
+        self.tf_transforms: list = []
         if self.get_parameter("use_camera_info").value:
             from canopy_stereo.ros.camera_info_rig import CameraInfoRig
 
@@ -189,13 +212,19 @@ class RectifyNode(CanopyNode):
         self.rect = rectification_from_node(self, rig)
         self.rectifier = StereoRectifier(rig, self.rect)
         self.rig = rig
-        self.pub_geometry.publish(stereo_geometry_msg(self.rig, self.rect, self.frames))
-        self.transforms = stereo_transforms(self.rig, self.rect, names=self.frames)
-        self.tf_static = StaticTransformPublisher(self, self.transforms)
+        self.transforms = stereo_transforms(self.rig, self.rect, names=self.frames,
+                                            mount=self.mounting.transform(rig))
+        self.pub_geometry.publish(stereo_geometry_msg(self.rig, self.rect, self.frames,
+                                                      transforms=self.transforms))
+        self.tf_transforms = self.transforms if self.mounting.publish_tf else []
+        self.tf_static = StaticTransformPublisher(self, self.tf_transforms)
         if self.rect.method != "fusiello":
             self.get_logger().info("hartley rectification: the rectified camera_info is uncalibrated "
                                    "(a projective rectification has no metric camera)")
-        if not self.tf_static.available:
+        if not self.mounting.publish_tf:
+            self.get_logger().info("publish_tf is false: no /tf_static (the robot's URDF owns the frames "
+                                   f"{', '.join(c for _, c, _ in self.transforms)})")
+        elif not self.tf_static.available:
             self.get_logger().info("tf2_msgs is not installed: no /tf_static (the transforms are on "
                                    f"{STEREO_GEOMETRY_TOPIC} and in recorded bags)")
         w, h = self.rig.image_size
