@@ -1,15 +1,10 @@
 """One bag -> one row of traits: the unit of work of ``canopy-stereo batch``.
 
-Each stereo pair of the bag goes through the core exactly as
-``canopy-stereo reconstruct --measure`` takes a pair:
-:func:`~canopy_stereo.pipeline.reconstruct.reconstruct_pair` (the rig's
-rectification: Fusiello unless the rig file names Hartley with its homographies; ELAS, triangulation with the rig's world-frame ``P``), then the
-automatic plant mask :func:`~canopy_stereo.segmentation.auto_plant_mask` (the
-vegetation index plus the distance of the reconstructed points from the left
-camera centre as the depth cue), then
-:func:`~canopy_stereo.measure.measure_scene` (canopy extents and volumes, leaves
-separated and measured) with the left camera given. The frames' traits are
-aggregated by their median; ``frames`` counts the frames measured.
+Each stereo pair of the bag goes through the package's one measuring pipeline,
+:func:`~canopy_stereo.pipeline.plant.measure_stereo_pair` (as ``reconstruct --measure``,
+``demo`` and ``view``: reconstruction, the automatic plant mask, leaves and canopy
+measured with the same defaults). The frames' traits are aggregated by their median;
+``frames`` counts the frames measured.
 
 Everything here is pure Python over the core (no rclpy): it runs in Dask
 workers that read the bag by its path from shared storage.
@@ -26,6 +21,7 @@ import numpy as np
 
 from canopy_stereo.disparity import DEFAULT_MATCHER
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.pipeline.plant import DEFAULT_COLOUR_INDEX, DEFAULT_VOXEL_SIZE_MM
 
 #: Trait columns of a row, in order: name -> description (units in the name).
 TRAITS = {
@@ -34,6 +30,7 @@ TRAITS = {
     "canopy_depth_mm": "canopy extent along the view",
     "hull_volume_cm3": "convex hull volume of the canopy points",
     "voxel_volume_cm3": "volume of the voxels the canopy points occupy",
+    "voxel_size_mm": "voxel edge of voxel_volume_cm3",
     "leaf_count": "leaves measured (separated from the plant mask, large enough)",
     "leaf_area_cm2": "summed one-sided area of the measured leaves",
     "mean_leaf_length_mm": "mean leaf length along the surface",
@@ -63,8 +60,9 @@ class BatchOptions:
     rig: object = None
     rig_source: str = ""
     select: dict = field(default_factory=dict)
-    index: str = "exg"
+    index: str = DEFAULT_COLOUR_INDEX
     matcher: str = DEFAULT_MATCHER
+    voxel_size_mm: float = DEFAULT_VOXEL_SIZE_MM
     max_frames: int = 0
     left_topic: str = "/stereo/left/image_raw"
     right_topic: str = "/stereo/right/image_raw"
@@ -75,43 +73,43 @@ class Skipped(Exception):
     """The bag is not selected (not an error)."""
 
 
-def measure_frame(left_bgr, right_bgr, rig, *, index: str = "exg", matcher: str = DEFAULT_MATCHER) -> dict:
-    """Traits (see :data:`TRAITS`) of one stereo pair, as ``reconstruct --measure`` with
-    the automatic plant mask. Raises :class:`CanopyStereoError` when the pair cannot be
+def measure_frame(left_bgr, right_bgr, rig, *, index: str = DEFAULT_COLOUR_INDEX, matcher: str = DEFAULT_MATCHER,
+                  voxel_size_mm: float = DEFAULT_VOXEL_SIZE_MM) -> dict:
+    """Traits (see :data:`TRAITS`) of one stereo pair: the package's one measuring pipeline
+    (:func:`~canopy_stereo.pipeline.plant.measure_stereo_pair`, as ``reconstruct --measure``,
+    ``demo`` and ``view``). Raises :class:`CanopyStereoError` when the pair cannot be
     reconstructed, segmented or measured."""
-    from canopy_stereo.geometry.camera import camera_centre
-    from canopy_stereo.measure import measure_scene
-    from canopy_stereo.pipeline.reconstruct import reconstruct_pair
-    from canopy_stereo.segmentation import auto_plant_mask
+    from canopy_stereo.pipeline.plant import measure_stereo_pair
 
-    rec = reconstruct_pair(left_bgr, right_bgr, rig, matcher=matcher)
-    distance = np.linalg.norm(rec.organized - camera_centre(rig.P_left), axis=-1)
-    mask = auto_plant_mask(left_bgr, depth=distance, index=index) > 0
-    res = measure_scene(rec.organized, mask=mask, ground="auto", unit=rig.world_unit, camera=rig.P_left)
-    return traits_of_report(res.report, rig.metres_per_unit * 1000.0, plant_fraction=float(mask.mean()))
+    _, res = measure_stereo_pair(left_bgr, right_bgr, rig, matcher=matcher, index=index, voxel_size_mm=voxel_size_mm)
+    return traits_of_report(res.report, plant_fraction=float(res.mask.mean()))
 
 
-def traits_of_report(report: dict, mm_per_unit: float, *, plant_fraction: float = float("nan")) -> dict:
-    """The :data:`TRAITS` of a measurement report (REPORT.json dict in world units)."""
+def traits_of_report(report: dict, *, plant_fraction: float = float("nan")) -> dict:
+    """The :data:`TRAITS` of a measurement report in the one unit set
+    (:func:`~canopy_stereo.measure.lab_report`: mm, cm^2, cm^3; converted when it is not)."""
+    from canopy_stereo.measure import lab_report
+
+    report = lab_report(report)
     c = report["canopy"]
     leaves = report["leaves"]
-    mm, mm2, mm3 = mm_per_unit, mm_per_unit ** 2, mm_per_unit ** 3
 
-    def num(v, scale):
-        return float("nan") if v is None else float(v) * scale
+    def num(v):
+        return float("nan") if v is None else float(v)
 
-    leaf_area_cm2 = sum(lf["area"] for lf in leaves) * mm2 / 100.0
-    hull_cm3 = num(c["hull_volume"], mm3 / 1000.0)
+    leaf_area_cm2 = float(sum(lf["area"] for lf in leaves))
+    hull_cm3 = num(c["hull_volume"])
     return {
-        "canopy_height_mm": num(c["height"], mm),
-        "canopy_width_mm": num(c["width"], mm),
-        "canopy_depth_mm": num(c["depth"], mm),
+        "canopy_height_mm": num(c["height"]),
+        "canopy_width_mm": num(c["width"]),
+        "canopy_depth_mm": num(c["depth"]),
         "hull_volume_cm3": hull_cm3,
-        "voxel_volume_cm3": num(c["voxel_volume"], mm3 / 1000.0),
+        "voxel_volume_cm3": num(c["voxel_volume"]),
+        "voxel_size_mm": num(c["voxel_size"]),
         "leaf_count": float(len(leaves)),
         "leaf_area_cm2": leaf_area_cm2,
-        "mean_leaf_length_mm": float(np.mean([lf["length"] for lf in leaves])) * mm if leaves else float("nan"),
-        "mean_leaf_width_mm": float(np.mean([lf["width"] for lf in leaves])) * mm if leaves else float("nan"),
+        "mean_leaf_length_mm": float(np.mean([lf["length"] for lf in leaves])) if leaves else float("nan"),
+        "mean_leaf_width_mm": float(np.mean([lf["width"] for lf in leaves])) if leaves else float("nan"),
         "leaf_area_density_cm-1": leaf_area_cm2 / hull_cm3 if hull_cm3 > 0 else float("nan"),
         "plant_fraction": float(plant_fraction),
     }
@@ -179,7 +177,8 @@ def process_bag(path, options: BatchOptions | None = None) -> dict:
         first_stamp = stamp if first_stamp is None else first_stamp
         try:
             measured.append(measure_frame(image_to_bgr(left), image_to_bgr(right), rig,
-                                          index=options.index, matcher=options.matcher))
+                                          index=options.index, matcher=options.matcher,
+                                          voxel_size_mm=options.voxel_size_mm))
         except CanopyStereoError as exc:
             failures.append(f"frame {k}: {exc}")
     if first_stamp is None:

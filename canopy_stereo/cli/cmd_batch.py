@@ -35,6 +35,8 @@ def add_arguments(p):
                    help="only bags whose metadata KEY is VALUE (values of one key: any; keys: all)")
     p.add_argument("--index", choices=("exg", "exgr", "none"), default="exg",
                    help="colour cue of the automatic plant mask (default exg; none: depth and learned colour)")
+    p.add_argument("--voxel-size", type=float, default=10.0, metavar="MM",
+                   help="voxel edge of voxel_volume_cm3, millimetres (default 10; a column of the table)")
     p.add_argument("--matcher", choices=matcher_names(), default=DEFAULT_MATCHER,
                    help=f"dense matcher (default {DEFAULT_MATCHER})")
     p.add_argument("--max-frames", type=int, default=0, metavar="N",
@@ -58,6 +60,8 @@ def run(args) -> int:
 
     if args.max_frames < 0:
         raise CanopyStereoError(f"--max-frames must be >= 0, got {args.max_frames}")
+    if not args.voxel_size > 0:
+        raise CanopyStereoError(f"--voxel-size must be > 0 mm, got {args.voxel_size}")
     if not args.sync_slop >= 0:
         raise CanopyStereoError(f"--sync-slop must be >= 0 s, got {args.sync_slop}")
     rig = None
@@ -67,6 +71,7 @@ def run(args) -> int:
         rig = load_rig(args.rig)
     options = BatchOptions(rig=rig, rig_source=args.rig or "", select=parse_selection(args.select),
                            index=args.index, matcher=args.matcher, max_frames=args.max_frames,
+                           voxel_size_mm=args.voxel_size,
                            left_topic=args.left_topic, right_topic=args.right_topic,
                            sync_slop_s=args.sync_slop)
     _sigterm_interrupts()

@@ -19,10 +19,11 @@ from canopy_stereo.measure.leaf import LeafMeasurement, measure_leaf
 from canopy_stereo.measure.plot import plot_views
 from canopy_stereo.measure.report import load_cloud, write_leaves_csv, write_report
 from canopy_stereo.measure.scene import SceneMeasurement, measure_organized, measure_points, measure_scene
+from canopy_stereo.measure.units import LAB_UNITS, lab_report
 from canopy_stereo.measure.viewpoint import estimate_camera
 
 __all__ = [
-    "LeafMeasurement", "MeasuringFrame", "SceneMeasurement", "canopy_dimensions", "estimate_camera",
+    "LAB_UNITS", "LeafMeasurement", "lab_report", "MeasuringFrame", "SceneMeasurement", "canopy_dimensions", "estimate_camera",
     "hull_volume", "load_cloud", "measure_leaf", "measure_organized", "measure_points",
     "measure_scene", "plot_views", "separate_leaves", "voxel_volume", "write_leaves_csv", "write_report",
 ]

@@ -348,13 +348,12 @@ def section_rectification(out: Path, pair: StereoPair, progress: Progress) -> di
 
 
 def _plant_mask(pair: StereoPair, recon):
-    """The package's automatic plant mask (vegetation index + depth GrabCut) of the left image."""
-    from canopy_stereo.geometry.camera import camera_centre
-    from canopy_stereo.segmentation import auto_plant_mask
+    """The measuring pipeline's automatic plant mask
+    (:func:`~canopy_stereo.pipeline.plant.automatic_plant_mask`) on the original left image."""
+    from canopy_stereo.pipeline.plant import automatic_plant_mask, plant_mask_on_original
 
-    depth = np.linalg.norm(recon.organized - camera_centre(pair.rig.P_left), axis=2)
     try:
-        return auto_plant_mask(pair.left, depth=depth) > 0
+        return plant_mask_on_original(recon, pair.rig, automatic_plant_mask(recon, pair.rig))
     except CanopyStereoError:
         return None
 

@@ -71,24 +71,19 @@ def rig_from_bag(path):
     return None
 
 
-def measure_frame(organized_m: np.ndarray, mask: np.ndarray, *, rig=None):
-    """Leaves and canopy of one organized cloud (metres, rectified left grid) and its plant
-    mask, measured in millimetres (:func:`canopy_stereo.measure.measure_scene`); None when
-    there is nothing to measure."""
-    from canopy_stereo.geometry.clouds import check_cloud
-    from canopy_stereo.measure import measure_scene
+def measure_frame(frame: dict, *, rig=None):
+    """The plant of one decoded graph frame (:func:`decode_frame`: ``image``, ``disparity``)
+    measured by the package's one measuring pipeline
+    (:func:`canopy_stereo.ros.measuring.measure_graph_frame`, the numbers of ``demo``,
+    ``reconstruct --measure`` and ``batch``); a
+    :class:`~canopy_stereo.pipeline.plant.PlantMeasurement` (millimetres), or None when
+    there is nothing to measure or no rig to measure with."""
+    from canopy_stereo.ros.measuring import measure_graph_frame
 
-    if mask is None or organized_m is None:
+    if rig is None or frame.get("image") is None or frame.get("disparity") is None:
         return None
     try:
-        organized_m = check_cloud(organized_m)
-    except CanopyStereoError:
-        return None
-    plant = np.asarray(mask) > 0
-    if plant.shape != organized_m.shape[:2] or plant.sum() < 50:
-        return None
-    try:
-        return measure_scene(organized_m * 1000.0, mask=plant, unit="mm", camera="auto")
+        return measure_graph_frame(frame["image"], frame["disparity"], rig)
     except CanopyStereoError:
         return None
 
@@ -119,6 +114,8 @@ class FrameStreamer:
         self.skipped = 0
         self.logged = 0
         self.errors: list[str] = []
+        #: (stamp, REPORT.json dict in mm/cm^2/cm^3 or None) of each frame logged, in order
+        self.measurements: list[tuple[int, dict | None]] = []
         self.on_logged = on_logged
         self.worker = threading.Thread(target=self._work, name="canopy_viewer", daemon=True)
         self.worker.start()
@@ -189,13 +186,12 @@ class FrameStreamer:
         pose = pose if pose is not None else self.pose
         if pose is None and frame.get("K") is not None:
             pose = CameraPose(K=frame["K"], size=frame["size"])
-        measurement = None
-        if self.measure and frame.get("organized") is not None and frame.get("mask") is not None:
-            measurement = measure_frame(frame["organized"], frame["mask"],
-                                        rig=rig if rig is not None else self.rig)
+        measured = measure_frame(frame, rig=rig if rig is not None else self.rig) if self.measure else None
+        self.measurements.append((stamp, None if measured is None else measured.report))
         self.logger.log_frame(stamp, points_m=frame.get("points"), colors=frame.get("colors"),
                               image_bgr=frame.get("image"), depth_m=frame.get("depth"),
-                              mask=frame.get("mask"), camera=pose, measurement=measurement)
+                              mask=frame.get("mask") if measured is None else measured.mask.astype(np.uint8) * 255,
+                              camera=pose, measurement=None if measured is None else measured.scene)
         self.logged += 1
         if self.on_logged is not None:
             self.on_logged()
@@ -248,9 +244,11 @@ def bag_kind(bag) -> tuple[str, str]:
                             f"{', '.join(sorted(topics)) or 'none'}")
 
 
-def show_recorded_outputs(bag, namespace: str, logger: FrameLogger, *, rig=None, measure: bool = False) -> int:
+def show_recorded_outputs(bag, namespace: str, logger: FrameLogger, *, rig=None, measure: bool = False,
+                          measurements: list | None = None) -> int:
     """Log a bag of recorded graph outputs frame by frame (grouped by header stamp); returns
-    the number of frames (clouds) logged."""
+    the number of frames (clouds) logged. ``measurements``: a list extended with the
+    ``(stamp, report or None)`` of each frame logged."""
     from canopy_stereo.ros.recorder import header_stamp_from_cdr
 
     prefix = namespace.rstrip("/") + "/"
@@ -260,6 +258,8 @@ def show_recorded_outputs(bag, namespace: str, logger: FrameLogger, *, rig=None,
     for m in bag.messages(topics):
         streamer.on_output(m.topic[len(prefix):], header_stamp_from_cdr(m.data), m.data)
     streamer.close()
+    if measurements is not None:
+        measurements.extend(streamer.measurements)
     if streamer.errors:
         raise CanopyStereoError(f"{bag.path}: could not show a frame: {streamer.errors[0]}")
     return streamer.logged
@@ -268,7 +268,9 @@ def show_recorded_outputs(bag, namespace: str, logger: FrameLogger, *, rig=None,
 def run_raw_bag(path, rig, logger: FrameLogger, *, measure: bool = True, matcher=None,
                 domain_id=None, progress=None, on_logged=None):
     """Run a bag of raw frames through the graph (organized clouds, plant masks) and log
-    every frame as it comes out; returns the :class:`~canopy_stereo.ros.runner.RunResult`."""
+    every frame as it comes out; returns the :class:`~canopy_stereo.ros.runner.RunResult`
+    with ``viewer_frames`` (frames logged) and ``viewer_measurements`` (``(stamp, report
+    or None)`` per frame, by stamp)."""
     from sensor_msgs.msg import Image
 
     from canopy_stereo.ros.graph import GraphOptions
@@ -285,6 +287,7 @@ def run_raw_bag(path, rig, logger: FrameLogger, *, measure: bool = True, matcher
     if streamer.errors:
         raise CanopyStereoError(f"{path}: could not show a frame: {streamer.errors[0]}")
     result.viewer_frames = streamer.logged
+    result.viewer_measurements = sorted(streamer.measurements, key=lambda m: m[0])
     return result
 
 
