@@ -1,6 +1,7 @@
 """``canopy-stereo reconstruct``: two images -> metric PLY point cloud."""
 from __future__ import annotations
 
+import sys
 import time
 
 import numpy as np
@@ -33,8 +34,13 @@ def add_arguments(p):
     p.add_argument("--matcher", choices=matcher_names(), default=DEFAULT_MATCHER,
                    help=f"dense matcher (default {DEFAULT_MATCHER}, as in the paper)")
     p.add_argument("--mask", metavar="MASK.png", help="foreground mask on the left image (non-zero = keep)")
-    p.add_argument("--disp-min", type=int, default=None, help="smallest disparity searched (px)")
-    p.add_argument("--disp-max", type=int, default=None, help="largest disparity searched (px)")
+    p.add_argument("--near", type=float, default=None, metavar="M",
+                   help="working distance: nearest depth searched, metres along the optical axis (rig key "
+                        "near_m; default: the rig's disp_min/disp_max, near_m/far_m, else 8 baselines)")
+    p.add_argument("--far", type=float, default=None, metavar="M",
+                   help="working distance: farthest depth searched, metres (rig key far_m; default infinity)")
+    p.add_argument("--disp-min", type=int, default=None, help="smallest disparity searched (px; overrides --far)")
+    p.add_argument("--disp-max", type=int, default=None, help="largest disparity searched (px; overrides --near)")
     p.add_argument("--organized", metavar="ORG.npy",
                    help="also save the H x W x 3 world points of the left image's pixels (NaN where none)")
     p.add_argument("--disparity-out", metavar="DISP.pfm", help="also save the rectified disparity")
@@ -80,7 +86,10 @@ def run(args) -> int:
         rect = rectify_rig(rig, args.method, left=left, right=right,
                            match_pairs=load_match_pairs(args.match_pairs))
     rec = reconstruct_pair(left, right, rig, method=args.method, matcher=args.matcher, mask=mask,
-                           disp_min=args.disp_min, disp_max=args.disp_max, rectification=rect)
+                           disp_min=args.disp_min, disp_max=args.disp_max, near_m=args.near, far_m=args.far,
+                           rectification=rect)
+    for warning in rec.warnings:
+        print(f"warning: {warning}", file=sys.stderr, flush=True)
     written = []
     measured = None
     if args.measure or args.auto_mask:

@@ -184,7 +184,7 @@ def measure_plant(left_rect_bgr, disparity, rig, *, rectification: Rectification
 
 
 def measure_stereo_pair(left_bgr, right_bgr, rig, *, matcher: str = DEFAULT_MATCHER, method: str | None = None,
-                        disp_min=None, disp_max=None, mask=None, leaf_ids=None, whole_scene: bool = False,
+                        disp_min=None, disp_max=None, near_m=None, far_m=None, mask=None, leaf_ids=None, whole_scene: bool = False,
                         index: str = DEFAULT_COLOUR_INDEX, ground=DEFAULT_GROUND,
                         voxel_size_mm: float = DEFAULT_VOXEL_SIZE_MM):
     """A raw stereo pair reconstructed (:func:`~canopy_stereo.pipeline.reconstruct.reconstruct_pair`)
@@ -193,7 +193,7 @@ def measure_stereo_pair(left_bgr, right_bgr, rig, *, matcher: str = DEFAULT_MATC
     from canopy_stereo.pipeline.reconstruct import reconstruct_pair
 
     rec = reconstruct_pair(left_bgr, right_bgr, rig, method=method, matcher=matcher,
-                           disp_min=disp_min, disp_max=disp_max)
+                           disp_min=disp_min, disp_max=disp_max, near_m=near_m, far_m=far_m)
     rect = rec.rectification
     m_r = None if mask is None else to_rectified_grid(mask, rig, rect)
     ids_r = None if leaf_ids is None else to_rectified_grid(leaf_ids, rig, rect)
