@@ -40,46 +40,56 @@ def signed_match_disparities(left_gray: np.ndarray, right_gray: np.ndarray) -> n
     return (pl[:, 0] - pr[:, 0])[same_row]
 
 
-def order_score(left_gray: np.ndarray, right_gray: np.ndarray, disp_min: float, disp_max: float) -> int:
-    """Matches of a rectified pair consistent with its cameras' order: on the same row and
-    with a disparity inside ``[disp_min, disp_max]`` (two pixels of slack)."""
-    d = signed_match_disparities(left_gray, right_gray)
-    return int(np.sum((d >= disp_min - 2.0) & (d <= disp_max + 2.0)))
+def _in_range(d: np.ndarray, disp_min: float, disp_max: float) -> np.ndarray:
+    return (d >= disp_min - 2.0) & (d <= disp_max + 2.0)
 
 
-def check_not_swapped(given, swapped, *, disp_min: float, disp_max: float) -> None:
-    """Raise :class:`CanopyStereoError` with one line when a pair looks swapped.
+def check_not_swapped(given, swapped, *, disp_min: float, disp_max: float) -> np.ndarray:
+    """Raise :class:`CanopyStereoError` with one line when a pair looks swapped; else return
+    the row-consistent match disparities of the given order (pixels, for
+    :func:`range_limit_warning`).
 
     ``given``: the rectified grey pair ``(left, right)`` as the user gave the images;
     ``swapped``: the pair rectified with the images exchanged. The pair is refused when
-    the exchanged order explains the matches much better (:func:`order_score`: row-
-    consistent matches inside the searched range) than the given one: a swapped pair's
+    the exchanged order explains the matches much better (row-consistent matches inside
+    ``[disp_min, disp_max]``, two pixels of slack) than the given one: a swapped pair's
     matches lie off their rows (verging cameras) or behind the cameras or beyond the
     working distance (parallel cameras). Pairs with too few matches either way pass.
     """
-    s_given = order_score(*given, disp_min, disp_max)
-    s_swapped = order_score(*swapped, disp_min, disp_max)
-    if s_swapped >= MIN_MATCHES and s_swapped > 3 * s_given:
+    d_given = signed_match_disparities(*given)
+    d_swapped = signed_match_disparities(*swapped)
+    s_given = int(_in_range(d_given, disp_min, disp_max).sum())
+    s_swapped = int(_in_range(d_swapped, disp_min, disp_max).sum())
+    if s_swapped >= MIN_MATCHES and s_swapped > 3 * s_given and s_swapped > 0.5 * len(d_given):
         raise CanopyStereoError(
             f"the left and right images are swapped: exchanged, {s_swapped} matches fit the rig "
             f"(same rows, disparities {disp_min}..{disp_max} px), as given only {s_given}; "
             "give the left camera's image first")
+    return d_given
 
 
-def range_limit_warning(disparity: np.ndarray, disp_min: int, disp_max: int, *, focal_px: float | None = None,
-                        baseline_m: float | None = None) -> str | None:
-    """One line when more than :data:`PILE_UP_SHARE` of the valid pixels of ``disparity``
-    (pixels, invalid < 0 or NaN) lie within one pixel of either end of ``[disp_min,
-    disp_max]``, naming the range (and its depths when ``focal_px``/``baseline_m`` are
-    given) and how to widen it; None otherwise."""
+def range_limit_warning(disparity: np.ndarray, disp_min: int, disp_max: int, *, matches=None,
+                        focal_px: float | None = None, baseline_m: float | None = None) -> str | None:
+    """One line when the scene reaches beyond the searched range ``[disp_min, disp_max]``
+    (pixels), naming the range (and its depths when ``focal_px``/``baseline_m`` are given)
+    and how to widen it; None otherwise.
+
+    Two signs: more than :data:`PILE_UP_SHARE` of the valid pixels of ``disparity``
+    (invalid < 0 or NaN) within one pixel of an end of the range (the matcher clipped them
+    there), or of the sparse row-consistent ``matches`` (their disparities, e.g. from
+    :func:`check_not_swapped`; a matcher with a left-right check drops what lies beyond
+    its range instead of clipping it) beyond an end.
+    """
     d = np.asarray(disparity, np.float64)
-    valid = np.isfinite(d) & (d >= 0)
-    n = int(valid.sum())
-    if n == 0:
-        return None
-    v = d[valid]
-    near = float(np.mean(v >= disp_max - 1.0))
-    far = float(np.mean(v <= disp_min + 1.0)) if disp_min > 0 else 0.0
+    v = d[np.isfinite(d) & (d >= 0)]
+    m = np.zeros(0) if matches is None else np.asarray(matches, np.float64)
+    m = m[np.isfinite(m) & (m > 0)] if len(m) >= MIN_MATCHES else np.zeros(0)
+
+    def share(pixels, sparse):
+        return max(float(np.mean(pixels)) if pixels.size else 0.0, float(np.mean(sparse)) if sparse.size else 0.0)
+
+    near = share(v >= disp_max - 1.0, m > disp_max + 2.0)
+    far = share(v <= disp_min + 1.0, m < disp_min - 2.0) if disp_min > 0 else 0.0
 
     def depth(px):
         if not focal_px or not baseline_m or px <= 0:
@@ -87,11 +97,12 @@ def range_limit_warning(disparity: np.ndarray, disp_min: int, disp_max: int, *, 
         return f" = {focal_px * baseline_m / px:.2f} m"
 
     if near > PILE_UP_SHARE:
-        return (f"{near * 100:.1f} % of the matched pixels lie at the largest disparity searched "
-                f"({disp_max} px{depth(disp_max)}): part of the scene is nearer than the working distance; "
-                "widen it with --near M (rig key near_m) or a larger --disp-max")
+        seen = f", matched up to {m.max():.0f} px{depth(m.max())}" if m.size and m.max() > disp_max + 2.0 else ""
+        return (f"{near * 100:.1f} % of the matched pixels lie at or beyond the largest disparity searched "
+                f"({disp_max} px{depth(disp_max)}{seen}): part of the scene is nearer than the working distance "
+                "and is missing; widen it with --near M (rig key near_m) or a larger --disp-max")
     if far > PILE_UP_SHARE:
-        return (f"{far * 100:.1f} % of the matched pixels lie at the smallest disparity searched "
-                f"({disp_min} px{depth(disp_min)}): part of the scene is farther than the working distance; "
-                "widen it with --far M (rig key far_m) or a smaller --disp-min")
+        return (f"{far * 100:.1f} % of the matched pixels lie at or below the smallest disparity searched "
+                f"({disp_min} px{depth(disp_min)}): part of the scene is farther than the working distance "
+                "and is missing; widen it with --far M (rig key far_m) or a smaller --disp-min")
     return None

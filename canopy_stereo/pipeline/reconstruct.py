@@ -235,13 +235,14 @@ def reconstruct_pair(left_bgr, right_bgr, rig, *, method: str | None = None, mat
     timings["warp"] = time.perf_counter() - t
 
     dmin, dmax = disparity_range_for(rig, rect, disp_min=disp_min, disp_max=disp_max, near_m=near_m, far_m=far_m)
+    matches = None
     if check_order:
         from canopy_stereo.disparity.checks import check_not_swapped
 
         t = time.perf_counter()
         swapped = cached_rectifier(rig, rect).rectify(right, left)
-        check_not_swapped((to_gray(left_r), to_gray(right_r)), (to_gray(swapped[0]), to_gray(swapped[1])),
-                          disp_min=dmin, disp_max=dmax)
+        matches = check_not_swapped((to_gray(left_r), to_gray(right_r)),
+                                    (to_gray(swapped[0]), to_gray(swapped[1])), disp_min=dmin, disp_max=dmax)
         timings["order check"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -251,7 +252,7 @@ def reconstruct_pair(left_bgr, right_bgr, rig, *, method: str | None = None, mat
     from canopy_stereo.disparity.checks import range_limit_warning
 
     metric = rect.method == "fusiello"
-    warning = range_limit_warning(disp, dmin, dmax, focal_px=rect.focal_length if metric else None,
+    warning = range_limit_warning(disp, dmin, dmax, matches=matches, focal_px=rect.focal_length if metric else None,
                                   baseline_m=rect.baseline * rig.metres_per_unit if metric else None)
 
     t = time.perf_counter()
