@@ -21,7 +21,7 @@ import numpy as np
 
 from canopy_stereo.disparity import DEFAULT_MATCHER
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.pipeline.plant import DEFAULT_COLOUR_INDEX, DEFAULT_VOXEL_SIZE_MM
+from canopy_stereo.measure.plant import DEFAULT_COLOUR_INDEX, DEFAULT_VOXEL_SIZE_MM
 
 #: Trait columns of a row, in order: name -> description (units in the name).
 TRAITS = {

@@ -94,13 +94,13 @@ def run(args) -> int:
     measured = None
     if args.measure or args.auto_mask:
         t = time.perf_counter()
-        measured = _measure(args, rec, rig, mask, written)
+        measured = _measure(args, rec, rig, left, mask, written)
         rec.timings["measure" if args.measure else "plant mask"] = time.perf_counter() - t
     t = time.perf_counter()
     points, colors = rec.points, rec.colors
     kept = "whole scene"
     if args.auto_mask:
-        points, colors = _plant_points(rec, rig, measured.mask)
+        points, colors = _plant_points(rec, measured.mask)
         kept = "automatic plant mask"
     # PLYs are millimetres whatever the rig's unit (canopy_stereo.io.ply.PLY_UNIT)
     write_ply(args.output, points * (rig.metres_per_unit * 1000.0), colors=colors, unit="mm",
@@ -129,46 +129,40 @@ def run(args) -> int:
     return 0
 
 
-def _plant_points(rec, rig, mask_rect):
-    """Points and colours of the reconstruction's pixels whose rectified match lies on the
-    plant mask."""
-    from canopy_stereo.pipeline.plant import plant_mask_on_original
-
-    keep = plant_mask_on_original(rec, rig, mask_rect)[rec.pixels[:, 1], rec.pixels[:, 0]]
+def _plant_points(rec, plant):
+    """Points and colours of the reconstruction's pixels on the plant mask (original grid)."""
+    keep = plant[rec.pixels[:, 1], rec.pixels[:, 0]]
     return rec.points[keep], rec.colors[keep]
 
 
-def _measure(args, rec, rig, mask, written: list):
+def _measure(args, rec, rig, left, mask, written: list):
     """Measure the reconstruction with the package's one pipeline (or only find the plant
     mask, for --auto-mask without --measure); print the summary; write REPORT.json, CSV,
     PNG and the mask overlay next to the cloud. Returns the
-    :class:`~canopy_stereo.pipeline.plant.PlantMeasurement` (None for the whole scene
+    :class:`~canopy_stereo.measure.plant.PlantMeasurement` (None for the whole scene
     without --measure)."""
     from pathlib import Path
 
-    from canopy_stereo.pipeline.plant import (DEFAULT_VOXEL_SIZE_MM, PlantMeasurement, automatic_plant_mask,
-                                              measure_plant, measurement_lines, to_rectified_grid,
-                                              write_overlay)
+    from canopy_stereo.measure.plant import (DEFAULT_VOXEL_SIZE_MM, PlantMeasurement, automatic_plant_mask,
+                                             measure_plant, measurement_lines, write_overlay)
 
-    left_rect = rec.rectified[0]
     overlay = Path(args.output).with_name(Path(args.output).stem + "_overlay.png")
     if not args.measure:
-        plant = automatic_plant_mask(rec, rig)
+        plant = automatic_plant_mask(left, rec.organized, rig)
         found = PlantMeasurement(report={}, scene=None, mask=plant, mask_source="automatic",
-                                 organized_mm=np.empty((0, 0, 3)))
-        written.append(write_overlay(overlay, found, left_rect))
-        print(f"plant: automatic plant mask, {plant.mean() * 100:.1f} % of the rectified left image")
+                                 organized_mm=rec.organized)
+        written.append(write_overlay(overlay, found, left))
+        print(f"plant: automatic plant mask, {plant.mean() * 100:.1f} % of the left image")
         return found
     if mask is None and not args.whole_scene and not args.auto_mask:
         print("no --mask given: measuring the plant found by the automatic plant mask "
               "(--whole-scene measures every point)")
-    m_r = None if mask is None else to_rectified_grid(mask, rig, rec.rectification)
     ids = None
     if args.leaf_ids:
         from canopy_stereo.segmentation import read_leaf_ids
 
-        ids = to_rectified_grid(read_leaf_ids(args.leaf_ids), rig, rec.rectification)
-    res = measure_plant(left_rect, rec.disparity, rig, rectification=rec.rectification, mask=m_r, leaf_ids=ids,
+        ids = read_leaf_ids(args.leaf_ids)
+    res = measure_plant(left, rec.disparity, rig, rectification=rec.rectification, mask=mask, leaf_ids=ids,
                         whole_scene=args.whole_scene,
                         voxel_size_mm=DEFAULT_VOXEL_SIZE_MM if args.voxel_size is None else args.voxel_size)
     from canopy_stereo.measure import plot_views, write_report
@@ -181,7 +175,7 @@ def _measure(args, rec, rig, mask, written: list):
         plot_views(res.scene, args.plot)
         written.append(args.plot)
     if not args.whole_scene:
-        written.append(write_overlay(overlay, res, left_rect))
+        written.append(write_overlay(overlay, res, left))
     for line in measurement_lines(res.report, max_leaves=len(res.report["leaves"])):
         print(line)
     return res

@@ -150,7 +150,7 @@ def _show_bag(src: Path, args) -> int:
 
 def _print_first_measurement(measurements) -> None:
     """The first measured frame's summary (the one measuring pipeline's lines: mm, cm^2, cm^3)."""
-    from canopy_stereo.pipeline.plant import measurement_lines
+    from canopy_stereo.measure.plant import measurement_lines
 
     for k, (_, report) in enumerate(measurements):
         if report is not None:

@@ -349,11 +349,11 @@ def section_rectification(out: Path, pair: StereoPair, progress: Progress) -> di
 
 def _plant_mask(pair: StereoPair, recon):
     """The measuring pipeline's automatic plant mask
-    (:func:`~canopy_stereo.pipeline.plant.automatic_plant_mask`) on the original left image."""
-    from canopy_stereo.pipeline.plant import automatic_plant_mask, plant_mask_on_original
+    (:func:`~canopy_stereo.measure.plant.automatic_plant_mask`) of the left image."""
+    from canopy_stereo.measure.plant import automatic_plant_mask
 
     try:
-        return plant_mask_on_original(recon, pair.rig, automatic_plant_mask(recon, pair.rig))
+        return automatic_plant_mask(pair.left, recon.organized, pair.rig)
     except CanopyStereoError:
         return None
 

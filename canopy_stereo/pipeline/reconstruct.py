@@ -179,7 +179,7 @@ def disparity_range_for(rig, rect: Rectification, *, disp_min=None, disp_max=Non
     return dmin, dmax
 
 
-def rig_matcher_params(rig, matcher: str, given=None) -> dict:
+def rig_matcher_params(rig, matcher: str, *, given=None) -> dict:
     """Matcher parameters for ``matcher``: the rig file's ``<matcher>: {name: value}`` entry
     (e.g. ``elas: {subpixel: true}``, as ``disparity_node`` reads it from the same file as
     ``elas.subpixel``) updated with the ``given`` ones."""
@@ -247,7 +247,7 @@ def reconstruct_pair(left_bgr, right_bgr, rig, *, method: str | None = None, mat
 
     t = time.perf_counter()
     disp = compute_disparity(to_gray(left_r), to_gray(right_r), matcher=matcher, disp_min=dmin,
-                             disp_max=dmax, **rig_matcher_params(rig, matcher, matcher_params))
+                             disp_max=dmax, **rig_matcher_params(rig, matcher, given=matcher_params))
     timings["disparity"] = time.perf_counter() - t
     from canopy_stereo.disparity.checks import range_limit_warning
 

@@ -7,8 +7,8 @@ through the real nodes as ``canopy-stereo run`` does, and the first frame is wri
   points on the plant mask), both millimetres in the rig's world frame, RGB (as every
   PLY of the package; the ROS messages themselves are metres, REP 103);
 * ``<scene>_disparity.png`` and ``<scene>_depth.png``: colour-coded with a colour bar
-  and units (pixels, metres), ``<scene>_mask.png`` (the plant mask measured) and
-  ``<scene>_overlay.png`` (its outline over the rectified left image);
+  and units (pixels, metres), ``<scene>_mask.png`` (the plant mask measured, on the
+  left image) and ``<scene>_overlay.png`` (its outline over the left image);
 * ``<scene>_measurements.png``: top and side views of the plant with its measured
   canopy box and leaves (:func:`canopy_stereo.measure.plot_views`; needs matplotlib);
 * ``<scene>_summary.txt``: frames, speed after warm-up, the canopy measurements
@@ -16,8 +16,8 @@ through the real nodes as ``canopy-stereo run`` does, and the first frame is wri
   truth depth (the croton), the depth error.
 
 The plant is measured by the package's one measuring pipeline
-(:func:`canopy_stereo.pipeline.plant.measure_plant`) on the graph's rectified left image
-and disparity: the numbers are those of ``reconstruct --measure``, ``batch`` and ``view``
+(:func:`canopy_stereo.measure.plant.measure_plant`) on the left image the graph received
+and its disparity: the numbers are those of ``reconstruct --measure``, ``batch`` and ``view``
 for the same pair (lengths mm, areas cm^2, volumes cm^3).
 """
 from __future__ import annotations
@@ -69,9 +69,10 @@ def run_scene(scene: str, out_dir, *, matcher=None, domain_id=None, view=None) -
     out_dir.mkdir(parents=True, exist_ok=True)
     bag, rig_path = bundled_bag(scene), bundled_rig(scene)
     rig = load_rig(rig_path)
-    extra = {**(view.extra_outputs if view is not None else {}), "left/image_rect_color": Image}
+    # the raw left image the graph received: the measuring pipeline finds the plant on it
+    extra = {**(view.extra_outputs if view is not None else {}), "left/image_raw": Image}
     result = run_bag(bag, rig, rate=0, options=GraphOptions(matcher=matcher, parameter_services=False),
-                     domain_id=domain_id, keep=("points2", "disparity", "left/image_rect_color"),
+                     domain_id=domain_id, keep=("points2", "disparity", "left/image_raw"),
                      extra_outputs=extra,
                      on_output=view.on_output if view is not None else None)
     lines = [f"scene {scene}: {bag.name} through {rig_path.name}"]
@@ -96,7 +97,7 @@ def run_scene(scene: str, out_dir, *, matcher=None, domain_id=None, view=None) -
         valid = np.isfinite(frame.disparity)
         lines.append(f"  disparity: {valid.mean() * 100:.1f} % valid, f {frame.f:.1f} px, "
                      f"t {frame.t * 1e3:.2f} mm")
-    images = dict(result.outputs["left/image_rect_color"])
+    images = dict(result.outputs["left/image_raw"])
     if stamp in disps and stamp in images:
         lines += ["  " + s for s in _measure(scene, frame, msg_to_bgr(deserialize_message(images[stamp], Image)),
                                              rig, out_dir, files, stamp)]
@@ -120,27 +121,26 @@ def run_scene(scene: str, out_dir, *, matcher=None, domain_id=None, view=None) -
     return lines
 
 
-def _measure(scene: str, frame, left_rect, rig, out_dir: Path, files: list, stamp: int) -> list[str]:
+def _measure(scene: str, frame, left, rig, out_dir: Path, files: list, stamp: int) -> list[str]:
     """Measure the plant of the graph's frame with the package's one measuring pipeline
-    (:func:`~canopy_stereo.pipeline.plant.measure_plant`, as ``reconstruct --measure``,
-    ``batch`` and ``view``); write the mask, its overlay, the plant PLY and the plot;
-    summary lines."""
+    (:func:`~canopy_stereo.measure.plant.measure_plant` on the raw left image and the
+    graph's disparity, as ``reconstruct --measure``, ``batch`` and ``view``); write the mask,
+    its overlay, the plant PLY and the plot; summary lines."""
     from canopy_stereo.measure import plot_views
-    from canopy_stereo.pipeline.plant import measurement_lines, write_overlay
+    from canopy_stereo.measure.plant import measurement_lines, write_overlay
     from canopy_stereo.ros.measuring import measure_graph_frame
 
     try:
-        measured = measure_graph_frame(left_rect, frame, rig)
+        measured = measure_graph_frame(left, frame, rig)
     except CanopyStereoError as exc:
         return [f"canopy: not measured ({exc})"]
     mask = measured.mask
     files.append(write_image(out_dir / f"{scene}_mask.png", mask.astype(np.uint8) * 255))
-    files.append(write_overlay(out_dir / f"{scene}_overlay.png", measured, left_rect))
-    lines = [f"plant mask: {mask.mean() * 100:.1f} % of the rectified left image"]
+    files.append(write_overlay(out_dir / f"{scene}_overlay.png", measured, left))
+    lines = [f"plant mask: {mask.mean() * 100:.1f} % of the left image"]
     org = measured.organized_mm
     plant = mask & np.all(np.isfinite(org), axis=-1)
-    colours = left_rect[..., ::-1]
-    files.append(write_ply(out_dir / f"{scene}_plant.ply", org[plant], colors=colours[plant], unit="mm",
+    files.append(write_ply(out_dir / f"{scene}_plant.ply", org[plant], colors=left[..., ::-1][plant], unit="mm",
                            comments=[f"canopy-stereo demo scene={scene} frame_stamp_ns={stamp} (plant mask only)"]))
     lines.append(f"plant cloud: {int(plant.sum())} points")
     lines += measurement_lines(measured.report)

@@ -22,7 +22,7 @@ from canopy_stereo.viz.rerun_log import CameraPose, FrameLogger, camera_pose_fro
 RIG_METADATA_NAME = "canopy_stereo"
 
 #: Graph topics (relative to the namespace) a frame is made of.
-FRAME_TOPICS = ("points2", "disparity", "left/mask", "left/image_rect_color", "left/camera_info")
+FRAME_TOPICS = ("points2", "disparity", "left/mask", "left/image_rect_color", "left/camera_info", "left/image_raw")
 
 
 def rig_from_bag(path):
@@ -72,20 +72,29 @@ def rig_from_bag(path):
 
 
 def measure_frame(frame: dict, *, rig=None):
-    """The plant of one decoded graph frame (:func:`decode_frame`: ``image``, ``disparity``)
-    measured by the package's one measuring pipeline
-    (:func:`canopy_stereo.ros.measuring.measure_graph_frame`, the numbers of ``demo``,
-    ``reconstruct --measure`` and ``batch``); a
-    :class:`~canopy_stereo.pipeline.plant.PlantMeasurement` (millimetres), or None when
-    there is nothing to measure or no rig to measure with."""
+    """The plant of one decoded graph frame (:func:`decode_frame`: ``raw`` left image,
+    ``disparity``; without the raw image the recorded ``mask``) measured by the package's
+    one measuring pipeline (:func:`canopy_stereo.ros.measuring.measure_graph_frame`, the
+    numbers of ``demo``, ``reconstruct --measure`` and ``batch``). Returns the
+    :class:`~canopy_stereo.measure.plant.PlantMeasurement` with its mask and leaf ids carried
+    to the rectified grid the viewer draws on, or None when there is nothing to measure or
+    no rig to measure with."""
+    from dataclasses import replace
+
+    from canopy_stereo.geometry.rig_rectification import rectification_for_rig
+    from canopy_stereo.measure.plant import to_rectified_grid
     from canopy_stereo.ros.measuring import measure_graph_frame
 
-    if rig is None or frame.get("image") is None or frame.get("disparity") is None:
+    if rig is None or frame.get("disparity") is None or (frame.get("raw") is None and frame.get("mask") is None):
         return None
     try:
-        return measure_graph_frame(frame["image"], frame["disparity"], rig)
+        measured = measure_graph_frame(frame.get("raw"), frame["disparity"], rig, mask_rect=frame.get("mask"))
     except CanopyStereoError:
         return None
+    rect = rectification_for_rig(rig)  # outlines and mask are drawn over the rectified image
+    ids = measured.scene.leaf_ids
+    return replace(measured, mask=to_rectified_grid(measured.mask, rig, rect) > 0,
+                   scene=replace(measured.scene, leaf_ids=None if ids is None else to_rectified_grid(ids, rig, rect)))
 
 
 class FrameStreamer:
@@ -95,6 +104,7 @@ class FrameStreamer:
         logger: where frames go.
         rig: the rig (places the camera in the world), or None (pinhole only).
         need_mask: wait for the plant mask too before a frame is complete.
+        need_raw: wait for the raw left image too (measuring a graph run: the plant is found on it).
         measure: measure leaves and canopy of each frame (needs organized clouds and masks).
         drop_when_busy: live use: when the logger is still busy with earlier frames,
             skip frames instead of queueing them (the graph never waits).
@@ -102,10 +112,11 @@ class FrameStreamer:
     """
 
     def __init__(self, logger: FrameLogger, rig=None, *, need_mask: bool = True, measure: bool = False,
-                 drop_when_busy: bool = False, on_logged=None):
+                 drop_when_busy: bool = False, on_logged=None, need_raw: bool = False):
         self.logger = logger
         self.set_rig(rig)
-        self.required = {"points2", "disparity", "left/image_rect_color"} | ({"left/mask"} if need_mask else set())
+        self.required = ({"points2", "disparity", "left/image_rect_color"} | ({"left/mask"} if need_mask else set())
+                         | ({"left/image_raw"} if need_raw else set()))
         self.measure = measure
         self.pending: dict[int, dict] = {}
         self.lock = threading.Lock()
@@ -199,8 +210,8 @@ class FrameStreamer:
 
 def decode_frame(entry: dict) -> dict:
     """Arrays of one frame's CDR messages (relative topic -> bytes): ``points`` (N, 3) m,
-    ``colors``, ``organized`` (H, W, 3) m or None, ``depth`` (H, W) m, ``image`` BGR,
-    ``mask``, ``K``/``size`` from the camera info."""
+    ``colors``, ``organized`` (H, W, 3) m or None, ``depth`` (H, W) m, ``image`` BGR
+    (rectified), ``raw`` BGR (the raw left image), ``mask``, ``K``/``size`` from the camera info."""
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import CameraInfo, Image, PointCloud2
     from stereo_msgs.msg import DisparityImage
@@ -220,6 +231,8 @@ def decode_frame(entry: dict) -> dict:
         out["disparity"] = disp
     if "left/image_rect_color" in entry:
         out["image"] = msg_to_bgr(deserialize_message(entry["left/image_rect_color"], Image))
+    if "left/image_raw" in entry:
+        out["raw"] = msg_to_bgr(deserialize_message(entry["left/image_raw"], Image))
     if "left/mask" in entry:
         out["mask"] = msg_to_image(deserialize_message(entry["left/mask"], Image))
     if "left/camera_info" in entry:
@@ -276,11 +289,12 @@ def run_raw_bag(path, rig, logger: FrameLogger, *, measure: bool = True, matcher
     from canopy_stereo.ros.graph import GraphOptions
     from canopy_stereo.ros.runner import run_bag
 
-    streamer = FrameStreamer(logger, rig, need_mask=True, measure=measure, on_logged=on_logged)
+    streamer = FrameStreamer(logger, rig, need_mask=True, measure=measure, on_logged=on_logged, need_raw=measure)
     options = GraphOptions(matcher=matcher, segment=True, organized=True, parameter_services=False)
+    extra = {"left/image_rect_color": Image, **({"left/image_raw": Image} if measure else {})}
     try:
         result = run_bag(Path(path), rig, rate=0, options=options, domain_id=domain_id,
-                         extra_outputs={"left/image_rect_color": Image}, on_output=streamer.on_output,
+                         extra_outputs=extra, on_output=streamer.on_output,
                          progress=progress)
     finally:
         streamer.close()

@@ -5,7 +5,7 @@ The four commands run as a user runs them (each its own process, at once: the ma
 cores share them), on the bag's first stereo pair: ``demo`` and ``view`` through the ROS 2
 graph (rectify, ELAS disparity, ...), ``reconstruct`` on the pair's two images, ``batch`` on
 the bag with ``--max-frames 1`` (the first pair) on a Dask LocalCluster. The summaries print
-the same lines (:func:`canopy_stereo.pipeline.plant.measurement_lines`: mm, cm^2, cm^3), and
+the same lines (:func:`canopy_stereo.measure.plant.measurement_lines`: mm, cm^2, cm^3), and
 the batch table's numbers are the report's to the last digit written.
 """
 from __future__ import annotations
