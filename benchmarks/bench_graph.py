@@ -11,7 +11,8 @@ rig's would; ``--scene croton`` uses the bundled synthetic croton instead), and 
   them per second, first pair published -> last cloud received) and their ratio;
 * latency median and 95th percentile: a pair's stamp (the wall clock when the left image
   is published, as a camera driver stamps it) to its cloud's arrival in the feeding process;
-* CPU ms per node per offered pair (and per frame the node output, ``/out``): user + system time from ``/proc/<pid>/stat`` of each node
+* CPU ms per node per offered pair (and per frame the node output, ``/out``): user + system time from
+  ``/proc/<pid>/stat`` of each node
   process (its DDS threads included) or, in one process, from ``/proc/self/task/<tid>/stat``
   of each node's threads (executor, worker, ELAS pool; DDS threads count as ``dds``); the
   feeding process (publishers + the cloud subscriber) is ``feed``;
@@ -50,9 +51,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from canopy_stereo.bag import BagReader  # noqa: E402
 from canopy_stereo.cli import main as cli_main  # noqa: E402
 from canopy_stereo.io.rig import load_rig  # noqa: E402
-from canopy_stereo.ros.bag import BagReader  # noqa: E402
 from canopy_stereo.ros.bundled import bundled_bag, bundled_rig, write_stereo_bag  # noqa: E402
 from canopy_stereo.ros.convert import msg_to_image  # noqa: E402
 from canopy_stereo.ros.graph import GraphOptions  # noqa: E402
@@ -210,7 +211,7 @@ class Config:
     size: str
 
     @classmethod
-    def parse(cls, text: str) -> "Config":
+    def parse(cls, text: str) -> Config:
         """``MODE:MATCHER:MASK:SIZE`` -> Config (ValueError naming the bad part)."""
         parts = text.split(":")
         if len(parts) != 4:

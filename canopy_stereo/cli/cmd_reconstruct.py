@@ -143,8 +143,14 @@ def _measure(args, rec, rig, left, mask, written: list):
     without --measure)."""
     from pathlib import Path
 
-    from canopy_stereo.measure.plant import (DEFAULT_VOXEL_SIZE_MM, PlantMeasurement, automatic_plant_mask,
-                                             measure_plant, measurement_lines, write_overlay)
+    from canopy_stereo.measure.plant import (
+        DEFAULT_VOXEL_SIZE_MM,
+        PlantMeasurement,
+        automatic_plant_mask,
+        measure_plant,
+        measurement_lines,
+        write_overlay,
+    )
 
     overlay = Path(args.output).with_name(Path(args.output).stem + "_overlay.png")
     if not args.measure:

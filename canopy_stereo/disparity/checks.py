@@ -26,7 +26,7 @@ PILE_UP_SHARE = 0.02
 def signed_match_disparities(left_gray: np.ndarray, right_gray: np.ndarray) -> np.ndarray:
     """``u_left - u_right`` (pixels) of the ORB matches of a rectified grey pair that lie on
     the same row (within :data:`ROW_TOLERANCE_PX`), mutual best matches only."""
-    orb = cv2.ORB_create(nfeatures=800)
+    orb = cv2.ORB_create(nfeatures=800)  # type: ignore[attr-defined]  # (absent from OpenCV 5.0's stubs)
     kl, dl = orb.detectAndCompute(np.ascontiguousarray(left_gray), None)
     kr, dr = orb.detectAndCompute(np.ascontiguousarray(right_gray), None)
     if dl is None or dr is None or len(kl) < 2 or len(kr) < 2:

@@ -19,13 +19,17 @@ from canopy_stereo.elas.grid import disparity_grid
 from canopy_stereo.elas.matching import match_job, plane_radius, prior_table
 from canopy_stereo.elas.parallel import run_row_bands, run_tasks
 from canopy_stereo.elas.params import ElasParams, make_params
-from canopy_stereo.elas.postprocess import (adaptive_mean, interpolate_gaps, left_right_check,
-                                            median_filter, remove_small_segments)
+from canopy_stereo.elas.postprocess import (
+    adaptive_mean,
+    interpolate_gaps,
+    left_right_check,
+    median_filter,
+    remove_small_segments,
+)
 from canopy_stereo.elas.support import SUPPORT_MARGIN, support_points
 from canopy_stereo.elas.workspace import Workspace, thread_workspace
 from canopy_stereo.errors import ImageError
 from canopy_stereo.io.images import to_gray
-
 
 #: Smallest image side: one support candidate with its four descriptor samples.
 MIN_IMAGE_SIZE = 2 * SUPPORT_MARGIN + 1
@@ -177,9 +181,9 @@ def elas_run(left: np.ndarray, right: np.ndarray, params: ElasParams,
     common = (p.grid_size, prior, radius)
     tail = (int(p.disp_min), int(p.disp_max), int(p.match_texture), step, bool(p.subpixel))
     t = time.perf_counter()
-    job_l, disp_l, off_l = match_job(desc_l, desc_r, tex_l, map_l, planes_l, valid_l, *grid_l,
+    job_l, disp_l, off_l = match_job(desc_l, desc_r, tex_l, map_l, planes_l, valid_l, *grid_l,  # type: ignore[call-arg, misc]
                                      *common, 1, *tail, workspace=ws_l)
-    job_r, disp_r, off_r = match_job(desc_r, desc_l, tex_r, map_r, planes_r, valid_r, *grid_r,
+    job_r, disp_r, off_r = match_job(desc_r, desc_l, tex_r, map_r, planes_r, valid_r, *grid_r,  # type: ignore[call-arg, misc]
                                      *common, -1, *tail, workspace=ws_r)
     run_row_bands(job_l, job_r)
     timings["matching"] = time.perf_counter() - t

@@ -153,6 +153,7 @@ def default_disparity_range(rect: Rectification, near_depth: float | None = None
         if rect.disparity_range is None:
             return 0, 128
         return rect.disparity_range
+    assert rect.focal_length is not None and rect.baseline is not None  # (Fusiello sets both)
     return metric_disparity_range(rect.focal_length, rect.baseline, doffs=rect.doffs,
                                   near_depth=near_depth, far_depth=far_depth)
 
@@ -298,8 +299,8 @@ class StereoRectifier:
         self.rect = rect
         self.interpolation = interpolation
         self._maps = [
-            _rectify_map(rig.P_left, rig.D_left, rect.H_left_inv, rect.size),
-            _rectify_map(rig.P_right, rig.D_right, rect.H_right_inv, rect.size),
+            _rectify_map(rig.P_left, rig.D_left, rect.H_left_inv, rect.size, rig.distortion_model),
+            _rectify_map(rig.P_right, rig.D_right, rect.H_right_inv, rect.size, rig.distortion_model),
         ]
 
     def rectify(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -314,7 +315,7 @@ class StereoRectifier:
 
 #: Rectifiers kept by :func:`cached_rectifier` (each holds about 2.5 MB of maps per megapixel).
 RECTIFIER_CACHE_SIZE = 4
-_rectifier_cache: "OrderedDict[bytes, StereoRectifier]" = OrderedDict()
+_rectifier_cache: OrderedDict[bytes, StereoRectifier] = OrderedDict()
 _rectifier_lock = threading.Lock()
 
 
@@ -322,6 +323,7 @@ def _rectifier_key(rig, rect: Rectification, interpolation: int) -> bytes:
     parts = [np.asarray(a, np.float64).tobytes() for a in
              (rig.P_left, rig.P_right, rig.D_left, rig.D_right, rect.H_left, rect.H_right)]
     parts.append(np.asarray(list(rect.size) + [interpolation], np.int64).tobytes())
+    parts.append(str(rig.distortion_model).encode())
     return hashlib.sha1(b"".join(parts)).digest()
 
 
@@ -344,11 +346,11 @@ def cached_rectifier(rig, rect: Rectification, *, interpolation: int = cv2.INTER
     return rectifier
 
 
-def _rectify_map(P, D, H_inv, size):
+def _rectify_map(P, D, H_inv, size, model=None):
     w, h = size
     vv, uu = np.mgrid[0:h, 0:w]
     p = np.stack([uu.ravel(), vv.ravel()], axis=1).astype(np.float64)
-    q = distort_pixels(P, D, apply_homography(H_inv, p))
+    q = distort_pixels(P, D, apply_homography(H_inv, p), model=model)
     mx = q[:, 0].reshape(h, w).astype(np.float32)
     my = q[:, 1].reshape(h, w).astype(np.float32)
     return cv2.convertMaps(mx, my, cv2.CV_16SC2)

@@ -55,6 +55,14 @@ class PlantMeasurement:
         mask_source: one of :data:`MASK_SOURCES`.
         organized_mm: (H, W, 3) float64 world points (mm) of the original left pixels, NaN = none
             (as :func:`~canopy_stereo.pipeline.reconstruct.reconstruct_pair` maps them).
+        instances: (H, W) int plant numbers 1..N, left to right (automatic mask), else None.
+
+    ``report["plants"]``: one entry per plant (``plant_index`` 1..N left to right for the
+    automatic mask, 0 for a given mask or the whole scene): its ``reference`` surface (pot
+    rim, soil, ground; None for a lone plant measured as the scene), ``canopy`` (height above
+    that reference), ``n_leaves``, ``leaf_area`` (cm^2), ``mean_leaf_length``/``width`` (mm).
+    With several plants each is measured on its own as well as all together (the top-level
+    ``canopy`` and ``leaves``).
     """
 
     report: dict
@@ -62,6 +70,7 @@ class PlantMeasurement:
     mask: np.ndarray
     mask_source: str
     organized_mm: np.ndarray
+    instances: np.ndarray | None = None
 
 
 def original_cloud_mm(disparity, rig, rectification: Rectification) -> np.ndarray:
@@ -109,27 +118,34 @@ def to_rectified_grid(image, rig, rectification: Rectification) -> np.ndarray:
     return np.rint(rectifier.rectify_one(arr.astype(np.float32), "left")).astype(np.int64)
 
 
-def plant_mask_of(left_bgr, organized_mm, *, camera_centre_mm, index: str = DEFAULT_COLOUR_INDEX) -> np.ndarray:
-    """The automatic plant mask (bool (H, W)) of the original left image and its cloud
-    (mm, same grid; ``camera_centre_mm`` (3,) the left camera's centre, mm): the one place
-    the measuring pipeline calls the automatic segmentation (colour cue ``index`` with the
-    distance from the camera as the depth cue)."""
-    from canopy_stereo.segmentation import auto_plant_mask
+def plant_mask_of(left_bgr, organized_mm, *, camera_mm, index: str = DEFAULT_COLOUR_INDEX):
+    """The automatic plant segmentation of the original left image and its cloud (mm, same
+    grid; ``camera_mm`` (3, 4) the left camera's ``P`` of millimetres): the one place the
+    measuring pipeline calls it (:func:`~canopy_stereo.segmentation.segment_plants`: colour,
+    texture, depth and 3D shape; plants numbered left to right). Returns its
+    ``PlantSegmentation`` (``.mask`` uint8 255 = plant, ``.instances``). ``index`` is not
+    used by it (kept for the colour-index seeder's callers)."""
+    from canopy_stereo.segmentation import segment_plants
 
+    del index
     if int(np.all(np.isfinite(organized_mm), axis=-1).sum()) < 3:
         raise CanopyStereoError("no 3D point to find the plant by (the disparity is empty)")
-    distance = np.linalg.norm(organized_mm - np.asarray(camera_centre_mm, np.float64), axis=-1)
-    return auto_plant_mask(left_bgr, depth=distance, index=index) > 0
+    return segment_plants(left_bgr, points=organized_mm, camera=camera_mm)
+
+
+def camera_mm_of(rig) -> np.ndarray:
+    """(3, 4) the rig's left ``P`` taking world points in millimetres."""
+    k = 1e-3 / rig.metres_per_unit
+    return np.asarray(rig.P_left, np.float64) @ np.diag([k, k, k, 1.0])
 
 
 def automatic_plant_mask(left_bgr, organized, rig, *, index: str = DEFAULT_COLOUR_INDEX) -> np.ndarray:
-    """:func:`plant_mask_of` of the original left image and its organized cloud in the rig's
-    world units (``Reconstruction.organized``), as :func:`measure_plant` finds the plant."""
-    from canopy_stereo.geometry.camera import camera_centre
-
+    """(H, W) bool: the plants :func:`plant_mask_of` finds in the original left image and its
+    organized cloud in the rig's world units (``Reconstruction.organized``), as
+    :func:`measure_plant` finds them."""
     mm = rig.metres_per_unit * 1000.0
-    return plant_mask_of(left_bgr, np.asarray(organized, np.float64) * mm,
-                         camera_centre_mm=camera_centre(rig.P_left) * mm, index=index)
+    seg = plant_mask_of(left_bgr, np.asarray(organized, np.float64) * mm, camera_mm=camera_mm_of(rig), index=index)
+    return np.asarray(seg.mask) > 0
 
 
 def measure_plant(left_bgr, disparity, rig, *, rectification: Rectification, mask=None,
@@ -158,7 +174,6 @@ def measure_plant(left_bgr, disparity, rig, *, rectification: Rectification, mas
     Returns a :class:`PlantMeasurement`; raises :class:`CanopyStereoError` with one line
     when there is nothing to measure.
     """
-    from canopy_stereo.geometry.camera import camera_centre
     from canopy_stereo.measure.scene import measure_scene
     from canopy_stereo.measure.units import lab_report
 
@@ -178,17 +193,63 @@ def measure_plant(left_bgr, disparity, rig, *, rectification: Rectification, mas
     elif mask is not None:
         plant = np.asarray(mask)
         plant, source = (plant.max(axis=2) if plant.ndim == 3 else plant) > 0, "given"
+    camera_mm = camera_mm_of(rig)
+    instances = None
+    if whole_scene:
+        plant, source = finite, "whole scene"
+    elif mask is not None:
+        plant = np.asarray(mask)
+        plant, source = (plant.max(axis=2) if plant.ndim == 3 else plant) > 0, "given"
     else:
-        centre_mm = camera_centre(rig.P_left) * (rig.metres_per_unit * 1000.0)
-        plant = plant_mask_of(left_bgr, organized, camera_centre_mm=centre_mm, index=index)
-        source = "automatic"
-    k = 1e-3 / rig.metres_per_unit  # millimetres -> world units
-    camera_mm = np.asarray(rig.P_left, np.float64) @ np.diag([k, k, k, 1.0])
+        seg = plant_mask_of(left_bgr, organized, camera_mm=camera_mm, index=index)
+        plant, instances, source = np.asarray(seg.mask) > 0, np.asarray(seg.instances), "automatic"
+        if not plant.any():
+            raise CanopyStereoError("no plant found in the image (the automatic plant mask is empty); "
+                                    "give a mask, or measure the whole scene")
+    n_plants = 0 if instances is None else int(instances.max())
+    plants: list[dict] = []
+    if n_plants > 1:  # each plant on its own: height from its pot rim / soil / the ground
+        from canopy_stereo.measure.plants import measure_plants
+
+        per = measure_plants(organized, instances, ground=ground, unit="mm", camera=camera_mm,
+                             voxel_size=voxel_size_mm)
+        plants = [lab_report(p) for p in per["plants"]]
     scene = measure_scene(organized, leaf_ids=leaf_ids, mask=None if whole_scene else plant, ground=ground,
                           unit="mm", camera=camera_mm, voxel_size=voxel_size_mm)
+    if n_plants == 1:  # one plant: its height from its pot rim / soil (measure_plants' reference)
+        scene.report["reference"] = _reference_of(scene, organized, plant, camera_mm)
     report = lab_report(scene.report)
     report["source"]["mask"] = source
-    return PlantMeasurement(report=report, scene=scene, mask=plant, mask_source=source, organized_mm=organized)
+    if not plants:  # one plant (or the mask/scene as one): the whole report is that plant's
+        plants = [{"plant_index": 1 if n_plants else 0, **report}]
+    report["plants"] = [_plant_summary(p) for p in plants]
+    return PlantMeasurement(report=report, scene=scene, mask=plant, mask_source=source, organized_mm=organized,
+                            instances=instances)
+
+
+def _reference_of(scene, organized, plant, camera_mm) -> dict:
+    """The reference surface of a lone plant (:func:`~canopy_stereo.measure.plants.reference_surface`)
+    and its canopy height made the top above it, as :func:`~canopy_stereo.measure.plants.measure_plants`
+    reports each plant (``extent_height``: the plant's own extent)."""
+    from canopy_stereo.geometry.camera import camera_centre
+    from canopy_stereo.measure.plants import reference_surface
+
+    scale = float(np.median(np.linalg.norm(scene.canopy_points - camera_centre(camera_mm), axis=1)))
+    ref = reference_surface(organized, plant, np.zeros_like(plant), scene.frame, scene.canopy_points, scale=scale)
+    canopy = scene.report["canopy"]
+    canopy["extent_height"] = canopy["height"]
+    if ref["kind"] != "none":
+        canopy["height"] = float(canopy["bbox_max"][2]) - ref["height"]
+    return ref
+
+
+def _plant_summary(p: dict) -> dict:
+    """One plant's entry of ``report["plants"]``: its index, reference surface and canopy."""
+    return {"plant_index": int(p.get("plant_index", 0)), "reference": p.get("reference"),
+            "canopy": p["canopy"], "n_leaves": len(p.get("leaves", [])),
+            "leaf_area": float(sum(lf["area"] for lf in p.get("leaves", []))),
+            "mean_leaf_length": float(np.mean([lf["length"] for lf in p["leaves"]])) if p.get("leaves") else None,
+            "mean_leaf_width": float(np.mean([lf["width"] for lf in p["leaves"]])) if p.get("leaves") else None}
 
 
 #: What each mask source means, for the summaries.
@@ -198,17 +259,26 @@ _MASK_WORDS = {"given": "the given mask", "automatic": "the automatic plant mask
 
 def measurement_lines(report: dict, *, max_leaves: int = 8) -> list[str]:
     """Summary lines of a :func:`measure_plant` report, in the one unit set (mm, cm^2, cm^3):
-    what was measured, the canopy, the leaves (the first ``max_leaves``)."""
+    what was measured, the canopy, each plant when there are several, the leaves (the first
+    ``max_leaves``)."""
     c = report["canopy"]
-    frame = report.get("frame", {}).get("kind", "?")
-    lines = [f"measured: {_MASK_WORDS.get(report['source'].get('mask'), report['source'].get('mask'))}; "
-             f"reference: {frame}; voxels {c['voxel_size']:g} mm",
+    plants = report.get("plants", [])
+    ref = report.get("reference") or {}
+    reference = ref.get("kind") or report.get("frame", {}).get("kind", "?")
+    what = _MASK_WORDS.get(report["source"].get("mask"), report["source"].get("mask"))
+    lines = [f"measured: {what}" + (f" ({len(plants)} plants)" if len(plants) > 1 else "")
+             + f"; reference: {reference}; voxels {c['voxel_size']:g} mm",
              f"canopy: height {c['height']:.0f} mm, width {c['width']:.0f} mm, depth {c['depth']:.0f} mm"
              + (f", top {c['top_above_ground']:.0f} mm above the ground"
                 if c.get("top_above_ground") is not None else ""),
              f"  volumes: convex hull {c['hull_volume']:.0f} cm^3, voxels {c['voxel_volume']:.0f} cm^3; "
              f"leaves measured: {c.get('n_leaves', 0)}"
              + (f", leaf area {c['leaf_area']:.0f} cm^2" if c.get("leaf_area") else "")]
+    if len(plants) > 1:
+        for p in plants:
+            pc, pref = p["canopy"], (p.get("reference") or {}).get("kind", "?")
+            lines.append(f"  plant {p['plant_index']}: height {pc['height']:.0f} mm above its {pref}, "
+                         f"width {pc['width']:.0f} mm, hull {pc['hull_volume']:.0f} cm^3, leaves {p['n_leaves']}")
     leaves = report.get("leaves", [])
     for leaf in leaves[:max_leaves]:
         lines.append(f"  leaf {leaf['id']}: length {leaf['length']:.0f} mm, width {leaf['width']:.0f} mm, "
@@ -218,11 +288,12 @@ def measurement_lines(report: dict, *, max_leaves: int = 8) -> list[str]:
     return lines
 
 
-def write_overlay(path, measured: PlantMeasurement, left_bgr, *, caption: str = ""):
-    """Write the mask overlay picture (:func:`~canopy_stereo.viz.overlay.mask_overlay`) of a
-    measurement over its (original) left image; returns the path."""
+def write_overlay(path, measured: PlantMeasurement, left_bgr):
+    """Write the mask overlay picture (:func:`~canopy_stereo.segmentation.mask_overlay`: the
+    mask's outline and the plants' numbers over the original left image) of a measurement;
+    returns the path."""
     from canopy_stereo.io.images import write_image
-    from canopy_stereo.viz.overlay import mask_overlay
+    from canopy_stereo.segmentation import mask_overlay
 
-    words = _MASK_WORDS.get(measured.mask_source, measured.mask_source)
-    return write_image(path, mask_overlay(left_bgr, measured.mask, caption=caption or words))
+    mask = np.asarray(measured.mask, bool).astype(np.uint8) * 255
+    return write_image(path, mask_overlay(left_bgr, mask, instances=measured.instances))

@@ -36,7 +36,8 @@ def plot_views(measurement, path, *, title: str | None = None, dpi: int = 120) -
         title: optional figure title.
 
     The views are in the measuring frame (x across, y away from the camera,
-    z up), in millimetres (areas cm^2, volumes cm^3: the package's one unit set) with the canopy's bounding box, its width, depth and height, and
+    z up), in millimetres (areas cm^2, volumes cm^3: the package's one unit set) with the
+    canopy's bounding box, its width, depth and height, and
     each reliable leaf's length and width lines labelled with its id.
     """
     try:

@@ -18,7 +18,8 @@ MM_PER_UNIT = {"mm": 1.0, "cm": 10.0, "dm": 100.0, "m": 1000.0, "in": 25.4, "ft"
 _LEAF_LENGTHS = ("length", "width", "chord", "plane_rms", "geodesic_length")
 _LEAF_POINTS = ("centroid",)
 _LEAF_POINT_LISTS = ("ends", "width_ends")
-_CANOPY_LENGTHS = ("height", "width", "depth", "top_above_ground", "base_above_ground", "voxel_size")
+_CANOPY_LENGTHS = ("height", "width", "depth", "top_above_ground", "base_above_ground", "voxel_size",
+                   "extent_height")
 _CANOPY_POINTS = ("bbox_min", "bbox_max", "centroid")
 
 
@@ -67,6 +68,11 @@ def lab_report(report: dict) -> dict:
         c["leaf_area_density"] = c["leaf_area"] / c["hull_volume"]
     elif "leaf_area_density" in c:
         c["leaf_area_density"] = None
+    ref = out.get("reference")
+    if isinstance(ref, dict):
+        for key in ("height", "height_above_ground"):
+            if ref.get(key) is not None:
+                ref[key] = float(ref[key]) * mm
     src = out.get("source")
     if isinstance(src, dict) and src.get("camera_centre") is not None:
         src["camera_centre"] = _scaled(src["camera_centre"], mm)

@@ -8,12 +8,12 @@ the nodes hand ``measure_plant`` the graph's rectified image and disparity).
 from __future__ import annotations
 
 from canopy_stereo.disparity import DEFAULT_MATCHER
-from canopy_stereo.measure.plant import (DEFAULT_COLOUR_INDEX, DEFAULT_GROUND, DEFAULT_VOXEL_SIZE_MM, measure_plant)
+from canopy_stereo.measure.plant import DEFAULT_COLOUR_INDEX, DEFAULT_GROUND, DEFAULT_VOXEL_SIZE_MM, measure_plant
 
 
 def measure_stereo_pair(left_bgr, right_bgr, rig, *, matcher: str = DEFAULT_MATCHER, method: str | None = None,
-                        disp_min=None, disp_max=None, near_m=None, far_m=None, mask=None, leaf_ids=None, whole_scene: bool = False,
-                        index: str = DEFAULT_COLOUR_INDEX, ground=DEFAULT_GROUND,
+                        disp_min=None, disp_max=None, near_m=None, far_m=None, mask=None, leaf_ids=None,
+                        whole_scene: bool = False, index: str = DEFAULT_COLOUR_INDEX, ground=DEFAULT_GROUND,
                         voxel_size_mm: float = DEFAULT_VOXEL_SIZE_MM):
     """A raw stereo pair reconstructed (:func:`~canopy_stereo.pipeline.reconstruct.reconstruct_pair`)
     and measured (:func:`measure_plant`); ``mask``/``leaf_ids`` on the ORIGINAL left image.

@@ -63,8 +63,7 @@ from canopy_stereo.segmentation.colour_model import (
     grabcut_with_models,
     relabel_by_colour,
 )
-from canopy_stereo.segmentation.grabcut import (GC_BGD, GC_FGD, GC_PR_BGD, GC_PR_FGD, grabcut_labels,
-                                                labels_to_mask)
+from canopy_stereo.segmentation.grabcut import GC_BGD, GC_FGD, GC_PR_BGD, GC_PR_FGD, grabcut_labels, labels_to_mask
 from canopy_stereo.segmentation.indices import class_means, otsu_threshold, vegetation_index
 
 #: Vote values of a cue.
@@ -135,7 +134,9 @@ def combine_votes(colour: np.ndarray | None, depth: np.ndarray | None) -> np.nda
     """
     if colour is None and depth is None:
         raise ImageError("no cue to segment with: give a colour index or a disparity/depth map")
-    shape = (colour if colour is not None else depth).shape
+    ref = colour if colour is not None else depth
+    assert ref is not None  # (one of the two, checked above)
+    shape = ref.shape
     if colour is None or depth is None:
         v = colour if colour is not None else depth
         out = np.full(shape, GC_PR_BGD, np.uint8)
@@ -274,7 +275,7 @@ class SeederSettings:
         if self.min_region is not None and int(self.min_region) < 0:
             raise CanopyStereoError(f"min_region must be >= 0 pixels (or None), got {self.min_region}")
 
-    def replace(self, **changes) -> "SeederSettings":
+    def replace(self, **changes) -> SeederSettings:
         """A copy with ``changes`` (validated)."""
         return replace(self, **changes)
 
@@ -424,7 +425,7 @@ def _prepare(image_bgr, disparity, depth, settings: SeederSettings, rect):
     h, w = img.shape[:2]
     if disparity is not None and depth is not None:
         raise ImageError("give either a disparity or a depth map, not both")
-    maps = []
+    maps: list[np.ndarray | None] = []
     for name, arr in (("disparity", disparity), ("depth", depth)):
         if arr is None:
             maps.append(None)

@@ -126,7 +126,6 @@ def calibration_placements(rig=None, *, fit_to_view: bool = True, **layout) -> P
     if "first_mark" in layout or not fit_to_view:
         return _layout_in_front_of(rig, paper, **layout)
     angles = tuple(layout.pop("angles_deg", PAPER_LAYOUT["angles_deg"]))
-    widest = max(abs(a) for a in angles) or 1.0
     # the paper's angles first; a narrow camera that cannot see them gets the lines closer together
     for shrink in (1.0, 0.8, 0.6, 0.5, 0.4, 0.3, 0.2, 0.1, 0.0):
         ang = tuple(a * shrink for a in angles)
@@ -244,7 +243,8 @@ def render_calibration_scene(rig, placements: Placements, *, blur_px: float = 0.
         rng = np.random.default_rng([int(seed) & 0x7FFFFFFF, int(placement.pair), 0xCA11B])
         images = []
         for cam, (P, D) in enumerate(((rig.P_left, rig.D_left), (rig.P_right, rig.D_right))):
-            radiance = render_view(scene, P, D, rig.image_size, samples=pattern).radiance
+            radiance = render_view(scene, P, D, rig.image_size, samples=pattern,
+                                   model=rig.distortion_model).radiance
             if blur_px > 0:
                 radiance = cv2.GaussianBlur(radiance, (0, 0), sigmaX=float(blur_px), sigmaY=float(blur_px),
                                             borderType=cv2.BORDER_REFLECT)

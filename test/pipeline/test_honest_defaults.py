@@ -87,10 +87,10 @@ def test_a_swapped_pair_is_refused(near_board, tmp_path, cli):
 def test_bundled_pairs_swapped_are_refused(scene):
     """The bundled bags' first pairs, exchanged: refused by their rigs (verging croton cameras:
     the matches leave their rows; parallel Middlebury cameras: they leave the working range)."""
+    from canopy_stereo.bag import BagReader
     from canopy_stereo.batch.frames import image_to_bgr, raw_stereo_pairs
     from canopy_stereo.io.rig import load_rig
     from canopy_stereo.pipeline.reconstruct import reconstruct_pair
-    from canopy_stereo.ros.bag import BagReader
     from canopy_stereo.ros.bundled import LEFT_TOPIC, RIGHT_TOPIC, bundled_bag, bundled_rig
 
     _, left, right = next(iter(raw_stereo_pairs(BagReader(bundled_bag(scene)), LEFT_TOPIC,

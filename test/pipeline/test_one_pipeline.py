@@ -24,8 +24,8 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 def _first_pair(scene: str, out):
     import cv2
 
+    from canopy_stereo.bag import BagReader
     from canopy_stereo.batch.frames import image_to_bgr, raw_stereo_pairs
-    from canopy_stereo.ros.bag import BagReader
     from canopy_stereo.ros.bundled import LEFT_TOPIC, RIGHT_TOPIC, bundled_bag
 
     _, left, right = next(iter(raw_stereo_pairs(BagReader(bundled_bag(scene)), LEFT_TOPIC,

@@ -26,17 +26,21 @@ from stereo_msgs.msg import DisparityImage  # noqa: E402
 
 from canopy_stereo.geometry.camera import decompose_projection, point_depth  # noqa: E402
 from canopy_stereo.geometry.distortion import distort_pixels  # noqa: E402
-from canopy_stereo.geometry.frames import (  # noqa: E402
-    FrameNames, quaternion_to_rotation, raw_camera_calibration, stereo_transforms)
+from canopy_stereo.geometry.frames import FrameNames, quaternion_to_rotation, raw_camera_calibration, stereo_transforms  # noqa: E402
 from canopy_stereo.geometry.rectification import fusiello_rectify  # noqa: E402
 from canopy_stereo.geometry.transforms import invert_transform, transform_points  # noqa: E402
 from canopy_stereo.geometry.triangulation import apply_homography  # noqa: E402
 from canopy_stereo.ros import convert  # noqa: E402
 from canopy_stereo.ros.stereo_geometry import parse_stereo_geometry, stereo_geometry_msg  # noqa: E402
-
 from test.geometry.test_stereo_geometry import verged_rig  # noqa: E402
-from test.ros.test_ros_nodes import (T0, TIMEOUT, geometry_publisher, node_kwargs,  # noqa: E402
-                                     publish_rect_infos, rect_info_publishers)
+from test.ros.test_ros_nodes import (  # noqa: E402
+    T0,
+    TIMEOUT,
+    geometry_publisher,
+    node_kwargs,
+    publish_rect_infos,
+    rect_info_publishers,
+)
 
 pytestmark = pytest.mark.ros
 
@@ -411,13 +415,15 @@ def test_camera_node_publishes_a_drivers_camera_info(harness, paper_rig, tmp_pat
     by_stamp = {convert.stamp_to_ns(m.header.stamp): m for m in images}
     info = infos[0]
     assert convert.stamp_to_ns(info.header.stamp) in by_stamp
-    assert info.header.frame_id == images[0].header.frame_id == "right_camera_optical_frame"
+    assert info.header.frame_id == images[0].header.frame_id == "left_camera_optical_frame"  # one frame per pair
     cal = raw_camera_calibration(paper_rig, "right")
     K, D, R, P = convert.camera_info_matrices(info)
     np.testing.assert_allclose(K, cal.K)
     np.testing.assert_allclose(R, cal.R)
     np.testing.assert_allclose(P, cal.P)
-    assert (info.width, info.height) == (640, 480) and info.distortion_model == "plumb_bob"
+    # no lens distortion but R != I: the D image_proc rectifies with (all zeros would be copied)
+    assert (info.width, info.height) == (640, 480) and info.distortion_model == "rational_polynomial"
+    np.testing.assert_array_equal(D, [1, 0, 0, 0, 0, 1, 0, 0])
     # K is the camera's own: it projects world points as the rig's P does (through R_cam)
     cam = decompose_projection(paper_rig.P_right)
     X = np.array([[10.0, 20.0, 600.0]])
@@ -432,7 +438,7 @@ def test_bag_recorder_writes_tf_static_from_rectify_node(harness, paper_rig, tmp
     """bag_record / canopy_graph --record without tf2_msgs: the transforms of rectify_node's
     stereo_geometry go into the bag as /tf_static; bag_play then leaves that topic out
     (type not installed here) instead of failing."""
-    from canopy_stereo.ros.bag import BagReader, BagWriter
+    from canopy_stereo.bag import BagReader, BagWriter
     from canopy_stereo.ros.nodes.rectify import RectifyNode
     from canopy_stereo.ros.player import BagPlayer
     from canopy_stereo.ros.recorder import BagRecorder

@@ -13,10 +13,10 @@ from rclpy.serialization import deserialize_message  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 from stereo_msgs.msg import DisparityImage  # noqa: E402
 
+from canopy_stereo.bag import BagReader  # noqa: E402
 from canopy_stereo.geometry.rectification import fusiello_rectify  # noqa: E402
 from canopy_stereo.io.rig import load_rig  # noqa: E402
 from canopy_stereo.ros import convert  # noqa: E402
-from canopy_stereo.ros.bag import BagReader  # noqa: E402
 from canopy_stereo.ros.bundled import (  # noqa: E402
     bundled_bag,
     bundled_rig,
@@ -75,7 +75,7 @@ def test_croton_bag_through_the_real_nodes_is_metric(croton, tmp_path):
         assert len(points) > 0.6 * 640 * 480 and colors.shape == (len(points), 3)
         errors = relative_depth_errors(points, rig, truth[stamp])
         assert np.median(errors) < 0.01, np.median(errors)
-    for stamp, data in result.outputs["disparity"]:
+    for _stamp, data in result.outputs["disparity"]:
         d = deserialize_message(data, DisparityImage)
         assert d.f == pytest.approx(rect.focal_length, rel=1e-6)
         assert d.t == pytest.approx(rig.baseline * rig.metres_per_unit, rel=1e-6)
@@ -98,7 +98,7 @@ def _bad_input_bag(path, croton_bag):
     reader = BagReader(croton_bag)
     lefts = [convert.msg_to_image(m) for _, m in reader.read("/stereo/left/image_raw")]
     rights = [convert.msg_to_image(m) for _, m in reader.read("/stereo/right/image_raw")]
-    from canopy_stereo.ros.bag import BagWriter
+    from canopy_stereo.bag import BagWriter
 
     t0 = 1_704_067_200_000_000_000
     with BagWriter(path, chunk_size=1 << 20) as bag:  # about one frame per chunk
@@ -148,13 +148,13 @@ def test_run_keeps_recorded_timing(croton, tmp_path):
     """At rate 2 a 0.3 s bag takes about 0.15 s to play; remapped input topics."""
     bag, rig = croton
     reader = BagReader(bag)
-    frames = [(convert.msg_to_image(l), convert.msg_to_image(r), 1_000_000_000 + k * 200_000_000,
+    frames = [(convert.msg_to_image(lm), convert.msg_to_image(rm), 1_000_000_000 + k * 200_000_000,
                1_000_000_000 + k * 200_000_000 + 3_000_000)
-              for k, ((_, l), (_, r)) in enumerate(zip(reader.read("/stereo/left/image_raw"),
+              for k, ((_, lm), (_, rm)) in enumerate(zip(reader.read("/stereo/left/image_raw"),
                                                        reader.read("/stereo/right/image_raw")))]
     src = write_stereo_bag(tmp_path / "src.mcap", frames)
     remapped = tmp_path / "cam.mcap"
-    from canopy_stereo.ros.bag import BagWriter
+    from canopy_stereo.bag import BagWriter
 
     with BagWriter(remapped) as w:
         for m in BagReader(src).messages():
@@ -244,7 +244,7 @@ def test_graph_from_cameras(croton, tmp_path):
         finally:
             graph.shutdown()
             sink.destroy_node()
-    assert infos[0].header.frame_id == "right_camera_optical_frame" and infos[0].p[3] < 0
+    assert infos[0].header.frame_id == "left_camera_optical_frame" and infos[0].p[3] < 0  # one frame per pair
     pts, _ = convert.cloud2_to_points(clouds[0])
     # the croton and its backdrop lie 0.5 to 1.1 m in front of the paper's rig
     z = np.median(pts[:, 2])
