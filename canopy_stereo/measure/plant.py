@@ -222,7 +222,7 @@ def measure_plant(left_bgr, disparity, rig, *, rectification: Rectification, mas
     report["source"]["mask"] = source
     if not plants:  # one plant (or the mask/scene as one): the whole report is that plant's
         plants = [{"plant_index": 1 if n_plants else 0, **report}]
-    report["plants"] = [_plant_summary(p) for p in plants]
+    report["plants"] = [plant_summary(p) for p in plants]
     return PlantMeasurement(report=report, scene=scene, mask=plant, mask_source=source, organized_mm=organized,
                             instances=instances)
 
@@ -243,8 +243,9 @@ def _reference_of(scene, organized, plant, camera_mm) -> dict:
     return ref
 
 
-def _plant_summary(p: dict) -> dict:
-    """One plant's entry of ``report["plants"]``: its index, reference surface and canopy."""
+def plant_summary(p: dict) -> dict:
+    """One plant's entry of ``report["plants"]`` from its report (lab units): its index,
+    reference surface, canopy, leaf count, leaf area (cm^2), mean leaf length and width (mm)."""
     return {"plant_index": int(p.get("plant_index", 0)), "reference": p.get("reference"),
             "canopy": p["canopy"], "n_leaves": len(p.get("leaves", [])),
             "leaf_area": float(sum(lf["area"] for lf in p.get("leaves", []))),

@@ -96,7 +96,8 @@ def _check_outputs(out: Path, folder: Path, truth: dict) -> list[dict]:
     rows = _table(out / "plants.csv")
     assert [r["source"] for r in rows] == sorted(truth)
     cols = list(rows[0])
-    assert cols[:5] == ["source", "plant_id", "plot", "treatment", "date"]
+    assert cols[:6] == ["source", "plant_index", "plant_id", "plot", "treatment", "date"]
+    assert all(r["plant_index"] == "1" for r in rows)  # one potted croton per bag: one row, plant 1
     for col in ("frames", "canopy_height_mm", "canopy_width_mm", "canopy_depth_mm", "hull_volume_cm3",
                 "voxel_volume_cm3", "leaf_count", "leaf_area_cm2", "canopy_stereo_version"):
         assert col in cols, col
@@ -243,6 +244,8 @@ def test_resume_after_an_interrupted_run_processes_only_what_is_missing(season, 
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 130, stderr
     assert "interrupted" in stdout
+    # one line says so, no traceback (Dask's workers ignore the interruption; the batch ends it)
+    assert "Traceback" not in stderr and stderr.count("interrupted") == 1, stderr
     before = {r["source"]: r for r in _table(out / "plants.csv")}
     done_before = set(before) | {e["source"] for e in _table(out / "errors.csv")}
     assert 2 <= len(before) < len(BAGS)

@@ -63,7 +63,8 @@ def test_every_entry_point_reports_the_same_measurements(scene, tmp_path):
         "view": cmd + ["view", str(bag), "--rig", str(rig), "--save", str(tmp_path / "v.rrd")],
         "reconstruct": cmd + ["reconstruct", str(left), str(right), "--rig", str(rig), "-o", str(tmp_path / "r.ply"),
                               "--measure", "--auto-mask", "--report", str(tmp_path / "r.json")],
-        "batch": cmd + ["batch", str(bag), "--rig", str(rig), "-o", str(tmp_path / "b"), "--max-frames", "1",
+        # no --rig: the bundled bags carry their rig (item 7)
+        "batch": cmd + ["batch", str(bag), "-o", str(tmp_path / "b"), "--max-frames", "1",
                         "--workers", "1", "--no-plots", "--no-progress"],
     }
     procs = {k: subprocess.Popen(v, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
@@ -78,17 +79,22 @@ def test_every_entry_point_reports_the_same_measurements(scene, tmp_path):
     assert len(demo) >= 4 and demo[0].startswith("measured: the automatic plant mask")
     assert _measurement_block(out["view"]) == demo
     assert _measurement_block(out["reconstruct"])[:len(demo) - 1] == demo[:-1]  # it lists every leaf
-    # the batch table: the report's numbers (rounded as the table writes them)
+    # the batch table, one row per plant: the report's numbers (rounded as the table writes them)
     report = json.loads((tmp_path / "r.json").read_text())
     with open(tmp_path / "b" / "plants.csv", encoding="utf-8") as f:
-        (row,) = list(csv.DictReader(f))
-    c = report["canopy"]
-    expected = {"canopy_height_mm": c["height"], "canopy_width_mm": c["width"], "canopy_depth_mm": c["depth"],
-                "hull_volume_cm3": c["hull_volume"], "voxel_volume_cm3": c["voxel_volume"],
-                "voxel_size_mm": c["voxel_size"], "leaf_count": len(report["leaves"]),
-                "leaf_area_cm2": sum(lf["area"] for lf in report["leaves"])}
-    for column, value in expected.items():
-        assert float(row[column]) == pytest.approx(value, rel=1e-5, abs=1e-6), column
+        rows = list(csv.DictReader(f))
+    assert [int(r["plant_index"]) for r in rows] == [p["plant_index"] for p in report["plants"]]
+    for row, plant in zip(rows, report["plants"]):
+        c = plant["canopy"]
+        expected = {"canopy_height_mm": c["height"], "canopy_width_mm": c["width"], "canopy_depth_mm": c["depth"],
+                    "hull_volume_cm3": c["hull_volume"], "voxel_volume_cm3": c["voxel_volume"],
+                    "voxel_size_mm": c["voxel_size"], "leaf_count": plant["n_leaves"],
+                    "leaf_area_cm2": plant["leaf_area"]}
+        for column, value in expected.items():
+            assert float(row[column]) == pytest.approx(value, rel=1e-5, abs=1e-6), column
+        assert row["rig"] == "bag" and row["height_reference"] == (plant["reference"] or {}).get("kind", "")
     assert report["units"] == {"length": "mm", "area": "cm^2", "volume": "cm^3", "leaf_area_density": "1/cm"}
+    c = report["canopy"]
     assert report["source"]["mask"] == "automatic" and c["voxel_size"] == 10.0
     assert np.isfinite(c["height"]) and c["height"] > 100 and len(report["leaves"]) >= 5
+    assert (tmp_path / "r_overlay.png").is_file() and (tmp_path / "demo" / f"{scene}_overlay.png").is_file()
