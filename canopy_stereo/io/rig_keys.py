@@ -34,7 +34,7 @@ MATCHER_GROUPS = frozenset({"elas", "sgbm"})
 NODE_KEYS = frozenset({
     # rectify_node
     "frame_id", "right_frame_id", "world_frame", "world_z_up_frame", "left_camera_frame", "right_camera_frame",
-    "fps", "sync_slop", "image_transport", "skew_compensation",
+    "fps", "sync_slop", "image_transport", "skew_compensation", "use_camera_info",
     # disparity_node
     "matcher", "preset", "threads", "waiting_pairs",
     # segment_node (the seeder's settings)
