@@ -19,19 +19,32 @@ rig's would; ``--scene croton`` uses the bundled synthetic croton instead), and 
 * frames each node output (``out`` totals on ``/diagnostics``) and inputs it dropped;
 * memory: peak RSS (``VmHWM``) of each node process, or of the one process.
 
-Configuration ``MODE:MATCHER:MASK:SIZE``: MODE ``processes`` (rectify, disparity,
+Configuration ``MODE:MATCHER:MASK:SIZE[:TRANSPORT]``: MODE ``processes`` (rectify, disparity,
 [segment,] point_cloud, one process each, as ``ros2 run``/the launch file start them) or
 ``inprocess`` (the same nodes in one process, as ``canopy_graph``/``canopy-stereo run``);
 MATCHER ``elas``/``sgbm``; MASK ``mask`` (segment_node runs and point_cloud_node keeps only
 plant pixels, ``use_mask``) or ``nomask`` (no segment_node); SIZE ``320x240``, ``640x480`` or
-``1280x960``. Each configuration runs in a fresh process (``--one``), so that memory peaks and
-numba/DDS state do not carry over. CPU time is much less sensitive to a loaded machine than
-wall-clock rates: the targets (>= 27 clouds/s, median latency < 100 ms, 640x480 at 30 Hz, on 2
-cores) need the nodes' CPU per pair to stay below 2 cores x 33 ms = 66 ms in total.
+``1280x960``; TRANSPORT ``raw`` (default: bgr8 ``Image`` on ``<side>/image_raw``) or
+``compressed`` (the cameras send JPEG, quality ``--jpeg-quality`` 95, as ``CompressedImage`` on
+``<side>/image_raw/compressed``, encoded beforehand as a webcam's MJPEG is; rectify_node runs
+with ``image_transport: compressed`` and decodes each frame; ``--compressed`` = the two
+``--quick`` configurations with compressed inputs). Each configuration runs in a fresh
+process (``--one``), so that memory peaks and numba/DDS state do not carry over. CPU time is
+much less sensitive to a loaded machine than wall-clock rates: the targets (>= 27 clouds/s,
+median latency < 100 ms, 640x480 at 30 Hz, on 2 cores) need the nodes' CPU per pair to stay
+below 2 cores x 33 ms = 66 ms in total.
 
     .venv/bin/python benchmarks/bench_graph.py --quick
+    .venv/bin/python benchmarks/bench_graph.py --compressed   # JPEG camera streams
     .venv/bin/python benchmarks/bench_graph.py --configs processes:elas:mask:640x480 --frames 150
     .venv/bin/python benchmarks/bench_graph.py            # all 24 configurations (~15 min)
+
+``--foreign-driver`` (issue 29): the node processes (rectify, ELAS, point_cloud) fed by a driver that
+is not ours (``test/support/foreign_driver.py``, Fast DDS's defaults, no package profile) at
+``--rate``, with the package's 4 MiB UDP receive buffer and with the 208 kB a stock kernel's
+``net.core.rmem_max`` caps it to: clouds per pair, clouds/s, latency median and p95.
+
+    .venv/bin/python benchmarks/bench_graph.py --foreign-driver --rate 30 --frames 300
 
 Older modes, kept: ``--replay`` replays a croton bag through the in-process graph as fast as
 possible (``--matchers``, ``--executors``, ``--no-cli``: frames/s, latency, busy time per node);
@@ -193,6 +206,10 @@ MATCHERS = ("elas", "sgbm")
 MASKS = ("mask", "nomask")
 #: ``--quick``: the issue's graph (four processes, ELAS, the mask, 640x480) and the same in one process.
 QUICK_CONFIGS = ("processes:elas:mask:640x480", "inprocess:elas:mask:640x480")
+#: Input transports (TRANSPORT of a configuration).
+TRANSPORTS = ("raw", "compressed")
+#: The headline configurations with JPEG camera streams (``--compressed``).
+COMPRESSED_CONFIGS = tuple(f"{c}:compressed" for c in QUICK_CONFIGS)
 #: Crop of the 710x496 Plants pair to 640x480 (centre of the drift), pixels.
 PLANTS_CROP = (35, 8)
 #: Drift of the crop window (pixels, each way) and its period (frames).
@@ -209,23 +226,27 @@ class Config:
     matcher: str
     mask: bool
     size: str
+    transport: str = "raw"
 
     @classmethod
     def parse(cls, text: str) -> Config:
-        """``MODE:MATCHER:MASK:SIZE`` -> Config (ValueError naming the bad part)."""
+        """``MODE:MATCHER:MASK:SIZE[:TRANSPORT]`` -> Config (ValueError naming the bad part)."""
         parts = text.split(":")
-        if len(parts) != 4:
-            raise ValueError(f"configuration {text!r}: expected MODE:MATCHER:MASK:SIZE, "
+        if len(parts) not in (4, 5):
+            raise ValueError(f"configuration {text!r}: expected MODE:MATCHER:MASK:SIZE[:TRANSPORT], "
                              "e.g. processes:elas:mask:640x480")
-        mode, matcher, mask, size = parts
+        mode, matcher, mask, size = parts[:4]
+        transport = parts[4] if len(parts) == 5 else "raw"
         for value, choices, what in ((mode, MODES, "mode"), (matcher, MATCHERS, "matcher"),
-                                     (mask, MASKS, "mask"), (size, tuple(SIZES), "size")):
+                                     (mask, MASKS, "mask"), (size, tuple(SIZES), "size"),
+                                     (transport, TRANSPORTS, "transport")):
             if value not in choices:
                 raise ValueError(f"configuration {text!r}: {what} must be one of {', '.join(choices)}")
-        return cls(mode, matcher, mask == "mask", size)
+        return cls(mode, matcher, mask == "mask", size, transport)
 
     def __str__(self) -> str:
-        return f"{self.mode}:{self.matcher}:{'mask' if self.mask else 'nomask'}:{self.size}"
+        text = f"{self.mode}:{self.matcher}:{'mask' if self.mask else 'nomask'}:{self.size}"
+        return text if self.transport == "raw" else f"{text}:{self.transport}"
 
     @property
     def nodes(self) -> tuple[str, ...]:
@@ -399,7 +420,7 @@ def parse_node_parameter(text: str) -> tuple[str, str, object]:
 
 def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rate_hz: float = 30.0,
                log_dir: Path, threads: int | None = None, node_parameters: dict | None = None,
-               intra_process: bool = True) -> dict:
+               intra_process: bool = True, jpeg_quality: int = 95) -> dict:
     """Feed the graph of ``config`` ``n_frames`` pairs at ``rate_hz``; the figures (see the module
     docstring) as a dict. Runs in the calling process (``main`` gives each configuration a fresh one)."""
     import threading
@@ -422,6 +443,8 @@ def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rat
     domain = private_domain_id()
     params = {"disparity_node": {"matcher": config.matcher},
               "point_cloud_node": {"use_mask": config.mask}}
+    if config.transport == "compressed":
+        params["rectify_node"] = {"image_transport": "compressed"}
     if threads:
         params["disparity_node"]["threads"] = int(threads)
     for node, values in (node_parameters or {}).items():
@@ -448,8 +471,22 @@ def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rat
             graph.spin_in_background()
             pids = {}
         diagnostics = DiagnosticsTotals(probe.node)
-        pub_l = probe.publisher(Image, "left/image_raw")
-        pub_r = probe.publisher(Image, "right/image_raw")
+        if config.transport == "compressed":  # JPEG from the cameras, as webcams deliver MJPEG
+            from sensor_msgs.msg import CompressedImage
+
+            from canopy_stereo.ros.compressed import image_to_compressed_msg
+
+            pub_l = probe.publisher(CompressedImage, "left/image_raw/compressed")
+            pub_r = probe.publisher(CompressedImage, "right/image_raw/compressed")
+
+            def to_msg(image, frame_id):
+                return image_to_compressed_msg(image, quality=jpeg_quality, frame_id=frame_id)
+        else:
+            pub_l = probe.publisher(Image, "left/image_raw")
+            pub_r = probe.publisher(Image, "right/image_raw")
+
+            def to_msg(image, frame_id):
+                return image_to_msg(image, "bgr8", stamp_ns=0, frame_id=frame_id)
 
         def on_cloud(data):
             t = time.time_ns()
@@ -465,9 +502,7 @@ def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rat
         if not wait_for(lambda: sub.get_publisher_count() >= 1 and pub_l.get_subscription_count() >= 1
                         and pub_r.get_subscription_count() >= 1, 60.0, group=group):
             raise RuntimeError("the graph did not connect" + (":\n" + group.logs() if group else ""))
-        msgs = [(image_to_msg(left, "bgr8", stamp_ns=0, frame_id="left_camera"),
-                 image_to_msg(right, "bgr8", stamp_ns=0, frame_id="right_camera"))
-                for left, right in frames]
+        msgs = [(to_msg(left, "left_camera"), to_msg(right, "right_camera")) for left, right in frames]
 
         def publish(k: int) -> int:
             stamp = time.time_ns()
@@ -589,6 +624,92 @@ HEADER = (f"{'configuration':32s} {'offered':>7s} {'delivered':>9s} {'ratio':>6s
           f"{'p95':>6s}  (clouds/s, ms)")
 
 
+#: ``--foreign-driver`` receive buffers: the package's (4 MiB, needs ``net.core.rmem_max`` >= 4 MiB) and
+#: what a stock kernel's ``rmem_max`` (208 kB) caps it to.
+RECEIVE_BUFFERS = {"4MiB (rmem_max >= 4 MiB)": 4194304, "208kB (stock rmem_max)": 212992}
+
+
+def bench_foreign_driver(rate_hz: float, n_frames: int, log_dir: Path, *, scene: str = "plants",
+                         receive_buffer: int = 4194304, nodes=("rectify_node", "disparity_node",
+                                                               "point_cloud_node")) -> dict:
+    """The node processes fed by a driver that is not ours (``test/support/foreign_driver.py``: a
+    process on Fast DDS's defaults, 640x480 bgr8 pairs stamped at publication) at ``rate_hz``; the
+    node processes' profile is the package's with the UDP receive buffer set to ``receive_buffer``
+    (the kernel caps it at ``net.core.rmem_max``: 208 kB stands for a stock kernel). Returns clouds
+    per pair, clouds/s delivered and latency (publication to cloud arrival) median and p95."""
+    import json
+    import subprocess
+    import time
+
+    import numpy as np
+    from sensor_msgs.msg import PointCloud2
+
+    from canopy_stereo.io.rig import save_rig
+    from canopy_stereo.ros.context import FASTDDS_PROFILES, private_domain_id
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout's test package
+    from test.support.foreign_driver import foreign_env
+    from test.support.ros_harness import Probe, ProcessGroup, wait_for
+
+    log_dir.mkdir(parents=True, exist_ok=True)
+    rig, _ = bench_frames(scene, "640x480", n_frames=1)
+    rig_path = save_rig(rig, log_dir / "rig.yaml")
+    profile = log_dir / "fastdds_profiles.xml"
+    profile.write_text(FASTDDS_PROFILES.read_text().replace(
+        "<receiveBufferSize>4194304</receiveBufferSize>",
+        f"<receiveBufferSize>{int(receive_buffer)}</receiveBufferSize>"))
+    group = ProcessGroup(private_domain_id(), log_dir)
+    group.env.update(FASTRTPS_DEFAULT_PROFILES_FILE=str(profile), RMW_FASTRTPS_USE_QOS_FROM_XML="1")
+    probe = None
+    try:
+        group.start_graph(rig_path, nodes=nodes)
+        probe = Probe(group.domain_id, name="bench_probe")
+        clouds = probe.subscribe(PointCloud2, "points2")
+        inputs = {"/stereo/left/image_raw": 1, "/stereo/right/image_raw": 1, "/stereo/disparity": 1,
+                  "/stereo/left/image_rect": 1, "/stereo/left/image_rect_color": 1}
+        if not wait_for(lambda: all(probe.node.count_subscribers(t) >= n for t, n in inputs.items())
+                        and clouds.subscription.get_publisher_count() >= 1, 300.0, group=group):
+            raise RuntimeError("the node processes did not connect:\n" + group.logs())
+        driver = subprocess.run([sys.executable, "-m", "test.support.foreign_driver", "--rate", str(rate_hz),
+                                 "--frames", str(n_frames), "--scene", scene],
+                                cwd=Path(__file__).resolve().parents[1], env=foreign_env(group.env),
+                                capture_output=True, text=True, timeout=600)
+        if driver.returncode != 0:
+            raise RuntimeError(f"the driver failed: {driver.stderr[-2000:]}")
+        out = json.loads(driver.stdout.strip().splitlines()[-1])
+        sent = {int(k): t for k, t in out["sent"].items()}
+        time.sleep(1.0)
+        with clouds.lock:
+            got = {s: t for t, s, _ in clouds.items if s in sent}
+        lat = np.array([got[s] - sent[s] for s in got]) * 1e3
+        span = (max(got.values()) - min(sent.values())) if got else float("nan")
+        return {"pairs": len(sent), "clouds": len(got), "clouds_per_s": len(got) / span if got else 0.0,
+                "offered_per_s": (len(sent) - 1) / (max(sent.values()) - min(sent.values())),
+                "latency_median_ms": float(np.median(lat)) if lat.size else float("nan"),
+                "latency_p95_ms": float(np.percentile(lat, 95)) if lat.size else float("nan")}
+    finally:
+        if probe is not None:
+            probe.close()
+        group.stop_all()
+
+
+def foreign_driver_main(args) -> int:
+    """``--foreign-driver``: the graph fed by a driver on Fast DDS's defaults, with the package's
+    receive buffer and with what a stock ``rmem_max`` leaves of it."""
+    print(f"machine: {os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.2f}; a driver on Fast DDS's "
+          f"defaults, {args.scene} 640x480 bgr8 at {args.rate:g} pairs/s, {args.frames} pairs; rectify, ELAS, "
+          "point_cloud as processes", flush=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        for label, size in RECEIVE_BUFFERS.items():
+            r = bench_foreign_driver(args.rate, args.frames, Path(tmp) / str(size), scene=args.scene,
+                                     receive_buffer=size)
+            print(f"receive buffer {label:26s}: {r['clouds']}/{r['pairs']} clouds, {r['clouds_per_s']:.1f} of "
+                  f"{r['offered_per_s']:.1f} clouds/s, latency median {r['latency_median_ms']:.0f} ms, "
+                  f"p95 {r['latency_p95_ms']:.0f} ms", flush=True)
+    print(f"load average {os.getloadavg()[0]:.2f} at the end")
+    return 0
+
+
 def main(argv=None) -> int:
     import json
     import subprocess
@@ -597,6 +718,9 @@ def main(argv=None) -> int:
     p.add_argument("--configs", nargs="+", metavar="MODE:MATCHER:MASK:SIZE",
                    help="configurations to run (default: all 24; see the module docstring)")
     p.add_argument("--quick", action="store_true", help=f"only {' and '.join(QUICK_CONFIGS)}")
+    p.add_argument("--compressed", action="store_true",
+                   help=f"only {' and '.join(COMPRESSED_CONFIGS)} (JPEG camera streams)")
+    p.add_argument("--jpeg-quality", type=int, default=95, help="JPEG quality of compressed inputs (default 95)")
     p.add_argument("--scene", choices=("plants", "croton"), default="plants",
                    help="frames: the real Middlebury Plants pair (default) or the synthetic croton")
     p.add_argument("--rate", type=float, default=30.0, help="camera rate (pairs/s)")
@@ -621,13 +745,21 @@ def main(argv=None) -> int:
     p.add_argument("--processes-only", action="store_true", help="only issue 12's comparison")
     p.add_argument("--rates", nargs="*", type=float, default=[15.0, 30.0],
                    help="--processes: feeding rates (Hz)")
+    p.add_argument("--foreign-driver", action="store_true",
+                   help="the node processes fed by a driver on Fast DDS's defaults (issue 29), with the "
+                        "package's 4 MiB receive buffer and with a stock rmem_max's 208 kB")
     args = p.parse_args(argv)
+    if args.foreign_driver:
+        args.frames = args.frames or 300
+        return foreign_driver_main(args)
     if args.replay or args.processes or args.processes_only:
         args.frames = args.frames or 40
         return legacy_main(args)
     n_frames = args.frames or 90
     try:
-        configs = [Config.parse(c) for c in (args.configs or (QUICK_CONFIGS if args.quick else all_configs()))]
+        named = args.configs or (QUICK_CONFIGS if args.quick else COMPRESSED_CONFIGS if args.compressed
+                                 else all_configs())
+        configs = [Config.parse(c) for c in named]
         if args.one:
             configs = [Config.parse(args.one)]
         node_parameters: dict = {}
@@ -640,7 +772,7 @@ def main(argv=None) -> int:
         with tempfile.TemporaryDirectory() as tmp:
             result = run_config(configs[0], scene=args.scene, n_frames=n_frames, rate_hz=args.rate,
                                 log_dir=Path(tmp), threads=args.threads, node_parameters=node_parameters,
-                                intra_process=not args.no_intra_process)
+                                intra_process=not args.no_intra_process, jpeg_quality=args.jpeg_quality)
         Path(args.json).write_text(json.dumps(result))
         return 0
     print(f"machine: {os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.2f} at start; "
@@ -654,7 +786,8 @@ def main(argv=None) -> int:
         for config in configs:
             out = Path(tmp) / f"{str(config).replace(':', '_')}.json"
             cmd = [sys.executable, str(Path(__file__).resolve()), "--one", str(config), "--json", str(out),
-                   "--scene", args.scene, "--rate", str(args.rate), "--frames", str(n_frames)]
+                   "--scene", args.scene, "--rate", str(args.rate), "--frames", str(n_frames),
+                   "--jpeg-quality", str(args.jpeg_quality)]
             if args.threads:
                 cmd += ["--threads", str(args.threads)]
             if args.no_intra_process:

@@ -14,7 +14,8 @@ world frame (metres), the left rectified image, the depth with the rectified cam
 and pose (image and cloud line up), the plant mask, and the measured leaves (outline, length x
 width) and canopy box and height.
 
-SOURCE is a bag of raw frames (<ns>/left/image_raw, <ns>/right/image_raw: run through the node
+SOURCE is a bag of raw frames (<ns>/left/image_raw, <ns>/right/image_raw, or only their /compressed
+topics: run through the node
 graph; rig from --rig, else from the bag's 'canopy_stereo' metadata record), a bag of recorded
 outputs (<ns>/points2 ...: shown as recorded), or a saved recording (.rrd).
 --save writes a recording file and exits; --web serves the web viewer (shipped in the rerun-sdk
@@ -94,15 +95,16 @@ def _show_bag(src: Path, args) -> int:
 
     require_ros("canopy-stereo view")
     from canopy_stereo.bag import BagReader
+    from canopy_stereo.bag.metadata import RIG_RECORD, rig_from_bag
     from canopy_stereo.io.rig import load_rig
-    from canopy_stereo.ros.viewer import RIG_METADATA_NAME, bag_kind, rig_from_bag, run_raw_bag, show_recorded_outputs
+    from canopy_stereo.ros.viewer import bag_kind, run_raw_bag, show_recorded_outputs
     from canopy_stereo.viz.rerun_log import FrameLogger, close_recording, open_recording, serve_web
 
     bag = BagReader(src)
     kind, ns = bag_kind(bag)
     rig = load_rig(args.rig) if args.rig else rig_from_bag(src)
     if kind == "raw" and rig is None:
-        raise CanopyStereoError(f"{src} holds raw frames but no rig (no '{RIG_METADATA_NAME}' metadata "
+        raise CanopyStereoError(f"{src} holds raw frames but no rig (no '{RIG_RECORD}' metadata "
                                 "record): give the rig with --rig RIG.yaml")
     if kind == "raw" and ns != "/stereo":
         raise CanopyStereoError(f"{src}: raw frames under {ns}/, the graph reads /stereo/left/image_raw "
@@ -117,10 +119,12 @@ def _show_bag(src: Path, args) -> int:
         logger = FrameLogger(rec, with_measurements=not args.no_measure)
         try:
             if kind == "raw":
-                from canopy_stereo.cli.progress import Progress, warm_up_kernels
+                from canopy_stereo.cli.progress import warm_up_kernels
+                from canopy_stereo.progress import Progress
 
                 warm_up_kernels()
-                total = bag.topics[f"{ns}/left/image_raw"].message_count
+                left = f"{ns}/left/image_raw"
+                total = (bag.topics.get(left) or bag.topics[f"{left}/compressed"]).message_count
                 with Progress(total, "frames shown") as bar:  # on a terminal only
                     result = run_raw_bag(src, rig, logger, measure=not args.no_measure, matcher=args.matcher,
                                          domain_id=args.domain_id, on_logged=lambda: bar.step())

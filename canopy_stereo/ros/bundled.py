@@ -80,7 +80,8 @@ def bundled_rig(scene: str) -> Path:
 
 
 def write_stereo_bag(path, frames, *, truth_depths=None, compression: str = "zstd",
-                     metadata: dict | None = None, rig: Rig | None = None) -> Path:
+                     metadata: dict | None = None, rig: Rig | None = None, image_format: str = "raw",
+                     jpeg_quality: int = 95) -> Path:
     """Write stereo frames (and optional truth depth maps) as a bag.
 
     Args:
@@ -92,21 +93,35 @@ def write_stereo_bag(path, frames, *, truth_depths=None, compression: str = "zst
             below 0.1 % of the scene's depth and keeps the bag small.
         metadata, rig: optional ``canopy_stereo`` KEY=VALUE metadata and rig, stored
             as the bag's metadata records (:mod:`canopy_stereo.bag.metadata`).
+        image_format: ``"raw"`` (bgr8 ``Image`` on :data:`LEFT_TOPIC`, :data:`RIGHT_TOPIC`),
+            or ``"jpeg"`` / ``"png"``: ``CompressedImage`` on image_transport's
+            ``<topic>/compressed`` only, as robot bags usually hold them
+            (:mod:`canopy_stereo.io.compressed_image`).
+        jpeg_quality: JPEG quality (1-100) of ``image_format="jpeg"``.
     """
     from canopy_stereo.bag import BagWriter
     from canopy_stereo.bag.metadata import recording_metadata
+    from canopy_stereo.io.compressed_image import COMPRESSED_IMAGE_TYPE, compressed_topic, encode_frame_cdr
     from canopy_stereo.ros.convert import image_to_msg
 
+    if image_format not in ("raw", "jpeg", "png"):
+        raise CanopyStereoError(f"image_format must be raw, jpeg or png, got {image_format!r}")
     frame = RAW_FRAME
+
+    def write_image(bag, topic, image, stamp_ns, log_ns):
+        if image_format == "raw":
+            bag.write(topic, image_to_msg(image, "bgr8", stamp_ns=stamp_ns, frame_id=frame), log_ns)
+        else:
+            bag.write(compressed_topic(topic), encode_frame_cdr(image, stamp_ns=stamp_ns, frame_id=frame,
+                                                                codec=image_format, quality=jpeg_quality),
+                      log_ns, publish_time_ns=stamp_ns, msg_type=COMPRESSED_IMAGE_TYPE)
 
     transport_ns = 2_000_000  # reception 2 ms after capture
     with BagWriter(path, compression=compression,
                    metadata=recording_metadata(metadata, rig)) as bag:
         for k, (left, right, t_left, t_right) in enumerate(frames):
-            bag.write(LEFT_TOPIC, image_to_msg(left, "bgr8", stamp_ns=t_left, frame_id=frame),
-                      t_left + transport_ns)
-            bag.write(RIGHT_TOPIC, image_to_msg(right, "bgr8", stamp_ns=t_right, frame_id=frame),
-                      t_right + transport_ns)
+            write_image(bag, LEFT_TOPIC, left, t_left, t_left + transport_ns)
+            write_image(bag, RIGHT_TOPIC, right, t_right, t_right + transport_ns)
             if truth_depths is not None:
                 depth_mm = np.rint(np.nan_to_num(np.asarray(truth_depths[k], np.float64) * 1000.0,
                                                  nan=0.0)).clip(0, 65535).astype(np.uint16)

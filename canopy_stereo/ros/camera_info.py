@@ -23,7 +23,7 @@ from sensor_msgs.srv import SetCameraInfo
 from canopy_stereo.errors import CalibrationError, CanopyStereoError, RigError
 from canopy_stereo.geometry.frames import FrameNames, optical_frame, raw_camera_calibration, stereo_info_frame
 from canopy_stereo.ros.convert import camera_info_matrices, camera_info_msg
-from canopy_stereo.ros.params import RIG_PARAMETERS, declare_rig_parameters, rig_from_node
+from canopy_stereo.ros.params import RIG_PARAMETERS, declare_rig_parameters, rig_from_node, rig_given
 
 CAMERA_SIDES = ("left", "right")
 
@@ -49,26 +49,33 @@ class RawCameraInfoPublisher:
     ``cameracalibrator`` can commit to the node) publishes the new calibration from then on
     and writes it to the ``camera_info_url`` file (``file://`` only; the default URL when none).
 
+    ``of_pair``: one of the two views of a one-device stereo camera (camera_node's ``layout``):
+    its parameter is ``<camera_name>.camera_info_url`` and its service
+    ``<camera_name>/set_camera_info`` (beside its topics, where cameracalibrator's stereo mode
+    looks), so that each side has its own.
+
     Attributes:
         calibration: the camera's :class:`~canopy_stereo.geometry.frames.CameraCalibration`,
             or None (none found: no camera_info until ``set_camera_info``).
         source: where it came from (for the log).
     """
 
-    def __init__(self, node, camera_name: str):
+    def __init__(self, node, camera_name: str, *, of_pair: bool = False):
         self.node = node
         self.camera_name = camera_name
         self.calibration = None
         self.source = ""
         if not node.has_parameter(next(iter(RIG_PARAMETERS))):
             declare_rig_parameters(node)
-        node.declare_text("camera_info_url", "", "calibration file of this camera: file:///path.yaml or "
+        url_parameter = f"{camera_name}.camera_info_url" if of_pair else "camera_info_url"
+        node.declare_text(url_parameter, "", "calibration file of this camera: file:///path.yaml or "
                           "package://<pkg>/<path>, ${NAME} = camera_name, ${ROS_HOME}; empty = the rig's "
                           "left/right camera, else ${ROS_HOME}/camera_info/${NAME}.yaml when it exists",
                           read_only=True)
-        self.url = str(node.get_parameter("camera_info_url").value)
+        self.url = str(node.get_parameter(url_parameter).value)
         self.publisher = node.make_publisher(CameraInfo, f"{camera_name}/camera_info")
-        self.service = node.create_service(SetCameraInfo, "~/set_camera_info",
+        self.service = node.create_service(SetCameraInfo, f"{camera_name}/set_camera_info" if of_pair
+                                           else "~/set_camera_info",
                                            node.guarded(self._on_set_camera_info))
         self.calibration, self.source = self._initial_calibration()
         if self.calibration is None:
@@ -90,6 +97,8 @@ class RawCameraInfoPublisher:
             try:
                 rig = rig_from_node(self.node)
             except RigError as exc:
+                if rig_given(self.node):  # a broken rig stops the node (exit 2), as in the other nodes
+                    raise
                 self.node.get_logger().info(f"camera {self.camera_name}: no rig ({exc})")
             else:
                 return raw_camera_calibration(rig, self.camera_name), "the rig"

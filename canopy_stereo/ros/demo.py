@@ -60,19 +60,31 @@ def steady_speed_lines(result) -> list[str]:
             "speed: no frame came out"]
 
 
-def run_scene(scene: str, out_dir, *, matcher=None, domain_id=None, view=None) -> list[str]:
+def run_scene(scene: str, out_dir, *, matcher=None, domain_id=None, view=None,
+              compressed: bool = False) -> list[str]:
     """Run one bundled scene; write its files and return the summary lines.
 
     ``view``: an optional :class:`~canopy_stereo.ros.viewer.LiveView` the graph's outputs
-    are streamed to as they arrive."""
+    are streamed to as they arrive. ``compressed``: replay the bag with its images as JPEG
+    (quality 95) ``CompressedImage``, as a robot records them (written to
+    ``out_dir/<scene>_compressed.mcap`` by :func:`~canopy_stereo.ros.bag_images.compress_bag`)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     bag, rig_path = bundled_bag(scene), bundled_rig(scene)
+    if compressed:
+        from canopy_stereo.ros.bag_images import compress_bag
+
+        packed = out_dir / f"{scene}_compressed.mcap"
+        compress_bag(bag, packed, overwrite=True)
+        bag = packed
     rig = load_rig(rig_path)
     # the raw left image the graph received: the measuring pipeline finds the plant on it
-    extra = {**(view.extra_outputs if view is not None else {}), "left/image_raw": Image}
+    from sensor_msgs.msg import CompressedImage
+
+    extra = {**(view.extra_outputs if view is not None else {}), "left/image_raw": Image,
+             "left/image_raw/compressed": CompressedImage}
     result = run_bag(bag, rig, rate=0, options=GraphOptions(matcher=matcher, parameter_services=False),
-                     domain_id=domain_id, keep=("points2", "disparity", "left/image_raw"),
+                     domain_id=domain_id, keep=("points2", "disparity", "left/image_raw", "left/image_raw/compressed"),
                      extra_outputs=extra,
                      on_output=view.on_output if view is not None else None)
     lines = [f"scene {scene}: {bag.name} through {rig_path.name}"]
@@ -97,10 +109,9 @@ def run_scene(scene: str, out_dir, *, matcher=None, domain_id=None, view=None) -
         valid = np.isfinite(frame.disparity)
         lines.append(f"  disparity: {valid.mean() * 100:.1f} % valid, f {frame.f:.1f} px, "
                      f"t {frame.t * 1e3:.2f} mm")
-    images = dict(result.outputs["left/image_raw"])
-    if stamp in disps and stamp in images:
-        lines += ["  " + s for s in _measure(scene, frame, msg_to_bgr(deserialize_message(images[stamp], Image)),
-                                             rig, out_dir, files, stamp)]
+    left = _raw_left(result, stamp)
+    if stamp in disps and left is not None:
+        lines += ["  " + s for s in _measure(scene, frame, left, rig, out_dir, files, stamp)]
     lo, hi = points.min(axis=0) * 1000.0, points.max(axis=0) * 1000.0
     lines.append(f"  first frame: {len(points)} points; box (mm) x {lo[0]:.0f}..{hi[0]:.0f} "
                  f"y {lo[1]:.0f}..{hi[1]:.0f} z {lo[2]:.0f}..{hi[2]:.0f}")
@@ -119,6 +130,18 @@ def run_scene(scene: str, out_dir, *, matcher=None, domain_id=None, view=None) -
     summary.write_text("\n".join(lines) + "\n", encoding="utf-8")
     lines.append(f"  summary: {summary}")
     return lines
+
+
+def _raw_left(result, stamp: int):
+    """The raw left image (BGR) the graph received for ``stamp`` (raw or ``/compressed``), or None."""
+    from canopy_stereo.ros.compressed import decompress_image_cdr
+
+    raw = dict(result.outputs.get("left/image_raw", []))
+    packed = dict(result.outputs.get("left/image_raw/compressed", []))
+    data = raw.get(stamp)
+    if data is None and stamp in packed:
+        data = decompress_image_cdr(packed[stamp])
+    return None if data is None else msg_to_bgr(deserialize_message(data, Image))
 
 
 def _measure(scene: str, frame, left, rig, out_dir: Path, files: list, stamp: int) -> list[str]:

@@ -16,59 +16,11 @@ from pathlib import Path
 import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.io.compressed_image import COMPRESSED_SUFFIX, compressed_topic
 from canopy_stereo.viz.rerun_log import CameraPose, FrameLogger, camera_pose_from_rig
-
-#: Name of the MCAP metadata record that holds the rig of a bag.
-RIG_METADATA_NAME = "canopy_stereo"
 
 #: Graph topics (relative to the namespace) a frame is made of.
 FRAME_TOPICS = ("points2", "disparity", "left/mask", "left/image_rect_color", "left/camera_info", "left/image_raw")
-
-
-def rig_from_bag(path):
-    """The rig stored in the bag's ``canopy_stereo`` MCAP metadata record, or None.
-
-    The record's values are read as a rig file (ROS 2 parameter YAML, or a bare
-    ``ros__parameters`` mapping); the first value that is a rig wins. A record whose keys
-    are the parameters themselves (``P_left``, ``image_width``, ..., values in YAML) is read
-    as one rig too.
-    """
-    import yaml
-    from mcap.reader import make_reader
-
-    from canopy_stereo.io.rig import rig_from_parameters
-
-    try:
-        with open(path, "rb") as f:
-            records = list(make_reader(f).iter_metadata())
-    except Exception:  # noqa: BLE001 - a bag without a readable summary has no metadata index
-        return None
-    for record in records:
-        if record.name != RIG_METADATA_NAME:
-            continue
-        for key, text in sorted(record.metadata.items(), key=lambda kv: kv[0] != "rig"):
-            try:
-                doc = yaml.safe_load(text)
-            except yaml.YAMLError:
-                continue
-            if not isinstance(doc, dict):
-                continue
-            params = doc
-            for value in doc.values():
-                if isinstance(value, dict) and "ros__parameters" in value:
-                    params = value["ros__parameters"]
-                    break
-            if isinstance(params, dict) and "P_left" in params:
-                return rig_from_parameters(params, source=f"{path} metadata {RIG_METADATA_NAME}/{key}")
-        if "P_left" in record.metadata:
-            params = {}
-            for key, text in record.metadata.items():
-                try:
-                    params[key] = yaml.safe_load(text)
-                except yaml.YAMLError:
-                    params[key] = text
-            return rig_from_parameters(params, source=f"{path} metadata {RIG_METADATA_NAME}")
-    return None
 
 
 def measure_frame(frame: dict, *, rig=None):
@@ -143,6 +95,10 @@ class FrameStreamer:
 
     # called from the graph's receiving thread
     def on_output(self, rel: str, stamp: int, data: bytes) -> None:
+        if rel == "left/image_raw" + COMPRESSED_SUFFIX:  # a compressed recording's raw left image
+            from canopy_stereo.ros.compressed import decompress_image_cdr
+
+            rel, data = "left/image_raw", decompress_image_cdr(data)
         if rel not in FRAME_TOPICS or stamp is None:
             return
         done = []
@@ -244,14 +200,17 @@ def decode_frame(entry: dict) -> dict:
 
 def bag_kind(bag) -> tuple[str, str]:
     """``("outputs", namespace)`` for a bag with recorded ``points2``, ``("raw", namespace)``
-    for one with ``left/image_raw`` and ``right/image_raw``; else :class:`CanopyStereoError`."""
+    for one with ``left/image_raw`` and ``right/image_raw`` (or only their ``/compressed``
+    topics); else :class:`CanopyStereoError`."""
     topics = set(bag.topics)
     for t in sorted(topics):
         if t.endswith("/points2"):
             return "outputs", t[: -len("/points2")]
-    for t in sorted(topics):
-        if t.endswith("/left/image_raw") and t[: -len("left/image_raw")] + "right/image_raw" in topics:
-            return "raw", t[: -len("/left/image_raw")]
+    for suffix in ("", COMPRESSED_SUFFIX):
+        for t in sorted(topics):
+            left = "/left/image_raw" + suffix
+            if t.endswith(left) and t[: -len(left)] + "/right/image_raw" + suffix in topics:
+                return "raw", t[: -len(left)]
     raise CanopyStereoError(f"{bag.path} has neither raw stereo frames (<ns>/left/image_raw and "
                             f"<ns>/right/image_raw) nor recorded clouds (<ns>/points2); topics: "
                             f"{', '.join(sorted(topics)) or 'none'}")
@@ -262,14 +221,20 @@ def show_recorded_outputs(bag, namespace: str, logger: FrameLogger, *, rig=None,
     """Log a bag of recorded graph outputs frame by frame (grouped by header stamp); returns
     the number of frames (clouds) logged. ``measurements``: a list extended with the
     ``(stamp, report or None)`` of each frame logged."""
+    from canopy_stereo.ros.compressed import decompress_image_cdr
     from canopy_stereo.ros.recorder import header_stamp_from_cdr
 
     prefix = namespace.rstrip("/") + "/"
-    topics = [prefix + rel for rel in FRAME_TOPICS if prefix + rel in bag.topics]
-    streamer = FrameStreamer(logger, rig, need_mask=prefix + "left/mask" in bag.topics, measure=measure)
-    streamer.required = {rel for rel in FRAME_TOPICS if prefix + rel in bag.topics} - {"left/camera_info"}
-    for m in bag.messages(topics):
-        streamer.on_output(m.topic[len(prefix):], header_stamp_from_cdr(m.data), m.data)
+    # images recorded compressed (run --record --compress-images) are read from <topic>/compressed
+    stored = {rel: prefix + rel if prefix + rel in bag.topics else compressed_topic(prefix + rel)
+              for rel in FRAME_TOPICS}
+    present = {rel for rel, t in stored.items() if t in bag.topics}
+    by_topic = {stored[rel]: rel for rel in present}
+    streamer = FrameStreamer(logger, rig, need_mask="left/mask" in present, measure=measure)
+    streamer.required = present - {"left/camera_info"}
+    for m in bag.messages(list(by_topic)):
+        data = decompress_image_cdr(m.data) if m.topic.endswith(COMPRESSED_SUFFIX) else m.data
+        streamer.on_output(by_topic[m.topic], header_stamp_from_cdr(m.data), data)
     streamer.close()
     if measurements is not None:
         measurements.extend(streamer.measurements)
@@ -291,7 +256,10 @@ def run_raw_bag(path, rig, logger: FrameLogger, *, measure: bool = True, matcher
 
     streamer = FrameStreamer(logger, rig, need_mask=True, measure=measure, on_logged=on_logged, need_raw=measure)
     options = GraphOptions(matcher=matcher, segment=True, organized=True, parameter_services=False)
-    extra = {"left/image_rect_color": Image, **({"left/image_raw": Image} if measure else {})}
+    from sensor_msgs.msg import CompressedImage
+
+    extra = {"left/image_rect_color": Image,
+             **({"left/image_raw": Image, "left/image_raw" + COMPRESSED_SUFFIX: CompressedImage} if measure else {})}
     try:
         result = run_bag(Path(path), rig, rate=0, options=options, domain_id=domain_id,
                          extra_outputs=extra, on_output=streamer.on_output,

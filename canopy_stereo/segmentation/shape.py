@@ -126,7 +126,7 @@ def fit_planes(q: np.ndarray, *, tolerance: float, min_fraction: float = 0.06, m
     rng = np.random.default_rng(seed)
     reach = max(4, w // 8)
     planes: list[Plane] = []
-    for _ in range(max_planes + 2):
+    for _ in range(max_planes + 6):
         if len(planes) >= max_planes:
             break
         idx = np.flatnonzero(free)
@@ -169,6 +169,56 @@ def fit_planes(q: np.ndarray, *, tolerance: float, min_fraction: float = 0.06, m
         if inliers.sum() >= min_fraction * n_valid and behind <= 0.1 * inliers.sum():
             planes.append(Plane(best, inliers))
     return planes
+
+
+def fit_ground(q: np.ndarray, free: np.ndarray, *, tolerance: float, iterations: int = 300,
+               seed: int = 1) -> Plane | None:
+    """A ground plane (a table, a bench, a floor: ``q`` growing down the image) among the
+    ``free`` pixels of the lower 40 % of the image, when :func:`fit_planes` found none.
+
+    Hypotheses are drawn from three pixels anywhere in that band (a table seen in pieces
+    between pots holds together), only planes seen from above are scored, and the
+    inliers must cover at least 2 % of the valid pixels in regions of 0.5 % of the image.
+    """
+    h, w = q.shape
+    v, u = np.mgrid[0:h, 0:w]
+    valid = np.isfinite(q)
+    band = free & valid & (v >= 0.6 * h)
+    idx = np.flatnonzero(band)
+    if len(idx) < 50:
+        return None
+    rng = np.random.default_rng(seed)
+    sample = idx if len(idx) <= 4000 else rng.choice(idx, 4000, replace=False)
+    A = np.stack([u.ravel()[sample], v.ravel()[sample], np.ones(len(sample))], 1).astype(np.float64)
+    b = q.ravel()[sample]
+    qmed = float(np.nanmedian(q))
+    best, best_count = None, 0
+    for _ in range(iterations):
+        pick = rng.choice(len(sample), 3, replace=False)
+        try:
+            coeffs = np.linalg.solve(A[pick], b[pick])
+        except np.linalg.LinAlgError:
+            continue
+        if not coeffs[1] * h > 0.3 * qmed:
+            continue
+        count = int(np.sum(np.abs(A @ coeffs - b) < tolerance))
+        if count > best_count:
+            best, best_count = coeffs, count
+    if best is None:
+        return None
+    inl = np.abs(A @ best - b) < tolerance
+    if inl.sum() >= 3:
+        best = np.linalg.lstsq(A[inl], b[inl], rcond=None)[0]
+    with np.errstate(invalid="ignore"):
+        close = free & valid & (np.abs(q - (best[0] * u + best[1] * v + best[2])) < tolerance)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(close.astype(np.uint8), connectivity=8)
+    big = stats[:, cv2.CC_STAT_AREA] >= 0.005 * h * w
+    big[0] = False
+    inliers = big[lab]
+    plane = Plane(best, inliers)
+    if inliers.sum() < 0.02 * valid.sum() or not plane.is_ground(qmed, h):
+        return None
+    return plane
 
 
 def local_roughness(q: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray]:
@@ -273,3 +323,50 @@ def caps(solids: np.ndarray, *, fraction: float = 0.3) -> np.ndarray:
         band = max(2, int(fraction * w))
         out[:, x:x + w] |= (rows < top[None, :]) & (rows >= top[None, :] - band) & has[None, :]
     return out
+
+
+def solids_behind(candidates: np.ndarray, solids: np.ndarray, q: np.ndarray, *, min_pixels: int,
+                  ratio: float = 0.92, gap: int = 3) -> np.ndarray:
+    """Components of ``candidates`` (smooth plain regions) of at least ``min_pixels`` that touch a
+    solid (within ``gap`` pixels) and lie behind it (median inverse depth below ``ratio`` times the
+    solid's): a box whose foot the watering can in front of it hides."""
+    n, lab = cv2.connectedComponents((candidates & ~solids).astype(np.uint8), connectivity=8)
+    if n <= 1 or not solids.any():
+        return np.zeros(solids.shape, bool)
+    ns, slab = cv2.connectedComponents(solids.astype(np.uint8), connectivity=8)
+    k = np.ones((2 * gap + 1, 2 * gap + 1), np.uint8)
+    out = np.zeros(solids.shape, bool)
+    for i in range(1, n):
+        region = lab == i
+        if region.sum() < min_pixels:
+            continue
+        ring = cv2.dilate(region.astype(np.uint8), k).astype(bool) & solids
+        if not ring.any():
+            continue
+        q_region = np.nanmedian(q[region])
+        for j in np.unique(slab[ring]):
+            if q_region < ratio * np.nanmedian(q[slab == j]):
+                out |= region
+                break
+    return out
+
+
+def standing_out(lead: np.ndarray, margin: float) -> np.ndarray:
+    """Pixels more than ``margin`` in front of every plane (``lead``: the smallest plane residual)
+    in regions that stand out as a whole (median lead above ``margin``): seedlings a few
+    millimetres above their tray, not the speckle of matching noise around a plane."""
+    front = np.isfinite(lead) & (lead > margin)
+    n, lab = cv2.connectedComponents(front.astype(np.uint8), connectivity=8)
+    if n <= 1:
+        return front
+    sums = np.bincount(lab.ravel(), weights=np.where(front, lead, 0.0).ravel(), minlength=n)
+    counts = np.bincount(lab.ravel(), minlength=n)
+    # mean lead of each region against the margin, over the region grown by its halo of noise
+    grown = cv2.dilate(lab.astype(np.float32), np.ones((5, 5), np.uint8)).astype(np.int64)
+    halo = (grown > 0) & ~front & np.isfinite(lead)
+    hs = np.bincount(grown[halo], weights=lead[halo], minlength=n)
+    hc = np.bincount(grown[halo], minlength=n)
+    mean = (sums + hs) / np.maximum(counts + hc, 1)
+    ok = mean > margin
+    ok[0] = False
+    return ok[lab]

@@ -60,7 +60,7 @@ def test_every_entry_point_reports_the_same_measurements(scene, tmp_path):
     cmd = [sys.executable, "-m", "canopy_stereo.cli"]
     runs = {
         "demo": cmd + ["demo", "--scene", scene, "--out", str(tmp_path / "demo")],
-        "view": cmd + ["view", str(bag), "--rig", str(rig), "--save", str(tmp_path / "v.rrd")],
+        "view": cmd + ["view", str(bag), "--save", str(tmp_path / "v.rrd")],  # the rig: the bag's
         "reconstruct": cmd + ["reconstruct", str(left), str(right), "--rig", str(rig), "-o", str(tmp_path / "r.ply"),
                               "--measure", "--auto-mask", "--report", str(tmp_path / "r.json")],
         # no --rig: the bundled bags carry their rig (item 7)

@@ -376,14 +376,17 @@ def croton_frames():
 
 
 def feed_pairs(pub_left, pub_right, frames, stamps_ns, rate_hz: float, right_offset_ns: int = 4_000_000,
-               stop: threading.Event | None = None) -> dict:
+               stop: threading.Event | None = None, make_msg=None) -> dict:
     """Publish ``frames[k % len]`` stamped ``stamps_ns[k]`` (right ``+right_offset_ns``) at
-    ``rate_hz``; returns left stamp -> monotonic time the pair's right image left."""
+    ``rate_hz``; returns left stamp -> monotonic time the pair's right image left.
+    ``make_msg(image, frame_id)`` builds each message (default: a bgr8 Image)."""
     from canopy_stereo.ros.convert import image_to_msg
 
-    msgs = [(image_to_msg(left, "bgr8", stamp_ns=0, frame_id="left_camera"),
-             image_to_msg(right, "bgr8", stamp_ns=0, frame_id="right_camera"))
-            for left, right in frames]
+    if make_msg is None:
+        def make_msg(image, frame_id):
+            return image_to_msg(image, "bgr8", stamp_ns=0, frame_id=frame_id)
+
+    msgs = [(make_msg(left, "left_camera"), make_msg(right, "right_camera")) for left, right in frames]
     sent = {}
     t0 = time.monotonic()
     for k, stamp in enumerate(stamps_ns):
@@ -401,3 +404,42 @@ def feed_pairs(pub_left, pub_right, frames, stamps_ns, rate_hz: float, right_off
         pub_right.publish(right)
         sent[stamp] = time.monotonic()
     return sent
+
+
+def record_with_bag_record(out: Path, messages, *, args=(), timeout_s: float = 30.0) -> str:
+    """Run the ``bag_record`` executable (its own process, a private domain) recording the
+    topics of ``messages`` (``[(topic, type name, CDR bytes), ...]``, e.g. a bag's messages)
+    into ``out`` with the further command-line ``args`` (``["--rig", RIG]``); publish the
+    messages in order (reliable, depth 10), then stop it with SIGINT. Returns its stderr;
+    raises AssertionError when it does not subscribe or does not exit with 0."""
+    from rclpy.node import Node
+
+    from canopy_stereo.bag.msgdefs import message_class
+    from canopy_stereo.ros.context import private_domain_id, ros_context
+    from canopy_stereo.ros.qos import publisher_qos
+
+    domain = private_domain_id()
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    topics = list(dict.fromkeys(topic for topic, _, _ in messages))
+    proc = subprocess.Popen(executable_command("bag_record") + ["-o", str(out), *topics, *map(str, args)],
+                            env=env, stderr=subprocess.PIPE, text=True)
+    with killed_at_exit(proc):
+        with ros_context(domain) as ctx:
+            node = Node("bag_record_feeder", context=ctx, start_parameter_services=False)
+            pubs = {}
+            for topic, type_name, _ in messages:
+                if topic not in pubs:
+                    pubs[topic] = node.create_publisher(message_class(type_name), topic,
+                                                        publisher_qos("reliable", 10))
+            assert wait_for(lambda: all(p.get_subscription_count() >= 1 for p in pubs.values()), timeout_s), \
+                "bag_record did not subscribe"
+            time.sleep(0.2)
+            for topic, _, data in messages:
+                pubs[topic].publish(data)
+                time.sleep(0.05)
+            time.sleep(0.5)
+            node.destroy_node()
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=timeout_s)
+    assert proc.returncode == 0, err
+    return err
