@@ -34,7 +34,8 @@ MATCHER_GROUPS = frozenset({"elas", "sgbm"})
 NODE_KEYS = frozenset({
     # rectify_node
     "frame_id", "right_frame_id", "world_frame", "world_z_up_frame", "left_camera_frame", "right_camera_frame",
-    "fps", "sync_slop", "image_transport", "skew_compensation", "use_camera_info",
+    "fps", "sync_slop", "image_transport", "skew_compensation", "use_camera_info", "max_stamp_gap", "zero_stamps",
+    "stamp_latency", "fixed_frame", "tf_timeout",
     # disparity_node
     "matcher", "preset", "threads", "waiting_pairs",
     # segment_node (the seeder's settings)
@@ -43,7 +44,8 @@ NODE_KEYS = frozenset({
     # point_cloud_node
     "cloud_frame", "organized", "use_mask",
     # camera_node
-    "camera_name", "device", "fourcc", "width", "height", "loop", "open_timeout", "read_timeout",
+    "camera_name", "device", "fourcc", "width", "height", "loop", "open_timeout", "read_timeout", "layout",
+    "transport", "jpeg_quality",
     # fusion_node
     "voxel_size", "publish_period", "pose_slop", "pose_wait", "max_views", "min_views", "min_overlap",
     "free_space", "register_without_pose",
