@@ -18,7 +18,7 @@ from canopy_stereo.ros import convert  # noqa: E402
 from canopy_stereo.ros.camera_info import default_camera_frame  # noqa: E402
 from canopy_stereo.ros.context import private_domain_id, wait_for  # noqa: E402
 from test.conftest import REPO  # noqa: E402
-from test.ros.test_ros_nodes import TIMEOUT, node_kwargs  # noqa: E402
+from test.support.nodes import TIMEOUT, node_kwargs  # noqa: E402
 from test.support.ros_harness import Probe, ProcessGroup, croton_frames  # noqa: E402
 from test.support.ros_harness import wait_for as wait_alive  # noqa: E402
 
