@@ -75,12 +75,16 @@ def bundled_rig(scene: str) -> Path:
 
 
 def write_stereo_bag(path, frames, *, truth_depths=None, compression: str = "zstd",
-                     metadata: dict | None = None, rig: Rig | None = None) -> Path:
+                     metadata: dict | None = None, rig: Rig | None = None, jpegs=None) -> Path:
     """Write stereo frames (and optional truth depth maps) as a bag.
 
     Args:
         path: output ``.mcap``.
         frames: iterable of ``(left_bgr, right_bgr, left_stamp_ns, right_stamp_ns)``.
+        jpegs: optional list of ``(left JPEG bytes, right JPEG bytes)``, one per frame: the
+            images are then written compressed, as ``sensor_msgs/CompressedImage`` (format
+            ``bgr8; jpeg compressed bgr8``, image_transport's) on ``<topic>/compressed``
+            instead of the raw topics.
         truth_depths: optional list of float (H, W) depth maps (metres, NaN = nothing),
             one per frame, stamped like the left image, on :data:`TRUTH_DEPTH_TOPIC`
             as 16UC1 millimetres (REP 118; 0 = nothing). Rounding to 0.5 mm is
@@ -96,10 +100,15 @@ def write_stereo_bag(path, frames, *, truth_depths=None, compression: str = "zst
     with BagWriter(path, compression=compression,
                    metadata=recording_metadata(metadata, rig)) as bag:
         for k, (left, right, t_left, t_right) in enumerate(frames):
-            bag.write(LEFT_TOPIC, image_to_msg(left, "bgr8", stamp_ns=t_left, frame_id="left_camera"),
-                      t_left + transport_ns)
-            bag.write(RIGHT_TOPIC, image_to_msg(right, "bgr8", stamp_ns=t_right, frame_id="right_camera"),
-                      t_right + transport_ns)
+            if jpegs is not None:
+                for topic, data, t, frame_id in ((LEFT_TOPIC, jpegs[k][0], t_left, "left_camera"),
+                                                 (RIGHT_TOPIC, jpegs[k][1], t_right, "right_camera")):
+                    bag.write(f"{topic}/compressed", _jpeg_msg(data, t, frame_id), t + transport_ns)
+            else:
+                bag.write(LEFT_TOPIC, image_to_msg(left, "bgr8", stamp_ns=t_left, frame_id="left_camera"),
+                          t_left + transport_ns)
+                bag.write(RIGHT_TOPIC, image_to_msg(right, "bgr8", stamp_ns=t_right, frame_id="right_camera"),
+                          t_right + transport_ns)
             if truth_depths is not None:
                 depth_mm = np.rint(np.nan_to_num(np.asarray(truth_depths[k], np.float64) * 1000.0,
                                                  nan=0.0)).clip(0, 65535).astype(np.uint16)
@@ -107,6 +116,16 @@ def write_stereo_bag(path, frames, *, truth_depths=None, compression: str = "zst
                                                           frame_id="left_camera"),
                           t_left + transport_ns + 1)
     return Path(path)
+
+
+def _jpeg_msg(data: bytes, stamp_ns: int, frame_id: str):
+    """``sensor_msgs/CompressedImage`` of JPEG bytes, image_transport's format string."""
+    from sensor_msgs.msg import CompressedImage
+
+    from canopy_stereo.ros.convert import make_header
+
+    return CompressedImage(header=make_header(stamp_ns, frame_id), format="bgr8; jpeg compressed bgr8",
+                           data=bytes(data))
 
 
 def croton_frames(rig: Rig, n_frames: int = 4, *, seed: int = 0, fps: float = 10.0,

@@ -30,6 +30,7 @@ right view's world points at the right instant.
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -130,8 +131,10 @@ class SequenceFrame:
         jpeg_left, jpeg_right: the JPEG bytes (None for lossless sequences).
         xyz_left: (H, W, 3) float64 world point at each left pixel centre at ``t_left``
             (NaN = none); ``xyz_right`` likewise at ``t_right``.
-        leaf_ids_left: (H, W) uint16 leaf id at each left pixel at ``t_left`` (0 = none).
-        truth: the scene's truth dict at ``t_left`` (see :mod:`canopy_stereo.sim`) plus
+        leaf_ids_left: (H, W) uint16 leaf id at each left pixel at ``t_left`` (0 = none);
+            ``leaf_ids_right`` likewise at ``t_right``.
+        truth: the scene's truth dict at ``t_left`` (see :mod:`canopy_stereo.sim`; the leaves'
+            ``pixels_right`` count the right view at ``t_right``) plus
             ``t_left``, ``t_right``, ``skew_ms``, ``rig_pose`` (``R``, ``d_mm`` from the
             calibrated pose), ``leaf_speed_mm_s`` (median and max speed of the leaf
             surfaces from wind) and ``jpeg_quality``.
@@ -145,6 +148,7 @@ class SequenceFrame:
     xyz_left: np.ndarray
     xyz_right: np.ndarray
     leaf_ids_left: np.ndarray
+    leaf_ids_right: np.ndarray
     truth: dict
     jpeg_left: bytes | None = None
     jpeg_right: bytes | None = None
@@ -265,21 +269,31 @@ def render_sequence(spec: SequenceSpec, rig, *, progress=None):
     base = build_scene(spec.scene, spec.seed)
     times = spec.timing.times(spec.frames, seed=spec.seed)
     t_mid = 0.5 * float(times[-1, 0] + times[0, 0])
+    cameras = ((rig.P_left, rig.D_left), (rig.P_right, rig.D_right))
     for k in range(spec.frames):
-        views, scenes = [], []
-        for cam, (P, D) in enumerate(((rig.P_left, rig.D_left), (rig.P_right, rig.D_right))):
-            scene = scene_at(base, rig, float(times[k, cam]), motion=spec.motion, wind=spec.wind,
-                             t_mid=t_mid, frame=k)
-            views.append(render_view(scene, P, D, rig.image_size, supersample=spec.supersample))
-            scenes.append(scene)
+        scenes = [scene_at(base, rig, float(times[k, cam]), motion=spec.motion, wind=spec.wind,
+                           t_mid=t_mid, frame=k) for cam in (0, 1)]
+        for scene in scenes:
+            scene.packed  # pack before the threads share it
+
+        def view(cam, scenes=scenes):
+            P, D = cameras[cam]
+            return render_view(scenes[cam], P, D, rig.image_size, supersample=spec.supersample)
+
+        with ThreadPoolExecutor(max_workers=2) as pool:  # the kernels release the GIL
+            views = list(pool.map(view, (0, 1)))
         rng = np.random.default_rng([int(spec.seed) & 0x7FFFFFFF, k, 0x5E25])
         images = [effects.expose(v.radiance, cam, rng) for cam, v in enumerate(views)]
         jpegs = [None, None]
         if spec.jpeg_quality is not None:
             (images[0], jpegs[0]), (images[1], jpegs[1]) = (jpeg_round_trip(im, spec.jpeg_quality)
                                                           for im in images)
-        lookup = np.append(scenes[0].packed.leaf_ids, 0).astype(np.uint16)  # index -1 -> 0
+        lookups = [np.append(sc.packed.leaf_ids, 0).astype(np.uint16) for sc in scenes]  # index -1 -> 0
         truth = scenes[0].truth()
+        ids = [lookups[cam][v.prim_index] for cam, v in enumerate(views)]
+        counts = [np.bincount(i.ravel(), minlength=int(max(lk.max() for lk in lookups)) + 1) for i in ids]
+        for lf in truth["leaves"]:
+            lf["pixels_left"], lf["pixels_right"] = int(counts[0][lf["id"]]), int(counts[1][lf["id"]])
         R, d = spec.motion.pose(float(times[k, 0]) - t_mid)
         speeds = leaf_speeds(base, float(times[k, 0]), wind=spec.wind)
         truth.update({"t_left": float(times[k, 0]), "t_right": float(times[k, 1]),
@@ -291,7 +305,8 @@ def render_sequence(spec: SequenceSpec, rig, *, progress=None):
                       "camera_effects": effects.as_dict(), "sequence": spec.as_dict()})
         yield SequenceFrame(index=k, t_left=float(times[k, 0]), t_right=float(times[k, 1]),
                             left=images[0], right=images[1], xyz_left=views[0].xyz,
-                            xyz_right=views[1].xyz, leaf_ids_left=lookup[views[0].prim_index],
+                            xyz_right=views[1].xyz, leaf_ids_left=ids[0],
+                            leaf_ids_right=ids[1],
                             truth=truth, jpeg_left=jpegs[0], jpeg_right=jpegs[1])
         if progress is not None:
             progress()
