@@ -1,6 +1,8 @@
 """One bag -> one row of traits: the unit of work of ``canopy-stereo batch``.
 
-Each stereo pair of the bag goes through the core exactly as
+Each stereo pair of the bag has its right image brought to the left image's
+instant first (:class:`~canopy_stereo.skew.SkewCompensator`, as ``rectify_node``
+does; ``BatchOptions.skew_compensation``), then goes through the core exactly as
 ``canopy-stereo reconstruct --measure`` takes a pair:
 :func:`~canopy_stereo.pipeline.reconstruct.reconstruct_pair` (the rig's
 rectification: Fusiello unless the rig file names Hartley with its homographies; ELAS, triangulation with the rig's world-frame ``P``), then the
@@ -58,6 +60,8 @@ class BatchOptions:
         max_frames: measure at most this many pairs, evenly spread (0 = all).
         left_topic, right_topic: raw image topics.
         sync_slop_s: largest left/right stamp difference of a pair (s).
+        skew_compensation: bring each right image to its left image's instant
+            (:class:`~canopy_stereo.skew.SkewCompensator`, as ``rectify_node``).
     """
 
     rig: object = None
@@ -69,6 +73,7 @@ class BatchOptions:
     left_topic: str = "/stereo/left/image_raw"
     right_topic: str = "/stereo/right/image_raw"
     sync_slop_s: float = 0.015
+    skew_compensation: bool = True
 
 
 class Skipped(Exception):
@@ -151,6 +156,7 @@ def process_bag(path, options: BatchOptions | None = None) -> dict:
     from canopy_stereo.batch.frames import image_to_bgr, raw_stereo_pairs
     from canopy_stereo.io.bag_metadata import canopy_metadata, matches_selection
     from canopy_stereo.ros.bag import BagReader
+    from canopy_stereo.skew import SkewCompensator
 
     options = options or BatchOptions()
     bag = BagReader(path)
@@ -169,17 +175,24 @@ def process_bag(path, options: BatchOptions | None = None) -> dict:
     keep = _spread(n_pairs, options.max_frames)
     last = max(keep, default=0)
     measured, failures, first_stamp = [], [], None
+    skew = SkewCompensator(enabled=options.skew_compensation)
     for k, (stamp, left, right) in enumerate(raw_stereo_pairs(bag, options.left_topic,
                                                               right_topic=options.right_topic,
                                                               slop_s=options.sync_slop_s)):
         if k > last:
             break  # the frames to measure are done: read no further
-        if k not in keep:
+        if k + 1 not in keep and k not in keep:
+            skew.reset()  # neither this pair nor the next is measured: no need to decode it
             continue
+        if k not in keep:  # the previous frame of a measured pair
+            skew.observe(image_to_bgr(right), stamp_right_ns=right.stamp_ns)
+            continue
+        left_bgr, right_bgr, _ = skew.compensate(image_to_bgr(left), image_to_bgr(right),
+                                                 stamp_left_ns=left.stamp_ns, stamp_right_ns=right.stamp_ns)
         first_stamp = stamp if first_stamp is None else first_stamp
         try:
-            measured.append(measure_frame(image_to_bgr(left), image_to_bgr(right), rig,
-                                          index=options.index, matcher=options.matcher))
+            measured.append(measure_frame(left_bgr, right_bgr, rig, index=options.index,
+                                          matcher=options.matcher))
         except CanopyStereoError as exc:
             failures.append(f"frame {k}: {exc}")
     if first_stamp is None:

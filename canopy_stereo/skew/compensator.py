@@ -86,6 +86,11 @@ class SkewCompensator:
         """Forget the previous frame (a new stream: the next pair is a first frame)."""
         self._previous = None
 
+    def observe(self, right: np.ndarray, *, stamp_right_ns: int) -> None:
+        """Keep ``right`` as the previous right frame without compensating anything (a pair
+        that is not measured but precedes one that is)."""
+        self._previous = (int(stamp_right_ns), right)
+
     def compensate(self, left: np.ndarray, right: np.ndarray, *, stamp_left_ns: int,
                    stamp_right_ns: int) -> tuple[np.ndarray, np.ndarray, SkewReport]:
         """``(left, right at the left image's instant, report)`` of one raw pair.
