@@ -10,9 +10,9 @@ config/plants_rig.yaml (Middlebury 2014 "Plants", quarter size, from
 import argparse
 from pathlib import Path
 
+from canopy_stereo.bag import BagReader
 from canopy_stereo.io.rig import load_rig
 from canopy_stereo.ros.bundled import make_croton, make_plants
-from canopy_stereo.ros.bag import BagReader
 
 REPO = Path(__file__).resolve().parents[1]
 

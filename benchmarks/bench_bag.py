@@ -2,13 +2,13 @@
 
 * Read throughput (MB of message data per second, and file MB/s) on the same bag of
   640x480 images (the bundled croton's, repeated), zstd and lz4: the validating
-  :class:`~canopy_stereo.ros.bag.BagReader` (every chunk CRC checked), mcap's reader
+  :class:`~canopy_stereo.bag.BagReader` (every chunk CRC checked), mcap's reader
   without CRC checks (what BagReader used before: "unvalidated"), mcap's reader with
   ``validate_crcs=True``, and rosbags' ``AnyReader``. Best of ``--repeat`` runs.
-* Recording overhead per message: :class:`~canopy_stereo.ros.bag.BagWriter.write`
+* Recording overhead per message: :class:`~canopy_stereo.bag.BagWriter.write`
   (lock, counters, data CRC, periodic flush+fsync thread) against mcap's bare
   ``Writer.add_message``, for a CameraInfo-sized and a 921 600-byte image message.
-* The fuzz counts of ``test/io/test_bag_fuzz.py`` (224 damaged bags): foreign exceptions,
+* The fuzz counts of ``test/bag/test_bag_fuzz.py`` (224 damaged bags): foreign exceptions,
   altered messages returned, intact-chunk messages missing.
 
     .venv/bin/python benchmarks/bench_bag.py [--images 64] [--repeat 3] [--no-fuzz]
@@ -24,7 +24,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # the checkout first: canopy_stereo and its test package
 
-from canopy_stereo.ros.bag import BagReader, BagWriter  # noqa: E402
+from canopy_stereo.bag import BagReader, BagWriter  # noqa: E402
 from canopy_stereo.ros.bundled import bundled_bag  # noqa: E402
 
 
@@ -109,7 +109,7 @@ def bench_record(tmp: Path, repeat: int) -> None:
 
     small = serialize_message(CameraInfo())
     big = next(m.data for m in BagReader(bundled_bag("croton")).messages("/stereo/left/image_raw"))
-    print("recording cost per message (us; lz4; best of {}):".format(repeat))
+    print(f"recording cost per message (us; lz4; best of {repeat}):")
     print(f"  {'message':<22} {'BagWriter, thread':>18} {'BagWriter, main':>16} {'mcap bare':>10} "
           f"{'overhead (thread)':>18}")
     for label, data, n in ((f"CameraInfo {len(small)} B", small, 20000), (f"Image {len(big)} B", big, 300)):
@@ -140,7 +140,7 @@ def bench_record(tmp: Path, repeat: int) -> None:
 
 
 def bench_fuzz(tmp: Path) -> None:
-    from test.io.test_bag_fuzz import COUNTS, build_sources, run_fuzz
+    from test.bag.test_bag_fuzz import COUNTS, build_sources, run_fuzz
 
     t = time.perf_counter()
     tally, failures = run_fuzz(build_sources(tmp), COUNTS, tmp)

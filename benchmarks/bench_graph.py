@@ -50,9 +50,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from canopy_stereo.bag import BagReader  # noqa: E402
 from canopy_stereo.cli import main as cli_main  # noqa: E402
 from canopy_stereo.io.rig import load_rig  # noqa: E402
-from canopy_stereo.ros.bag import BagReader  # noqa: E402
 from canopy_stereo.ros.bundled import bundled_bag, bundled_rig, write_stereo_bag  # noqa: E402
 from canopy_stereo.ros.convert import msg_to_image  # noqa: E402
 from canopy_stereo.ros.graph import GraphOptions  # noqa: E402
@@ -210,7 +210,7 @@ class Config:
     size: str
 
     @classmethod
-    def parse(cls, text: str) -> "Config":
+    def parse(cls, text: str) -> Config:
         """``MODE:MATCHER:MASK:SIZE`` -> Config (ValueError naming the bad part)."""
         parts = text.split(":")
         if len(parts) != 4:

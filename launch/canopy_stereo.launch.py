@@ -19,7 +19,6 @@ In bag mode ``rectify_node`` measures the frame period from the stamps and pairs
 half of it. The tests evaluate this file with ``test/support/launch_eval.py`` (launch and
 launch_ros are not on PyPI) and start the commands it describes as processes.
 """
-from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.conditions import IfCondition, UnlessCondition
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution, PythonExpression
@@ -27,6 +26,7 @@ from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
 
 from canopy_stereo.disparity import DEFAULT_MATCHER, matcher_names
+from launch import LaunchDescription
 
 PACKAGE = "canopy_stereo"
 

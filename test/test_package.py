@@ -41,8 +41,12 @@ def test_every_console_script_resolves():
 
 
 def test_core_has_no_ros_imports():
+    # canopy_stereo/bag/msgdefs.py is the bag library's one door to the message packages: it
+    # imports them (and rclpy.serialization) inside the functions that need a message object
+    door = REPO / "canopy_stereo" / "bag" / "msgdefs.py"
+    assert not re.search(r"^(import|from)\s+(rclpy|sensor_msgs|stereo_msgs)", door.read_text(), re.M)
     for path in (REPO / "canopy_stereo").rglob("*.py"):
-        if "ros" in path.relative_to(REPO / "canopy_stereo").parts[:1]:
+        if "ros" in path.relative_to(REPO / "canopy_stereo").parts[:1] or path == door:
             continue
         text = path.read_text()
         assert not re.search(r"^\s*(import|from)\s+(rclpy|sensor_msgs|stereo_msgs)", text, re.M), path

@@ -193,9 +193,9 @@ def run_batch(inputs, out, *, options: BatchOptions | None = None, workers: int 
 
 
 def _run(client, todo, options, table, summary, bar) -> None:
-    from distributed import as_completed
-
     import uuid
+
+    from distributed import as_completed
 
     opts = client.scatter(options, broadcast=True) if options.rig is not None else options
     run = uuid.uuid4().hex[:8]  # keys unique to this run: several batches may share a cluster

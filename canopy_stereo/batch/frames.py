@@ -3,9 +3,9 @@
 Batch workers run on machines that may have only the core installed (a
 cluster's Python environment rarely has ROS 2), so this module decodes
 ``sensor_msgs/msg/Image`` from its CDR bytes itself and pairs the left and
-right streams with :class:`~canopy_stereo.ros.sync.ApproximateTimePairer`, the
+right streams with :class:`~canopy_stereo.bag.pairing.ApproximateTimePairer`, the
 pairing the rectify node applies live. The bag is read by
-:class:`~canopy_stereo.ros.bag.BagReader` (the ``mcap`` package, no rclpy).
+:class:`~canopy_stereo.bag.BagReader` (the ``mcap`` package, no rclpy).
 
 CDR layout of ``sensor_msgs/msg/Image`` after the 4-byte encapsulation header
 (``00 01`` little-endian, ``00 00`` big-endian; alignment counted from the end
@@ -17,8 +17,8 @@ bytes; strings include their terminating NUL).
 from __future__ import annotations
 
 import struct
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Iterator
 
 import cv2
 import numpy as np
@@ -127,8 +127,8 @@ def image_to_bgr(img: RawImage) -> np.ndarray:
 def raw_stereo_pairs(bag, left_topic: str = LEFT_TOPIC, *, right_topic: str = RIGHT_TOPIC,
                      slop_s: float = 0.015) -> Iterator[tuple[int, RawImage, RawImage]]:
     """``(stamp_ns, left, right)`` :class:`RawImage` pairs of ``bag`` (a
-    :class:`~canopy_stereo.ros.bag.BagReader`), paired by nearest header stamp within
-    ``slop_s`` seconds (:class:`~canopy_stereo.ros.sync.ApproximateTimePairer`); the
+    :class:`~canopy_stereo.bag.BagReader`), paired by nearest header stamp within
+    ``slop_s`` seconds (:class:`~canopy_stereo.bag.pairing.ApproximateTimePairer`); the
     pair's stamp is the left image's. Raises :class:`ImageError` when a topic is
     missing or not an image."""
     for topic in (left_topic, right_topic):
@@ -137,7 +137,7 @@ def raw_stereo_pairs(bag, left_topic: str = LEFT_TOPIC, *, right_topic: str = RI
             raise ImageError(f"the bag has no {topic} (topics: {', '.join(sorted(bag.topics)) or 'none'})")
         if info.type_name != IMAGE_TYPE:
             raise ImageError(f"{topic} is {info.type_name}, not {IMAGE_TYPE}")
-    from canopy_stereo.ros.sync import ApproximateTimePairer
+    from canopy_stereo.bag.pairing import ApproximateTimePairer
 
     pairer = ApproximateTimePairer(slop_s, queue_size=5)
     for m in bag.messages([left_topic, right_topic]):

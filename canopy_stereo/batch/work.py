@@ -54,7 +54,7 @@ class BatchOptions:
             the rig recorded in the bag), or None to use each bag's own.
         rig_source: how ``rig`` was given (for the ``rig`` column), e.g. its path.
         select: ``{key: {values}}`` metadata filter (see
-            :func:`~canopy_stereo.io.bag_metadata.parse_selection`).
+            :func:`~canopy_stereo.bag.metadata.parse_selection`).
         index: colour cue of the plant mask (``"exg"``, ``"exgr"``, ``"none"``).
         matcher: dense matcher (``"elas"``, ``"sgbm"``).
         max_frames: measure at most this many pairs, evenly spread (0 = all).
@@ -153,9 +153,9 @@ def process_bag(path, options: BatchOptions | None = None) -> dict:
     stereo pair, or no frame could be measured.
     """
     from canopy_stereo import __version__
+    from canopy_stereo.bag import BagReader
+    from canopy_stereo.bag.metadata import canopy_metadata, matches_selection
     from canopy_stereo.batch.frames import image_to_bgr, raw_stereo_pairs
-    from canopy_stereo.io.bag_metadata import canopy_metadata, matches_selection
-    from canopy_stereo.ros.bag import BagReader
     from canopy_stereo.skew import SkewCompensator
 
     options = options or BatchOptions()

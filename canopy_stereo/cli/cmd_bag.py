@@ -31,7 +31,7 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from canopy_stereo.ros.bag import BagReader, repair_bag
+    from canopy_stereo.bag import BagReader, repair_bag
 
     if args.bag_command == "check":
         check = BagReader(args.file).verify()

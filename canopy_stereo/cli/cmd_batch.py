@@ -54,10 +54,10 @@ def add_arguments(p):
 
 
 def run(args) -> int:
+    from canopy_stereo.bag.metadata import parse_selection
     from canopy_stereo.batch.engine import run_batch
     from canopy_stereo.batch.work import BatchOptions
     from canopy_stereo.errors import CanopyStereoError
-    from canopy_stereo.io.bag_metadata import parse_selection
 
     if args.max_frames < 0:
         raise CanopyStereoError(f"--max-frames must be >= 0, got {args.max_frames}")

@@ -36,19 +36,17 @@ def run(args) -> int:
     from canopy_stereo.ros.nodes.base import install_stop_signals
 
     install_stop_signals()  # SIGTERM/SIGHUP stop like Ctrl-C (no half-written outputs left open)
-    from canopy_stereo.ros.demo import run_scene
-
     from canopy_stereo.cli.progress import warm_up_kernels
+    from canopy_stereo.ros.demo import run_scene
 
     warm_up_kernels()  # says so when numba compiles (first run), so that the speed excludes it
     out_dir = Path(args.out)
     scenes = SCENES if args.scene == "all" else (args.scene,)
     view = None
     if args.view:
-        from canopy_stereo.ros.viewer import LiveView
-
         from canopy_stereo.io.rig import load_rig
         from canopy_stereo.ros.bundled import bundled_rig
+        from canopy_stereo.ros.viewer import LiveView
 
         view = LiveView(load_rig(bundled_rig(scenes[0])), name=scenes[0], need_mask=True)
     try:

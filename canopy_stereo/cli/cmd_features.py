@@ -37,8 +37,14 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from canopy_stereo.features.study import (format_table, parse_methods, plot_spread,
-                                              run_study, write_csv, write_matches)
+    from canopy_stereo.features.study import (
+        format_table,
+        parse_methods,
+        plot_spread,
+        run_study,
+        write_csv,
+        write_matches,
+    )
 
     methods = parse_methods(args.methods)
     left, right = read_image(args.left), read_image(args.right)

@@ -1,10 +1,10 @@
 """``canopy-stereo run``: replay a bag through the ROS 2 node graph and record the outputs."""
 from __future__ import annotations
 
+from canopy_stereo.bag.split import add_split_arguments, split_options
 from canopy_stereo.cli.common import add_rig_argument, check_at_least
 from canopy_stereo.disparity import DEFAULT_MATCHER, default_matcher, matcher_names, matcher_spec
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.ros.bag import add_split_arguments, split_options
 
 COMMAND = "run"
 HELP = "replay a stereo bag through the ROS 2 nodes and record their outputs"
@@ -54,15 +54,14 @@ def run(args) -> int:
     from canopy_stereo.ros.nodes.base import install_stop_signals
 
     install_stop_signals()  # SIGTERM/SIGHUP stop like Ctrl-C: the recording is closed validly
+    import math
+
+    from canopy_stereo.geometry.rig_rectification import rectification_for_rig
     from canopy_stereo.io.rig import load_rig
+    from canopy_stereo.pipeline.reconstruct import disparity_range_for
     from canopy_stereo.ros.graph import GraphOptions
     from canopy_stereo.ros.player import parse_remaps
     from canopy_stereo.ros.runner import open_input_bag, run_bag
-
-    import math
-
-    from canopy_stereo.pipeline.reconstruct import disparity_range_for
-    from canopy_stereo.geometry.rig_rectification import rectification_for_rig
 
     if not (math.isfinite(args.rate) and args.rate >= 0):
         raise CanopyStereoError(f"--rate must be a finite number >= 0, got {args.rate}")

@@ -91,8 +91,7 @@ def _parse_range(text):
 
 
 def run(args) -> int:
-    from canopy_stereo.segmentation import (IMAGE_SEEDER, grabcut_mask, grabcut_rect, parse_rect, plant_mask,
-                                            write_mask)
+    from canopy_stereo.segmentation import IMAGE_SEEDER, grabcut_mask, grabcut_rect, parse_rect, plant_mask, write_mask
 
     # the defaults are the one seeder's CLI preset (IMAGE_SEEDER)
     index = IMAGE_SEEDER.colour_cue if args.index is None else args.index

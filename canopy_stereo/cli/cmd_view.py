@@ -93,11 +93,10 @@ def _show_bag(src: Path, args) -> int:
     from canopy_stereo.ros import require_ros
 
     require_ros("canopy-stereo view")
+    from canopy_stereo.bag import BagReader
     from canopy_stereo.io.rig import load_rig
-    from canopy_stereo.ros.bag import BagReader
+    from canopy_stereo.ros.viewer import RIG_METADATA_NAME, bag_kind, rig_from_bag, run_raw_bag, show_recorded_outputs
     from canopy_stereo.viz.rerun_log import FrameLogger, close_recording, open_recording, serve_web
-    from canopy_stereo.ros.viewer import (RIG_METADATA_NAME, bag_kind, rig_from_bag, run_raw_bag,
-                                           show_recorded_outputs)
 
     bag = BagReader(src)
     kind, ns = bag_kind(bag)

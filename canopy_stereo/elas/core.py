@@ -19,13 +19,17 @@ from canopy_stereo.elas.grid import disparity_grid
 from canopy_stereo.elas.matching import match_job, plane_radius, prior_table
 from canopy_stereo.elas.parallel import run_row_bands, run_tasks
 from canopy_stereo.elas.params import ElasParams, make_params
-from canopy_stereo.elas.postprocess import (adaptive_mean, interpolate_gaps, left_right_check,
-                                            median_filter, remove_small_segments)
+from canopy_stereo.elas.postprocess import (
+    adaptive_mean,
+    interpolate_gaps,
+    left_right_check,
+    median_filter,
+    remove_small_segments,
+)
 from canopy_stereo.elas.support import SUPPORT_MARGIN, support_points
 from canopy_stereo.elas.workspace import Workspace, thread_workspace
 from canopy_stereo.errors import ImageError
 from canopy_stereo.io.images import to_gray
-
 
 #: Smallest image side: one support candidate with its four descriptor samples.
 MIN_IMAGE_SIZE = 2 * SUPPORT_MARGIN + 1

@@ -34,8 +34,7 @@ import numpy as np
 from numba import njit
 
 from canopy_stereo.elas.parallel import run_row_bands
-from canopy_stereo.elas.simd import (MASKED, DESC_BYTES, first_min4, sad16, sad16x4_store,
-                                     sad16x4_store_outside)
+from canopy_stereo.elas.simd import DESC_BYTES, MASKED, first_min4, sad16, sad16x4_store, sad16x4_store_outside
 
 #: Pixels closer than this to the left/right border are not matched.
 MATCH_BORDER = 2

@@ -81,7 +81,7 @@ class ElasParams:
     subpixel: bool = False
     adaptive_mean_weights: str = "step"
 
-    def replace(self, **changes) -> "ElasParams":
+    def replace(self, **changes) -> ElasParams:
         """A copy with ``changes`` applied (unknown names raise :class:`CanopyStereoError`)."""
         known = {f.name for f in fields(self)}
         unknown = sorted(set(changes) - known)
@@ -94,7 +94,7 @@ class ElasParams:
     def as_dict(self) -> dict:
         return asdict(self)
 
-    def validate(self) -> "ElasParams":
+    def validate(self) -> ElasParams:
         """Return ``self`` or raise :class:`CanopyStereoError` naming the bad value."""
         def need(ok: bool, msg: str) -> None:
             if not ok:

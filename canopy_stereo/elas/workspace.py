@@ -39,7 +39,7 @@ class Workspace:
             self._store[key] = arr
         return arr
 
-    def scoped(self, prefix: str) -> "Workspace":
+    def scoped(self, prefix: str) -> Workspace:
         """The same store, with ``prefix`` before every name."""
         return Workspace(self._store, self._prefix + prefix + "/")
 

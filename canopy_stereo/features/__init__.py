@@ -14,8 +14,7 @@ numba), :mod:`~canopy_stereo.features.asift`,
 :mod:`~canopy_stereo.features.detectors` (OpenCV keypoints); pairs with known disparity
 for checking them: :mod:`canopy_stereo.sim.stereo_pair`.
 """
-from canopy_stereo.features.api import (METHODS, available_methods, check_method, match_pair,
-                                        method_available)
+from canopy_stereo.features.api import METHODS, available_methods, check_method, match_pair, method_available
 from canopy_stereo.features.result import DISTRIBUTION_CELL_PX, MatchResult, distribution
 from canopy_stereo.features.study import StudyRow, run_study
 from canopy_stereo.geometry.fundamental import epipolar_distance, estimate_fundamental

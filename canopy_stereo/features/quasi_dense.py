@@ -55,7 +55,6 @@ from canopy_stereo.features.result import DISTRIBUTION_CELL_PX, MatchResult
 from canopy_stereo.features.sparse import verify_matches
 from canopy_stereo.geometry.fundamental import MIN_MATCHES_F, estimate_fundamental
 
-
 # ----------------------------------------------------------------------------------------------
 # Window statistics for ZNCC
 

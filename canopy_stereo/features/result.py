@@ -104,7 +104,7 @@ class MatchResult:
                 + (self.t_resample or 0.0))
 
     @classmethod
-    def empty(cls, method: str, image_size, *, note: str = "", **kw) -> "MatchResult":
+    def empty(cls, method: str, image_size, *, note: str = "", **kw) -> MatchResult:
         """A result without matches (an empty table row), e.g. for an unavailable method."""
         return cls(method=method, x_left=np.zeros((0, 2)), x_right=np.zeros((0, 2)),
                    image_size=image_size, note=note, **kw)

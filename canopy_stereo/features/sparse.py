@@ -6,7 +6,7 @@ geometric verification by a robust fundamental matrix (t).
 from __future__ import annotations
 
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

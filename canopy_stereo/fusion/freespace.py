@@ -35,7 +35,7 @@ class DepthView:
     depth: np.ndarray
 
     @classmethod
-    def from_organized(cls, P_rig, organized, pose, *, erode_px: int = 2) -> "DepthView":
+    def from_organized(cls, P_rig, organized, pose, *, erode_px: int = 2) -> DepthView:
         """From a rig-frame organized cloud on the left pixel grid of camera ``P_rig``."""
         org = np.asarray(organized, np.float64)
         h, w = org.shape[:2]
@@ -47,7 +47,7 @@ class DepthView:
         return cls._make(P_rig, depth.reshape(h, w), pose, erode_px)
 
     @classmethod
-    def from_points(cls, P_rig, points, image_size, pose, *, erode_px: int = 2) -> "DepthView":
+    def from_points(cls, P_rig, points, image_size, pose, *, erode_px: int = 2) -> DepthView:
         """From rig-frame points (N, 3) splatted into camera ``P_rig`` (nearest depth per pixel)."""
         w, h = int(image_size[0]), int(image_size[1])
         pts = np.asarray(points, np.float64).reshape(-1, 3)

@@ -57,7 +57,7 @@ class FusedCloud:
     def __len__(self) -> int:
         return len(self.points)
 
-    def subset(self, keep) -> "FusedCloud":
+    def subset(self, keep) -> FusedCloud:
         """The points selected by the mask or indices ``keep``."""
         return FusedCloud(points=self.points[keep], view_count=self.view_count[keep],
                           colors=None if self.colors is None else self.colors[keep],

@@ -78,7 +78,7 @@ class RegistrationSettings:
     max_loop_translation: float | None = None
     max_loop_rotation_deg: float = 5.0
 
-    def resolved(self) -> "RegistrationSettings":
+    def resolved(self) -> RegistrationSettings:
         """A copy with every default filled in from ``voxel``."""
         if not self.voxel > 0:
             raise CanopyStereoError(f"registration voxel must be positive, got {self.voxel}")

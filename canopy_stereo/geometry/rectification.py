@@ -314,7 +314,7 @@ class StereoRectifier:
 
 #: Rectifiers kept by :func:`cached_rectifier` (each holds about 2.5 MB of maps per megapixel).
 RECTIFIER_CACHE_SIZE = 4
-_rectifier_cache: "OrderedDict[bytes, StereoRectifier]" = OrderedDict()
+_rectifier_cache: OrderedDict[bytes, StereoRectifier] = OrderedDict()
 _rectifier_lock = threading.Lock()
 
 

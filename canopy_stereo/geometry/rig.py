@@ -86,7 +86,7 @@ class Rig:
         """Distance between the camera centres, in world units."""
         return float(np.linalg.norm(camera_centre(self.P_right) - camera_centre(self.P_left)))
 
-    def with_extra(self, **extra) -> "Rig":
+    def with_extra(self, **extra) -> Rig:
         """A copy with more (or replaced) extra parameters."""
         return replace(self, extra={**self.extra, **extra})
 

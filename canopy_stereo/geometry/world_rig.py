@@ -161,7 +161,7 @@ class Placements:
         """(cols*rows, 3) world corners of ``placement`` (see :func:`board_world_points`)."""
         return board_world_points(placement, self.pattern, self.square)
 
-    def subset(self, pairs) -> "Placements":
+    def subset(self, pairs) -> Placements:
         """The placements of the given pairs, renumbered 0, 1, ... in the given order."""
         by = self.by_pair()
         out = []

@@ -11,6 +11,7 @@ import numpy as np
 
 from canopy_stereo.measure.instances import connected_surface_parts, neighbour_spacing
 
+
 def _local_median(values: np.ndarray, sample: np.ndarray, at: np.ndarray, window: int,
                   step: int = 3) -> np.ndarray:
     """(H, W) median of ``values`` over the ``sample`` pixels in a ``window`` square

@@ -152,7 +152,7 @@ def plants_pair() -> StereoPair:
     rig = load_rig(bundled_rig("plants"))
     folder = Path(__file__).resolve().parents[2] / "examples" / "plants"
     try:
-        from canopy_stereo.ros.bag import BagReader
+        from canopy_stereo.bag import BagReader
         from canopy_stereo.ros.bundled import LEFT_TOPIC, RIGHT_TOPIC, bundled_bag
         from canopy_stereo.ros.convert import msg_to_image
 

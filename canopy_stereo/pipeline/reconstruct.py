@@ -15,12 +15,12 @@ import numpy as np
 
 from canopy_stereo.disparity import DEFAULT_MATCHER, compute_disparity
 from canopy_stereo.errors import CanopyStereoError, ImageError
+from canopy_stereo.geometry.distortion import undistort_pixels
 from canopy_stereo.geometry.rectification import (
     Rectification,
     cached_rectifier,
     default_disparity_range,
 )
-from canopy_stereo.geometry.distortion import undistort_pixels
 from canopy_stereo.geometry.rig_rectification import (  # noqa: F401 - RECTIFICATION_METHODS re-exported
     RECTIFICATION_METHODS,
     rectification_for_rig,

@@ -1,12 +1,11 @@
-"""ROS 2 layer: message converters, time pairing, MCAP bags and the node graph.
+"""ROS 2 layer: message converters, the nodes and the node graph, bag play and record.
 
 Everything under this package may import ``rclpy`` and the message packages;
-the rest of :mod:`canopy_stereo` never does. Modules:
+the rest of :mod:`canopy_stereo` never does (the MCAP bag library, its message type
+names and the time pairing, which import rclpy only to (de)serialize a message object,
+are :mod:`canopy_stereo.bag`). Modules:
 
 * :mod:`~canopy_stereo.ros.convert`: ``sensor_msgs``/``stereo_msgs`` <-> numpy.
-* :mod:`~canopy_stereo.ros.sync`: exact and approximate time pairing (pure Python).
-* :mod:`~canopy_stereo.ros.msgdefs`: message type names and ``ros2msg`` schema text.
-* :mod:`~canopy_stereo.ros.bag`: rosbag2-compatible MCAP writer and reader.
 * :mod:`~canopy_stereo.ros.player`, :mod:`~canopy_stereo.ros.recorder`: ``bag_play``
   and ``bag_record``.
 * :mod:`~canopy_stereo.ros.nodes`: the camera, rectify, disparity, segment and

@@ -90,10 +90,10 @@ def write_stereo_bag(path, frames, *, truth_depths=None, compression: str = "zst
             as 16UC1 millimetres (REP 118; 0 = nothing). Rounding to 0.5 mm is
             below 0.1 % of the scene's depth and keeps the bag small.
         metadata, rig: optional ``canopy_stereo`` KEY=VALUE metadata and rig, stored
-            as the bag's metadata records (:mod:`canopy_stereo.io.bag_metadata`).
+            as the bag's metadata records (:mod:`canopy_stereo.bag.metadata`).
     """
-    from canopy_stereo.io.bag_metadata import recording_metadata
-    from canopy_stereo.ros.bag import BagWriter
+    from canopy_stereo.bag import BagWriter
+    from canopy_stereo.bag.metadata import recording_metadata
     from canopy_stereo.ros.convert import image_to_msg
 
     transport_ns = 2_000_000  # reception 2 ms after capture
@@ -173,8 +173,8 @@ def make_plants(bag_path, rig_path, scene_folder) -> tuple[Path, Path]:
     """Write the Middlebury 2014 Plants pair as a one-frame bag and its rig file
     (world frame = left camera, millimetres; disparity range from ``ndisp``)."""
     from canopy_stereo.geometry.rectification import fusiello_rectify
-    from canopy_stereo.io.middlebury import read_middlebury_calib, rig_from_middlebury
     from canopy_stereo.io.images import read_image
+    from canopy_stereo.io.middlebury import read_middlebury_calib, rig_from_middlebury
 
     folder = Path(scene_folder)
     calib = read_middlebury_calib(folder / "calib.txt")
@@ -201,7 +201,7 @@ def read_truth_depths(bag_path) -> dict:
     """Left stamp (ns) -> truth depth map (float32 (H, W), metres, NaN = nothing)
     of a bag's :data:`TRUTH_DEPTH_TOPIC` (empty if it has none). Accepts 16UC1
     millimetres (REP 118) and 32FC1 metres."""
-    from canopy_stereo.ros.bag import BagReader
+    from canopy_stereo.bag import BagReader
     from canopy_stereo.ros.convert import msg_to_image, stamp_to_ns
 
     bag = BagReader(bag_path)

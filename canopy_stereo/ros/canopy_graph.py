@@ -39,7 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--height", type=int, default=0, help="camera height (default: the rig's)")
     p.add_argument("--fourcc", default="", help="camera pixel format, e.g. MJPG")
     p.add_argument("--record", metavar="OUT.mcap", help="record the outputs")
-    from canopy_stereo.ros.bag import add_split_arguments
+    from canopy_stereo.bag.split import add_split_arguments
 
     add_split_arguments(p)
     p.add_argument("--metadata", nargs="+", action="extend", default=[], metavar="KEY=VALUE",
@@ -139,7 +139,8 @@ def main(args=None) -> int:
     try:
         rig = load_rig(opts.rig)
         if opts.record:
-            from canopy_stereo.ros.bag import BagWriter, split_options
+            from canopy_stereo.bag import BagWriter
+            from canopy_stereo.bag.split import split_options
 
             # one writer for every pass of --loop: passes append (or split), never overwrite
             writer = BagWriter(opts.record, compression="lz4", **split_options(opts))
@@ -160,7 +161,7 @@ def main(args=None) -> int:
                                              "left/depth/camera_info", "left/image_rect/camera_info",
                                              "right/image_rect/camera_info", "left/camera_info",
                                              "right/camera_info", "left/image_raw", "right/image_raw")]
-            from canopy_stereo.io.bag_metadata import parse_key_values, recording_metadata
+            from canopy_stereo.bag.metadata import parse_key_values, recording_metadata
 
             for name, data in recording_metadata(parse_key_values(opts.metadata), rig).items():
                 writer.add_metadata(name, data)

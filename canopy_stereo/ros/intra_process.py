@@ -45,7 +45,7 @@ class LocalSubscription:
         replaced: messages dropped unread because ``depth`` newer ones arrived first.
     """
 
-    def __init__(self, bus: "IntraProcessBus", node, topic_name: str, callback, depth: int):
+    def __init__(self, bus: IntraProcessBus, node, topic_name: str, callback, depth: int):
         if depth < 1:
             raise ValueError(f"depth must be >= 1, got {depth}")
         self.bus, self.topic_name, self.depth = bus, topic_name, int(depth)

@@ -16,8 +16,9 @@ from rclpy.parameter import Parameter
 
 from canopy_stereo.errors import RigError
 from canopy_stereo.geometry.rectification import Rectification
-from canopy_stereo.geometry.rig_rectification import RECTIFICATION_METHODS, rectification_for_rig
+from canopy_stereo.geometry.rig_rectification import rectification_for_rig
 from canopy_stereo.io.rig import Rig, load_rig, rig_from_parameters
+
 
 def number_descriptor(description: str, *, minimum, maximum, step=0, integer: bool,
                       read_only: bool = False, dynamic: bool = False) -> ParameterDescriptor:

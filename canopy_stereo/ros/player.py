@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 
 import yaml
 
+from canopy_stereo.bag import BagError, BagMessage, BagReader
+from canopy_stereo.bag.msgdefs import message_class
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.ros.bag import BagError, BagMessage, BagReader
-from canopy_stereo.ros.msgdefs import message_class
 from canopy_stereo.ros.qos import publisher_qos
 
 

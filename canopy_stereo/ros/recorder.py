@@ -1,7 +1,7 @@
 """Recording topics to a bag (``bag_record``).
 
 :class:`BagRecorder` is a node that subscribes to topics with raw (serialized)
-callbacks and appends the CDR bytes to a :class:`~canopy_stereo.ros.bag.BagWriter`
+callbacks and appends the CDR bytes to a :class:`~canopy_stereo.bag.BagWriter`
 with the reception time as log time. With ``all_topics`` it discovers topics
 as they appear. Its subscription QoS follows the publishers (best effort if
 any publisher of the topic is), keep last ``depth``.
@@ -9,14 +9,14 @@ any publisher of the topic is), keep last ``depth``.
 The bag stays valid whatever ends the recording: ``bag_record`` closes it on
 Ctrl-C (SIGINT), SIGTERM and SIGHUP, and the chunks are flushed and fsynced
 every second, so even a killed recorder (SIGKILL, power loss) leaves a file
-that :class:`~canopy_stereo.ros.bag.BagReader` reads up to the last second
+that :class:`~canopy_stereo.bag.BagReader` reads up to the last second
 (and ``canopy-stereo bag repair`` completes).
 
 ``bag_record -o OUT.mcap TOPIC ... | --all [--namespace NS] [--metadata KEY=VALUE ...] [--rig RIG.yaml]
 [--split-size BYTES] [--split-duration S]``: with splitting the files are ``OUT_0.mcap``,
 ``OUT_1.mcap``, ... (rosbag2's naming). The metadata pairs (plant_id, plot, treatment,
 date, ...) and the rig file are written at the start of the bag (and of every split file)
-as MCAP metadata records (:mod:`canopy_stereo.io.bag_metadata`), so the bag describes
+as MCAP metadata records (:mod:`canopy_stereo.bag.metadata`), so the bag describes
 itself (``canopy-stereo batch`` reads them).
 """
 from __future__ import annotations
@@ -30,9 +30,11 @@ import time
 from rclpy.node import Node
 from rclpy.qos import ReliabilityPolicy
 
+from canopy_stereo.bag import BagWriter
+from canopy_stereo.bag.messages import qos_profiles_yaml
+from canopy_stereo.bag.msgdefs import message_class, type_name
+from canopy_stereo.bag.split import add_split_arguments, split_options
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.ros.bag import BagWriter, add_split_arguments, qos_profiles_yaml, split_options
-from canopy_stereo.ros.msgdefs import message_class, type_name
 from canopy_stereo.ros.qos import recording_qos
 
 #: Topics never recorded by ``--all`` (ROS internals).
@@ -214,7 +216,7 @@ def main(args=None) -> int:
         signal.signal(sig, lambda *_: stop.set())
     recorder = None
     try:
-        from canopy_stereo.io.bag_metadata import parse_key_values, recording_metadata
+        from canopy_stereo.bag.metadata import parse_key_values, recording_metadata
         from canopy_stereo.io.rig import load_rig
 
         records = recording_metadata(parse_key_values(opts.metadata),

@@ -27,12 +27,13 @@ from pathlib import Path
 
 import numpy as np
 
+from canopy_stereo.bag import BagError, BagReader, BagWriter
+from canopy_stereo.bag.messages import qos_profiles_yaml
+from canopy_stereo.bag.msgdefs import type_name
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.rig import Rig
-from canopy_stereo.ros.bag import BagError, BagReader, BagWriter, qos_profiles_yaml
 from canopy_stereo.ros.context import ros_context, wait_for, wait_for_subscribers
 from canopy_stereo.ros.graph import CanopyGraph, GraphOptions
-from canopy_stereo.ros.msgdefs import type_name
 from canopy_stereo.ros.nodes.base import CanopyNode
 from canopy_stereo.ros.player import BagPlayer
 from canopy_stereo.ros.qos import recording_qos
@@ -220,7 +221,7 @@ def run_bag(bag_path, rig: Rig, *, rate: float = 1.0, record=None, options: Grap
         rig: the rig of the cameras that recorded it.
         rate: playback speed (1 = recorded timing, 0 = as fast as the graph goes).
         record: output bag path for the graph's outputs, an open
-            :class:`~canopy_stereo.ros.bag.BagWriter` to append to (left open), or None.
+            :class:`~canopy_stereo.bag.BagWriter` to append to (left open), or None.
         options: graph options (namespace, matcher, segmentation, ...).
         domain_id: DDS domain (default: a private one derived from the pid).
         max_in_flight: frames inside the graph at once when ``rate == 0``.

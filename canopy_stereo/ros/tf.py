@@ -5,7 +5,7 @@
   ``StaticTransformBroadcaster``) when the ``tf2_msgs`` Python package is importable
   (any ROS install; it is not on PyPI).
 * Bags: :func:`write_static_transforms` writes the same message into a
-  :class:`~canopy_stereo.ros.bag.BagWriter` *always*, serialized here (CDR) with the
+  :class:`~canopy_stereo.bag.BagWriter` *always*, serialized here (CDR) with the
   ``tf2_msgs/msg/TFMessage`` definition, so RViz, Foxglove and Rerun replaying the
   bag see the frames whether or not ``tf2_msgs`` is installed.
 
@@ -71,7 +71,7 @@ def transforms_to_msgs(transforms, stamp_ns: int = 0) -> list[TransformStamped]:
 
 def tf_message_definition() -> str:
     """``ros2msg`` schema text of ``tf2_msgs/msg/TFMessage`` with its nested types."""
-    from canopy_stereo.ros.msgdefs import message_definition
+    from canopy_stereo.bag.msgdefs import message_definition
 
     sep = "=" * 80
     return (f"geometry_msgs/TransformStamped[] transforms\n{sep}\nMSG: geometry_msgs/TransformStamped\n"
@@ -118,7 +118,7 @@ def write_static_transforms(writer, transforms, log_time_ns: int, *, topic: str 
     """Write ``[(parent, child, T), ...]`` (or TransformStamped messages) as one
     ``tf2_msgs/msg/TFMessage`` on ``/tf_static`` into a :class:`BagWriter`, with the
     transient-local QoS a ``ros2 bag play`` needs to re-publish it as latched."""
-    from canopy_stereo.ros.bag import qos_profiles_yaml
+    from canopy_stereo.bag.messages import qos_profiles_yaml
 
     msgs = [m if isinstance(m, TransformStamped) else transform_msg(*m, stamp_ns=log_time_ns)
             for m in transforms]

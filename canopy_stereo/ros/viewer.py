@@ -301,7 +301,7 @@ class LiveView:
                  printer=print):
         from sensor_msgs.msg import Image
 
-        from canopy_stereo.viz.rerun_log import has_display, open_recording, port_free, serve_web
+        from canopy_stereo.viz.rerun_log import has_display, port_free, serve_web
 
         self.printer = printer
         if port is None:

@@ -63,8 +63,7 @@ from canopy_stereo.segmentation.colour_model import (
     grabcut_with_models,
     relabel_by_colour,
 )
-from canopy_stereo.segmentation.grabcut import (GC_BGD, GC_FGD, GC_PR_BGD, GC_PR_FGD, grabcut_labels,
-                                                labels_to_mask)
+from canopy_stereo.segmentation.grabcut import GC_BGD, GC_FGD, GC_PR_BGD, GC_PR_FGD, grabcut_labels, labels_to_mask
 from canopy_stereo.segmentation.indices import class_means, otsu_threshold, vegetation_index
 
 #: Vote values of a cue.
@@ -274,7 +273,7 @@ class SeederSettings:
         if self.min_region is not None and int(self.min_region) < 0:
             raise CanopyStereoError(f"min_region must be >= 0 pixels (or None), got {self.min_region}")
 
-    def replace(self, **changes) -> "SeederSettings":
+    def replace(self, **changes) -> SeederSettings:
         """A copy with ``changes`` (validated)."""
         return replace(self, **changes)
 

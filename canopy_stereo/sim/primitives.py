@@ -168,7 +168,7 @@ class Leaf:
     @classmethod
     def with_dimensions(cls, leaf_id: int, base, midrib, normal_hint, length: float, width: float,
                         material: Material, *, droop: float = 0.0, rise: float = 0.0,
-                        cup: float = 0.0, **kwargs) -> "Leaf":
+                        cup: float = 0.0, **kwargs) -> Leaf:
         """A leaf whose true (arc) length and width are exactly ``length`` and ``width``.
 
         ``midrib`` is the frame x direction (base -> tip), ``normal_hint`` the
@@ -193,12 +193,12 @@ class Leaf:
     def local_bounds(self):
         return leafgeom.blade_bounds(self.span, self.half_width, self.droop, self.rise, self.cup)
 
-    def transformed(self, Q, t, s: float) -> "Leaf":
+    def transformed(self, Q, t, s: float) -> Leaf:
         return replace(self, base=_move_point(self.base, Q, t, s), axes=_move_axes(self.axes, Q),
                        span=self.span * s, half_width=self.half_width * s, droop=self.droop / s,
                        cup=self.cup / s)
 
-    def rotated_about_base(self, R) -> "Leaf":
+    def rotated_about_base(self, R) -> Leaf:
         """The leaf turned by the rotation matrix ``R`` (3, 3) about its base point."""
         return replace(self, axes=self.axes @ np.asarray(R, np.float64).T)
 
@@ -318,7 +318,7 @@ class Cylinder:
         r = self.radius
         return np.array([-r, -r, 0.0]), np.array([r, r, self.length])
 
-    def transformed(self, Q, t, s: float) -> "Cylinder":
+    def transformed(self, Q, t, s: float) -> Cylinder:
         return replace(self, start=_move_point(self.start, Q, t, s),
                        end=_move_point(self.end, Q, t, s), radius=self.radius * s)
 
@@ -350,7 +350,7 @@ class Sphere:
     def local_bounds(self):
         return np.full(3, -self.radius), np.full(3, self.radius)
 
-    def transformed(self, Q, t, s: float) -> "Sphere":
+    def transformed(self, Q, t, s: float) -> Sphere:
         return replace(self, centre=_move_point(self.centre, Q, t, s), radius=self.radius * s)
 
 
@@ -385,7 +385,7 @@ class Disc:
         r = self.radius
         return np.array([-r, -r, 0.0]), np.array([r, r, 0.0])
 
-    def transformed(self, Q, t, s: float) -> "Disc":
+    def transformed(self, Q, t, s: float) -> Disc:
         return replace(self, centre=_move_point(self.centre, Q, t, s),
                        normal=np.asarray(Q) @ self.normal, radius=self.radius * s)
 
@@ -424,7 +424,7 @@ class Frustum:
         r = max(self.radius_base, self.radius_top)
         return np.array([-r, -r, 0.0]), np.array([r, r, self.height])
 
-    def transformed(self, Q, t, s: float) -> "Frustum":
+    def transformed(self, Q, t, s: float) -> Frustum:
         return replace(self, base=_move_point(self.base, Q, t, s), axis=np.asarray(Q) @ self.axis,
                        height=self.height * s, radius_base=self.radius_base * s,
                        radius_top=self.radius_top * s)
@@ -464,7 +464,7 @@ class Rectangle:
         hx, hy = self.half_x, self.half_y
         return np.array([-hx, -hy, 0.0]), np.array([hx, hy, 0.0])
 
-    def transformed(self, Q, t, s: float) -> "Rectangle":
+    def transformed(self, Q, t, s: float) -> Rectangle:
         return replace(self, centre=_move_point(self.centre, Q, t, s),
                        axes=_move_axes(self.axes, Q), half_x=self.half_x * s,
                        half_y=self.half_y * s)

@@ -74,7 +74,7 @@ class PackedScene:
     labels: np.ndarray
 
     @classmethod
-    def from_primitives(cls, primitives) -> "PackedScene":
+    def from_primitives(cls, primitives) -> PackedScene:
         n = len(primitives)
         geometry = np.zeros((n, N_GEOMETRY_PARAMS))
         for i, p in enumerate(primitives):

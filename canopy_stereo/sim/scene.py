@@ -127,7 +127,7 @@ class Scene:
             out.append(p)
         return tuple(out)
 
-    def at_frame(self, frame: int) -> "Scene":
+    def at_frame(self, frame: int) -> Scene:
         """The same scene at another frame."""
         if frame < 0:
             raise CanopyStereoError(f"frame must be >= 0, got {frame}")
@@ -139,7 +139,7 @@ class Scene:
         return PackedScene.from_primitives(self.posed)
 
     # ------------------------------------------------------------------ editing
-    def transformed(self, Q, t, s: float, *, world_unit: str | None = None) -> "Scene":
+    def transformed(self, Q, t, s: float, *, world_unit: str | None = None) -> Scene:
         """The scene moved by ``p -> t + s Q p`` (``Q`` a rotation, ``s`` > 0)."""
         Q = np.asarray(Q, np.float64)
         t = np.asarray(t, np.float64)
@@ -151,7 +151,7 @@ class Scene:
                        anchor_origin=t + s * Q @ self.anchor_origin,
                        anchor_axes=self.anchor_axes @ Q.T)
 
-    def only_leaves(self, leaf_ids) -> "Scene":
+    def only_leaves(self, leaf_ids) -> Scene:
         """A copy keeping only the listed leaves (and the background): to see a
         leaf unoccluded."""
         keep = set(int(i) for i in leaf_ids)

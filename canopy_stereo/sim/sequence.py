@@ -255,7 +255,7 @@ def jpeg_round_trip(image: np.ndarray, quality: int) -> tuple[np.ndarray, bytes]
     if not ok:
         raise CanopyStereoError("JPEG encoding failed")
     data = buf.tobytes()
-    return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR), data
+    return np.asarray(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)), data
 
 
 def render_sequence(spec: SequenceSpec, rig, *, progress=None):
@@ -274,7 +274,7 @@ def render_sequence(spec: SequenceSpec, rig, *, progress=None):
         scenes = [scene_at(base, rig, float(times[k, cam]), motion=spec.motion, wind=spec.wind,
                            t_mid=t_mid, frame=k) for cam in (0, 1)]
         for scene in scenes:
-            scene.packed  # pack before the threads share it
+            _ = scene.packed  # pack before the threads share it
 
         def view(cam, scenes=scenes):
             P, D = cameras[cam]
@@ -284,7 +284,7 @@ def render_sequence(spec: SequenceSpec, rig, *, progress=None):
             views = list(pool.map(view, (0, 1)))
         rng = np.random.default_rng([int(spec.seed) & 0x7FFFFFFF, k, 0x5E25])
         images = [effects.expose(v.radiance, cam, rng) for cam, v in enumerate(views)]
-        jpegs = [None, None]
+        jpegs: list[bytes | None] = [None, None]
         if spec.jpeg_quality is not None:
             (images[0], jpegs[0]), (images[1], jpegs[1]) = (jpeg_round_trip(im, spec.jpeg_quality)
                                                           for im in images)

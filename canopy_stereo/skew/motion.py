@@ -92,7 +92,7 @@ def _dis(preset: str):
         raise CanopyStereoError(f"unknown flow preset {preset!r}; choose one of {', '.join(_DIS_PRESETS)}")
     key = preset
     if key not in _dis_cache:  # one instance per preset and process: calc() reuses its buffers
-        _dis_cache[key] = cv2.DISOpticalFlow_create(_DIS_PRESETS[preset])
+        _dis_cache[key] = cv2.DISOpticalFlow.create(_DIS_PRESETS[preset])
     return _dis_cache[key]
 
 

@@ -120,8 +120,8 @@ def _check_outputs(out: Path, folder: Path, truth: dict) -> list[dict]:
 
 
 def test_metadata_and_rig_travel_in_the_bag(season):
-    from canopy_stereo.io.bag_metadata import canopy_metadata
-    from canopy_stereo.ros.bag import BagReader
+    from canopy_stereo.bag import BagReader
+    from canopy_stereo.bag.metadata import canopy_metadata
 
     folder, _ = season
     meta, rig = canopy_metadata(BagReader(folder / "b_w2.mcap").metadata())
@@ -133,8 +133,8 @@ def test_metadata_and_rig_travel_in_the_bag(season):
 
 
 def test_frames_decoded_without_ros_match_rclpy(season):
+    from canopy_stereo.bag import BagReader
     from canopy_stereo.batch.frames import stereo_pairs
-    from canopy_stereo.ros.bag import BagReader
     from canopy_stereo.ros.convert import msg_to_bgr, stamp_to_ns
 
     bag = BagReader(Path(season[0]) / "a_w1.mcap")
@@ -261,8 +261,8 @@ def test_resume_after_an_interrupted_run_processes_only_what_is_missing(season, 
 
 def test_select_on_metadata_and_explicit_rig(season, tmp_path):
     """The task itself (as a worker runs it): --select filters on the metadata, --rig wins."""
+    from canopy_stereo.bag.metadata import parse_selection
     from canopy_stereo.batch.work import BatchOptions, run_bag_task
-    from canopy_stereo.io.bag_metadata import parse_selection
     from canopy_stereo.io.rig import save_rig
 
     folder, truth = season

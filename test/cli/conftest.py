@@ -5,8 +5,8 @@ import cv2
 import numpy as np
 import pytest
 
-from canopy_stereo.sim.stereo_pair import shifted_pair
 from canopy_stereo.io.pfm import write_pfm
+from canopy_stereo.sim.stereo_pair import shifted_pair
 
 
 @pytest.fixture

@@ -7,7 +7,6 @@ from canopy_stereo.geometry.camera import camera_centre, project
 from canopy_stereo.geometry.world_rig import paper_layout_placements
 from canopy_stereo.io.placements import load_placements
 from canopy_stereo.io.rig import load_rig
-
 from test.conftest import run_cli_subprocess
 
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from canopy_stereo.features.study import read_matches
-from canopy_stereo.sim.stereo_pair import slanted_plane_pair
 from canopy_stereo.io.pfm import write_pfm
+from canopy_stereo.sim.stereo_pair import slanted_plane_pair
 
 
 @pytest.fixture

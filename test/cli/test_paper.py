@@ -19,7 +19,6 @@ from canopy_stereo.features.result import distribution
 from canopy_stereo.features.study import correspondence_correctness, read_matches
 from canopy_stereo.sim import render_scene
 from canopy_stereo.sim.correspondence import true_right_pixels
-
 from test.conftest import run_cli_subprocess
 
 pytestmark = pytest.mark.slow  # one reduced paper run in a process of its own

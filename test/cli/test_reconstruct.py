@@ -3,7 +3,6 @@ import numpy as np
 import pytest
 
 from canopy_stereo.io.ply import read_ply
-
 from test.conftest import REPO, run_cli_subprocess
 
 

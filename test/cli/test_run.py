@@ -6,7 +6,7 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("stereo_msgs.msg")
 
-from canopy_stereo.ros.bag import BagReader  # noqa: E402
+from canopy_stereo.bag import BagReader  # noqa: E402
 from canopy_stereo.ros.bundled import bundled_bag, bundled_rig  # noqa: E402
 
 pytestmark = pytest.mark.ros

@@ -8,7 +8,6 @@ import pytest
 
 from canopy_stereo.segmentation import read_mask
 from canopy_stereo.sim import render_scene
-
 from test.segmentation.test_segmentation import _iou, _scene
 from test.segmentation.test_segmentation_sim import _depth, _truth
 

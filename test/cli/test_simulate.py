@@ -114,8 +114,8 @@ def test_simulate_field_sequence_writes_a_compressed_bag_stamped_at_capture(tmp_
     """``--motion/--skew/--jpeg-quality --bag --compressed``: frame folders with the capture
     instants in their truth, and a bag of JPEG CompressedImages stamped 8 ms apart + truth depth."""
     pytest.importorskip("rclpy")
-    from canopy_stereo.io.bag_metadata import canopy_metadata
-    from canopy_stereo.ros.bag import BagReader
+    from canopy_stereo.bag import BagReader
+    from canopy_stereo.bag.metadata import canopy_metadata
     from canopy_stereo.ros.bundled import read_truth_depths
 
     out, bag_path = tmp_path / "field", tmp_path / "field.mcap"

@@ -75,7 +75,7 @@ def croton_recording(tmp_path_factory):
 @pytest.mark.slow
 @pytest.mark.ros
 def test_view_save_croton_one_cloud_per_frame_image_depth_pinhole(croton_recording):
-    from canopy_stereo.ros.bag import BagReader
+    from canopy_stereo.bag import BagReader
     from canopy_stereo.ros.convert import stamp_to_ns
 
     left_stamps = sorted(stamp_to_ns(msg.header.stamp)

@@ -9,9 +9,17 @@ from dataclasses import asdict
 import numpy as np
 import pytest
 
-from canopy_stereo.disparity import (DEFAULT_MATCHER, available_matchers, compute_disparity, declare,
-                                     matcher_names, matcher_spec, preset_names, register_matcher)
-from canopy_stereo.disparity import registry
+from canopy_stereo.disparity import (
+    DEFAULT_MATCHER,
+    available_matchers,
+    compute_disparity,
+    declare,
+    matcher_names,
+    matcher_spec,
+    preset_names,
+    register_matcher,
+    registry,
+)
 from canopy_stereo.errors import CanopyStereoError
 
 UNKNOWN = "unknown matcher 'foo'; choose one of elas, sgbm"

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from canopy_stereo.elas import ElasWarning, elas_disparity, elas_run, make_params
-from canopy_stereo.sim.stereo_pair import plane_pair, shifted_pair
 from canopy_stereo.errors import CanopyStereoError, ImageError
+from canopy_stereo.sim.stereo_pair import plane_pair, shifted_pair
 
 PRESETS = ("robotics", "middlebury")
 

@@ -13,11 +13,17 @@ import numpy as np
 import pytest
 
 from canopy_stereo.errors import CanopyStereoError, ImageError, MatchingError
-from canopy_stereo.features import (METHODS, MatchResult, distribution, epipolar_distance,
-                                    estimate_fundamental, match_pair, method_available)
+from canopy_stereo.features import (
+    METHODS,
+    MatchResult,
+    distribution,
+    epipolar_distance,
+    estimate_fundamental,
+    match_pair,
+    method_available,
+)
 from canopy_stereo.features.quasi_dense import propagate, resample, sift_seeds
 from canopy_stereo.features.study import gt_correctness, run_study
-
 from canopy_stereo.sim.stereo_pair import slanted_plane_pair
 
 

@@ -3,8 +3,14 @@ import pytest
 
 from canopy_stereo.errors import RigError
 from canopy_stereo.geometry.camera import (
-    camera_centre, compose_projection, decompose_projection, pixel_rays, point_depth, project,
-    validate_projection)
+    camera_centre,
+    compose_projection,
+    decompose_projection,
+    pixel_rays,
+    point_depth,
+    project,
+    validate_projection,
+)
 
 
 def test_decomposition_recomposes_paper_matrices(paper_rig):

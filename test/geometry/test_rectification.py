@@ -3,8 +3,7 @@ import pytest
 
 from canopy_stereo.geometry.camera import project
 from canopy_stereo.geometry.distortion import distort_pixels, undistort_pixels
-from canopy_stereo.geometry.rectification import (
-    StereoRectifier, fusiello_rectify, hartley_rectify)
+from canopy_stereo.geometry.rectification import StereoRectifier, fusiello_rectify, hartley_rectify
 from canopy_stereo.geometry.triangulation import apply_homography
 
 

@@ -4,17 +4,14 @@
 the in-process graph of ``canopy-stereo run``/``canopy_graph``), and a rig with bad
 homographies fails with one clear line."""
 import json
-import sys
 
 import cv2
 import numpy as np
 import pytest
 
 from canopy_stereo.errors import RigError
-from canopy_stereo.geometry.rig_rectification import (RECTIFICATION_METHODS, rectification_for_rig,
-                                                      validate_homography)
+from canopy_stereo.geometry.rig_rectification import RECTIFICATION_METHODS, rectification_for_rig, validate_homography
 from canopy_stereo.io.rig import load_rig, save_rig
-
 from test.conftest import REPO
 
 TOL = 1e-12
@@ -24,9 +21,8 @@ TOL = 1e-12
 def hartley_rig_file(tmp_path_factory):
     """``rig_hartley.yaml`` written by ``canopy-stereo rectify --method hartley`` for the
     bundled croton's first pair (the croton rig carries a Fusiello disparity range)."""
-    from test.support.ros_harness import croton_frames
-
     from canopy_stereo.cli import main
+    from test.support.ros_harness import croton_frames
 
     d = tmp_path_factory.mktemp("hartley")
     left, right = croton_frames()[0]

@@ -3,8 +3,13 @@ import numpy as np
 from canopy_stereo.geometry.camera import project
 from canopy_stereo.geometry.rectification import fusiello_rectify
 from canopy_stereo.geometry.triangulation import (
-    apply_homography, backmap_matches, organized_from_disparity, triangulate_disparity,
-    triangulate_disparity_points, triangulate_dlt)
+    apply_homography,
+    backmap_matches,
+    organized_from_disparity,
+    triangulate_disparity,
+    triangulate_disparity_points,
+    triangulate_dlt,
+)
 
 
 def _scene(rng, n):

@@ -14,8 +14,8 @@ pytest.importorskip("rclpy")
 from rclpy.node import Node  # noqa: E402
 from sensor_msgs.msg import Image  # noqa: E402
 
+from canopy_stereo.bag import BagReader, BagWriter  # noqa: E402
 from canopy_stereo.ros import convert  # noqa: E402
-from canopy_stereo.ros.bag import BagReader, BagWriter  # noqa: E402
 from canopy_stereo.ros.context import private_domain_id, ros_context, wait_for  # noqa: E402
 from canopy_stereo.ros.player import BagPlayer, parse_remaps, recorded_reliability  # noqa: E402
 from canopy_stereo.ros.qos import publisher_qos, recording_qos  # noqa: E402

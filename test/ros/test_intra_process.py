@@ -14,9 +14,9 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.serialization import deserialize_message  # noqa: E402
 from sensor_msgs.msg import Image, PointCloud2  # noqa: E402
 
+from canopy_stereo.bag import BagReader  # noqa: E402
 from canopy_stereo.io.rig import load_rig  # noqa: E402
 from canopy_stereo.ros import convert  # noqa: E402
-from canopy_stereo.ros.bag import BagReader  # noqa: E402
 from canopy_stereo.ros.bundled import bundled_bag, bundled_rig  # noqa: E402
 from canopy_stereo.ros.context import ros_context  # noqa: E402
 from canopy_stereo.ros.graph import CanopyGraph, GraphOptions  # noqa: E402

@@ -25,7 +25,6 @@ from canopy_stereo.errors import ImageError  # noqa: E402
 from canopy_stereo.ros import convert, limits  # noqa: E402
 from canopy_stereo.ros.context import private_domain_id, wait_for  # noqa: E402
 from canopy_stereo.ros.qos import publisher_qos, recording_qos  # noqa: E402
-
 from test.conftest import REPO  # noqa: E402
 
 T0 = 1_700_000_000_000_000_000
@@ -209,7 +208,7 @@ EXPECTED_LOG = {
 @pytest.mark.slow
 @pytest.mark.ros
 def test_hostile_burst_into_node_processes_is_dropped_logged_and_memory_returns(harness, tmp_path):
-    from canopy_stereo.ros.bag import BagReader
+    from canopy_stereo.bag import BagReader
 
     rig_file = REPO / "config" / "croton_rig.yaml"
     bag = BagReader(REPO / "bags" / "croton.mcap")

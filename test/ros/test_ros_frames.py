@@ -26,17 +26,21 @@ from stereo_msgs.msg import DisparityImage  # noqa: E402
 
 from canopy_stereo.geometry.camera import decompose_projection, point_depth  # noqa: E402
 from canopy_stereo.geometry.distortion import distort_pixels  # noqa: E402
-from canopy_stereo.geometry.frames import (  # noqa: E402
-    FrameNames, quaternion_to_rotation, raw_camera_calibration, stereo_transforms)
+from canopy_stereo.geometry.frames import FrameNames, quaternion_to_rotation, raw_camera_calibration, stereo_transforms  # noqa: E402
 from canopy_stereo.geometry.rectification import fusiello_rectify  # noqa: E402
 from canopy_stereo.geometry.transforms import invert_transform, transform_points  # noqa: E402
 from canopy_stereo.geometry.triangulation import apply_homography  # noqa: E402
 from canopy_stereo.ros import convert  # noqa: E402
 from canopy_stereo.ros.stereo_geometry import parse_stereo_geometry, stereo_geometry_msg  # noqa: E402
-
 from test.geometry.test_stereo_geometry import verged_rig  # noqa: E402
-from test.ros.test_ros_nodes import (T0, TIMEOUT, geometry_publisher, node_kwargs,  # noqa: E402
-                                     publish_rect_infos, rect_info_publishers)
+from test.ros.test_ros_nodes import (  # noqa: E402
+    T0,
+    TIMEOUT,
+    geometry_publisher,
+    node_kwargs,
+    publish_rect_infos,
+    rect_info_publishers,
+)
 
 pytestmark = pytest.mark.ros
 
@@ -432,7 +436,7 @@ def test_bag_recorder_writes_tf_static_from_rectify_node(harness, paper_rig, tmp
     """bag_record / canopy_graph --record without tf2_msgs: the transforms of rectify_node's
     stereo_geometry go into the bag as /tf_static; bag_play then leaves that topic out
     (type not installed here) instead of failing."""
-    from canopy_stereo.ros.bag import BagReader, BagWriter
+    from canopy_stereo.bag import BagReader, BagWriter
     from canopy_stereo.ros.nodes.rectify import RectifyNode
     from canopy_stereo.ros.player import BagPlayer
     from canopy_stereo.ros.recorder import BagRecorder

@@ -13,10 +13,10 @@ from rclpy.serialization import deserialize_message  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 from stereo_msgs.msg import DisparityImage  # noqa: E402
 
+from canopy_stereo.bag import BagReader  # noqa: E402
 from canopy_stereo.geometry.rectification import fusiello_rectify  # noqa: E402
 from canopy_stereo.io.rig import load_rig  # noqa: E402
 from canopy_stereo.ros import convert  # noqa: E402
-from canopy_stereo.ros.bag import BagReader  # noqa: E402
 from canopy_stereo.ros.bundled import (  # noqa: E402
     bundled_bag,
     bundled_rig,
@@ -98,7 +98,7 @@ def _bad_input_bag(path, croton_bag):
     reader = BagReader(croton_bag)
     lefts = [convert.msg_to_image(m) for _, m in reader.read("/stereo/left/image_raw")]
     rights = [convert.msg_to_image(m) for _, m in reader.read("/stereo/right/image_raw")]
-    from canopy_stereo.ros.bag import BagWriter
+    from canopy_stereo.bag import BagWriter
 
     t0 = 1_704_067_200_000_000_000
     with BagWriter(path, chunk_size=1 << 20) as bag:  # about one frame per chunk
@@ -154,7 +154,7 @@ def test_run_keeps_recorded_timing(croton, tmp_path):
                                                        reader.read("/stereo/right/image_raw")))]
     src = write_stereo_bag(tmp_path / "src.mcap", frames)
     remapped = tmp_path / "cam.mcap"
-    from canopy_stereo.ros.bag import BagWriter
+    from canopy_stereo.bag import BagWriter
 
     with BagWriter(remapped) as w:
         for m in BagReader(src).messages():

@@ -80,7 +80,7 @@ def test_launch_bag_mode_produces_clouds_and_loops(ros_processes):
 def test_launch_camera_mode_with_image_sequences_produces_clouds(ros_processes, tmp_path):
     import cv2
 
-    from canopy_stereo.ros.bag import BagReader
+    from canopy_stereo.bag import BagReader
 
     reader = BagReader(CROTON_BAG)
     for side in ("left", "right"):

@@ -341,7 +341,7 @@ def test_segment_node_grabcut_rect_and_auto(harness):
 def test_segment_node_propagates_the_plant_model(harness):
     """recut_every 4 over the croton frames: one full cut in four, the masks between within
     IoU 0.95 of a full GrabCut of the same frame; the share of full cuts is in /diagnostics."""
-    from canopy_stereo.ros.bag import BagReader
+    from canopy_stereo.bag import BagReader
     from canopy_stereo.ros.bundled import bundled_bag
     from canopy_stereo.ros.nodes.segment import SegmentNode
     from canopy_stereo.segmentation.auto import segment_plant

@@ -47,7 +47,8 @@ def test_rectify_node_brings_each_right_image_to_the_left_instant(harness, paper
     for left, right, tl, tr in pairs:
         pl.publish(convert.image_to_msg(left, "bgr8", stamp_ns=tl, frame_id="left_camera"))
         pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=tr, frame_id="right_camera"))
-        assert wait_for(lambda n=len(rect_r): len(rect_r) > n, 20.0)  # in order: one pair at a time
+        n = len(rect_r)
+        assert wait_for(lambda n=n: len(rect_r) > n, 20.0)  # in order: one pair at a time
     # the very function batch and the core tests call, with the same defaults
     core = SkewCompensator(enabled=enabled)
     rectifier = StereoRectifier(paper_rig, fusiello_rectify(paper_rig.P_left, paper_rig.P_right,

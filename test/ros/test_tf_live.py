@@ -80,9 +80,9 @@ import sys
 from geometry_msgs.msg import TransformStamped
 from rclpy.serialization import deserialize_message, serialize_message
 from tf2_msgs.msg import TFMessage
-from canopy_stereo.ros.bag import BagWriter
+from canopy_stereo.bag import BagWriter
 from canopy_stereo.ros.tf import serialize_tf_message
-from canopy_stereo.ros.msgdefs import message_definition
+from canopy_stereo.bag.msgdefs import message_definition
 t = TransformStamped(child_frame_id="left_camera_optical_frame")
 t.header.frame_id = "canopy_world"; t.header.stamp.sec = 7; t.transform.translation.x = 0.25
 t.transform.rotation.w = 1.0

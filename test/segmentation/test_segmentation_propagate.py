@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from canopy_stereo.errors import CanopyStereoError, ImageError
-from canopy_stereo.segmentation.propagate import MaskPropagator
 from canopy_stereo.segmentation.auto import segment_plant
+from canopy_stereo.segmentation.propagate import MaskPropagator
 
 pytest.importorskip("mcap")
 
@@ -18,7 +18,7 @@ def iou(a, b) -> float:
 
 
 def bundled_lefts(scene: str) -> list[np.ndarray]:
-    from canopy_stereo.ros.bag import BagReader
+    from canopy_stereo.bag import BagReader
     from canopy_stereo.ros.bundled import bundled_bag
     from canopy_stereo.ros.convert import msg_to_image
 

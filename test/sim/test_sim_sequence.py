@@ -7,8 +7,7 @@ import pytest
 
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.sim import CLEAN, rig_at_resolution
-from canopy_stereo.sim.sequence import (CaptureTiming, RigMotion, SequenceSpec, depth_accuracy,
-                                        render_sequence)
+from canopy_stereo.sim.sequence import CaptureTiming, RigMotion, SequenceSpec, depth_accuracy, render_sequence
 
 
 @pytest.fixture(scope="module")

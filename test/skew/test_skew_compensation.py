@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from canopy_stereo.skew import SkewCompensator, image_motion, move_in_time
+from canopy_stereo.skew import SkewCompensator, image_motion
 
 MS = 1_000_000  # ns
 
@@ -81,19 +81,19 @@ def test_it_pairs_as_today_and_says_why_when_it_cannot():
         return comp.compensate(cur, cur, stamp_left_ns=dt_ms * MS, stamp_right_ns=(dt_ms + skew_ms) * MS)
 
     off = SkewCompensator(enabled=False)
-    l, r, rep = second(off, a, b)
+    _, r, rep = second(off, a, b)
     assert r is b and not rep.applied and rep.reason == "off" and rep.skew_ms == 8.0
-    l, r, rep = second(SkewCompensator(), a, b, skew_ms=0)
+    _, r, rep = second(SkewCompensator(), a, b, skew_ms=0)
     assert r is b and rep.reason == "in step"
     cut = _view(_texture(seed=99), 0, 0)
-    l, r, rep = second(SkewCompensator(), a, cut)
+    _, r, rep = second(SkewCompensator(), a, cut)
     assert r is cut and not rep.applied and rep.reason.startswith("a cut")
     flat = np.full((240, 320, 3), 128, np.uint8)
-    l, r, rep = second(SkewCompensator(), flat, flat)
+    _, r, rep = second(SkewCompensator(), flat, flat)
     assert r is flat and rep.reason.startswith("too little texture")
-    l, r, rep = second(SkewCompensator(), a, b, dt_ms=900)
+    _, r, rep = second(SkewCompensator(), a, b, dt_ms=900)
     assert r is b and rep.reason.startswith("gap of 900 ms")
-    l, r, rep = second(SkewCompensator(), a, b, dt_ms=5, skew_ms=8)
+    _, r, rep = second(SkewCompensator(), a, b, dt_ms=5, skew_ms=8)
     assert r is b and "longer than the right frame interval" in rep.reason
     comp = SkewCompensator()
     second(comp, a, b)
@@ -108,8 +108,7 @@ def moving_rig_results(paper_rig):
     """Median depth error and density of the croton's leaves, with and without compensation,
     for issue 24's three cases (croton, 640x480 paper rig, 15 frames/s, ELAS)."""
     from canopy_stereo.pipeline.reconstruct import reconstruct_pair
-    from canopy_stereo.sim.sequence import (CaptureTiming, RigMotion, SequenceSpec, depth_accuracy,
-                                            render_sequence)
+    from canopy_stereo.sim.sequence import CaptureTiming, RigMotion, SequenceSpec, depth_accuracy, render_sequence
 
     cases = {"along 0.25 m/s 8 ms": ("along", 0.25, 0.008), "along 0.5 m/s 16 ms": ("along", 0.5, 0.016),
              "across 0.25 m/s 8 ms": ("across", 0.25, 0.008)}

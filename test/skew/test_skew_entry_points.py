@@ -61,13 +61,11 @@ def test_run_on_a_moving_rig_bag_gets_depth_right(tmp_path, cli, paper_rig):
     """``run`` on a simulated bag of a rig moving along its baseline at 0.25 m/s with the right
     camera 8 ms late: clouds within 1 % of the truth depth; 6 % off with --no-skew-compensation."""
     pytest.importorskip("rclpy")
-    from rclpy.serialization import deserialize_message
-    from sensor_msgs.msg import PointCloud2
 
-    from canopy_stereo.ros import convert
-    from canopy_stereo.ros.bag import BagReader
-    from canopy_stereo.ros.bundled import bundled_rig, read_truth_depths, relative_depth_errors
+    from canopy_stereo.bag import BagReader
     from canopy_stereo.io.rig import load_rig
+    from canopy_stereo.ros import convert
+    from canopy_stereo.ros.bundled import bundled_rig, read_truth_depths, relative_depth_errors
 
     bag = tmp_path / "moving.mcap"
     rig_file = bundled_rig("croton")  # the paper rig with the croton's disparity range

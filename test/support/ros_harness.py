@@ -365,7 +365,7 @@ def wait_for(predicate, timeout_s: float, poll_s: float = 0.05, group: ProcessGr
 
 def croton_frames():
     """The bundled croton bag's (left, right) bgr8 640x480 frames."""
-    from canopy_stereo.ros.bag import BagReader
+    from canopy_stereo.bag import BagReader
     from canopy_stereo.ros.bundled import bundled_bag
     from canopy_stereo.ros.convert import msg_to_image
 

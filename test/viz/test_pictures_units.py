@@ -5,8 +5,7 @@ import numpy as np
 import pytest
 
 from canopy_stereo.io.ply import read_ply, write_ply
-from canopy_stereo.viz.colour import (COLORMAP, colorize, depth_picture, disparity_picture,
-                                      picture_offset)
+from canopy_stereo.viz.colour import COLORMAP, colorize, depth_picture, disparity_picture, picture_offset
 
 
 def test_ply_states_its_unit_in_words_and_old_files_still_read(tmp_path):

@@ -38,8 +38,7 @@ from collections import Counter, deque
 
 import rclpy
 from rcl_interfaces.msg import ParameterType
-from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterValueException,
-                              ParameterException)
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException, ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -212,7 +211,7 @@ class CanopyNode(Node):
             self.counts[what] += n
 
     def time_jump_handler(self, stream_names):
-        """An ``on_jump`` callback for the synchronizers of :mod:`canopy_stereo.ros.sync`:
+        """An ``on_jump`` callback for the synchronizers of :mod:`canopy_stereo.bag.pairing`:
         one log line per backwards time jump, counted in the diagnostics."""
         def on_jump(jump) -> None:
             self.count("time_jumps")
@@ -293,7 +292,7 @@ class CanopyNode(Node):
         with self._idle:
             return 0.0 if self._busy > 0 else time.monotonic() - self.last_active
 
-    def latest_only(self, fn, what: str, *, depth: int = 1) -> "LatestOnly":
+    def latest_only(self, fn, what: str, *, depth: int = 1) -> LatestOnly:
         """A worker thread that runs ``fn`` on the newest submitted jobs (see :class:`LatestOnly`)."""
         worker = LatestOnly(self, fn, what, depth)
         self._workers.append(worker)

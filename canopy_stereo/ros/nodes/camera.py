@@ -37,8 +37,8 @@ import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor
 from sensor_msgs.msg import Image
 
-from canopy_stereo.ros.camera_info import RawCameraInfoPublisher
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.ros.camera_info import RawCameraInfoPublisher
 from canopy_stereo.ros.convert import image_to_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 

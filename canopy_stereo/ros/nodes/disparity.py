@@ -46,16 +46,28 @@ from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
 
-from canopy_stereo.disparity import (available_matchers, compute_disparity, default_matcher,  # noqa: F401
-                                     matcher_names, matcher_spec, preset_names)
+from canopy_stereo.bag.pairing import ExactTimeSynchronizer
+from canopy_stereo.disparity import (  # noqa: F401
+    available_matchers,
+    compute_disparity,
+    default_matcher,
+    matcher_names,
+    matcher_spec,
+    preset_names,
+)
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.ros.convert import (COLOUR_ENCODINGS, camera_info_matrices, disparity_to_msg, is_calibrated,
-                                       msg_to_mono, stamp_to_ns)
+from canopy_stereo.ros.convert import (
+    COLOUR_ENCODINGS,
+    camera_info_matrices,
+    disparity_to_msg,
+    is_calibrated,
+    msg_to_mono,
+    stamp_to_ns,
+)
 from canopy_stereo.ros.limits import check_image_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.nodes.rectify import RECT_INFO_TOPICS
 from canopy_stereo.ros.params import number_descriptor
-from canopy_stereo.ros.sync import ExactTimeSynchronizer
 
 _RANGE = ("disp_min", "disp_max")
 

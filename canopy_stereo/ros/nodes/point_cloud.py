@@ -39,18 +39,28 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import String
 from stereo_msgs.msg import DisparityImage
 
+from canopy_stereo.bag.pairing import ExactTimeSynchronizer
 from canopy_stereo.errors import CanopyStereoError, ImageError
 from canopy_stereo.geometry.frames import reproject_disparity, reproject_disparity_records
 from canopy_stereo.geometry.transforms import transform_points
 from canopy_stereo.geometry.triangulation import triangulate_disparity_points
-from canopy_stereo.ros.convert import (COLOUR_ENCODINGS, camera_info_matrices, depth_to_msg, is_calibrated,
-                                       msg_to_bgr, msg_to_disparity, msg_to_image, pack_bgr_image,
-                                       points_to_cloud2, records_to_cloud2, stamp_to_ns)
+from canopy_stereo.ros.convert import (
+    COLOUR_ENCODINGS,
+    camera_info_matrices,
+    depth_to_msg,
+    is_calibrated,
+    msg_to_bgr,
+    msg_to_disparity,
+    msg_to_image,
+    pack_bgr_image,
+    points_to_cloud2,
+    records_to_cloud2,
+    stamp_to_ns,
+)
 from canopy_stereo.ros.limits import check_disparity_msg, check_image_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.nodes.rectify import RECT_INFO_TOPICS
 from canopy_stereo.ros.stereo_geometry import STEREO_GEOMETRY_TOPIC, parse_stereo_geometry
-from canopy_stereo.ros.sync import ExactTimeSynchronizer
 from canopy_stereo.ros.tf import latched_qos
 
 #: Values of the ``cloud_frame`` parameter.

@@ -50,16 +50,22 @@ from __future__ import annotations
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import String
 
+from canopy_stereo.bag.pairing import ApproximateTimePairer, FramePeriodEstimator, slop_for_rate
 from canopy_stereo.geometry.frames import DEFAULT_FRAMES, WORLD_FRAME, WORLD_Z_UP_FRAME, FrameNames, stereo_transforms
 from canopy_stereo.geometry.rectification import StereoRectifier
 from canopy_stereo.io.images import to_gray
-from canopy_stereo.ros.convert import (COLOUR_ENCODINGS, image_to_msg, msg_to_bgr, rectified_camera_info,
-                                       stamp_to_ns, uncalibrated_camera_info)
+from canopy_stereo.ros.convert import (
+    COLOUR_ENCODINGS,
+    image_to_msg,
+    msg_to_bgr,
+    rectified_camera_info,
+    stamp_to_ns,
+    uncalibrated_camera_info,
+)
 from canopy_stereo.ros.limits import check_image_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.params import declare_rig_parameters, rectification_from_node, rig_from_node
 from canopy_stereo.ros.stereo_geometry import STEREO_GEOMETRY_TOPIC, stereo_geometry_msg
-from canopy_stereo.ros.sync import ApproximateTimePairer, FramePeriodEstimator, slop_for_rate
 from canopy_stereo.ros.tf import StaticTransformPublisher, latched_qos
 from canopy_stereo.skew import SkewCompensator
 

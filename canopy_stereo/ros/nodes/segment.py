@@ -52,11 +52,11 @@ from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from sensor_msgs.msg import Image
 from stereo_msgs.msg import DisparityImage
 
+from canopy_stereo.bag.pairing import ExactTimeSynchronizer
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.ros.convert import COLOUR_ENCODINGS, image_to_msg, msg_to_bgr, msg_to_disparity, stamp_to_ns
 from canopy_stereo.ros.limits import SEGMENT_MIN_SIZE, check_disparity_msg, check_image_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
-from canopy_stereo.ros.sync import ExactTimeSynchronizer
 from canopy_stereo.segmentation.auto import VIDEO_SEEDER, decode_setting, seeder_fields
 from canopy_stereo.segmentation.propagate import DEFAULT_RECUT_EVERY, MaskPropagator
 

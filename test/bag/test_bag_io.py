@@ -11,8 +11,13 @@ from rclpy.serialization import serialize_message  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2  # noqa: E402
 from stereo_msgs.msg import DisparityImage  # noqa: E402
 
-from canopy_stereo.ros import convert, msgdefs  # noqa: E402
-from canopy_stereo.ros.bag import BagError, BagReader, BagWriter  # noqa: E402
+from canopy_stereo.bag import (  # noqa: E402
+    BagError,
+    BagReader,
+    BagWriter,
+    msgdefs,  # noqa: E402
+)
+from canopy_stereo.ros import convert  # noqa: E402
 
 pytestmark = pytest.mark.ros
 

@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.io.bag_metadata import (
+from canopy_stereo.bag.metadata import (
     METADATA_RECORD,
     RIG_RECORD,
     canopy_metadata,
@@ -19,6 +18,7 @@ from canopy_stereo.io.bag_metadata import (
     parse_key_values,
     parse_selection,
 )
+from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.rig import load_rig, rig_to_yaml
 
 REPO = Path(__file__).resolve().parents[2]
@@ -40,8 +40,8 @@ def test_key_values_and_selection():
 
 def test_writer_records_survive_truncation_and_rosbags_reads_the_bag(tmp_path):
     pytest.importorskip("rclpy")
+    from canopy_stereo.bag import BagError, BagReader, BagWriter
     from canopy_stereo.ros import convert
-    from canopy_stereo.ros.bag import BagError, BagReader, BagWriter
 
     rig = load_rig(REPO / "config" / "croton_rig.yaml")
     path = tmp_path / "m.mcap"
@@ -86,8 +86,8 @@ def test_bag_record_writes_metadata_and_rig(tmp_path):
     from rclpy.node import Node
     from sensor_msgs.msg import Image
 
+    from canopy_stereo.bag import BagReader
     from canopy_stereo.ros import convert
-    from canopy_stereo.ros.bag import BagReader
     from canopy_stereo.ros.context import private_domain_id, ros_context, wait_for
     from canopy_stereo.ros.qos import publisher_qos
     from test.support.ros_harness import killed_at_exit
@@ -134,8 +134,8 @@ def test_graph_recording_from_cameras_is_measured_without_a_rig(tmp_path):
     pytest.importorskip("rclpy")
     import cv2
 
+    from canopy_stereo.bag import BagReader
     from canopy_stereo.batch.work import BatchOptions, process_bag
-    from canopy_stereo.ros.bag import BagReader
     from canopy_stereo.ros.bundled import bundled_bag, bundled_rig
     from canopy_stereo.ros.context import private_domain_id
     from canopy_stereo.ros.convert import msg_to_image

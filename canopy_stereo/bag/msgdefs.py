@@ -1,4 +1,8 @@
-"""Message type names, classes and ``ros2msg`` schema text for bags.
+"""Message type names, classes, ``ros2msg`` schema text and CDR bytes for bags.
+
+The bag library's one door to the ROS message packages: it imports them (and
+``rclpy.serialization``, for :func:`serialize` / :func:`deserialize`) only when a
+message class or object is asked for, so reading and writing CDR bytes needs no ROS.
 
 rosbag2 stores, per topic, the type name (``sensor_msgs/msg/Image``) and the
 message definition in ``ros2msg`` form: the type's ``.msg`` text followed by
@@ -39,7 +43,7 @@ def type_name(msg_or_class) -> str:
     return f"{module[0]}/{module[1]}/{cls.__name__}"
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def message_class(name: str):
     """The Python class of a type name (``"sensor_msgs/msg/Image"`` or ``"sensor_msgs/Image"``)."""
     parts = name.split("/")
@@ -51,6 +55,21 @@ def message_class(name: str):
         return getattr(importlib.import_module(f"{parts[0]}.{parts[1]}"), parts[2])
     except (ImportError, AttributeError):
         raise CanopyStereoError(f"message type {name!r} is not installed") from None
+
+
+def serialize(msg) -> bytes:
+    """CDR bytes (with encapsulation header) of a ROS message object."""
+    from rclpy.serialization import serialize_message
+
+    return serialize_message(msg)
+
+
+def deserialize(data: bytes, cls):
+    """The ROS message of class ``cls`` held in CDR bytes ``data`` (rclpy's exceptions pass
+    through for bytes that are not valid CDR of that type)."""
+    from rclpy.serialization import deserialize_message
+
+    return deserialize_message(data, cls)
 
 
 def _share_dirs(package: str) -> list[Path]:
@@ -124,7 +143,7 @@ def own_definition(name: str) -> str:
     return text if text is not None else _generated_text(message_class(name))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def message_definition(name: str) -> str:
     """Full ``ros2msg`` definition of ``name`` with every nested type, as rosbag2 writes it."""
     name = type_name(message_class(name))

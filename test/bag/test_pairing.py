@@ -1,9 +1,9 @@
-"""Approximate- and exact-time pairing edge cases (canopy_stereo.ros.sync, pure Python)."""
+"""Approximate- and exact-time pairing edge cases (canopy_stereo.bag.pairing, pure Python)."""
 import threading
 
 import pytest
 
-from canopy_stereo.ros.sync import ApproximateTimePairer, ExactTimeSynchronizer
+from canopy_stereo.bag.pairing import ApproximateTimePairer, ExactTimeSynchronizer
 
 MS = 1_000_000  # ns
 
@@ -178,7 +178,7 @@ def test_exact_synchronizer_resets_on_a_jump_back():
 
 
 def test_slop_for_rate_is_half_a_period():
-    from canopy_stereo.ros.sync import slop_for_rate
+    from canopy_stereo.bag.pairing import slop_for_rate
 
     assert slop_for_rate(15) == pytest.approx(1 / 30)
     with pytest.raises(ValueError):

@@ -20,7 +20,7 @@ pytest.importorskip("mcap")
 
 pytestmark = pytest.mark.slow  # hundreds of damaged bags
 
-from canopy_stereo.ros.bag import BagError, BagReader, BagWriter  # noqa: E402
+from canopy_stereo.bag import BagError, BagReader, BagWriter  # noqa: E402
 from canopy_stereo.ros.bundled import bundled_bag  # noqa: E402
 
 MAGIC = b"\x89MCAP0\r\n"

@@ -15,7 +15,8 @@ import pytest
 pytest.importorskip("rclpy")
 rosbags = pytest.importorskip("rosbags.highlevel")
 
-from canopy_stereo.ros.bag import BagError, BagReader, BagWriter, repair_bag, split_file_path  # noqa: E402
+from canopy_stereo.bag import BagError, BagReader, BagWriter, repair_bag  # noqa: E402
+from canopy_stereo.bag.split import split_file_path  # noqa: E402
 from canopy_stereo.ros.bundled import bundled_bag, bundled_rig  # noqa: E402
 from canopy_stereo.ros.context import private_domain_id  # noqa: E402
 from test.support.ros_harness import killed_at_exit  # noqa: E402
@@ -158,7 +159,7 @@ def test_sigterm_at_three_moments_of_run_record_leaves_complete_bags(slow_bag, t
 
 _KILLED_WRITER = """
 import os, sys, time
-from canopy_stereo.ros.bag import BagWriter
+from canopy_stereo.bag import BagWriter
 w = BagWriter(sys.argv[1], flush_period_s=0.5)
 for k in range(20):
     w.write("/x", bytes(1000), 1_000_000_000 + k, msg_type="std_msgs/msg/String")
@@ -313,7 +314,7 @@ import signal, sys
 from pathlib import Path
 from std_msgs.msg import String
 from rclpy.serialization import serialize_message
-from canopy_stereo.ros.bag import BagWriter
+from canopy_stereo.bag import BagWriter
 
 raw = serialize_message(String(data="x" * 1000))
 

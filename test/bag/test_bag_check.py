@@ -9,7 +9,8 @@ import pytest
 
 pytest.importorskip("mcap")
 
-from canopy_stereo.ros.bag import BagError, BagReader, BagWriter, parse_size, repair_bag  # noqa: E402
+from canopy_stereo.bag import BagError, BagReader, BagWriter, repair_bag  # noqa: E402
+from canopy_stereo.bag.split import parse_size  # noqa: E402
 from canopy_stereo.ros.bundled import bundled_bag, bundled_rig  # noqa: E402
 
 

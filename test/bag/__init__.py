@@ -1,0 +1,1 @@
+"""Tests of canopy_stereo.bag: MCAP writer, reader, damage, repair, metadata records, time pairing."""
