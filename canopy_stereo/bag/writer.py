@@ -24,7 +24,11 @@ Files follow what rosbag2's MCAP storage plugin writes, so ``ros2 bag play``,
 loses at most the messages of the last second: the rest reads as a truncated
 bag, and ``canopy-stereo bag repair`` turns it into a complete one. With
 ``split_size``/``split_duration_s`` it rotates to ``<name>_0.mcap``,
-``<name>_1.mcap``, ... like rosbag2's bag splitting.
+``<name>_1.mcap``, ... like rosbag2's bag splitting. Every file of a split recording opens
+alone: each repeats, at its start, the messages of the latched topics (recorded with
+``transient_local`` durability, e.g. ``/tf_static``, ``stereo_geometry``) written so far
+(at most :data:`LATCHED_KEPT` per topic, the newest), with the log time of the file's first
+message and their own publish time, as a late subscriber to a latched topic receives them.
 """
 from __future__ import annotations
 
@@ -44,6 +48,9 @@ from canopy_stereo.bag.messages import TopicInfo, _normal_type, _stamp_of, qos_p
 from canopy_stereo.bag.metadata import METADATA_RECORD
 from canopy_stereo.bag.msgdefs import message_class, message_definition, serialize, type_name
 from canopy_stereo.bag.split import split_file_path
+
+#: Messages of one latched (transient local) topic repeated at the start of every split file.
+LATCHED_KEPT = 100
 
 
 class BagWriter:
@@ -91,6 +98,7 @@ class BagWriter:
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._metadata: list[tuple[str, dict]] = []  # records written at the start of every file
+        self._latched: dict[str, list[tuple[bytes, int]]] = {}  # topic -> [(data, publish time)]
         self.custom_data: dict[str, str] = {}  # rosbag2's custom_data: the canopy_stereo record
         self.topics: dict[str, TopicInfo] = {}
         self._lock = threading.RLock()
@@ -124,9 +132,12 @@ class BagWriter:
         with self._lock:
             self._open_next()
 
-    def _rotate(self) -> None:
+    def _rotate(self, log_time_ns: int) -> None:
         self._finish_file()
         self._open_next()
+        for topic, kept in self._latched.items():  # the new file opens alone (see module docstring)
+            for data, publish_ns in kept:
+                self._add_message(topic, data, log_time_ns, publish_ns, repeat=True)
 
     def _open_next(self) -> None:
         path = split_file_path(self.base_path, len(self.paths)) if self.splitting else self.base_path
@@ -281,7 +292,15 @@ class BagWriter:
             if topic not in self.topics:
                 self._add_topic(topic, msg_type)
             if self._file_messages and self._should_split(log_time_ns, len(data)):
-                self._rotate()
+                self._rotate(log_time_ns)
+            if self.splitting and "transient_local" in self.topics[topic].qos_yaml:
+                kept = self._latched.setdefault(topic, [])
+                kept.append((data, publish_time_ns))
+                del kept[:-LATCHED_KEPT]
+            self._add_message(topic, data, log_time_ns, publish_time_ns)
+
+    def _add_message(self, topic, data, log_time_ns, publish_time_ns, *, repeat: bool = False) -> None:
+        with self._lock:
             info = self.topics[topic]
             self._io(self._writer.add_message, channel_id=self._channels[topic], log_time=log_time_ns,
                      data=data, publish_time=publish_time_ns, sequence=info.message_count)
@@ -289,8 +308,9 @@ class BagWriter:
             if self._pending > self._chunk_size:
                 self._pending = 0  # the writer ended the chunk
             self._dirty = True
-            info.message_count += 1
-            self.message_count += 1
+            if not repeat:  # a latched message repeated in a split file is not a new message
+                info.message_count += 1
+                self.message_count += 1
             self._file_counts[topic] += 1
             self._file_messages += 1
             self._start_ns = log_time_ns if self._start_ns is None else min(self._start_ns, log_time_ns)

@@ -8,7 +8,8 @@ from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.rig import Rig, save_rig
 
 COMMAND = "calibrate"
-HELP = "calibrate a stereo rig into a rig file (Gold Standard from 2D-3D points, or chessboards)"
+HELP = ("calibrate a stereo rig into a rig file (Gold Standard from 2D-3D points, or chessboards), "
+        "or import another tool's calibration (--from)")
 DESCRIPTION = """Calibrate both cameras in one world frame and write a rig file.
 
 --points PAIRS.csv: Gold Standard algorithm (normalised DLT + Levenberg-Marquardt)
@@ -23,6 +24,12 @@ placement per image pair in the sorted order of the globs); corners detected wit
 sub-pixel refinement, their order resolved from the geometry (symmetric boards, reversed
 detections), Gold Standard P matrices in the placements' world frame; pairs without the
 board are listed and skipped; Table 1 is leave-one-placement-out.
+--from FORMAT FILES...: import a calibration another tool wrote: ros-yaml (camera_calibration's
+left.yaml right.yaml), ros-ini (its ost.txt, or left.ini right.ini), kalibr (camchain.yaml,
+pinhole radtan/equidistant), opencv (stereoCalibrate FileStorage YAML/XML: M1 D1 M2 D2 R T
+[R1 R2 P1 P2], one or two files; --image-size when they hold none), middlebury (calib.txt).
+World frame = the left camera's optical frame; unit = the file's (ROS, Kalibr: m;
+Middlebury: mm; OpenCV: --unit, default mm); the lens distortion is kept.
 --paper-layout -o placements.yaml: write the placements of the paper's layout (three lines
 at -10, 0, +10 degrees, 15 marks each, 7x5 board of 50 mm squares; see --first-mark ...).
 
@@ -37,6 +44,9 @@ def add_arguments(p):
     src.add_argument("--world-rig", nargs=3, metavar=("PLACEMENTS.yaml", "LEFT_GLOB", "RIGHT_GLOB"),
                      help="world-rig calibration (paper sec. 2.1): board placements and the left and "
                           "right images (quote the globs)")
+    src.add_argument("--from", dest="from_files", nargs="+", metavar="FORMAT FILES",
+                     help="import a calibration: FORMAT (ros-yaml, ros-ini, kalibr, opencv, middlebury) "
+                          "then its file(s)")
     src.add_argument("--paper-layout", action="store_true",
                      help="write the placements of the paper's calibration layout to -o and exit")
     lay = p.add_argument_group("--paper-layout options (millimetres)")
@@ -58,7 +68,8 @@ def add_arguments(p):
     p.add_argument("--square", type=float, default=25.0, help="square size in world units (default 25)")
     p.add_argument("--world-board", type=int, default=None, metavar="I",
                    help="use the board of pair I as the world frame")
-    p.add_argument("--unit", default="mm", help="world unit written to the rig file (default mm)")
+    p.add_argument("--unit", default=None, help="world unit written to the rig file (default mm; with "
+                   "--from: the unit of the file's translations, default the format's)")
     p.add_argument("--image-size", default=None, metavar="WxH",
                    help="image size for --points (default 640x480)")
     p.add_argument("-o", "--output", required=True, metavar="rig.yaml", help="rig file to write")
@@ -85,6 +96,9 @@ def _check_arguments(args) -> None:
 
 
 def run(args) -> int:
+    if args.from_files:
+        return _run_import(args)
+    args.unit = args.unit or "mm"
     if args.paper_layout:
         return _run_paper_layout(args)
     if args.world_rig:
@@ -234,3 +248,28 @@ def _run_world_rig(args) -> int:
         plot_world_rig_errors(cal, args.plot)
         print(f"wrote {args.plot}")
     return 0 if np.all(np.isfinite(cal.table1.mean_abs)) else 1
+
+
+def _run_import(args) -> int:
+    """``--from FORMAT FILES...``: another tool's calibration -> rig file."""
+    from canopy_stereo.io.calibration_import import FORMATS, import_calibration
+
+    fmt, *files = args.from_files
+    if fmt not in FORMATS:
+        raise CanopyStereoError(f"--from: unknown format {fmt!r}; choose one of {', '.join(FORMATS)}")
+    if not files:
+        raise CanopyStereoError(f"--from {fmt} needs the calibration file(s) after the format")
+    if args.unit is not None:
+        check_world_unit(args.unit)
+    size = None
+    if args.image_size:
+        size = parse_int_list(args.image_size, 2, "--image-size")
+        for v in size:
+            check_at_least(v, 1, "each of --image-size")
+    rig = import_calibration(fmt, files, unit=args.unit, image_size=size)
+    save_rig(rig, args.output, comment=f"canopy-stereo calibrate --from {fmt} {' '.join(files)}\n"
+             f"world frame: the left camera's optical frame; baseline {rig.baseline:.4g} {rig.world_unit}")
+    print(f"imported {fmt}: {rig.image_size[0]}x{rig.image_size[1]}, baseline {rig.baseline:.4g} "
+          f"{rig.world_unit}, distortion {rig.distortion_model}")
+    print(f"wrote {args.output}")
+    return 0

@@ -13,10 +13,16 @@ HELP = "plant mask of an image: GrabCut from a rectangle, a rough mask, or autom
 DESCRIPTION = """Separate the plant from the background (the paper's GrabCut step).
 --rect x,y,w,h: GrabCut from a rectangle drawn around the plant (everything outside is
 background). --seed MASK.png: GrabCut from a rough mask (0/255, or GrabCut labels 0..3).
---auto (the default): vegetation index (ExG on normalised chromaticity) with Otsu's
-threshold, plus, with --disparity or --depth, near = plant; the cues seed GrabCut.
-For red, yellow or brown plants, or green plants before green foliage, use --index none
-with a depth cue, or a rectangle. With --index none, colour models of plant and background
+--auto (the default) with --disparity or --depth: plants, not green things
+(segment_plants): the background planes (wall, table, tray) are found in the depth cue,
+pots, cans and boxes are smooth, plain solids standing on the ground, plants are what is
+rough and textured off the planes, whatever their colour; colour models learned from
+those cues decide the rest. Also writes MASK_overlay.png (the mask's outline over the
+image, each plant numbered left to right) and prints one line per plant.
+--auto without a depth cue, or with --index: vegetation index (ExG on normalised
+chromaticity) with Otsu's threshold, plus, with --disparity or --depth, near = plant;
+the cues seed GrabCut. For red, yellow or brown plants, or green plants before green
+foliage, use --index none with a depth cue, or a rectangle. With --index none, colour models of plant and background
 are learned from the pixels the depth cue is sure of; they remove the background gaps
 between leaves that the matcher filled with the leaves' disparity (--no-colour-model: the
 depth cue alone). The disparity/depth map must be registered to IMAGE (same grid: e.g. a
@@ -40,8 +46,9 @@ def add_arguments(p):
     p.add_argument("--range", metavar="lo,hi", help="plant range of the disparity/depth cue "
                                                      "(default: automatic, Otsu)")
     p.add_argument("--index", choices=["exg", "exgr", "none"], default=None,
-                   help="colour cue of --auto (default exg; 'none' = no vegetation index: the "
-                        "depth cue, with colour models learned from it)")
+                   help="colour cue of --auto's vegetation-index seeder (default without a depth cue: "
+                        "exg; 'none' = no vegetation index: the depth cue, with colour models learned "
+                        "from it); with a depth cue and no --index, plants are found by shape instead")
     p.add_argument("--iterations", type=int, default=None,
                    help="GrabCut iterations (default 5, the seeder's; 5 for --rect/--seed too)")
     p.add_argument("--no-refine", action="store_true", help="--auto: skip GrabCut, keep the seed")
@@ -106,6 +113,8 @@ def run(args) -> int:
         seed = read_image(args.seed, color=False)
         mask = grabcut_mask(image, seed, iterations=iterations)
         how = f"GrabCut from {args.seed}"
+    elif (args.disparity or args.depth) and args.index is None and args.range is None:
+        return _segment_plants(args, image)
     else:
         disparity = _load_map(args.disparity, "disparity") if args.disparity else None
         depth = _load_map(args.depth, "depth") if args.depth else None
@@ -128,4 +137,27 @@ def run(args) -> int:
     n = int(np.count_nonzero(mask))
     print(f"{how}: {100.0 * n / mask.size:.1f} % plant ({n} of {mask.size} pixels)")
     print(f"wrote {args.output}")
+    return 0
+
+
+def _segment_plants(args, image) -> int:
+    """``--auto`` with a depth cue: :func:`~canopy_stereo.segmentation.segment_plants`."""
+    from canopy_stereo.io.images import write_image
+    from canopy_stereo.segmentation import mask_overlay, segment_plants, write_mask
+
+    disparity = _load_map(args.disparity, "disparity") if args.disparity else None
+    depth = _load_map(args.depth, "depth") if args.depth else None
+    seg = segment_plants(image, disparity=disparity, depth=depth)
+    write_mask(args.output, seg.mask)
+    out = Path(args.output)
+    overlay = out.with_name(out.stem + "_overlay.png")
+    write_image(overlay, mask_overlay(image, seg.mask, instances=seg.instances))
+    n = int(np.count_nonzero(seg.mask))
+    cue = "disparity" if disparity is not None else "depth"
+    print(f"automatic (plants by shape, {cue}, learned colour): {100.0 * n / seg.mask.size:.1f} % plant "
+          f"({n} of {seg.mask.size} pixels), {seg.n_plants} plant(s)")
+    for p in seg.plants:
+        x, y, w, h = p["bbox"]
+        print(f"plant {p['plant_index']}: {p['pixels']} pixels, box x {x}..{x + w - 1}, y {y}..{y + h - 1}")
+    print(f"wrote {args.output} and {overlay}")
     return 0

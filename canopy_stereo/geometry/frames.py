@@ -8,6 +8,11 @@ z forward, x right, y down):
 * :data:`WORLD_FRAME` ``canopy_world``: the rig's world frame, the metric frame the rig
   file's ``P`` matrices map from (the paper's frame), in metres on the ROS side;
 * ``left_camera_optical_frame``, ``right_camera_optical_frame``: the raw cameras;
+  both raw ``CameraInfos`` (and images) of a pair carry the *left* one, and both
+  rectified ones ``left_camera_rect_optical_frame`` (:func:`stereo_info_frame`):
+  image_geometry's ``StereoCameraModel`` asserts one frame for the two infos ("both the
+  left and right CameraInfo should be in the left optical frame"); the right camera's
+  pose is in the right ``P``'s ``Tx`` and in ``/tf_static``;
 * ``left_camera_rect_optical_frame``, ``right_camera_rect_optical_frame``: the rectified
   cameras of the Fusiello rectification (same centres, one shared orientation); the
   rectified images, disparities, depth images and (by parameter) the cloud are here;
@@ -139,6 +144,35 @@ def distortion_model_for(D) -> str:
     return "plumb_bob" if n <= 5 else "rational_polynomial"
 
 
+#: ``D`` of a raw camera without lens distortion whose ``R`` is not the identity:
+#: ``rational_polynomial`` with ``k1 = k4 = 1`` (nothing else). image_geometry treats an
+#: all-zero ``D`` as "no distortion" and its ``rectifyImage`` then copies the raw image,
+#: ignoring ``R`` and ``P``; with this ``D`` it builds the maps, and OpenCV's radial factor
+#: ``(1 + k1 r^2 + ...) / (1 + k4 r^2 + ...)`` is exactly 1 (the same operations above and
+#: below the line), so the image is rectified with no distortion applied.
+ZERO_DISTORTION_RECTIFIABLE = (1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0)
+
+
+def camera_info_distortion(D, model: str | None, R) -> tuple[np.ndarray, str]:
+    """``(D, distortion_model)`` to publish in a raw ``CameraInfo`` (the one decision):
+    the lens's own when it has distortion; for none, zeros (``plumb_bob``) when ``R`` is
+    the identity, else :data:`ZERO_DISTORTION_RECTIFIABLE` so image_proc rectifies."""
+    from canopy_stereo.geometry.distortion import distortion_is_identity
+
+    D = np.asarray(D, np.float64).ravel()
+    if not distortion_is_identity(D, model=model):
+        return D, model or distortion_model_for(D)
+    if np.allclose(np.asarray(R, np.float64), np.eye(3), rtol=0, atol=1e-12):
+        return np.zeros(5), "plumb_bob"
+    return np.array(ZERO_DISTORTION_RECTIFIABLE), "rational_polynomial"
+
+
+def stereo_info_frame(names: FrameNames, kind: str) -> str:
+    """Frame id of BOTH ``CameraInfos`` (and images) of a pair: the left camera's
+    (``kind`` ``"raw"`` or ``"rect"``), as image_geometry's ``StereoCameraModel`` requires."""
+    return names.raw_left if kind == "raw" else names.rect_left
+
+
 def stereo_extrinsics(rig, rect=None) -> dict:
     """World transforms of the rig's cameras: ``{(kind, side): T_world_cam}`` (4x4, metres).
 
@@ -173,7 +207,8 @@ def world_z_up_transform(rig) -> np.ndarray:
 def raw_camera_calibration(rig, side: str, *, rect=None) -> CameraCalibration:
     """REP 104 calibration of the raw ``side`` camera of ``rig``.
 
-    ``K`` and ``D`` are the camera's own; ``R`` and ``P`` describe the rig's Fusiello
+    ``K`` and ``D`` are the camera's own (``D`` as :func:`camera_info_distortion` publishes
+    it); ``R`` and ``P`` describe the rig's Fusiello
     rectification (``rect``, computed when None), so that image_geometry and image_proc,
     given only this ``CameraInfo``, rectify exactly as :class:`StereoRectifier` does.
     """
@@ -189,8 +224,9 @@ def raw_camera_calibration(rig, side: str, *, rect=None) -> CameraCalibration:
     K_rect = rect.K_rect_left if side == "left" else rect.K_rect_right
     P = rectified_projection(K_rect, rect.baseline * rig.metres_per_unit, side)
     w, h = rig.image_size
-    return CameraCalibration(width=w, height=h, K=cam.K, D=np.asarray(D, np.float64),
-                             R=rect.R_rect @ cam.R.T, P=P, distortion_model=distortion_model_for(D))
+    R = rect.R_rect @ cam.R.T
+    D_info, model = camera_info_distortion(D, getattr(rig, "distortion_model", None), R)
+    return CameraCalibration(width=w, height=h, K=cam.K, D=D_info, R=R, P=P, distortion_model=model)
 
 
 def rectified_projection(K_rect, baseline_m: float, side: str) -> np.ndarray:

@@ -298,8 +298,8 @@ class StereoRectifier:
         self.rect = rect
         self.interpolation = interpolation
         self._maps = [
-            _rectify_map(rig.P_left, rig.D_left, rect.H_left_inv, rect.size),
-            _rectify_map(rig.P_right, rig.D_right, rect.H_right_inv, rect.size),
+            _rectify_map(rig.P_left, rig.D_left, rect.H_left_inv, rect.size, rig.distortion_model),
+            _rectify_map(rig.P_right, rig.D_right, rect.H_right_inv, rect.size, rig.distortion_model),
         ]
 
     def rectify(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -322,6 +322,7 @@ def _rectifier_key(rig, rect: Rectification, interpolation: int) -> bytes:
     parts = [np.asarray(a, np.float64).tobytes() for a in
              (rig.P_left, rig.P_right, rig.D_left, rig.D_right, rect.H_left, rect.H_right)]
     parts.append(np.asarray(list(rect.size) + [interpolation], np.int64).tobytes())
+    parts.append(str(rig.distortion_model).encode())
     return hashlib.sha1(b"".join(parts)).digest()
 
 
@@ -344,11 +345,11 @@ def cached_rectifier(rig, rect: Rectification, *, interpolation: int = cv2.INTER
     return rectifier
 
 
-def _rectify_map(P, D, H_inv, size):
+def _rectify_map(P, D, H_inv, size, model=None):
     w, h = size
     vv, uu = np.mgrid[0:h, 0:w]
     p = np.stack([uu.ravel(), vv.ravel()], axis=1).astype(np.float64)
-    q = distort_pixels(P, D, apply_homography(H_inv, p))
+    q = distort_pixels(P, D, apply_homography(H_inv, p), model=model)
     mx = q[:, 0].reshape(h, w).astype(np.float32)
     my = q[:, 1].reshape(h, w).astype(np.float32)
     return cv2.convertMaps(mx, my, cv2.CV_16SC2)

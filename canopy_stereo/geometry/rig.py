@@ -10,6 +10,7 @@ import numpy as np
 
 from canopy_stereo.errors import RigError
 from canopy_stereo.geometry.camera import camera_centre, validate_projection
+from canopy_stereo.geometry.distortion import DISTORTION_MODELS, check_distortion, default_distortion_model
 
 #: Metres per world unit for the units a rig file may declare.
 UNIT_TO_METRES = {"m": 1.0, "cm": 0.01, "mm": 0.001, "um": 1e-6, "in": 0.0254}
@@ -25,18 +26,9 @@ def unit_to_metres(unit: str) -> float:
         ) from None
 
 
-def _distortion(value, name: str) -> np.ndarray:
-    if value is None:
-        return np.zeros(5)
-    try:
-        d = np.asarray(value, dtype=np.float64).ravel()
-    except (TypeError, ValueError):
-        raise RigError(f"{name} must be a list of numbers") from None
-    if d.size not in (4, 5, 8, 12, 14):
-        raise RigError(f"{name} must have 4, 5, 8, 12 or 14 coefficients (OpenCV order), got {d.size}")
-    if not np.all(np.isfinite(d)):
-        raise RigError(f"{name} has non-finite entries")
-    return d
+def _distortion(value, model: str, name: str) -> np.ndarray:
+    d = check_distortion(value, model, name) if value is not None else np.zeros(0)
+    return d if d.size else np.zeros(4 if model == "equidistant" else 5)
 
 
 @dataclass(frozen=True)
@@ -48,8 +40,12 @@ class Rig:
             original (unrectified, undistorted) images.
         image_size: ``(width, height)`` of the original images in pixels.
         world_unit: unit of world coordinates (``"mm"`` for the paper's rig).
-        D_left, D_right: OpenCV distortion coefficients (zeros when none).
+        D_left, D_right: distortion coefficients of ``distortion_model`` (zeros when none).
         extra: other parameters found in the file (kept on save).
+        distortion_model: both cameras' lens model (REP 104 name, see
+            :mod:`canopy_stereo.geometry.distortion`): ``plumb_bob`` or
+            ``rational_polynomial`` (OpenCV's standard model, by the coefficients' count) or
+            ``equidistant`` (fisheye); None = from the count.
     """
 
     P_left: np.ndarray
@@ -59,12 +55,20 @@ class Rig:
     D_left: np.ndarray = field(default_factory=lambda: np.zeros(5))
     D_right: np.ndarray = field(default_factory=lambda: np.zeros(5))
     extra: dict = field(default_factory=dict)
+    distortion_model: str | None = None
 
     def __post_init__(self):
+        model = self.distortion_model
+        if model is None or model in ("plumb_bob", "rational_polynomial"):
+            sizes = [np.asarray(d).size for d in (self.D_left, self.D_right) if d is not None]
+            model = default_distortion_model(np.zeros(max(sizes, default=5)))
+        if model not in DISTORTION_MODELS:
+            raise RigError(f"unknown distortion_model {model!r}; expected one of {', '.join(DISTORTION_MODELS)}")
+        object.__setattr__(self, "distortion_model", model)
         object.__setattr__(self, "P_left", validate_projection(self.P_left, "P_left"))
         object.__setattr__(self, "P_right", validate_projection(self.P_right, "P_right"))
-        object.__setattr__(self, "D_left", _distortion(self.D_left, "D_left"))
-        object.__setattr__(self, "D_right", _distortion(self.D_right, "D_right"))
+        object.__setattr__(self, "D_left", _distortion(self.D_left, model, "D_left"))
+        object.__setattr__(self, "D_right", _distortion(self.D_right, model, "D_right"))
         w, h = (int(v) for v in self.image_size)
         if w <= 0 or h <= 0:
             raise RigError(f"image size must be positive, got {w}x{h}")
@@ -101,6 +105,8 @@ class Rig:
             "D_left": [float(v) for v in self.D_left],
             "D_right": [float(v) for v in self.D_right],
         }
+        if self.distortion_model == "equidistant":
+            params["distortion_model"] = self.distortion_model
         for k, v in self.extra.items():
             params.setdefault(k, v)
         return params

@@ -288,7 +288,7 @@ def triangulate_disparity(disp, rect, P_left, P_right) -> np.ndarray:
 
 
 def organized_from_disparity(disp, rect, P_left, P_right, image_size, *, max_jump: float = 1.0,
-                             D_left=None):
+                             D_left=None, distortion_model: str | None = None):
     """Organized cloud (H, W, 3) on the ORIGINAL left pixel grid from a rectified disparity.
 
     Each original left pixel ``q`` is mapped into the rectified image
@@ -299,7 +299,8 @@ def organized_from_disparity(disp, rect, P_left, P_right, image_size, *, max_jum
     from the nearest pixel otherwise (so depth edges are not smeared).
 
     ``D_left``: distortion of the left camera; the raw pixel grid is then
-    undistorted before it is mapped into the rectified image.
+    undistorted (lens model ``distortion_model``, None = OpenCV's) before it is mapped
+    into the rectified image.
 
     Returns (H, W, 3) float64 world points, NaN where there is no match.
     """
@@ -309,7 +310,8 @@ def organized_from_disparity(disp, rect, P_left, P_right, image_size, *, max_jum
     if D_left is not None and np.any(D_left):
         from canopy_stereo.geometry.distortion import undistort_pixels
 
-        q = undistort_pixels(P_left, D_left, np.stack([uu.ravel(), vv.ravel()], axis=1))
+        q = undistort_pixels(P_left, D_left, np.stack([uu.ravel(), vv.ravel()], axis=1),
+                             model=distortion_model)
         uu, vv = q[:, 0].reshape(h, w), q[:, 1].reshape(h, w)
     return _original_grid_kernel(disp, np.ascontiguousarray(uu), np.ascontiguousarray(vv),
                                  np.asarray(rect.H_left, np.float64), rect.H_right_inv,

@@ -15,12 +15,13 @@ from canopy_stereo.io.pfm import read_pfm
 from canopy_stereo.io.rig import Rig
 
 
-def read_middlebury_calib(path) -> dict:
+def read_middlebury_calib(path, *, fields=None) -> dict:
     """Parse a Middlebury 2014 ``calib.txt``.
 
     Returns a dict with ``cam0``/``cam1`` as (3, 3) arrays and the scalars
     (``doffs``, ``baseline`` in mm, ``width``, ``height``, ``ndisp``, ...) as floats.
-    Tolerates the irregular whitespace of the published files.
+    Tolerates the irregular whitespace of the published files. ``fields``: the names
+    allowed (any other is an error naming it, nearest name suggested); None = any.
     """
     path = Path(path)
     try:
@@ -32,6 +33,10 @@ def read_middlebury_calib(path) -> dict:
         if "=" not in line:
             continue
         key, value = (s.strip() for s in line.split("=", 1))
+        if fields is not None and key not in fields:
+            from canopy_stereo.io.calibration_import.stereo import unknown_field
+
+            raise unknown_field(str(path), key, fields)
         if key.startswith("cam"):
             nums = [float(v) for v in re.split(r"[\s;\[\]]+", value) if v]
             if len(nums) != 9:

@@ -11,6 +11,9 @@ One format serves the CLI and the ROS nodes::
         P_right: [12 numbers, row-major 3x4]
         D_left:  [k1, k2, p1, p2, k3]   # optional lens distortion (OpenCV order)
         D_right: [k1, k2, p1, p2, k3]
+        distortion_model: equidistant  # optional: plumb_bob / rational_polynomial (OpenCV's
+                                       # model, 4-14 coefficients, the default) or equidistant
+                                       # (fisheye, [k1, k2, k3, k4])
 
 Other keys under ``ros__parameters`` (node parameters such as ``method`` or
 ``H_left``) are preserved in :attr:`Rig.extra`. The :class:`Rig` itself (and the
@@ -36,7 +39,8 @@ def rig_from_parameters(params: dict, source: str = "rig") -> Rig:
     missing = [k for k in ("P_left", "P_right", "image_width", "image_height") if k not in params]
     if missing:
         raise RigError(f"{source}: missing parameter(s) {', '.join(missing)}")
-    known = {"world_unit", "image_width", "image_height", "P_left", "P_right", "D_left", "D_right"}
+    known = {"world_unit", "image_width", "image_height", "P_left", "P_right", "D_left", "D_right",
+             "distortion_model"}
     try:
         return Rig(
             P_left=params["P_left"],
@@ -45,6 +49,7 @@ def rig_from_parameters(params: dict, source: str = "rig") -> Rig:
             world_unit=str(params.get("world_unit", "mm")),
             D_left=params.get("D_left"),
             D_right=params.get("D_right"),
+            distortion_model=params.get("distortion_model") or None,
             extra={k: v for k, v in params.items() if k not in known},
         )
     except RigError as exc:

@@ -8,7 +8,8 @@ side views with the measured dimensions.
 Modules, one job each: :mod:`.instances` (leaf instances in the organized cloud),
 :mod:`.leaf` (one leaf's size), :mod:`.cleaning` (matching debris off the canopy),
 :mod:`.frame` (the measuring frame: ground, up), :mod:`.canopy` (extents, volumes),
-:mod:`.scene` (one cloud measured: the REPORT.json dict), :mod:`.report` (REPORT.json
+:mod:`.scene` (one cloud measured: the REPORT.json dict), :mod:`.plants` (each plant of
+a scene measured on its own, height from its pot rim or soil), :mod:`.report` (REPORT.json
 and CSV written, clouds read), :mod:`.plot` (pictures); :mod:`.surface`,
 :mod:`.sections`, :mod:`.geodesic`, :mod:`.viewpoint` serve them.
 """
@@ -16,6 +17,7 @@ from canopy_stereo.measure.canopy import canopy_dimensions, hull_volume, voxel_v
 from canopy_stereo.measure.frame import MeasuringFrame
 from canopy_stereo.measure.instances import separate_leaves
 from canopy_stereo.measure.leaf import LeafMeasurement, measure_leaf
+from canopy_stereo.measure.plants import REFERENCE_KINDS, measure_plants, reference_surface
 from canopy_stereo.measure.plot import plot_views
 from canopy_stereo.measure.report import load_cloud, write_leaves_csv, write_report
 from canopy_stereo.measure.scene import SceneMeasurement, measure_organized, measure_points, measure_scene
@@ -24,5 +26,5 @@ from canopy_stereo.measure.viewpoint import estimate_camera
 __all__ = [
     "LeafMeasurement", "MeasuringFrame", "SceneMeasurement", "canopy_dimensions", "estimate_camera",
     "hull_volume", "load_cloud", "measure_leaf", "measure_organized", "measure_points",
-    "measure_scene", "plot_views", "separate_leaves", "voxel_volume", "write_leaves_csv", "write_report",
+    "measure_scene", "plot_views", "REFERENCE_KINDS", "measure_plants", "reference_surface", "separate_leaves", "voxel_volume", "write_leaves_csv", "write_report",
 ]

@@ -92,8 +92,8 @@ def rectify_rig(rig, method: str | None = None, *, left=None, right=None, match_
     xl, xr = [], []
     for a, b in pairs:
         m = match_pair(a, b, method=match_method, min_matches=0)
-        xl.append(undistort_pixels(rig.P_left, rig.D_left, m.x_left))
-        xr.append(undistort_pixels(rig.P_right, rig.D_right, m.x_right))
+        xl.append(undistort_pixels(rig.P_left, rig.D_left, m.x_left, model=rig.distortion_model))
+        xr.append(undistort_pixels(rig.P_right, rig.D_right, m.x_right, model=rig.distortion_model))
     return rectification_for_rig(rig, method="hartley", matches=(np.vstack(xl), np.vstack(xr)))
 
 
@@ -183,7 +183,7 @@ def reconstruct_pair(left_bgr, right_bgr, rig, *, method: str | None = None, mat
 
     t = time.perf_counter()
     organized = organized_from_disparity(disp, rect, rig.P_left, rig.P_right, rig.image_size,
-                                         D_left=rig.D_left)
+                                         D_left=rig.D_left, distortion_model=rig.distortion_model)
     if mask is not None:
         organized[mask == 0] = np.nan
     timings["triangulation"] = time.perf_counter() - t

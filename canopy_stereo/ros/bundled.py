@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.geometry.frames import FrameNames, stereo_info_frame
 from canopy_stereo.io.rig import Rig, save_rig
 
 #: scene -> (bag file, rig file)
@@ -29,6 +30,10 @@ BUNDLED = {"croton": ("croton.mcap", "croton_rig.yaml"), "plants": ("plants.mcap
 LEFT_TOPIC = "/stereo/left/image_raw"
 RIGHT_TOPIC = "/stereo/right/image_raw"
 TRUTH_DEPTH_TOPIC = "/truth/left/depth"
+#: frame_id of both raw images (and the truth depth): the left camera's optical frame, the
+#: frame rectify_node's /tf_static names and camera_node uses for a stereo pair
+#: (:func:`canopy_stereo.geometry.frames.stereo_info_frame`).
+RAW_FRAME = stereo_info_frame(FrameNames(), "raw")
 
 #: Stamp of the first frame of the bundled bags (2024-01-01T00:00:00Z), ns.
 EPOCH_NS = 1_704_067_200_000_000_000
@@ -96,24 +101,25 @@ def write_stereo_bag(path, frames, *, truth_depths=None, compression: str = "zst
     from canopy_stereo.bag.metadata import recording_metadata
     from canopy_stereo.ros.convert import image_to_msg
 
+    frame = RAW_FRAME
+
     transport_ns = 2_000_000  # reception 2 ms after capture
     with BagWriter(path, compression=compression,
                    metadata=recording_metadata(metadata, rig)) as bag:
         for k, (left, right, t_left, t_right) in enumerate(frames):
             if jpegs is not None:
-                for topic, data, t, frame_id in ((LEFT_TOPIC, jpegs[k][0], t_left, "left_camera"),
-                                                 (RIGHT_TOPIC, jpegs[k][1], t_right, "right_camera")):
-                    bag.write(f"{topic}/compressed", _jpeg_msg(data, t, frame_id), t + transport_ns)
+                for topic, data, t in ((LEFT_TOPIC, jpegs[k][0], t_left), (RIGHT_TOPIC, jpegs[k][1], t_right)):
+                    bag.write(f"{topic}/compressed", _jpeg_msg(data, t, frame), t + transport_ns)
             else:
-                bag.write(LEFT_TOPIC, image_to_msg(left, "bgr8", stamp_ns=t_left, frame_id="left_camera"),
+                bag.write(LEFT_TOPIC, image_to_msg(left, "bgr8", stamp_ns=t_left, frame_id=frame),
                           t_left + transport_ns)
-                bag.write(RIGHT_TOPIC, image_to_msg(right, "bgr8", stamp_ns=t_right, frame_id="right_camera"),
+                bag.write(RIGHT_TOPIC, image_to_msg(right, "bgr8", stamp_ns=t_right, frame_id=frame),
                           t_right + transport_ns)
             if truth_depths is not None:
                 depth_mm = np.rint(np.nan_to_num(np.asarray(truth_depths[k], np.float64) * 1000.0,
                                                  nan=0.0)).clip(0, 65535).astype(np.uint16)
                 bag.write(TRUTH_DEPTH_TOPIC, image_to_msg(depth_mm, "16UC1", stamp_ns=t_left,
-                                                          frame_id="left_camera"),
+                                                          frame_id=frame),
                           t_left + transport_ns + 1)
     return Path(path)
 

@@ -54,8 +54,10 @@ def flag_descriptor(description: str, *, read_only: bool = False) -> ParameterDe
 RIG_PARAMETERS = {
     "P_left": "left 3x4 projection matrix, world -> original pixels (12 numbers, row-major)",
     "P_right": "right 3x4 projection matrix (12 numbers, row-major)",
-    "D_left": "left distortion coefficients (OpenCV order), optional",
-    "D_right": "right distortion coefficients (OpenCV order), optional",
+    "D_left": "left distortion coefficients (OpenCV order, or k1-k4 for equidistant), optional",
+    "D_right": "right distortion coefficients (OpenCV order, or k1-k4 for equidistant), optional",
+    "distortion_model": "lens model of D_left/D_right: plumb_bob | rational_polynomial | equidistant "
+                        "(empty = OpenCV's model, by the number of coefficients)",
     "image_width": "width of the raw images in pixels",
     "image_height": "height of the raw images in pixels",
     "world_unit": "unit of the world frame of P (m, cm, mm, ...)",

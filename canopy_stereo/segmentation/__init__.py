@@ -1,5 +1,7 @@
 """Plant segmentation: GrabCut from a rectangle or mask, automatic plant masks
-from vegetation indices and depth (the one seeder: :mod:`.auto`), and mask cleaning. (Leaf
+from vegetation indices and depth (the one seeder: :mod:`.auto`), plants (not green
+things) and their instances from shape, depth and learned colour (:mod:`.plants`,
+:func:`segment_plants`), the overlay picture (:mod:`.overlay`), and mask cleaning. (Leaf
 instances, which need the organized cloud, are :func:`canopy_stereo.measure.separate_leaves`.)"""
 from canopy_stereo.segmentation.auto import (
     IMAGE_SEEDER,
@@ -22,6 +24,14 @@ from canopy_stereo.segmentation.indices import (
     otsu_threshold,
     vegetation_index,
 )
+from canopy_stereo.segmentation.overlay import mask_overlay
+from canopy_stereo.segmentation.plants import (
+    PLANT_SEGMENTER,
+    PlantSegmentation,
+    PlantSegmenterSettings,
+    plant_instances,
+    segment_plants,
+)
 from canopy_stereo.segmentation.masks import (
     parse_rect,
     read_leaf_ids,
@@ -37,4 +47,6 @@ __all__ = [
     "excess_green_minus_red", "excess_red", "grabcut_labels", "grabcut_mask", "grabcut_rect",
     "otsu_threshold", "parse_rect", "plant_seed", "read_leaf_ids", "read_mask",
     "vegetation_index", "write_leaf_ids", "write_mask",
+    "PLANT_SEGMENTER", "PlantSegmentation", "PlantSegmenterSettings", "mask_overlay", "plant_instances",
+    "segment_plants",
 ]

@@ -244,7 +244,8 @@ def render_calibration_scene(rig, placements: Placements, *, blur_px: float = 0.
         rng = np.random.default_rng([int(seed) & 0x7FFFFFFF, int(placement.pair), 0xCA11B])
         images = []
         for cam, (P, D) in enumerate(((rig.P_left, rig.D_left), (rig.P_right, rig.D_right))):
-            radiance = render_view(scene, P, D, rig.image_size, samples=pattern).radiance
+            radiance = render_view(scene, P, D, rig.image_size, samples=pattern,
+                                   model=rig.distortion_model).radiance
             if blur_px > 0:
                 radiance = cv2.GaussianBlur(radiance, (0, 0), sigmaX=float(blur_px), sigmaY=float(blur_px),
                                             borderType=cv2.BORDER_REFLECT)

@@ -34,7 +34,8 @@ def true_right_pixels(sim, *, visible_tol: float | None = None) -> np.ndarray:
     xr[ok] = project(sim.rig.P_right, X[ok])
     D = getattr(sim.rig, "D_right", None)
     if D is not None and np.any(np.asarray(D) != 0):
-        xr[ok] = distort_pixels(sim.rig.P_right, D, xr[ok])     # the pixel the image shows
+        xr[ok] = distort_pixels(sim.rig.P_right, D, xr[ok],     # the pixel the image shows
+                                model=getattr(sim.rig, "distortion_model", None))
     u = np.rint(xr[:, 0])
     v = np.rint(xr[:, 1])
     inside = ok & (u >= 0) & (u < w) & (v >= 0) & (v < h)

@@ -54,8 +54,15 @@ LABEL_POT = 3
 LABEL_SOIL = 4
 LABEL_BACKGROUND = 5
 LABEL_FRUIT = 6
+#: Objects that are not plants and not containers of one (a watering can, a box, a stake).
+LABEL_OBJECT = 7
 LABEL_NAMES = {LABEL_NONE: "none", LABEL_LEAF: "leaf", LABEL_STEM: "stem", LABEL_POT: "pot",
-               LABEL_SOIL: "soil", LABEL_BACKGROUND: "background", LABEL_FRUIT: "fruit"}
+               LABEL_SOIL: "soil", LABEL_BACKGROUND: "background", LABEL_FRUIT: "fruit",
+               LABEL_OBJECT: "object"}
+#: Classes that are part of a plant (the truth of a plant mask).
+PLANT_LABELS = (LABEL_LEAF, LABEL_STEM, LABEL_FRUIT)
+#: Classes of the things a plant mask must leave out that stand near a plant (distractors).
+DISTRACTOR_LABELS = (LABEL_POT, LABEL_SOIL, LABEL_OBJECT)
 
 
 @dataclass(frozen=True)
@@ -482,5 +489,5 @@ def local_corners(prim) -> np.ndarray:
         return corners @ prim.axes + prim.origin
 
 
-__all__ = ["Cylinder", "Disc", "Frustum", "LABEL_NAMES", "Leaf", "Material", "Primitive",
+__all__ = ["Cylinder", "DISTRACTOR_LABELS", "Disc", "Frustum", "LABEL_NAMES", "PLANT_LABELS", "Leaf", "Material", "Primitive",
            "Rectangle", "Sphere", "frame_from_xz", "frame_from_z", "local_corners"]

@@ -44,11 +44,11 @@ class ViewRender:
     prim_index: np.ndarray
 
 
-def _trace(scene: Scene, P, D5, size, offsets, weights, tile_size: int) -> ViewRender:
+def _trace(scene: Scene, P, Dl, size, offsets, weights, tile_size: int, model=None) -> ViewRender:
     """Trace the sample pattern ``offsets``/``weights`` at every pixel of a
     ``size = (w, h)`` grid (see :func:`~canopy_stereo.sim.raycast.trace_image`)."""
     w, h = size
-    ideal = None if D5 is None else ideal_sample_map(P, D5, (w, h), offsets)
+    ideal = None if Dl is None else ideal_sample_map(P, Dl, (w, h), offsets, model=model)
     M = P[:, :3]
     Minv = np.linalg.inv(M) * np.sign(np.linalg.det(M))
     C = camera_centre(P)
@@ -70,9 +70,10 @@ def _trace(scene: Scene, P, D5, size, offsets, weights, tile_size: int) -> ViewR
 
 
 def render_view(scene: Scene, P, D, image_size, *, supersample: int = 2,
-                tile_size: int = TILE_SIZE, samples=None) -> ViewRender:
+                tile_size: int = TILE_SIZE, samples=None, model: str | None = None) -> ViewRender:
     """Ray-cast one view of ``scene`` through the camera ``P`` (3, 4) with
-    distortion ``D`` (None or OpenCV ``[k1, k2, p1, p2, k3]``).
+    distortion ``D`` of ``model`` (None or all zero = none; ``model`` as
+    :mod:`canopy_stereo.geometry.distortion`, None = OpenCV's up to 12 terms).
 
     The world point of a pixel is the hit of the exact ray through its centre:
     with no distortion it projects through ``P`` onto the pixel centre; with
@@ -84,18 +85,18 @@ def render_view(scene: Scene, P, D, image_size, *, supersample: int = 2,
     """
     P = validate_projection(P)
     w, h = (int(v) for v in image_size)
-    D5 = check_distortion(D, "D")
+    Dl = check_distortion(D, "D", model=model)
     if samples is not None:
         offsets, weights = (np.asarray(a, np.float64) for a in samples)
         if offsets.ndim != 2 or offsets.shape[1] != 2 or weights.shape != (len(offsets),) \
                 or np.any(offsets[0] != 0):
             raise CanopyStereoError("samples must be (offsets (S, 2) with offsets[0] = (0, 0), weights (S,))")
-        return _trace(scene, P, D5, (w, h), offsets, weights, tile_size)
+        return _trace(scene, P, Dl, (w, h), offsets, weights, tile_size, model)
     offsets, weights = sample_pattern(supersample)
     if supersample != 2:
-        return _trace(scene, P, D5, (w, h), offsets, weights, tile_size)
-    centre = _trace(scene, P, D5, (w, h), offsets[:1], np.ones(1), tile_size)
-    corners = _trace(scene, P, D5, (w + 1, h + 1), offsets[1:2], np.ones(1), tile_size).radiance
+        return _trace(scene, P, Dl, (w, h), offsets, weights, tile_size, model)
+    centre = _trace(scene, P, Dl, (w, h), offsets[:1], np.ones(1), tile_size, model)
+    corners = _trace(scene, P, Dl, (w + 1, h + 1), offsets[1:2], np.ones(1), tile_size, model).radiance
     quad = corners[:-1, :-1] + corners[:-1, 1:] + corners[1:, :-1] + corners[1:, 1:]
     radiance = weights[0] * centre.radiance + weights[1] * quad
     return ViewRender(radiance=radiance.astype(np.float32), xyz=centre.xyz,
@@ -116,9 +117,13 @@ class SimResult:
         labels_left, labels_right: (H, W) uint8 pixel class
             (:data:`~canopy_stereo.sim.primitives.LABEL_NAMES`).
         truth: JSON-ready dict: scene, seed, frame, world_unit, background, leaves (id,
-            name, marked, length, width, chords, area, pose, visible pixels per view), ...
+            name, marked, length, width, chords, area, pose, visible pixels per view),
+            plants (per plant: index, reference surface, top, height; see
+            :meth:`~canopy_stereo.sim.scene.Scene.plants_truth`), ...
         timings: seconds per stage: ``left``, ``right`` (ray casting of each view,
             run on two threads) and ``sensor`` (sensor model and truth).
+        plants_left, plants_right: (H, W) uint16 plant number (``truth["plants"]`` index)
+            at each pixel centre, 0 = no plant (all 0 for scenes without plants).
     """
 
     scene: Scene
@@ -133,6 +138,8 @@ class SimResult:
     labels_right: np.ndarray
     truth: dict
     timings: dict = field(default_factory=dict)
+    plants_left: np.ndarray | None = None
+    plants_right: np.ndarray | None = None
 
     @property
     def seed(self) -> int:
@@ -169,7 +176,8 @@ def render_pair(scene: Scene, rig, *, supersample: int = 2, effects: CameraEffec
     def view(camera):
         P, D = (rig.P_left, rig.D_left) if camera == "left" else (rig.P_right, rig.D_right)
         t0 = time.perf_counter()
-        out = render_view(scene, P, D, rig.image_size, supersample=supersample, tile_size=tile_size)
+        out = render_view(scene, P, D, rig.image_size, supersample=supersample, tile_size=tile_size,
+                          model=rig.distortion_model)
         timings[camera] = time.perf_counter() - t0
         return out
 
@@ -183,6 +191,8 @@ def render_pair(scene: Scene, rig, *, supersample: int = 2, effects: CameraEffec
     lookup_labels = np.append(packed.labels, 0).astype(np.uint8)
     leaf_ids = [lookup_ids[v.prim_index] for v in views]  # index -1 -> the appended 0
     labels = [lookup_labels[v.prim_index] for v in views]
+    lookup_plants = np.append(scene.plant_of_primitive(), 0).astype(np.uint16)
+    plants = [lookup_plants[v.prim_index] for v in views]
     truth = scene.truth()
     counts = [np.bincount(ids.ravel(), minlength=int(lookup_ids.max()) + 1) for ids in leaf_ids]
     for lf in truth["leaves"]:
@@ -195,7 +205,8 @@ def render_pair(scene: Scene, rig, *, supersample: int = 2, effects: CameraEffec
     return SimResult(scene=scene, rig=rig, left=images[0], right=images[1],
                      xyz_left=views[0].xyz, xyz_right=views[1].xyz,
                      leaf_ids_left=leaf_ids[0], leaf_ids_right=leaf_ids[1],
-                     labels_left=labels[0], labels_right=labels[1], truth=truth, timings=timings)
+                     labels_left=labels[0], labels_right=labels[1], truth=truth, timings=timings,
+                     plants_left=plants[0], plants_right=plants[1])
 
 
 def first_hits(scene: Scene, origins, directions) -> tuple[np.ndarray, np.ndarray]:

@@ -19,7 +19,7 @@ import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.geometry.camera import decompose_projection
-from canopy_stereo.sim.primitives import Leaf, Rectangle
+from canopy_stereo.sim.primitives import Cylinder, Leaf, Rectangle, Sphere
 from canopy_stereo.sim.raycast import PackedScene
 
 
@@ -49,6 +49,51 @@ class Breeze:
 
 
 @dataclass(frozen=True)
+class PlantSpec:
+    """One plant of a scene, for per-plant truth (instances and heights).
+
+    Attributes:
+        name: plant name (``"plant"``, ``"seedling 12"``, ...).
+        leaf_ids: ids of its leaves.
+        part_indices: indices into the scene's ``primitives`` of its other parts
+            (stems, petioles: cylinders and spheres).
+        reference_point: (3,) world point on its reference surface (the centre of the
+            pot rim, or the soil it grows from).
+        up: (3,) world unit vector "up" (away from the surface the plant stands on).
+        reference: ``"pot_rim"`` or ``"soil"``: what ``reference_point`` lies on.
+    """
+
+    name: str
+    leaf_ids: tuple
+    part_indices: tuple
+    reference_point: np.ndarray
+    up: np.ndarray
+    reference: str = "pot_rim"
+
+    def transformed(self, Q, t, s: float) -> "PlantSpec":
+        Q = np.asarray(Q, np.float64)
+        return replace(self, reference_point=np.asarray(t, np.float64) + s * Q @ self.reference_point,
+                       up=Q @ np.asarray(self.up, np.float64))
+
+    def top(self, primitives) -> float:
+        """Highest point of the plant along ``up`` (world units, the posed ``primitives``),
+        from its leaves' dense surface samples and its stems' exact tops."""
+        up = np.asarray(self.up, np.float64)
+        ids = set(self.leaf_ids)
+        tops = [float(np.max(p.surface_points(200, 41) @ up)) for p in primitives
+                if isinstance(p, Leaf) and p.leaf_id in ids]
+        for i in self.part_indices:
+            p = primitives[i]
+            if isinstance(p, Cylinder):
+                a = (p.end - p.start) / p.length
+                side = p.radius * np.sqrt(max(0.0, 1.0 - float(a @ up) ** 2))
+                tops.append(max(float(p.start @ up), float(p.end @ up)) + side)
+            elif isinstance(p, Sphere):
+                tops.append(float(p.centre @ up) + p.radius)
+        return max(tops)
+
+
+@dataclass(frozen=True)
 class Scene:
     """A renderable scene.
 
@@ -65,6 +110,8 @@ class Scene:
         anchor_origin, anchor_axes: the rig anchor frame (origin (3,), axes rows
             (3, 3)) the scene was placed in; the background distance is measured
             from ``anchor_origin`` along ``anchor_axes[2]``.
+        plants: :class:`PlantSpec` of each plant, numbered 1.. in this order (left to
+            right in the image); empty for scenes without per-plant truth.
     """
 
     name: str
@@ -79,6 +126,7 @@ class Scene:
     world_unit: str = "mm"
     anchor_origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
     anchor_axes: np.ndarray = field(default_factory=lambda: np.eye(3))
+    plants: tuple = ()
 
     def __post_init__(self):
         light = np.asarray(self.light, np.float64).reshape(3)
@@ -147,7 +195,7 @@ class Scene:
         bg_index = next(i for i, p in enumerate(self.primitives) if p is self.background)
         breeze = {k: replace(b, axis=Q @ b.axis) for k, b in self.breeze.items()}
         return replace(self, primitives=prims, background=prims[bg_index], light=Q @ self.light,
-                       breeze=breeze, world_unit=world_unit or self.world_unit,
+                       breeze=breeze, plants=tuple(p.transformed(Q, t, s) for p in self.plants), world_unit=world_unit or self.world_unit,
                        anchor_origin=t + s * Q @ self.anchor_origin,
                        anchor_axes=self.anchor_axes @ Q.T)
 
@@ -157,7 +205,33 @@ class Scene:
         keep = set(int(i) for i in leaf_ids)
         prims = tuple(p for p in self.primitives
                       if p is self.background or (isinstance(p, Leaf) and p.leaf_id in keep))
-        return replace(self, primitives=prims)
+        return replace(self, primitives=prims, plants=())
+
+    def plant_of_primitive(self) -> np.ndarray:
+        """(P,) int32 plant number (1.., :attr:`plants` order) of each primitive, 0 = none."""
+        out = np.zeros(len(self.primitives), np.int32)
+        for k, plant in enumerate(self.plants, start=1):
+            ids = set(plant.leaf_ids)
+            for i, p in enumerate(self.primitives):
+                if (isinstance(p, Leaf) and p.leaf_id in ids) or i in plant.part_indices:
+                    out[i] = k
+        return out
+
+    def plants_truth(self) -> list[dict]:
+        """Per plant: ``index`` (1.., left to right), ``name``, ``leaf_ids``,
+        ``reference`` (``pot_rim``/``soil``), ``reference_point``, ``up``, ``top`` and
+        ``height`` (top above the reference surface along ``up``, world units) at this frame."""
+        posed = self.posed
+        out = []
+        for k, plant in enumerate(self.plants, start=1):
+            up = np.asarray(plant.up, np.float64)
+            top = plant.top(posed)
+            out.append({"index": k, "name": plant.name, "leaf_ids": [int(i) for i in plant.leaf_ids],
+                        "reference": plant.reference,
+                        "reference_point": [float(v) for v in plant.reference_point],
+                        "up": [float(v) for v in up], "top": top,
+                        "height": top - float(np.asarray(plant.reference_point) @ up)})
+        return out
 
     # ------------------------------------------------------------------ truth
     def truth(self) -> dict:
@@ -173,6 +247,7 @@ class Scene:
                       "diffuse": self.diffuse},
             "marked_leaf_ids": self.marked_leaf_ids,
             "leaves": [lf.truth() for lf in self.leaves],
+            "plants": self.plants_truth(),
         }
 
 

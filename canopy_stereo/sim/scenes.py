@@ -1,4 +1,5 @@
-"""Named scenes: ``croton``, ``citrus_branch``, ``seedling_tray``.
+"""Named scenes: ``croton``, ``citrus_branch``, ``seedling_tray``, ``potted_distractors``,
+``pots_side_by_side`` (the last two in :mod:`canopy_stereo.sim.potted`).
 
 Each builder takes a seed and returns a :class:`~canopy_stereo.sim.scene.Scene`
 in millimetres in the rig anchor frame (x right, y down, z away from the
@@ -16,7 +17,9 @@ the plants (the croton's two marked leaves keep their exact sizes).
   front of blotchy foliage (with patches of sky) 1500 mm away.
 * ``seedling_tray``: a tray of seedlings seen from above: the tray's soil
   surface 420 mm away (the background) with cells, and small plants of two
-  cotyledons and up to two true leaves rising 10-35 mm towards the cameras.
+  cotyledons and up to two true leaves rising 10-35 mm towards the cameras;
+  each seedling is a plant of the per-plant truth (reference: the soil, up:
+  towards the cameras).
 """
 from __future__ import annotations
 
@@ -34,7 +37,8 @@ from canopy_stereo.sim.primitives import (
     Sphere,
 )
 from canopy_stereo.sim.raycast import PackedScene, trace_rays
-from canopy_stereo.sim.scene import Breeze, Scene
+from canopy_stereo.sim.potted import build_pots_side_by_side, build_potted_distractors
+from canopy_stereo.sim.scene import Breeze, PlantSpec, Scene
 
 #: Marked croton leaves of the paper (width, length) in mm.
 CROTON_MARKED = {1: (97.0, 160.0), 2: (86.0, 145.0)}
@@ -305,7 +309,7 @@ def build_seedling_tray(seed: int = 0) -> Scene:
                            Material("tray", _seed(rng), (pitch, 1.6, 0.9)))
     stem_mat = Material("stem", _seed(rng), (0.9,))
     prims = [background]
-    leaves, breeze = [], {}
+    leaves, breeze, plants = [], {}, []
     leaf_id = 1
     for i in range(-5, 5):
         for j in range(-4, 4):
@@ -318,6 +322,7 @@ def build_seedling_tray(seed: int = 0) -> Scene:
             height = rng.uniform(10.0, 35.0)
             top = foot + height * _unit([rng.uniform(-0.25, 0.25), rng.uniform(-0.25, 0.25), -1.0])
             prims.append(Cylinder(foot, top, rng.uniform(1.0, 1.5), stem_mat))
+            stem_index, first_leaf = len(prims) - 1, leaf_id
             age = rng.uniform(0, 1)
             theta = rng.uniform(0, 2 * np.pi)
             specs = [(theta, rng.uniform(10, 16), rng.uniform(0.55, 0.7), (0.5, 0.5)),
@@ -340,8 +345,12 @@ def build_seedling_tray(seed: int = 0) -> Scene:
                 leaves.append(lf)
                 breeze[leaf_id] = _breeze(rng, lf, (1.0, 3.0))
                 leaf_id += 1
+            plants.append(PlantSpec(name=f"seedling {len(plants) + 1}",
+                                    leaf_ids=tuple(range(first_leaf, leaf_id)), part_indices=(stem_index,),
+                                    reference_point=foot.copy(), up=np.array([0.0, 0.0, -1.0]),
+                                    reference="soil"))
     return Scene(name="seedling_tray", seed=seed, primitives=prims + leaves, background=background,
-                 light=[-0.3, -0.4, -0.85], breeze=breeze)
+                 light=[-0.3, -0.4, -0.85], breeze=breeze, plants=tuple(plants))
 
 
 #: Scene name -> builder(seed) -> Scene (millimetres, rig anchor frame).
@@ -349,6 +358,8 @@ SCENES = {
     "croton": build_croton,
     "citrus_branch": build_citrus_branch,
     "seedling_tray": build_seedling_tray,
+    "potted_distractors": build_potted_distractors,
+    "pots_side_by_side": build_pots_side_by_side,
 }
 
 

@@ -4,7 +4,7 @@
   0 is always the pixel centre, whose ray gives the ground truth.
 * Ideal (undistorted) sample positions for a camera with lens distortion
   (:func:`ideal_sample_map`), using the pipeline's own distortion model
-  (:mod:`canopy_stereo.geometry.distortion`: OpenCV ``[k1, k2, p1, p2, k3]``
+  (:mod:`canopy_stereo.geometry.distortion`: OpenCV's model up to 12 terms or equidistant
   through the full intrinsics of ``P``), so a simulated distorted image is
   exactly what the reconstruction pipeline expects.
 * Sensor response (:class:`CameraEffects`): exposure and per-camera gain,
@@ -74,31 +74,32 @@ def lattice_pattern(count: int = 16, generator: int = 5) -> tuple[np.ndarray, np
     return offsets, weights
 
 
-def check_distortion(D, name: str) -> np.ndarray | None:
-    """The 5 coefficients ``[k1, k2, p1, p2, k3]`` of ``D``, or None when all zero.
+def check_distortion(D, name: str, *, model: str | None = None) -> np.ndarray | None:
+    """The coefficients of ``D`` for ``model`` (any model of
+    :mod:`canopy_stereo.geometry.distortion`: OpenCV's up to 12 terms, or equidistant), or
+    None when ``D`` is no distortion. Raises :class:`CanopyStereoError` naming ``name``
+    for coefficients the model cannot have."""
+    from canopy_stereo.errors import RigError
+    from canopy_stereo.geometry.distortion import check_distortion as check_coefficients
+    from canopy_stereo.geometry.distortion import distortion_is_identity
 
-    Raises :class:`CanopyStereoError` for non-zero higher-order terms, which
-    the pipeline's distortion model does not have.
-    """
-    D = np.zeros(5) if D is None else np.asarray(D, np.float64).ravel()
-    if D.size > 5 and np.any(D[5:]):
-        raise CanopyStereoError(f"{name}: the simulator supports the distortion terms "
-                                "k1, k2, p1, p2, k3 only; higher-order terms are non-zero")
-    D5 = np.zeros(5)
-    D5[:min(5, D.size)] = D[:5]
-    return D5 if np.any(D5) else None
+    try:
+        d = check_coefficients(D, model, name)
+    except RigError as exc:
+        raise CanopyStereoError(str(exc)) from None
+    return None if distortion_is_identity(d, model=model) else d
 
 
 @lru_cache(maxsize=4)
-def _ideal_map_cached(P_bytes, D_bytes, width, height, offsets_bytes):
+def _ideal_map_cached(P_bytes, D_bytes, width, height, offsets_bytes, model):
     P = np.frombuffer(P_bytes).reshape(3, 4)
     D = np.frombuffer(D_bytes)
     offsets = np.frombuffer(offsets_bytes).reshape(-1, 2)
     vv, uu = np.mgrid[0:height, 0:width].astype(np.float64)
     xy = np.stack([uu[..., None] + offsets[:, 0], vv[..., None] + offsets[:, 1]], axis=-1)
     flat = xy.reshape(-1, 2)
-    ideal = undistort_pixels(P, D, flat)
-    back = distort_pixels(P, D, ideal)
+    ideal = undistort_pixels(P, D, flat, model=model)
+    back = distort_pixels(P, D, ideal, model=model)
     bad = ~(np.linalg.norm(back - flat, axis=1) < 1e-6)  # also catches NaN
     ideal[bad] = np.nan
     out = ideal.reshape(height, width, len(offsets), 2)
@@ -106,8 +107,9 @@ def _ideal_map_cached(P_bytes, D_bytes, width, height, offsets_bytes):
     return out
 
 
-def ideal_sample_map(P, D, image_size, offsets) -> np.ndarray:
-    """Ideal pixel (H, W, S, 2) of every distorted sample position ``(u, v) + offset``.
+def ideal_sample_map(P, D, image_size, offsets, *, model: str | None = None) -> np.ndarray:
+    """Ideal pixel (H, W, S, 2) of every distorted sample position ``(u, v) + offset``
+    through the lens ``D`` of ``model`` (None = OpenCV's model).
 
     Samples whose undistortion does not converge (outside the lens model's
     invertible region) are NaN and render as empty. Cached per camera.
@@ -115,7 +117,7 @@ def ideal_sample_map(P, D, image_size, offsets) -> np.ndarray:
     w, h = image_size
     return _ideal_map_cached(np.ascontiguousarray(P, np.float64).tobytes(),
                              np.ascontiguousarray(D, np.float64).tobytes(), int(w), int(h),
-                             np.ascontiguousarray(offsets, np.float64).tobytes())
+                             np.ascontiguousarray(offsets, np.float64).tobytes(), model)
 
 
 @dataclass(frozen=True)

@@ -35,13 +35,16 @@ MAT_TRAY = 9
 MAT_FRUIT = 10
 MAT_CHECKERBOARD = 11
 MAT_SHEET = 12
+MAT_PLASTIC = 13
+MAT_TINTED_LEAF = 14
 
 #: Material name -> kind code.
 MATERIAL_KINDS = {
     "croton": MAT_CROTON, "citrus": MAT_CITRUS, "seedling": MAT_SEEDLING, "stem": MAT_STEM,
     "bark": MAT_BARK, "pot": MAT_POT, "soil": MAT_SOIL, "backdrop": MAT_BACKDROP,
     "foliage": MAT_FOLIAGE, "tray": MAT_TRAY, "fruit": MAT_FRUIT,
-    "checkerboard": MAT_CHECKERBOARD, "sheet": MAT_SHEET,
+    "checkerboard": MAT_CHECKERBOARD, "sheet": MAT_SHEET, "plastic": MAT_PLASTIC,
+    "tinted_leaf": MAT_TINTED_LEAF,
 }
 
 #: Number of float parameters a material carries.
@@ -65,6 +68,11 @@ MATERIAL_PARAMS = {
              "grain size of the soil in the cells (mm)"),
     "fruit": (),
     "checkerboard": ("square side (mm)", "squares across", "squares down"),
+    "plastic": ("red albedo 0..1", "green albedo 0..1", "blue albedo 0..1",
+                "mottle amplitude 0..1 (default 0.08)", "mottle scale (mm, default 3)"),
+    "tinted_leaf": ("red albedo 0..1", "green albedo 0..1", "blue albedo 0..1",
+                    "secondary vein count", "variegation 0..1 (cream patches)",
+                    "vein lightness 0..1 (light veins of silver or purple leaves)"),
     "sheet": ("grid spacing (mm)", "grid line width (mm)", "origin u (mm)", "origin v (mm)",
               "angle of the side lines (degrees)", "line width of the three lines (mm)"),
 }
@@ -156,8 +164,31 @@ def _leaf_veins(x, y, span, half_width, rel, n_veins, slant):
 
 
 @njit(cache=True)
+def _tinted_leaf(seed, params, x, y, span, half_width, rel):
+    """A leaf of any colour (purple, silver, yellowing, variegated): base albedo
+    ``params[0:3]``, lighter veins, optional cream variegation patches."""
+    n_veins = max(params[3], 2.0)
+    midrib, sec = _leaf_veins(x, y, span, half_width, rel, n_veins, 1.0)
+    r, g, b = params[0], params[1], params[2]
+    patch = _smoothstep(0.58, 0.66, fbm(x / 9.0, y / 9.0, seed + 71, 2)) * params[4]
+    r = _mix(r, 0.62, patch)
+    g = _mix(g, 0.60, patch)
+    b = _mix(b, 0.38, patch)
+    vein = max(midrib, 0.6 * sec) * (0.3 + 0.7 * params[5])
+    r = _mix(r, min(1.0, r * 1.6 + 0.05), vein)
+    g = _mix(g, min(1.0, g * 1.6 + 0.05), vein)
+    b = _mix(b, min(1.0, b * 1.6 + 0.05), vein)
+    fine = 0.75 + 0.5 * fbm(x / 1.3, y / 1.3, seed + 11, 2)
+    mid = 0.8 + 0.4 * value_noise(x / 4.5, y / 4.5, seed + 23)
+    shade = fine * mid
+    return r * shade, g * shade, b * shade
+
+
+@njit(cache=True)
 def leaf_albedo(kind, seed, params, x, y, span, half_width, rel):
     """Linear RGB albedo of a leaf blade at blade coordinates ``(x, y)`` (mm)."""
+    if kind == MAT_TINTED_LEAF:
+        return _tinted_leaf(seed, params, x, y, span, half_width, rel)
     age = params[0]
     n_veins = max(params[1], 2.0)
     slant = params[2]
@@ -226,7 +257,7 @@ def albedo(kind, seed, params, tu, tv, geom, rel, mm_per_unit):
     span and half-width), ``mm_per_unit`` converts it to millimetres; ``rel``
     is the relative position across a leaf blade.
     """
-    if kind <= MAT_SEEDLING:
+    if kind <= MAT_SEEDLING or kind == MAT_TINTED_LEAF:
         return leaf_albedo(kind, seed, params, tu, tv, geom[0] * mm_per_unit,
                            geom[1] * mm_per_unit, rel)
     if kind == MAT_STEM:
@@ -279,6 +310,11 @@ def albedo(kind, seed, params, tu, tv, geom, rel, mm_per_unit):
         r, g, b = _soil(tu, tv, grain, seed)
         plastic = 0.025 * (0.7 + 0.6 * value_noise(tu / 1.5, tv / 1.5, seed + 21))
         return _mix(r, plastic, is_wall), _mix(g, plastic, is_wall), _mix(b, plastic * 1.1, is_wall)
+    if kind == MAT_PLASTIC:
+        amp = params[3] if params[3] > 0.0 else 0.08
+        scale = params[4] if params[4] > 0.0 else 3.0
+        k = 1.0 + amp * (2.0 * fbm(tu / scale, tv / scale, seed, 3) - 1.0)
+        return params[0] * k, params[1] * k, params[2] * k
     if kind == MAT_CHECKERBOARD:
         # squares of side params[0] mm, params[1] x params[2] of them centred on the
         # plane's origin, the first one black; white margin around them

@@ -415,13 +415,15 @@ def test_camera_node_publishes_a_drivers_camera_info(harness, paper_rig, tmp_pat
     by_stamp = {convert.stamp_to_ns(m.header.stamp): m for m in images}
     info = infos[0]
     assert convert.stamp_to_ns(info.header.stamp) in by_stamp
-    assert info.header.frame_id == images[0].header.frame_id == "right_camera_optical_frame"
+    assert info.header.frame_id == images[0].header.frame_id == "left_camera_optical_frame"  # one frame per pair
     cal = raw_camera_calibration(paper_rig, "right")
     K, D, R, P = convert.camera_info_matrices(info)
     np.testing.assert_allclose(K, cal.K)
     np.testing.assert_allclose(R, cal.R)
     np.testing.assert_allclose(P, cal.P)
-    assert (info.width, info.height) == (640, 480) and info.distortion_model == "plumb_bob"
+    # no lens distortion but R != I: the D image_proc rectifies with (all zeros would be copied)
+    assert (info.width, info.height) == (640, 480) and info.distortion_model == "rational_polynomial"
+    np.testing.assert_array_equal(D, [1, 0, 0, 0, 0, 1, 0, 0])
     # K is the camera's own: it projects world points as the rig's P does (through R_cam)
     cam = decompose_projection(paper_rig.P_right)
     X = np.array([[10.0, 20.0, 600.0]])

@@ -244,7 +244,7 @@ def test_graph_from_cameras(croton, tmp_path):
         finally:
             graph.shutdown()
             sink.destroy_node()
-    assert infos[0].header.frame_id == "right_camera_optical_frame" and infos[0].p[3] < 0
+    assert infos[0].header.frame_id == "left_camera_optical_frame" and infos[0].p[3] < 0  # one frame per pair
     pts, _ = convert.cloud2_to_points(clouds[0])
     # the croton and its backdrop lie 0.5 to 1.1 m in front of the paper's rig
     z = np.median(pts[:, 2])

@@ -108,7 +108,8 @@ def test_rectify_node_pairs_by_approximate_time_and_publishes_ros_camera_info(ha
     assert PL[0, 2] - PR[0, 2] == pytest.approx(rect.doffs) == 0.0  # one principal point
     assert (info_l[0].width, info_l[0].height) == (640, 480)
     assert info_l[0].header.frame_id == color[0].header.frame_id == "left_camera_rect_optical_frame"
-    assert info_r[0].header.frame_id == rect_r[0].header.frame_id == "right_camera_rect_optical_frame"
+    # one frame for the pair (image_geometry's StereoCameraModel asserts it): the left one
+    assert info_r[0].header.frame_id == rect_r[0].header.frame_id == "left_camera_rect_optical_frame"
     assert driver_info == []
     assert node.stats()["drops"] == {}
 
@@ -519,3 +520,44 @@ def test_disparity_thread_budget_is_per_thread_and_keeps_the_result():
     np.testing.assert_array_equal(seen[1][2], seen[0][2])
     assert apply_thread_budget(limit + 5) == limit
     numba.set_num_threads(main_threads)
+
+
+def test_rectify_node_takes_the_rig_from_the_drivers_camera_info(harness, paper_rig):
+    """use_camera_info: no rig file; the rig comes from left/camera_info + right/camera_info
+    (what camera_node or any driver publishes) and rectifies as the rig file does."""
+    from canopy_stereo.geometry.frames import raw_camera_calibration
+    from canopy_stereo.ros.nodes.rectify import RectifyNode
+
+    node = harness.add(RectifyNode(**node_kwargs(harness, None, sync_slop=0.01, use_camera_info=True)))
+    rect_l = harness.collect(Image, "left/image_rect")
+    info_r = harness.collect(CameraInfo, "right/image_rect/camera_info")
+    pl, pr = harness.publisher(Image, "left/image_raw"), harness.publisher(Image, "right/image_raw")
+    il, ir = harness.publisher(CameraInfo, "left/camera_info"), harness.publisher(CameraInfo, "right/camera_info")
+    harness.connect(pl, pr, il, ir)
+    left, right = textured_pair(paper_rig)
+    cal = {side: raw_camera_calibration(paper_rig, side) for side in ("left", "right")}
+    # a pair that is not one stereo calibration (the right info is the left's) is dropped
+    il.publish(convert.camera_info_msg(cal["left"], T0))
+    ir.publish(convert.camera_info_msg(cal["left"], T0))
+    assert wait_for(lambda: any("camera_info pair" in d for d in node.stats()["drops"]), TIMEOUT)
+    assert node.rig is None
+    for k in range(3):
+        t = T0 + (k + 1) * 66_000_000
+        il.publish(convert.camera_info_msg(cal["left"], t, frame_id="left_camera_optical_frame"))
+        ir.publish(convert.camera_info_msg(cal["right"], t + 7_000_000, frame_id="left_camera_optical_frame"))
+        if k:
+            pl.publish(convert.image_to_msg(left, "bgr8", stamp_ns=t, frame_id="left_camera_optical_frame"))
+            pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=t + 7_000_000,
+                                            frame_id="left_camera_optical_frame"))
+        time.sleep(0.05)
+    assert wait_for(lambda: len(rect_l) >= 1 and len(info_r) >= 1, TIMEOUT)
+    assert node.rig.world_unit == "m" and node.rig.baseline == pytest.approx(0.0296, abs=1e-4)
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    want_l, _ = StereoRectifier(paper_rig, rect).rectify(left, right)
+    got = convert.msg_to_image(rect_l[0]).astype(int)
+    assert np.median(np.abs(got - cv2.cvtColor(want_l, cv2.COLOR_BGR2GRAY).astype(int))) == 0
+    np.testing.assert_allclose(np.reshape(info_r[0].p, (3, 4)),
+                               np.reshape(node.camera_infos(0)[1].p, (3, 4)))
+    PR = np.reshape(info_r[0].p, (3, 4))
+    assert -PR[0, 3] / PR[0, 0] == pytest.approx(0.0296, abs=1e-4)
+    assert PR[0, 0] == pytest.approx(rect.focal_length, rel=1e-6)

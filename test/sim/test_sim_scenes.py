@@ -123,7 +123,8 @@ def test_breeze_frames_render_with_their_own_truth(paper_rig):
 
 
 def test_scene_names_and_seed_are_checked():
-    assert set(SCENES) == {"croton", "citrus_branch", "seedling_tray"}
+    assert set(SCENES) == {"croton", "citrus_branch", "seedling_tray", "potted_distractors",
+                           "pots_side_by_side"}
     with pytest.raises(CanopyStereoError, match="unknown scene"):
         build_scene("tomato")
     with pytest.raises(CanopyStereoError, match="seed"):

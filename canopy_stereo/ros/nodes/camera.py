@@ -10,9 +10,15 @@ Parameters:
   image-sequence pattern (``frames/left_%03d.png``, OpenCV numbering);
 * ``width``, ``height``, ``fps``, ``fourcc`` (e.g. ``MJPG``): requested capture
   settings (0/empty = the device's default; ``fps`` also paces files);
-* ``frame_id`` (default ``<camera_name>_camera_optical_frame``, REP 103), ``camera_name`` (``left``);
-* the rig (``--params-file RIG.yaml`` or ``rig_file``): then ``<camera_name>/camera_info``
-  is published with each frame (REP 104, :mod:`canopy_stereo.ros.camera_info`);
+* ``frame_id`` (default ``left_camera_optical_frame`` for the ``left`` and the ``right`` camera of
+  a stereo pair, image_geometry's convention: one frame for both infos, the right camera's pose
+  in its ``P`` and ``/tf_static``; ``<camera_name>_camera_optical_frame`` for another name,
+  REP 103), ``camera_name`` (``left``);
+* ``camera_info_url`` (``file://``, ``package://``, ``${NAME}``, ``${ROS_HOME}``) or the rig
+  (``--params-file RIG.yaml`` or ``rig_file``): then ``<camera_name>/camera_info`` is published
+  with each frame (REP 104); ``~/set_camera_info`` (``sensor_msgs/srv/SetCameraInfo``) takes a
+  new calibration (``cameracalibrator``'s commit) and stores it at the URL
+  (:mod:`canopy_stereo.ros.camera_info`);
 * ``loop``: restart a file or sequence at its end (otherwise stop there).
 
 * ``open_timeout`` (s, default 5), ``read_timeout`` (s, default 0 = ten frame periods,
@@ -38,7 +44,7 @@ from rcl_interfaces.msg import ParameterDescriptor
 from sensor_msgs.msg import Image
 
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.ros.camera_info import RawCameraInfoPublisher
+from canopy_stereo.ros.camera_info import RawCameraInfoPublisher, default_camera_frame
 from canopy_stereo.ros.convert import image_to_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 
@@ -172,7 +178,9 @@ class CameraNode(CanopyNode):
                           read_only=True)
         self.declare_text("camera_name", "left", "camera name: images go to <camera_name>/image_raw",
                           read_only=True)
-        self.declare_text("frame_id", "", "frame_id of the images (empty = <camera_name>_camera)",
+        self.declare_text("frame_id", "", "frame_id of the images and camera_info (empty = "
+                          "left_camera_optical_frame for left and right, one frame for a stereo pair as "
+                          "image_geometry requires; else <camera_name>_camera_optical_frame)",
                           read_only=True)
         self.declare_flag("loop", True, "restart a video file or image sequence at its end",
                           read_only=True)
@@ -183,7 +191,7 @@ class CameraNode(CanopyNode):
                             minimum=0.0, maximum=600.0, read_only=True)
         self.source = str(self.get_parameter("device").value)
         self.camera_name = self.get_parameter("camera_name").value
-        self.frame_id = self.get_parameter("frame_id").value or f"{self.camera_name}_camera_optical_frame"
+        self.frame_id = self.get_parameter("frame_id").value or default_camera_frame(self.camera_name)
         self.settings = dict(width=int(self.get_parameter("width").value),
                              height=int(self.get_parameter("height").value),
                              fps=float(self.get_parameter("fps").value),

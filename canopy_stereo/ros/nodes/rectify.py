@@ -9,7 +9,9 @@ frame's stamp:
 * ``left/image_rect_color``: bgr8 rectified left image;
 * ``left/image_rect/camera_info``, ``right/image_rect/camera_info``: the rectified
   cameras (REP 104: ``D = 0``, ``R = I``, ``P = [K | (Tx, 0, 0)]``, ``Tx = -f B`` for the
-  right one, one principal point for both) in the rectified optical frames. They sit
+  right one, one principal point for both), both in the LEFT rectified optical frame
+  (``frame_id``), as the right rectified image: image_geometry's ``StereoCameraModel``
+  asserts one frame for the pair (``right_frame_id`` overrides it). They sit
   beside their images, away from ``left/camera_info``, which is the *raw* camera's
   (a camera driver's, e.g. ``camera_node``). A Hartley rectification is projective
   and has no metric camera: its infos are the uncalibrated ones (size only, zero
@@ -19,11 +21,15 @@ frame's stamp:
 * ``/tf_static`` (latched, when tf2_msgs is importable): ``canopy_world_z_up ->
   canopy_world -> {left,right}_camera_optical_frame, {left,right}_camera_rect_optical_frame``.
 
-Parameters: the rig (:mod:`canopy_stereo.ros.params`), ``method`` (empty = the rig's),
+Parameters: the rig (:mod:`canopy_stereo.ros.params`), or ``use_camera_info`` (true: the rig
+from the drivers' ``left/camera_info`` and ``right/camera_info``, as image_pipeline takes it;
+frames before both arrive are dropped; :mod:`canopy_stereo.ros.camera_info_rig`),
+``method`` (empty = the rig's),
 ``H_left``/``H_right`` (unset = the rig's; the rectification is
 :func:`~canopy_stereo.geometry.rig_rectification.rectification_for_rig`'s), ``fps`` (the cameras' frame rate, 0 = measured from the
 stamps), ``sync_slop`` (s; -1 = half a frame period at ``fps``), ``queue_size``,
-``frame_id`` (rectified left optical frame) and ``right_frame_id``, ``world_frame``,
+``frame_id`` (rectified left optical frame) and ``right_frame_id`` ("" = ``frame_id`` in the
+messages, ``right_camera_rect_optical_frame`` in the transforms), ``world_frame``,
 ``world_z_up_frame`` ("" = none), ``left_camera_frame``/``right_camera_frame`` (raw
 optical frames in the transforms), ``skew_compensation``, ``reliability``, ``diagnostic_period``.
 
@@ -51,7 +57,14 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import String
 
 from canopy_stereo.bag.pairing import ApproximateTimePairer, FramePeriodEstimator, slop_for_rate
-from canopy_stereo.geometry.frames import DEFAULT_FRAMES, WORLD_FRAME, WORLD_Z_UP_FRAME, FrameNames, stereo_transforms
+from canopy_stereo.geometry.frames import (
+    DEFAULT_FRAMES,
+    WORLD_FRAME,
+    WORLD_Z_UP_FRAME,
+    FrameNames,
+    stereo_info_frame,
+    stereo_transforms,
+)
 from canopy_stereo.geometry.rectification import StereoRectifier
 from canopy_stereo.io.images import to_gray
 from canopy_stereo.ros.convert import (
@@ -75,7 +88,9 @@ RECT_INFO_TOPICS = ("left/image_rect/camera_info", "right/image_rect/camera_info
 _FRAME_PARAMETERS = {
     "frame_id": (DEFAULT_FRAMES[("rect", "left")], "optical frame of the rectified left camera "
                  "(rectified images, disparity, depth)"),
-    "right_frame_id": (DEFAULT_FRAMES[("rect", "right")], "optical frame of the rectified right camera"),
+    "right_frame_id": ("", "frame of the right rectified image and camera_info ('' = frame_id: "
+                       "image_geometry needs one frame for a stereo pair; the right camera's own "
+                       f"frame is {DEFAULT_FRAMES[('rect', 'right')]} in /tf_static)"),
     "world_frame": (WORLD_FRAME, "the rig's world frame (the frame of the rig file's P, in metres)"),
     "world_z_up_frame": (WORLD_Z_UP_FRAME, "z-up view of the world frame for RViz ('' = none)"),
     "left_camera_frame": (DEFAULT_FRAMES[("raw", "left")], "optical frame of the raw left camera"),
@@ -113,14 +128,18 @@ class RectifyNode(CanopyNode):
                           "or in wind)", read_only=True)
         self.skew = SkewCompensator(enabled=bool(self.get_parameter("skew_compensation").value))
         self._skew_reasons_logged: set[str] = set()
-        self.rig = rig_from_node(self)
-        self.rect = rectification_from_node(self, self.rig)
-        self.rectifier = StereoRectifier(self.rig, self.rect)
+        self.declare_flag("use_camera_info", False, "take the rig from the drivers' left/camera_info and "
+                          "right/camera_info (REP 104, as image_pipeline does) instead of a rig file",
+                          read_only=True)
+        self.rig = None
         p = {name: str(self.get_parameter(name).value) for name in _FRAME_PARAMETERS}
         self.frames = FrameNames(world=p["world_frame"], world_z_up=p["world_z_up_frame"],
                                  raw_left=p["left_camera_frame"], raw_right=p["right_camera_frame"],
-                                 rect_left=p["frame_id"], rect_right=p["right_frame_id"])
+                                 rect_left=p["frame_id"],
+                                 rect_right=p["right_frame_id"] or DEFAULT_FRAMES[("rect", "right")])
         self.frame_id = self.frames.rect_left
+        #: frame ids of the left and right rectified messages (one, unless right_frame_id is set)
+        self.message_frames = (self.frame_id, p["right_frame_id"] or stereo_info_frame(self.frames, "rect"))
         slop = float(self.get_parameter("sync_slop").value)
         fps = float(self.get_parameter("fps").value)
         # sync_slop >= 0 is fixed; otherwise half a frame period, measured unless fps is given
@@ -136,13 +155,25 @@ class RectifyNode(CanopyNode):
         self.pub_color = self.make_publisher(Image, "left/image_rect_color")
         self.pub_info_left = self.make_publisher(CameraInfo, RECT_INFO_TOPICS[0])
         self.pub_info_right = self.make_publisher(CameraInfo, RECT_INFO_TOPICS[1])
-        # geometry for the nodes downstream and the static transforms, once, latched
         self.pub_geometry = self.create_publisher(String, STEREO_GEOMETRY_TOPIC, latched_qos())
+        self.sub_left = self.make_subscription(Image, "left/image_raw", lambda m: self._on_image(0, m))
+        self.sub_right = self.make_subscription(Image, "right/image_raw", lambda m: self._on_image(1, m))
+        if self.get_parameter("use_camera_info").value:
+            from canopy_stereo.ros.camera_info_rig import CameraInfoRig
+
+            self.camera_info_rig = CameraInfoRig(self, self.guarded(self._use_rig))
+            self.get_logger().info("waiting for left/camera_info and right/camera_info (the rig)")
+        else:
+            self._use_rig(rig_from_node(self))
+
+    def _use_rig(self, rig) -> None:
+        """Rectify with ``rig`` from now on; publish its geometry and static transforms (latched)."""
+        self.rect = rectification_from_node(self, rig)
+        self.rectifier = StereoRectifier(rig, self.rect)
+        self.rig = rig
         self.pub_geometry.publish(stereo_geometry_msg(self.rig, self.rect, self.frames))
         self.transforms = stereo_transforms(self.rig, self.rect, names=self.frames)
         self.tf_static = StaticTransformPublisher(self, self.transforms)
-        self.sub_left = self.make_subscription(Image, "left/image_raw", lambda m: self._on_image(0, m))
-        self.sub_right = self.make_subscription(Image, "right/image_raw", lambda m: self._on_image(1, m))
         if self.rect.method != "fusiello":
             self.get_logger().info("hartley rectification: the rectified camera_info is uncalibrated "
                                    "(a projective rectification has no metric camera)")
@@ -157,6 +188,9 @@ class RectifyNode(CanopyNode):
     def _on_image(self, side: int, msg: Image) -> None:
         name = ("left", "right")[side]
         self.count(f"{name}_received")
+        if self.rig is None:
+            self.drop("no rig yet (waiting for left/camera_info and right/camera_info)", f"{name} frame")
+            return
         try:
             check_image_msg(msg, expected_size=self.rig.image_size, encodings=COLOUR_ENCODINGS)
             bgr = msg_to_bgr(msg, expected_size=self.rig.image_size)
@@ -214,7 +248,7 @@ class RectifyNode(CanopyNode):
 
     def camera_infos(self, stamp_ns: int) -> tuple[CameraInfo, CameraInfo]:
         """The rectified ``CameraInfo`` pair stamped ``stamp_ns``."""
-        fl, fr = self.frames.rect_left, self.frames.rect_right
+        fl, fr = self.message_frames
         if self.rect.K_rect_left is None:
             return (uncalibrated_camera_info(self.rect.size, stamp_ns, frame_id=fl),
                     uncalibrated_camera_info(self.rect.size, stamp_ns, frame_id=fr))
@@ -240,7 +274,7 @@ class RectifyNode(CanopyNode):
         info_l, info_r = self.camera_infos(stamp_ns)
         self.pub_info_left.publish(info_l)
         self.pub_info_right.publish(info_r)
-        fl, fr = self.frames.rect_left, self.frames.rect_right
+        fl, fr = self.message_frames
         self.pub_color.publish(image_to_msg(left_r, "bgr8", stamp_ns=stamp_ns, frame_id=fl))
         self.pub_left.publish(image_to_msg(to_gray(left_r), "mono8", stamp_ns=stamp_ns, frame_id=fl))
         self.pub_right.publish(image_to_msg(to_gray(right_r), "mono8", stamp_ns=stamp_ns, frame_id=fr))

@@ -1,0 +1,325 @@
+"""Plants, not green things: the automatic plant mask and its plant instances.
+
+:func:`segment_plants` takes the left image and a depth cue registered to it
+(a disparity, an organized cloud or a depth map) and returns a
+:class:`PlantSegmentation`: the plant mask and the plants in it, numbered left
+to right. No colour is assumed: the plants may be green, purple, silver,
+yellowing or variegated, and a green watering can, a green box, pots, soil,
+trays and stakes are left out. The cues, in order:
+
+1. Shape (:mod:`canopy_stereo.segmentation.shape`): the dominant planes of the
+   depth cue (backdrop, wall, table, tray) are background; what stands off them
+   is a plant where its depth is rough (thin leaves and stems at many depths) and
+   a solid object where it is smooth over a wide window and the smooth region
+   stands on the ground (pots, cans, boxes).
+2. Colour, learned: colour models of plant and background are fitted to the
+   pixels the shape cue is sure of, and a graph cut with those models kept fixed
+   decides the rest (the background gaps a matcher fills between leaves, pixels
+   without depth, the edges of leaves).
+3. Connectedness: plant regions smaller than ``min_region`` are dropped; a
+   region that is one straight thin stick (a stake, a wire) is not a plant;
+   the remaining regions are grouped into plants (regions whose depths agree
+   and which lie close together belong to one plant) and numbered by their
+   centroid column (:func:`plant_instances`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import cv2
+import numpy as np
+
+from canopy_stereo.errors import CanopyStereoError, ImageError
+from canopy_stereo.io.images import to_bgr
+from canopy_stereo.segmentation.colour_model import (
+    MIN_SAMPLES,
+    SURE_LOG_RATIO,
+    colour_log_ratio,
+    grabcut_with_models,
+    relabel_by_colour,
+)
+from canopy_stereo.segmentation.grabcut import GC_BGD, GC_FGD, GC_PR_BGD, GC_PR_FGD, labels_to_mask
+from canopy_stereo.segmentation.shape import (
+    attached_parts,
+    caps,
+    edge_density,
+    fit_planes,
+    grounded_solids,
+    inverse_depth,
+    jump_edges,
+    local_roughness,
+)
+
+
+@dataclass(frozen=True)
+class PlantSegmenterSettings:
+    """Options of :func:`segment_plants` (lengths in pixels of the processed image unless said).
+
+    Attributes:
+        scale: processing scale in (0, 1] (the image and the depth cue are resampled to
+            it; the mask is resized back).
+        noise: depth-cue noise in inverse-depth units (disparity pixels; for clouds and
+            depth maps the median point reads as 50): planes take pixels within 2.5 x,
+            rough means a local plane misses by more than 1.5 x.
+        window: half-size of the roughness window.
+        max_missing: a window with more than this fraction of pixels without depth is rough.
+        min_solid: fewest pixels (fraction of the image) of a grounded smooth region
+            taken as a solid object.
+        min_region: plant regions smaller than this fraction of the image are dropped.
+        stick_ratio: a plant region that is a straight stick (a stake) is not a plant: its
+            spread (standard deviation) along its main axis is above this multiple of its
+            largest inscribed radius and across it below 1.5 times that radius.
+        texture: edge density (fraction of Canny edge pixels in the window) above which a
+            pixel is textured (foliage), below which it may belong to a plain solid.
+        ungrounded_solids: take smooth plain regions for solid objects even when they do not
+            stand on the ground plane (for scenes whose table has no depth).
+        colour_space: ``"lab"`` or ``"bgr"``: the colours the learned models see.
+        cap_fraction: height of the band above a solid (its soil), as a fraction of its width.
+        use_colour: learn colour models from the shape cue and cut with them.
+    """
+
+    scale: float = 0.5
+    noise: float = 0.5
+    window: int = 4
+    max_missing: float = 0.25
+    min_solid: float = 0.002
+    min_region: float = 0.0005
+    stick_ratio: float = 6.0
+    texture: float = 0.12
+    ungrounded_solids: bool = False
+    colour_space: str = "lab"
+    cap_fraction: float = 0.15
+    use_colour: bool = True
+
+    def replace(self, **changes) -> "PlantSegmenterSettings":
+        return replace(self, **changes)
+
+
+#: The default settings.
+PLANT_SEGMENTER = PlantSegmenterSettings()
+
+
+@dataclass
+class PlantSegmentation:
+    """Result of :func:`segment_plants` (all images on the input image's grid).
+
+    Attributes:
+        mask: (H, W) uint8, 255 = plant.
+        instances: (H, W) int32 plant number, 0 = not plant, 1..N left to right
+            (by the column of each plant's pixel centroid).
+        plants: per plant ``{"plant_index", "pixels", "bbox": [x, y, w, h], "centroid_px": [u, v]}``.
+        cues: diagnostic maps at the processing scale: ``planes`` (bool), ``solids``
+            (bool), ``rough`` (bool), ``seed`` (GrabCut labels).
+    """
+
+    mask: np.ndarray
+    instances: np.ndarray
+    plants: list = field(default_factory=list)
+    cues: dict = field(default_factory=dict)
+
+    @property
+    def n_plants(self) -> int:
+        return len(self.plants)
+
+
+def _resize_map(arr: np.ndarray, size) -> np.ndarray:
+    if (arr.shape[1], arr.shape[0]) == tuple(size):
+        return arr
+    return cv2.resize(arr, size, interpolation=cv2.INTER_NEAREST)
+
+
+def shape_seed(q: np.ndarray, image_bgr: np.ndarray, *,
+               settings: PlantSegmenterSettings = PLANT_SEGMENTER) -> tuple[np.ndarray, dict]:
+    """GrabCut labels (uint8 (h, w)) from the inverse-depth map ``q`` and the image's texture,
+    and the cue maps.
+
+    Sure background: smooth pixels of the dominant planes, and solid objects (regions
+    smooth in depth and plain in texture that stand on the ground) with the parts
+    attached to them without a depth jump (handles, spouts, rims); probable background:
+    the rest of the planes, pixels without depth and the band above each solid (the soil
+    in a pot); sure plant: textured pixels off the planes away from solids; probable
+    plant: other pixels off the planes.
+    """
+    h, w = q.shape
+    valid = np.isfinite(q)
+    if valid.sum() < 50:
+        raise ImageError("the depth cue has fewer than 50 valid pixels")
+    noise = float(settings.noise)
+    r = int(settings.window)
+    planes = fit_planes(q, tolerance=2.5 * noise)
+    on_plane = np.zeros((h, w), bool)
+    near_plane = np.zeros((h, w), bool)  # within 4 tolerances of a plane or behind it: matching noise
+    ground = np.zeros((h, w), bool)
+    qmed = float(np.nanmedian(q))
+    for plane in planes:
+        on_plane |= plane.inliers
+        with np.errstate(invalid="ignore"):
+            near_plane |= plane.residual(q) < 10.0 * noise
+        if plane.is_ground(qmed, h):
+            ground |= plane.inliers
+    rms, missing = local_roughness(q, r)
+    rough = (rms > 1.5 * noise) | (missing > settings.max_missing)
+    textured = edge_density(image_bgr, r) > settings.texture
+    plain = edge_density(image_bgr, 2 * r) < 0.1 * settings.texture  # no edge in a wide window
+    edges = jump_edges(q, 4.0 * noise)
+    objects = valid & ~on_plane
+    smooth = objects & ~rough & ~edges & ~textured
+    below = np.zeros((h, w), bool)
+    below[:-1] = ground[1:]
+    contact = cv2.dilate(below.astype(np.uint8), np.ones((2 * r + 1, 3), np.uint8)).astype(bool)
+    contact[h - 1 - r:] = True
+    if settings.ungrounded_solids:
+        contact[:] = True
+    solids = grounded_solids(smooth, contact, min_pixels=max(20, int(settings.min_solid * h * w)))
+    solids = attached_parts(solids, q, objects, jump=2.0 * noise, reach=3 * r)
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    solids_grown = cv2.dilate(solids.astype(np.uint8), k).astype(bool) & ~on_plane
+    cap = caps(solids, fraction=settings.cap_fraction) & ~solids_grown
+    labels = np.full((h, w), GC_PR_BGD, np.uint8)
+    labels[objects & ~solids_grown & ~cap & ~plain] = GC_PR_FGD
+    labels[objects & textured & ~solids_grown & ~cap & ~edges & ~near_plane] = GC_FGD
+    labels[on_plane & ~rough & ~cv2.dilate(objects.astype(np.uint8), k).astype(bool)] = GC_BGD
+    labels[solids] = GC_BGD
+    cues = {"planes": on_plane, "ground": ground, "solids": solids_grown, "rough": rough,
+            "textured": textured, "plain": plain & ~solids_grown, "caps": cap, "q": q}
+    return labels, cues
+
+
+def segment_plants(image_bgr, *, disparity=None, points=None, depth=None, camera=None,
+                   settings: PlantSegmenterSettings = PLANT_SEGMENTER) -> PlantSegmentation:
+    """Plant mask and plant instances of an image with a depth cue (see the module docstring).
+
+    Args:
+        image_bgr: (H, W, 3) uint8 BGR image (grey is accepted).
+        disparity: (H, W) disparity on the image's grid, pixels (high = near; negative or
+            non-finite = unknown), e.g. a rectified left image and its ``D.pfm``.
+        points: (H, W, 3) organized cloud on the image's grid (world units, NaN = none),
+            e.g. ``reconstruct_pair(...).organized`` with the original left image.
+        depth: (H, W) depth or distance map (low = near).
+        camera: (3, 4) ``P`` of the image's camera, for ``points`` (None: estimated).
+        settings: :class:`PlantSegmenterSettings`.
+
+    Exactly one of ``disparity``, ``points``, ``depth`` is needed. Raises
+    :class:`ImageError` on bad input; a scene without plants gives an empty mask.
+    """
+    img = to_bgr(np.asarray(image_bgr), "image")
+    h, w = img.shape[:2]
+    for name, arr in (("disparity", disparity), ("cloud", points), ("depth", depth)):
+        if arr is not None and np.asarray(arr).shape[:2] != (h, w):
+            a = np.asarray(arr)
+            raise ImageError(f"the {name} is {a.shape[1] if a.ndim > 1 else '?'}x{a.shape[0]} but the "
+                             f"image is {w}x{h}; it must be registered to the image")
+    if not 0 < settings.scale <= 1:
+        raise CanopyStereoError(f"scale must be in (0, 1], got {settings.scale}")
+    q_full = inverse_depth(disparity=disparity, points=points, depth=depth, camera=camera)
+    size = (max(16, round(w * settings.scale)), max(16, round(h * settings.scale)))
+    small = img if size == (w, h) else cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+    q = _resize_map(q_full, size)
+    if disparity is not None:
+        q = q * (size[0] / w)  # disparities shrink with the image
+    labels, cues = shape_seed(q, small, settings=settings)
+    if settings.use_colour:
+        colours = cv2.cvtColor(small, cv2.COLOR_BGR2LAB) if settings.colour_space == "lab" else small
+        labels = _colour_cut(colours, labels, cues["plain"] & (labels == GC_PR_BGD))
+    mask = labels_to_mask(labels) > 0
+    cues["seed"] = labels
+    if mask.shape != (h, w):
+        mask = cv2.resize(mask.astype(np.uint8) * 255, (w, h), interpolation=cv2.INTER_LINEAR) >= 128
+    mask = _drop_small_and_sticks(mask, settings)
+    instances, plants = plant_instances(mask, q_full)
+    return PlantSegmentation(mask=np.where(mask, 255, 0).astype(np.uint8), instances=instances,
+                             plants=plants, cues=cues)
+
+
+def _colour_cut(img: np.ndarray, labels: np.ndarray, plain: np.ndarray) -> np.ndarray:
+    """Labels after relabelling by colour models learned from the sure pixels (and, for the
+    background, the ``plain`` pixels: walls and objects without texture) and a graph cut."""
+    k = np.ones((3, 3), np.uint8)
+    plant = cv2.erode((labels == GC_FGD).astype(np.uint8), k, iterations=2).astype(bool)
+    background = (labels == GC_BGD) | plain
+    if plant.sum() < MIN_SAMPLES or background.sum() < MIN_SAMPLES:
+        return labels
+    # plant training pixels whose colour the background explains best are the background
+    # a matcher spread between leaves: leave them out of the plant's model
+    llr, _, _ = colour_log_ratio(img, plant, background)
+    cleaner = plant & (llr > 0)
+    if cleaner.sum() >= MIN_SAMPLES:
+        plant = cleaner
+    llr, plant_gmm, background_gmm = colour_log_ratio(img, plant, background)
+    relabelled = relabel_by_colour(labels, llr, sure=SURE_LOG_RATIO)
+    relabelled[labels == GC_BGD] = GC_BGD  # the shape cue's background stands
+    return grabcut_with_models(img, relabelled, plant_gmm, background_gmm)
+
+
+def _drop_small_and_sticks(mask: np.ndarray, settings: PlantSegmenterSettings) -> np.ndarray:
+    """``mask`` without regions below ``min_region`` of the image and without sticks."""
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    keep = np.zeros(n, bool)
+    min_px = max(1, int(settings.min_region * mask.size))
+    dist = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 5)
+    for i in range(1, n):
+        if stats[i, cv2.CC_STAT_AREA] < min_px:
+            continue
+        vs, us = np.nonzero(lab == i)
+        pts = np.stack([us, vs], 1).astype(np.float64)
+        cov = np.cov((pts - pts.mean(0)).T)
+        minor, major = np.sqrt(np.clip(np.linalg.eigvalsh(cov), 0.0, None))
+        radius = max(1.0, float(dist[vs, us].max()))
+        keep[i] = not (major > settings.stick_ratio * radius and minor < 1.5 * radius)
+    return keep[lab]
+
+
+def plant_instances(mask: np.ndarray, q: np.ndarray | None = None, *, join_px: int | None = None):
+    """Plants of a mask: ``(instances (H, W) int32, plants list)``.
+
+    Connected regions are one plant each, except that regions within ``join_px``
+    pixels of each other (default 2 % of the image diagonal) whose median inverse
+    depths (``q``) agree within 15 % are joined (leaves of one plant seen apart);
+    plants are numbered 1.. by the column of their pixel centroid (ties: by row).
+    """
+    m = np.asarray(mask) > 0
+    h, w = m.shape
+    if join_px is None:
+        join_px = max(2, int(0.02 * np.hypot(h, w)))
+    n, lab = cv2.connectedComponents(m.astype(np.uint8), connectivity=8)
+    parent = list(range(n))
+
+    def find(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    if n > 2:
+        qs = np.full(n, np.nan)
+        if q is not None:
+            for i in range(1, n):
+                vals = q[(lab == i) & np.isfinite(q)]
+                qs[i] = np.median(vals) if len(vals) else np.nan
+        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * join_px + 1, 2 * join_px + 1))
+        for i in range(1, n):
+            grown = cv2.dilate((lab == i).astype(np.uint8), k).astype(bool)
+            for j in np.unique(lab[grown & m]):
+                if j <= i:
+                    continue
+                same_depth = (not np.isfinite(qs[i]) or not np.isfinite(qs[j])
+                              or abs(qs[i] - qs[j]) <= 0.15 * max(qs[i], qs[j]))
+                if same_depth:
+                    parent[find(j)] = find(i)
+    roots = np.array([find(i) for i in range(n)])
+    groups = [g for g in np.unique(roots[1:])] if n > 1 else []
+    plants = []
+    inst = np.zeros((h, w), np.int32)
+    info = []
+    for g in groups:
+        sel = np.isin(lab, np.flatnonzero(roots == g)) & m
+        vs, us = np.nonzero(sel)
+        info.append((float(us.mean()), float(vs.mean()), sel, us, vs))
+    info.sort(key=lambda t: (t[0], t[1]))
+    for k_, (cu, cv, sel, us, vs) in enumerate(info, start=1):
+        inst[sel] = k_
+        plants.append({"plant_index": k_, "pixels": int(sel.sum()),
+                       "bbox": [int(us.min()), int(vs.min()), int(us.max() - us.min() + 1),
+                                int(vs.max() - vs.min() + 1)],
+                       "centroid_px": [cu, cv]})
+    return inst, plants

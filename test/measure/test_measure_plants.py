@@ -1,0 +1,39 @@
+"""Per-plant measurement: height from the pot rim (or soil), the pot not measured, plants apart."""
+import numpy as np
+import pytest
+
+from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.measure import measure_plants
+from canopy_stereo.sim import CLEAN, render_scene, rig_at_resolution
+
+
+@pytest.fixture(scope="module")
+def two_pots(paper_rig):
+    return render_scene("pots_side_by_side", rig_at_resolution(paper_rig, 0.5), effects=CLEAN, supersample=1)
+
+
+@pytest.mark.slow
+def test_heights_from_the_pot_rim_on_the_exact_cloud(two_pots):
+    sim = two_pots
+    res = measure_plants(sim.xyz_left, sim.plants_left.astype(np.int32), camera=sim.rig.P_left,
+                         separate=False)
+    assert res["n_plants"] == 2
+    for rep, truth in zip(res["plants"], sim.truth["plants"]):
+        assert rep["plant_index"] == truth["index"]
+        assert rep["reference"]["kind"] == "pot_rim"
+        assert rep["frame"]["kind"] == "ground"  # the table top
+        can = rep["canopy"]
+        assert can["height"] == pytest.approx(truth["height"], rel=0.02)
+        # the rim lies about 110 mm (the pot) above the table; the plant's own extent starts at the soil
+        assert rep["reference"]["height_above_ground"] == pytest.approx(110.0, abs=4.0)
+        assert can["bbox_min"][2] > 95.0 and can["extent_height"] < truth["height"] + 12.0
+
+
+def test_measure_plants_rejects_bad_instances(two_pots):
+    sim = two_pots
+    with pytest.raises(CanopyStereoError, match="all 0"):
+        measure_plants(sim.xyz_left, np.zeros(sim.plants_left.shape, np.int32))
+    with pytest.raises(CanopyStereoError, match="integer"):
+        measure_plants(sim.xyz_left, sim.plants_left.astype(float))
+    with pytest.raises(CanopyStereoError, match="like the cloud"):
+        measure_plants(sim.xyz_left, sim.plants_left[:10].astype(np.int32))

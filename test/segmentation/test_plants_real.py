@@ -1,0 +1,55 @@
+"""The real Middlebury 2014 Plants pair: the automatic mask takes both plants (a jade plant and a
+silver-leaved one), not the green watering can nor the two pots.
+
+Hand-checked regions: test/data/plants_regions.json (polygons drawn on the image; see its
+"about"). Coverage of a plant = fraction of its foliage pixels in its regions that the mask
+takes; of an object = fraction of its region's pixels."""
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+REGIONS = Path(__file__).resolve().parents[1] / "data" / "plants_regions.json"
+
+
+def region_masks(shape, grey):
+    """name -> (kind, bool mask of the pixels that count) from the fixture."""
+    fx = json.loads(REGIONS.read_text())
+    out = {}
+    for r in fx["regions"]:
+        m = np.zeros(shape, np.uint8)
+        for poly in r["polygons"]:
+            cv2.fillPoly(m, [np.array(poly, np.int32)], 1)
+        m = m.astype(bool)
+        if r["kind"] == "foliage":
+            m &= grey <= fx["wall_grey"]
+        out[r["name"]] = (r["kind"], m)
+    return out
+
+
+def coverage(mask, shape, grey):
+    return {name: float((mask & m).sum() / m.sum()) for name, (_, m) in region_masks(shape, grey).items()}
+
+
+def check_coverage(cov):
+    assert cov["jade"] >= 0.85 and cov["silver"] >= 0.85, cov
+    assert cov["watering_can"] <= 0.05, cov
+    assert cov["terracotta_pot"] <= 0.10 and cov["dark_green_pot"] <= 0.10, cov
+
+
+@pytest.mark.slow
+@pytest.mark.shared
+def test_segment_auto_with_disparity_takes_plants_not_can_or_pots(shared_data, tmp_path, cli):
+    folder = shared_data / "middlebury_MiddEval3_testQ" / "Plants"
+    code, out, err = cli("disparity", folder / "im0.png", folder / "im1.png", "--disp-max", "80",
+                         "-o", tmp_path / "D.pfm")
+    assert code == 0, err
+    code, out, err = cli("segment", folder / "im0.png", "--auto", "--disparity", tmp_path / "D.pfm",
+                         "-o", tmp_path / "mask.png")
+    assert code == 0, err
+    assert "plants by shape" in out and (tmp_path / "mask_overlay.png").is_file()
+    left = cv2.imread(str(folder / "im0.png"))
+    mask = cv2.imread(str(tmp_path / "mask.png"), cv2.IMREAD_GRAYSCALE) > 0
+    check_coverage(coverage(mask, mask.shape, cv2.cvtColor(left, cv2.COLOR_BGR2GRAY)))
