@@ -72,7 +72,7 @@ class SkewCompensator:
         max_interval_s: longest gap between two right frames still followed (s).
     """
 
-    def __init__(self, *, enabled: bool = True, flow_scale: float = 0.5, flow_preset: str = "medium",
+    def __init__(self, *, enabled: bool = True, flow_scale: float = 0.5, flow_preset: str = "fast",
                  max_interval_s: float = MAX_INTERVAL_S):
         if not max_interval_s > 0:
             raise CanopyStereoError(f"max_interval_s must be > 0, got {max_interval_s}")

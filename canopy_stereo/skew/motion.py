@@ -97,15 +97,16 @@ def _dis(preset: str):
 
 
 def image_motion(previous: np.ndarray, current: np.ndarray, *, scale: float = 0.5,
-                 preset: str = "medium") -> ImageMotion:
+                 preset: str = "fast") -> ImageMotion:
     """Dense motion from ``current`` back to ``previous`` (two frames of one camera).
 
     Args:
         previous, current: uint8 images (H, W) grey or (H, W, 3) BGR of one size.
         scale: resolution of the flow computation (0.5: half size; the flow is scaled
             back to full resolution).
-        preset: DIS preset, ``ultrafast``, ``fast`` or ``medium`` (default: accurate to a
-            few tenths of a pixel on plant scenes; see ``benchmarks/bench_capture.py``).
+        preset: DIS preset, ``ultrafast``, ``fast`` (default: a few ms per VGA pair, within
+            1 % depth on the croton at 0.5 m/s with 16 ms skew) or ``medium`` (finer, several
+            times slower); see ``benchmarks/bench_capture.py``.
 
     Returns an :class:`ImageMotion`.
     """
