@@ -59,8 +59,9 @@ setup(
         # rerun-sdk: the viewer (canopy-stereo view, run/demo --view), pinned (its web viewer and
         # `rerun` tool ship inside the wheel; the wheel is CPython >= 3.11); CI checks recordings
         # and the web viewer (a 170 MB wheel plus pyarrow)
+        # ruff, mypy: the lint and type checks .ci/run runs before the tests (config: pyproject.toml)
         "test": ["pytest>=7", "rosbags>=0.9", "matplotlib>=3.6", "catkin_pkg", "dask[distributed]>=2023.1",
-                 "pyarrow>=12", RERUN],
+                 "pyarrow>=12", RERUN, "ruff>=0.6", "mypy>=1.11"],
         "plot": ["matplotlib>=3.6"],
         # canopy-stereo batch: Dask distributed (LocalCluster or a cluster); Parquet with pyarrow
         "batch": ["dask[distributed]>=2023.1", "matplotlib>=3.6"],

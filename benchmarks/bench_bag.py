@@ -82,13 +82,13 @@ def bench_read(tmp: Path, n_images: int, repeat: int) -> None:
     for comp in ("zstd", "lz4"):
         path, payload = make_bag(tmp / f"bench_{comp}.mcap", n_images, comp)
         size = path.stat().st_size
-        readers = [("BagReader (validating)", lambda: read_ours(path)),
-                   ("mcap, no CRC checks (unvalidated)", lambda: read_mcap(path, False)),
-                   ("mcap, validate_crcs=True", lambda: read_mcap(path, True))]
+        readers = [("BagReader (validating)", lambda path=path: read_ours(path)),
+                   ("mcap, no CRC checks (unvalidated)", lambda path=path: read_mcap(path, False)),
+                   ("mcap, validate_crcs=True", lambda path=path: read_mcap(path, True))]
         try:
             import rosbags  # noqa: F401
 
-            readers.append(("rosbags AnyReader", lambda: read_rosbags(path)))
+            readers.append(("rosbags AnyReader", lambda path=path: read_rosbags(path)))
         except ImportError:
             pass
         for name, fn in readers:
@@ -113,7 +113,7 @@ def bench_record(tmp: Path, repeat: int) -> None:
     print(f"  {'message':<22} {'BagWriter, thread':>18} {'BagWriter, main':>16} {'mcap bare':>10} "
           f"{'overhead (thread)':>18}")
     for label, data, n in ((f"CameraInfo {len(small)} B", small, 20000), (f"Image {len(big)} B", big, 300)):
-        def ours():
+        def ours(data=data, n=n):
             with BagWriter(tmp / "rec.mcap", compression="lz4") as w:
                 for k in range(n):
                     w.write("/t", data, k, publish_time_ns=k, msg_type="sensor_msgs/msg/CameraInfo")
@@ -123,7 +123,7 @@ def bench_record(tmp: Path, repeat: int) -> None:
             t.start()
             t.join()
 
-        def bare():
+        def bare(data=data, n=n):
             with open(tmp / "bare.mcap", "wb") as f:
                 w = Writer(f, compression=CompressionType.LZ4)
                 w.start(profile="ros2")

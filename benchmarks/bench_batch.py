@@ -153,7 +153,7 @@ def queued_memory(folder: Path, n: int, drain: bool) -> dict:
                "scheduler_rss_queued_mb": _rss_mb(sched.pid), "client_rss_before_mb": base_c,
                "client_rss_queued_mb": _rss_mb(os.getpid())}
         if drain:
-            for i in range(2):
+            for _ in range(2):
                 workers.append(subprocess.Popen(
                     [sys.executable, "-m", "distributed.cli.dask_worker", "--scheduler-file", str(sched_file),
                      "--nthreads", "1", "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
@@ -203,7 +203,8 @@ def main() -> None:
             for name, t, c in rows:
                 print(f"{name:34s} {t:7.1f} {n / (t / 60):9.1f} {c:7.1f} {c / n:10.2f}")
             if 1 in times:
-                print(f"overhead of dask (1 worker) vs the serial loop: wall {100 * (times[1] - t_serial) / t_serial:+.0f} %, "
+                wall = 100 * (times[1] - t_serial) / t_serial
+                print(f"overhead of dask (1 worker) vs the serial loop: wall {wall:+.0f} %, "
                       f"CPU {100 * (cpus[1] - c_serial) / c_serial:+.0f} % (CPU is the figure a shared machine keeps)")
             if 1 in times and 2 in times:
                 print(f"scaling efficiency 1 -> 2 workers: {100 * times[1] / (2 * times[2]):.0f} % (wall; needs "

@@ -316,8 +316,8 @@ def main(argv=None) -> int:
         for name, (left, right, gt) in loaded.items():
             size = f"{left.shape[1]}x{left.shape[0]}"
             for preset, sub in ELAS_CONFIGS:
-                disp, sec = timed(lambda: elas_disparity(left, right, preset=preset, subpixel=sub,
-                                                         right_map=False)[0], args.reps)
+                disp, sec = timed(lambda left=left, right=right, preset=preset, sub=sub: elas_disparity(
+                    left, right, preset=preset, subpixel=sub, right_map=False)[0], args.reps)
                 label = f"elas {preset}" + (" +subpix" if sub else "")
                 rows.append((name, size, label, 1000 * sec, evaluate_disparity(disp, gt)))
             for preset in ("robotics", "middlebury"):
@@ -330,7 +330,7 @@ def main(argv=None) -> int:
             rows.append((name, size, "elas robotics linear-w", float("nan"),
                          evaluate_disparity(linear, gt)))
             dmax = int(np.ceil(np.nanmax(gt) / 16.0)) * 16
-            disp, sec = timed(lambda: sgbm(left, right, dmax), args.reps)
+            disp, sec = timed(lambda left=left, right=right, dmax=dmax: sgbm(left, right, dmax), args.reps)
             rows.append((name, size, "opencv sgbm", 1000 * sec, evaluate_disparity(disp, gt)))
         fresh = None
         if not args.no_fresh:

@@ -117,9 +117,9 @@ def reached(x_left, cells, cell=8):
 
 
 def load_gt_scene(data: Path, name: str):
-    folder, l, r, g, scale = GT_SCENES[name]
-    return (read_image(data / folder / l), read_image(data / folder / r),
-            read_disparity(data / folder / g, scale))
+    folder, left, right, truth, scale = GT_SCENES[name]
+    return (read_image(data / folder / left), read_image(data / folder / right),
+            read_disparity(data / folder / truth, scale))
 
 
 def bench_speed(pairs):
@@ -234,7 +234,7 @@ def bench_hartley(data: Path):
 
     matches = [match_pair(L, R, method="qdmatch") for L, R in pairs]
     for undistort in (False, True):
-        def pts(x, K, D):
+        def pts(x, K, D, undistort=undistort):
             return und(x, K, D) if undistort else np.asarray(x, np.float64).reshape(-1, 2)
 
         per_pair = []

@@ -11,7 +11,8 @@ rig's would; ``--scene croton`` uses the bundled synthetic croton instead), and 
   them per second, first pair published -> last cloud received) and their ratio;
 * latency median and 95th percentile: a pair's stamp (the wall clock when the left image
   is published, as a camera driver stamps it) to its cloud's arrival in the feeding process;
-* CPU ms per node per offered pair (and per frame the node output, ``/out``): user + system time from ``/proc/<pid>/stat`` of each node
+* CPU ms per node per offered pair (and per frame the node output, ``/out``): user + system time from
+  ``/proc/<pid>/stat`` of each node
   process (its DDS threads included) or, in one process, from ``/proc/self/task/<tid>/stat``
   of each node's threads (executor, worker, ELAS pool; DDS threads count as ``dds``); the
   feeding process (publishers + the cloud subscriber) is ``feed``;

@@ -80,7 +80,7 @@ def _share_dirs(package: str) -> list[Path]:
     dirs.append(Path(sys.prefix) / "share" / package)
     try:
         mod = importlib.import_module(package)
-        here = Path(mod.__file__).resolve()
+        here = Path(mod.__file__).resolve()  # type: ignore[arg-type]  # None (namespace): TypeError, below
         # <prefix>/lib/pythonX.Y/site-packages/<package>/__init__.py -> <prefix>/share/<package>
         if len(here.parents) > 4:
             dirs.append(here.parents[4] / "share" / package)

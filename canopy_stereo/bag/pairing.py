@@ -263,11 +263,9 @@ class ApproximateTimePairer:
                     dropped.append(Dropped(s_idx, s, "unpaired: no partner frame before a later pair"))
             mine.last_paired, other.last_paired = stamp_ns, other_stamp
             self._guard.settled()
-            stamps = [0, 0]
-            items = [None, None]
-            stamps[stream], items[stream] = stamp_ns, item
-            stamps[1 - stream], items[1 - stream] = other_stamp, other_item
-            return Pair(tuple(stamps), tuple(items)), dropped
+            if stream == 0:
+                return Pair((stamp_ns, other_stamp), (item, other_item)), dropped
+            return Pair((other_stamp, stamp_ns), (other_item, item)), dropped
 
     def _nearest(self, stamps: list, t: int) -> int | None:
         if not stamps:

@@ -83,7 +83,8 @@ class BagReader:
         self.truncated = False
         self.problem = ""
         self.damage: list[BagDamage] = []
-        self._damaged_at: set[int] = set()
+        self._damaged_at: set[tuple[int, str]] = set()
+        self._fd: int | None = None
         self.lost_unknown = False
         self.metadata_records: list[tuple[str, dict]] = []
         try:
@@ -104,6 +105,8 @@ class BagReader:
         return BagError(f"{self.path}: offset {offset}: {problem}")
 
     def _read(self, offset: int, n: int) -> bytes:
+        if self._fd is None:
+            raise BagError(f"{self.path}: the reader is closed")
         try:
             data = os.pread(self._fd, n, offset)
         except OSError as exc:
@@ -164,8 +167,8 @@ class BagReader:
         if not self.path.is_file():
             raise BagError(f"bag not found: {self.path}")
         try:
-            self._fd = os.open(self.path, os.O_RDONLY)
-            self.size = os.fstat(self._fd).st_size
+            self._fd = fd = os.open(self.path, os.O_RDONLY)
+            self.size = os.fstat(fd).st_size
         except OSError as exc:
             raise BagError(f"cannot read bag {self.path}: {exc.strerror or exc}") from None
         if self.size == 0:
@@ -179,7 +182,7 @@ class BagReader:
         self._loose: list[tuple[int, int]] = []  # (offset, length) of messages outside chunks
         self._loose_verified = True
         self._data_end: tuple[int, int] | None = None  # (offset, crc)
-        self._profile = None
+        self._profile: str | None = None
         self._summary_state = "absent"
         self._summary_verified = False
         footer = self._read_footer()
@@ -477,8 +480,8 @@ class BagReader:
                 cross.append(f"{st['chunks']} chunks announced, {len(self._chunks)} found")
             by_channel: dict = {}
             complete_index = all(c.index_counts for c in self._chunks)
-            for c in self._chunks:
-                for cid, n in c.index_counts.items():
+            for chunk in self._chunks:
+                for cid, n in chunk.index_counts.items():
                     by_channel[cid] = by_channel.get(cid, 0) + n
             if complete_index and {k: v for k, v in st["counts"].items() if v} != by_channel:
                 cross.append("per-channel message counts disagree with the message indexes")
@@ -672,6 +675,7 @@ class BagReader:
         return out
 
     def _data_crc_ok(self) -> bool:
+        assert self._data_end is not None  # called only when the data-end record was read
         at, crc = self._data_end
         value, pos = 0, 0
         while pos < at:

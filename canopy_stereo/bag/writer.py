@@ -38,6 +38,7 @@ import os
 import queue
 import threading
 from pathlib import Path
+from typing import Any
 
 import yaml
 from mcap.writer import CompressionType, Writer
@@ -106,7 +107,9 @@ class BagWriter:
         self._end_ns = 0
         self.message_count = 0
         self.closed = False
-        self._file = self._writer = None
+        # the open file and its mcap Writer, from _open_next on (None only while it opens)
+        self._file: Any = None
+        self._writer: Any = None
         self._started = False
         self._flush_stop = threading.Event()
         self._flusher = None

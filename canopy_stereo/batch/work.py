@@ -5,7 +5,8 @@ instant first (:class:`~canopy_stereo.skew.SkewCompensator`, as ``rectify_node``
 does; ``BatchOptions.skew_compensation``), then goes through the core exactly as
 ``canopy-stereo reconstruct --measure`` takes a pair:
 :func:`~canopy_stereo.pipeline.reconstruct.reconstruct_pair` (the rig's
-rectification: Fusiello unless the rig file names Hartley with its homographies; ELAS, triangulation with the rig's world-frame ``P``), then the
+rectification: Fusiello unless the rig file names Hartley with its homographies; ELAS, triangulation with the rig's
+world-frame ``P``), then the
 automatic plant mask :func:`~canopy_stereo.segmentation.auto_plant_mask` (the
 vegetation index plus the distance of the reconstructed points from the left
 camera centre as the depth cue), then

@@ -24,7 +24,7 @@ def sgbm_disparity(left: np.ndarray, right: np.ndarray, *, disp_min: int = 0,
     """
     gl, gr = to_gray(left, "left"), to_gray(right, "right")
     num = int(np.ceil((disp_max - disp_min + 1) / 16.0)) * 16
-    matcher = cv2.StereoSGBM_create(
+    matcher = cv2.StereoSGBM_create(  # type: ignore[attr-defined]  # (absent from OpenCV 5.0's stubs)
         minDisparity=int(disp_min), numDisparities=num, blockSize=int(block_size),
         P1=int(p1 if p1 is not None else 8 * block_size ** 2),
         P2=int(p2 if p2 is not None else 32 * block_size ** 2),

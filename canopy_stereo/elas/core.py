@@ -181,9 +181,9 @@ def elas_run(left: np.ndarray, right: np.ndarray, params: ElasParams,
     common = (p.grid_size, prior, radius)
     tail = (int(p.disp_min), int(p.disp_max), int(p.match_texture), step, bool(p.subpixel))
     t = time.perf_counter()
-    job_l, disp_l, off_l = match_job(desc_l, desc_r, tex_l, map_l, planes_l, valid_l, *grid_l,
+    job_l, disp_l, off_l = match_job(desc_l, desc_r, tex_l, map_l, planes_l, valid_l, *grid_l,  # type: ignore[call-arg, misc]
                                      *common, 1, *tail, workspace=ws_l)
-    job_r, disp_r, off_r = match_job(desc_r, desc_l, tex_r, map_r, planes_r, valid_r, *grid_r,
+    job_r, disp_r, off_r = match_job(desc_r, desc_l, tex_r, map_r, planes_r, valid_r, *grid_r,  # type: ignore[call-arg, misc]
                                      *common, -1, *tail, workspace=ws_r)
     run_row_bands(job_l, job_r)
     timings["matching"] = time.perf_counter() - t

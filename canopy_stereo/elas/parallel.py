@@ -65,7 +65,7 @@ def run_row_bands(*jobs) -> None:
     futures = []
     for kernel, n_rows, args in jobs:
         for a, b in row_bands(n_rows, threads * BANDS_PER_THREAD):
-            futures.append(pool.submit(kernel, *args, a, b))
+            futures.append(pool.submit(kernel, *args, a, b))  # type: ignore[call-arg]  # (mypy: *args)
     for f in futures:
         f.result()
 

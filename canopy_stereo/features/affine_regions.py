@@ -10,7 +10,8 @@
 3. **Affine shape adaptation**: the image around the point is resampled through
    an affine map ``U`` so that the region becomes a circle; ``U`` is updated with
    ``mu^(-1/2)`` of the normalised patch (normalised so its largest eigenvalue is
-   1; derivatives are taken in the normalised frame) and the point is re-localised on the response maximum, until ``mu`` is
+   1; derivatives are taken in the normalised frame) and the point is re-localised on the response maximum, until
+   ``mu`` is
    isotropic (eigenvalue ratio >= ``isotropy``); regions that become too elongated
    are dropped. The integration scale stays the one selected in step 2 (the
    original also re-selects it each iteration).

@@ -224,12 +224,12 @@ def _heap_pop(keys, vals, size):
     vals[0] = vals[size]
     i = 0
     while True:
-        l = 2 * i + 1
-        if l >= size:
+        child = 2 * i + 1
+        if child >= size:
             break
-        c = l
-        if l + 1 < size and keys[l + 1] > keys[l]:
-            c = l + 1
+        c = child
+        if child + 1 < size and keys[child + 1] > keys[child]:
+            c = child + 1
         if keys[i] >= keys[c]:
             break
         keys[c], keys[i] = keys[i], keys[c]
@@ -895,7 +895,7 @@ def _resample_kernel(match_map, cell, use_h, iters, tol, min_support, min_share,
             ccx = 0.5 * (x0 + x1 - 1)
             ccy = 0.5 * (y0 + y1 - 1)
             best = 0
-            for it in range(iters):
+            for _it in range(iters):
                 # draw k_min distinct points
                 for s in range(k_min):
                     while True:

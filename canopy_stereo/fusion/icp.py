@@ -169,7 +169,7 @@ def icp_point_to_plane(source, target, *, T_init=None, max_distance: float = 10.
         tolerance_translation = 1e-4 * float(max_distance)
     converged = False
     it = 0
-    for it in range(1, max_iterations + 1):
+    for it in range(1, max_iterations + 1):  # noqa: B007 - read after the loop (iterations run)
         p = transform_points(T, src)
         dist, idx = tgt.tree.query(p, k=1, distance_upper_bound=max_distance)
         ok = np.isfinite(dist)

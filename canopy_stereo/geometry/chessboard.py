@@ -116,6 +116,7 @@ def detect_stereo_chessboards(left_images, right_images, *, pattern=(9, 6), squa
     if len(lefts) < 3:
         raise CalibrationError(
             f"the {pattern[0]}x{pattern[1]} board was found in only {len(lefts)} pair(s); need at least 3")
+    assert size is not None  # set by the first pair
     return ChessboardViews(obj, lefts, rights, names, size)
 
 
@@ -135,7 +136,8 @@ def calibrate_stereo_chessboard(left_images, right_images, *, pattern=(9, 6), sq
         A :class:`StereoCalibration` with ``P``/``D`` per camera, the stereo
         RMS (``rms_stereo``, pixels) and the corner triangulation check.
     """
-    views = detect_stereo_chessboards(left_images, right_images, pattern=pattern, square_size=square_size, progress=progress)
+    views = detect_stereo_chessboards(left_images, right_images, pattern=pattern, square_size=square_size,
+                                      progress=progress)
     obj = [views.object_points.astype(np.float32).reshape(-1, 1, 3)] * len(views.left)
     il = [c.astype(np.float32).reshape(-1, 1, 2) for c in views.left]
     ir = [c.astype(np.float32).reshape(-1, 1, 2) for c in views.right]

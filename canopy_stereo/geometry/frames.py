@@ -84,9 +84,9 @@ def rotation_to_quaternion(R) -> np.ndarray:
     else:
         s = 2.0 * np.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
         q = [(R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s, (R[1, 0] - R[0, 1]) / s]
-    q = np.asarray(q, np.float64)
-    q /= np.linalg.norm(q)
-    return -q if q[3] < 0 else q
+    quat = np.asarray(q, np.float64)
+    quat /= np.linalg.norm(quat)
+    return -quat if quat[3] < 0 else quat
 
 
 def quaternion_to_rotation(q) -> np.ndarray:

@@ -153,6 +153,7 @@ def default_disparity_range(rect: Rectification, near_depth: float | None = None
         if rect.disparity_range is None:
             return 0, 128
         return rect.disparity_range
+    assert rect.focal_length is not None and rect.baseline is not None  # (Fusiello sets both)
     return metric_disparity_range(rect.focal_length, rect.baseline, doffs=rect.doffs,
                                   near_depth=near_depth, far_depth=far_depth)
 

@@ -53,6 +53,7 @@ import itertools
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -241,7 +242,8 @@ def placements_from_dict(doc, source: str = "placements") -> Placements:
     entries = doc["placements"]
     if not isinstance(entries, list) or not entries:
         raise CalibrationError(f"{source}: 'placements' must be a non-empty list")
-    out, seen = [], {}
+    out: list = []
+    seen: dict = {}
     for k, e in enumerate(entries):
         where = f"{source}: placements[{k}]"
         if not isinstance(e, dict):
@@ -291,7 +293,7 @@ def board_world_points(placement: BoardPlacement, pattern, square: float) -> np.
 
 
 #: Defaults of :func:`paper_layout_placements` (also shown by the CLI).
-PAPER_LAYOUT = {
+PAPER_LAYOUT: dict[str, Any] = {
     "angles_deg": (-10.0, 0.0, 10.0),
     "marks_per_line": 15,
     "mark_spacing": 50.0,
@@ -460,6 +462,7 @@ def _spread_seeds(centres: np.ndarray, normals: np.ndarray, count: int = 3) -> l
             score = float(np.linalg.norm(d)) / scale + 0.5 * turn
             if score > best_score:
                 best, best_score = k, score
+        assert best is not None  # a placement not chosen yet scores >= 0 > -1
         chosen.append(best)
     return chosen
 
@@ -512,12 +515,12 @@ def resolve_corner_order(world_points, detections, pattern, *, max_rms_px: float
     D = [np.asarray(d, np.float64) for d in detections]
     cols, rows = pattern
     centres = np.array([w.mean(0) for w in W])
-    normals = []
+    normal_list = []
     for w in W:
         g = w.reshape(rows, cols, 3)
         nv = np.cross(g[0, -1] - g[0, 0], g[-1, 0] - g[0, 0])
-        normals.append(nv / (np.linalg.norm(nv) or 1.0))
-    normals = np.array(normals)
+        normal_list.append(nv / (np.linalg.norm(nv) or 1.0))
+    normals = np.array(normal_list)
 
     # 1. seeds: three views far apart; try every combination of symmetries
     order = _spread_seeds(centres, normals, 3)
@@ -594,7 +597,7 @@ def resolve_corner_order(world_points, detections, pattern, *, max_rms_px: float
     bad = np.flatnonzero(rms > max_rms_px)
     if bad.size:
         # judge each suspect against the camera of all the other views
-        worst = None
+        worst: tuple[int, float] | None = None
         for k in bad:
             others = [j for j in range(n) if j != k and rms[j] <= max_rms_px] or [j for j in range(n) if j != k]
             Xo = np.vstack([W[j] for j in others])
@@ -603,13 +606,13 @@ def resolve_corner_order(world_points, detections, pattern, *, max_rms_px: float
                 Po = dlt_projection(Xo, xo)
             except CalibrationError:
                 continue
-            r = min(_rms(Po, W[k], D[k][idx]) for _, idx in syms)
-            if r > max_rms_px and (worst is None or r > worst[1]):
-                worst = (k, r)
+            rk = min(_rms(Po, W[k], D[k][idx]) for _, idx in syms)
+            if rk > max_rms_px and (worst is None or rk > worst[1]):
+                worst = (int(k), rk)
         if worst is not None:
-            k, r = worst
+            k, r_px = worst
             raise CalibrationError(
-                f"{names[k]} contradicts its placement: its corners are {r:.1f} px (RMS) from where "
+                f"{names[k]} contradicts its placement: its corners are {r_px:.1f} px (RMS) from where "
                 f"the camera fitted on the other pairs puts them (tolerance {max_rms_px:g} px); check its "
                 "origin, axes and the pair order")
     P, _ = gold_standard_projection(X, x)

@@ -44,5 +44,5 @@ def read_correspondences_csv(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if not all(np.isfinite(values)):
             raise CalibrationError(f"{path}: line {lineno} has a non-finite value (nan or inf)")
         data.append(values)
-    data = np.array(data, dtype=np.float64).reshape(-1, 7)
-    return data[:, :3], data[:, 3:5], data[:, 5:7]
+    table = np.array(data, dtype=np.float64).reshape(-1, 7)
+    return table[:, :3], table[:, 3:5], table[:, 5:7]

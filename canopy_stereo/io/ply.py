@@ -114,7 +114,8 @@ def read_ply(path) -> PointCloud:
     with f:
         if f.readline().strip() != b"ply":
             raise CanopyStereoError(f"{path} is not a PLY file (first line is not 'ply')")
-        fmt, unit, elements, comments = None, None, [], []
+        fmt, unit, comments = None, None, []
+        elements: list = []  # [name, count, [(property, type), ...]]
         while True:
             line = f.readline()
             if not line:

@@ -47,8 +47,8 @@ def rig_from_parameters(params: dict, source: str = "rig") -> Rig:
             P_right=params["P_right"],
             image_size=(params["image_width"], params["image_height"]),
             world_unit=str(params.get("world_unit", "mm")),
-            D_left=params.get("D_left"),
-            D_right=params.get("D_right"),
+            D_left=params.get("D_left"),  # type: ignore[arg-type]  # None: no distortion (Rig: zeros)
+            D_right=params.get("D_right"),  # type: ignore[arg-type]
             distortion_model=params.get("distortion_model") or None,
             extra={k: v for k, v in params.items() if k not in known},
         )

@@ -26,5 +26,6 @@ from canopy_stereo.measure.viewpoint import estimate_camera
 __all__ = [
     "LeafMeasurement", "MeasuringFrame", "SceneMeasurement", "canopy_dimensions", "estimate_camera",
     "hull_volume", "load_cloud", "measure_leaf", "measure_organized", "measure_points",
-    "measure_scene", "plot_views", "REFERENCE_KINDS", "measure_plants", "reference_surface", "separate_leaves", "voxel_volume", "write_leaves_csv", "write_report",
+    "measure_scene", "plot_views", "REFERENCE_KINDS", "measure_plants", "reference_surface", "separate_leaves",
+    "voxel_volume", "write_leaves_csv", "write_report",
 ]

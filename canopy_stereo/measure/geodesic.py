@@ -88,8 +88,8 @@ def geodesic_diameter(points: np.ndarray, inside: np.ndarray, *, sweeps: int = 3
     for _ in range(max(2, sweeps)):
         dist = geodesic_distances(points, inside, a)
         d = np.where(np.isfinite(dist), dist, -1.0)
-        far = np.unravel_index(int(np.argmax(d)), d.shape)
-        far = (int(far[0]), int(far[1]))
+        fv, fu = np.unravel_index(int(np.argmax(d)), d.shape)
+        far = (int(fv), int(fu))
         if d[far] > best[2]:
             best = (a, far, float(d[far]))
         a = far

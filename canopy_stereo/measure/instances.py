@@ -134,7 +134,7 @@ def _max_neighbour_angle(normals: np.ndarray) -> np.ndarray:
     """(H, W) largest angle (degrees) between a pixel's normal and its 4-neighbours'."""
     h, w = normals.shape[:2]
     cos = np.full((h, w), 1.0)
-    for a, b, sa, sb in (((slice(None), slice(1, None)), (slice(None), slice(None, -1)), None, None),
+    for a, b, _sa, _sb in (((slice(None), slice(1, None)), (slice(None), slice(None, -1)), None, None),
                          ((slice(1, None), slice(None)), (slice(None, -1), slice(None)), None, None)):
         c = np.einsum("hwk,hwk->hw", normals[a], normals[b])
         c = np.where(np.isfinite(c), c, 1.0)

@@ -139,7 +139,8 @@ def measure_scene(organized, leaf_ids=None, *, mask=None, ground="auto", unit: s
                               min_pixels=max(10, min_leaf_pixels // 2))
     all_plant = (plant if plant is not None else finite) & finite
     exact_cloud = bool(all_plant.sum() >= 16 and roughness(organized, all_plant) < EXACT_ROUGHNESS)
-    leaves, skipped, leaf_surfaces = [], [], []
+    leaves, skipped = [], []
+    leaf_surfaces: list = []  # (N, 3) surface points of the leaves kept
     in_leaf = np.zeros((h, w), bool)
     rejected = np.zeros((h, w), bool)  # leaf points its surface fit found to be matching errors
     if ids is not None:
@@ -175,7 +176,8 @@ def measure_scene(organized, leaf_ids=None, *, mask=None, ground="auto", unit: s
         else:
             background_mask = None if plant is None else (finite & ~plant)
             viewpoint = None if P is None else camera_centre(P)
-            kept = clean_canopy(organized, plant_valid, background=background_mask, viewpoint=viewpoint, all_plant=all_plant)
+            kept = clean_canopy(organized, plant_valid, background=background_mask, viewpoint=viewpoint,
+                                all_plant=all_plant)
             rest_pts = drop_isolated_points(median_along_rays(organized, kept, viewpoint)
                                             if viewpoint is not None else organized[kept])
     canopy_pts = np.concatenate(leaf_surfaces + [rest_pts])
@@ -239,6 +241,7 @@ def measure_points(points, ground="auto", *, unit: str = "mm", voxel_size: float
     frame = measuring_frame(P, P, ground, right, -up, view, scale)
     canopy_pts = P
     if frame.kind == "ground":
+        assert frame.ground_plane is not None  # (a ground frame has its plane)
         above = P @ frame.ground_plane[:3] + frame.ground_plane[3] > 0.01 * scale
         if above.sum() >= 3:
             canopy_pts = P[above]

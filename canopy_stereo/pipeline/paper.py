@@ -260,7 +260,7 @@ def section_features(out: Path, pairs: dict, methods, progress: Progress) -> dic
         truth = true_right_pixels(pair.sim) if pair.sim is not None else None
         progress.detail(f"Table {number} ({paper_key} -> {scene}): {', '.join(methods)}")
         rows = run_study(pair.left, pair.right, methods=methods, gt_right_pixels=truth,
-                         progress=lambda m: progress.detail(f"  {scene}: {m}"))
+                         progress=lambda m, scene=scene: progress.detail(f"  {scene}: {m}"))
         folder = out / "matches" / scene
         for row in rows:
             write_matches(row.result, folder)
@@ -463,7 +463,7 @@ def section_leaves(out: Path, pair: StereoPair, recon_cache: dict, progress: Pro
         contour_mask = inside.astype(np.uint8)
         cnts, _ = cv2.findContours(contour_mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
         cv2.drawContours(img, cnts, -1, (255, 255, 255), 1, cv2.LINE_AA)
-        for ends, col, text in ((m.ends, (0, 0, 255), f"length {m.length:.1f} mm"),
+        for ends, col, _text in ((m.ends, (0, 0, 255), f"length {m.length:.1f} mm"),
                                 (m.width_ends, (255, 128, 0), f"width {m.width:.1f} mm")):
             uv = project(pair.rig.P_left, np.asarray(ends, np.float64))
             p0, p1 = (tuple(int(round(c)) for c in p) for p in uv)
@@ -708,7 +708,7 @@ def format_report(numbers: dict) -> str:
           "pairs are not published; each table uses the shipped pair closest to the paper's. On the "
           "rendered pairs, leaf cells reached = share of the cells that are mostly leaf holding a "
           "match (the distribution also counts the textured background).", ""]
-    for scene, info in numbers["features"].items():
+    for _scene, info in numbers["features"].items():
         w, h = info["image_size"]
         L += [f"### Table {info['table']}: {info['source']} ({w}x{h}) — paper: '{info['paper_table']}'",
               ""] + _feature_table_md(info)
@@ -725,7 +725,8 @@ def format_report(numbers: dict) -> str:
           f"{r['scene']}: {r['matches']} quasi-dense matches, {r['f_inliers']} consistent with F "
           "(RANSAC, 1 px); Hartley's homographies. Angles of the three epipolar lines to the image "
           "rows: before " + ", ".join(f"{a:.2f}" for a in r["angles_before_deg"]) + " deg, after "
-          + ", ".join(f"{a + 0.0:.3f}" if abs(a) >= 5e-4 else "0.000" for a in r["angles_after_deg"]) + " deg. Residual vertical "
+          + ", ".join(f"{a + 0.0:.3f}" if abs(a) >= 5e-4 else "0.000" for a in r["angles_after_deg"])
+          + " deg. Residual vertical "
           f"disparity of {r['truth_points']} exact correspondences after rectification: median "
           f"{r['median_abs_dv_px']:.3f} px, 90th percentile {r['p90_abs_dv_px']:.3f} px.", "",
           f"![Figure 11]({r['figure']})", ""]
@@ -739,7 +740,7 @@ def format_report(numbers: dict) -> str:
           "|---|---|---|---|---|---|"]
     recs = dict(numbers["fig15"])
     recs.update(numbers["fig17"])
-    for key, info in recs.items():
+    for _key, info in recs.items():
         err = info.get("median_abs_range_error_mm")
         rel = info.get("median_rel_range_error_pct")
         L.append(f"| {info['title']} | {info['points']} | {info['plant_points']} | "

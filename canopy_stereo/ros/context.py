@@ -295,7 +295,8 @@ def ros_context(domain_id: int | None = None, localhost_only: bool = True, *, ar
         os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     tune_node_process()
     context = Context()
-    rclpy.init(args=list(args or []), context=context, domain_id=private_domain_id() if domain_id is None else int(domain_id),
+    rclpy.init(args=list(args or []), context=context,
+               domain_id=private_domain_id() if domain_id is None else int(domain_id),
                signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     try:
         yield context

@@ -284,7 +284,7 @@ def run_bag(bag_path, rig: Rig, *, rate: float = 1.0, record=None, options: Grap
             result.recorded_files = list(writer.paths)
     result.truncated, result.problem = bag.truncated, bag.problem
     result.damage = [d.describe(bag.path).split(": ", 1)[1] for d in bag.damage]
-    if book.frames_in == 0 and (result.invalid_messages or damaged or bag.damage):
+    if book.frames_in == 0 and (result.invalid_messages or bag.truncated or bag.damage):
         why = (f"{len(result.invalid_messages)} input messages are not valid CDR (first: "
                f"{result.invalid_messages[0]})" if result.invalid_messages else
                f"the bag is {'truncated' if bag.truncated else 'damaged'} ({bag.problem})")

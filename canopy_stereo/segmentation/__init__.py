@@ -24,6 +24,13 @@ from canopy_stereo.segmentation.indices import (
     otsu_threshold,
     vegetation_index,
 )
+from canopy_stereo.segmentation.masks import (
+    parse_rect,
+    read_leaf_ids,
+    read_mask,
+    write_leaf_ids,
+    write_mask,
+)
 from canopy_stereo.segmentation.overlay import mask_overlay
 from canopy_stereo.segmentation.plants import (
     PLANT_SEGMENTER,
@@ -31,13 +38,6 @@ from canopy_stereo.segmentation.plants import (
     PlantSegmenterSettings,
     plant_instances,
     segment_plants,
-)
-from canopy_stereo.segmentation.masks import (
-    parse_rect,
-    read_leaf_ids,
-    read_mask,
-    write_leaf_ids,
-    write_mask,
 )
 
 __all__ = [

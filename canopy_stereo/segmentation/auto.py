@@ -134,7 +134,9 @@ def combine_votes(colour: np.ndarray | None, depth: np.ndarray | None) -> np.nda
     """
     if colour is None and depth is None:
         raise ImageError("no cue to segment with: give a colour index or a disparity/depth map")
-    shape = (colour if colour is not None else depth).shape
+    ref = colour if colour is not None else depth
+    assert ref is not None  # (one of the two, checked above)
+    shape = ref.shape
     if colour is None or depth is None:
         v = colour if colour is not None else depth
         out = np.full(shape, GC_PR_BGD, np.uint8)
@@ -423,7 +425,7 @@ def _prepare(image_bgr, disparity, depth, settings: SeederSettings, rect):
     h, w = img.shape[:2]
     if disparity is not None and depth is not None:
         raise ImageError("give either a disparity or a depth map, not both")
-    maps = []
+    maps: list[np.ndarray | None] = []
     for name, arr in (("disparity", disparity), ("depth", depth)):
         if arr is None:
             maps.append(None)

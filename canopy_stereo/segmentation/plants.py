@@ -91,7 +91,7 @@ class PlantSegmenterSettings:
     cap_fraction: float = 0.15
     use_colour: bool = True
 
-    def replace(self, **changes) -> "PlantSegmenterSettings":
+    def replace(self, **changes) -> PlantSegmenterSettings:
         return replace(self, **changes)
 
 

@@ -27,7 +27,8 @@ Measured (``test/test_segmentation_propagate.py``; ``benchmarks/bench_graph.py``
 ``segment`` row): on the bundled scenes the propagated masks stay within IoU 0.95 of a
 full GrabCut of the same frame (croton, 4 frames of breeze: >= 0.98; the real Plants pair
 with sensor noise: >= 0.97; the Plants crop drifting 1.3 px a frame: 0.98 on average,
-0.93 at worst; a rectangle seed, which says nothing about colours, 0.88); CPU per 640x480 frame drops from about 18 ms to about 6 ms on propagated
+0.93 at worst; a rectangle seed, which says nothing about colours, 0.88); CPU per 640x480 frame drops from about 18 ms
+to about 6 ms on propagated
 frames, 8-9 ms on average with ``recut_every`` 10 (a full cut and a model fit cost about
 27 ms).
 
@@ -100,7 +101,7 @@ class MaskPropagator:
 
     def reset(self) -> None:
         """Forget the models: the next frame is cut in full."""
-        self._models = None  # (plant, background) ColourGMM
+        self._models: tuple | None = None  # (plant, background) ColourGMM
         self._since_full = 0
         self._full_area = 0.0  # plant share of the image at the last full cut
 

@@ -126,7 +126,6 @@ def calibration_placements(rig=None, *, fit_to_view: bool = True, **layout) -> P
     if "first_mark" in layout or not fit_to_view:
         return _layout_in_front_of(rig, paper, **layout)
     angles = tuple(layout.pop("angles_deg", PAPER_LAYOUT["angles_deg"]))
-    widest = max(abs(a) for a in angles) or 1.0
     # the paper's angles first; a narrow camera that cannot see them gets the lines closer together
     for shrink in (1.0, 0.8, 0.6, 0.5, 0.4, 0.3, 0.2, 0.1, 0.0):
         ang = tuple(a * shrink for a in angles)

@@ -489,5 +489,5 @@ def local_corners(prim) -> np.ndarray:
         return corners @ prim.axes + prim.origin
 
 
-__all__ = ["Cylinder", "DISTRACTOR_LABELS", "Disc", "Frustum", "LABEL_NAMES", "PLANT_LABELS", "Leaf", "Material", "Primitive",
-           "Rectangle", "Sphere", "frame_from_xz", "frame_from_z", "local_corners"]
+__all__ = ["Cylinder", "DISTRACTOR_LABELS", "Disc", "Frustum", "LABEL_NAMES", "PLANT_LABELS", "Leaf", "Material",
+           "Primitive", "Rectangle", "Sphere", "frame_from_xz", "frame_from_z", "local_corners"]

@@ -171,7 +171,7 @@ def render_pair(scene: Scene, rig, *, supersample: int = 2, effects: CameraEffec
                                 "place the scene in front of the rig first")
     effects = CameraEffects() if effects is None else effects
     timings = {}
-    scene.packed  # pack once, before the threads share it
+    _ = scene.packed  # pack once (a cached property), before the threads share it
 
     def view(camera):
         P, D = (rig.P_left, rig.D_left) if camera == "left" else (rig.P_right, rig.D_right)

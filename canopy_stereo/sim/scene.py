@@ -70,7 +70,7 @@ class PlantSpec:
     up: np.ndarray
     reference: str = "pot_rim"
 
-    def transformed(self, Q, t, s: float) -> "PlantSpec":
+    def transformed(self, Q, t, s: float) -> PlantSpec:
         Q = np.asarray(Q, np.float64)
         return replace(self, reference_point=np.asarray(t, np.float64) + s * Q @ self.reference_point,
                        up=Q @ np.asarray(self.up, np.float64))
@@ -195,7 +195,8 @@ class Scene:
         bg_index = next(i for i, p in enumerate(self.primitives) if p is self.background)
         breeze = {k: replace(b, axis=Q @ b.axis) for k, b in self.breeze.items()}
         return replace(self, primitives=prims, background=prims[bg_index], light=Q @ self.light,
-                       breeze=breeze, plants=tuple(p.transformed(Q, t, s) for p in self.plants), world_unit=world_unit or self.world_unit,
+                       breeze=breeze, plants=tuple(p.transformed(Q, t, s) for p in self.plants),
+                       world_unit=world_unit or self.world_unit,
                        anchor_origin=t + s * Q @ self.anchor_origin,
                        anchor_axes=self.anchor_axes @ Q.T)
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.sim.potted import build_pots_side_by_side, build_potted_distractors
 from canopy_stereo.sim.primitives import (
     LABEL_STEM,
     Cylinder,
@@ -37,7 +38,6 @@ from canopy_stereo.sim.primitives import (
     Sphere,
 )
 from canopy_stereo.sim.raycast import PackedScene, trace_rays
-from canopy_stereo.sim.potted import build_pots_side_by_side, build_potted_distractors
 from canopy_stereo.sim.scene import Breeze, PlantSpec, Scene
 
 #: Marked croton leaves of the paper (width, length) in mm.

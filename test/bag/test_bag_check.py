@@ -208,3 +208,46 @@ def test_run_plays_the_intact_frames_of_a_damaged_bag(damaged):
     assert result.frames_in == 3 and result.frames_out == 3  # one left image was in the damaged chunk
     text = "\n".join(result.summary_lines())
     assert f"input bag damaged: offset {offset}" in text and "messages lost" in text
+
+
+def _bag_without_playable_frames(path: Path, *, damage: bool) -> Path:
+    """Both input topics declared in the first chunk (beside one /other message); every
+    left/right image in a later chunk of its own, each of those damaged when ``damage``
+    (or no image at all when not)."""
+    from std_msgs.msg import String
+
+    src = BagReader(bundled_bag("croton"))
+    images = [m for m in src.messages() if m.topic.endswith("image_raw")][:4]
+    with BagWriter(path, chunk_size=64, flush_period_s=0) as w:
+        for topic in ("/stereo/left/image_raw", "/stereo/right/image_raw"):
+            w.add_topic(topic, "sensor_msgs/msg/Image")
+        w.write("/other", String(data="first chunk"), images[0].log_time_ns)
+        for m in images if damage else []:
+            w.write(m.topic, m.data, m.log_time_ns, publish_time_ns=m.publish_time_ns, msg_type=m.type_name)
+    if damage:
+        data = bytearray(path.read_bytes())
+        for a, b in _chunks(bytes(data))[1:]:
+            data[(a + b) // 2] ^= 0x5A
+        path.write_bytes(bytes(data))
+    return path
+
+
+@pytest.mark.slow
+def test_run_of_a_bag_that_plays_no_frame(tmp_path):
+    """Regression (ruff F821): ``run_bag`` named an undefined ``damaged`` when no frame played,
+    so such a bag raised NameError. A damaged one is a BagError naming the damage; an intact
+    one without images plays nothing and says so."""
+    pytest.importorskip("rclpy")
+    from canopy_stereo.io.rig import load_rig
+    from canopy_stereo.ros.graph import GraphOptions
+    from canopy_stereo.ros.runner import run_bag
+
+    rig = load_rig(bundled_rig("croton"))
+    options = GraphOptions(matcher="sgbm", segment=False, parameter_services=False)
+    damaged = _bag_without_playable_frames(tmp_path / "damaged.mcap", damage=True)
+    assert BagReader(damaged).verify().chunks_damaged == 4
+    with pytest.raises(BagError, match="no frame could be played: the bag is damaged"):
+        run_bag(damaged, rig, rate=0, options=options, idle_s=0.5)
+    empty = _bag_without_playable_frames(tmp_path / "empty.mcap", damage=False)
+    result = run_bag(empty, rig, rate=0, options=options, idle_s=0.5)
+    assert result.frames_in == 0 and result.frames_out == 0 and not result.damage

@@ -104,7 +104,7 @@ def variants(name, data: bytes, lay: dict, n: int, seed: int):
         buf = bytearray(data)
         ranges = []
 
-        def flip(pos):
+        def flip(pos, buf=buf, ranges=ranges):
             buf[pos] ^= int(rng.integers(1, 256))
             ranges.append((pos, pos + 1))
 

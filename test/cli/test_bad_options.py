@@ -135,7 +135,8 @@ def test_a_rig_too_large_for_memory_is_one_line_not_an_internal_error(tmp_path):
 
     rig = tmp_path / "huge.yaml"
     rig.write_text((REPO / "config" / "paper_rig.yaml").read_text()
-                   .replace("image_width: 640", "image_width: 40000").replace("image_height: 480", "image_height: 30000"))
+                   .replace("image_width: 640", "image_width: 40000")
+                   .replace("image_height: 480", "image_height: 30000"))
 
     def limit():  # 8 GB of address space: the 40000x30000 render cannot fit
         resource.setrlimit(resource.RLIMIT_AS, (8 << 30, 8 << 30))

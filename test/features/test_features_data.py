@@ -18,10 +18,10 @@ GT_PAIRS = {
 @pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(GT_PAIRS))
 def test_qdmatch_is_correct_and_spreads_wider_than_sift(shared_data, name):
-    folder, l, r, g, scale = GT_PAIRS[name]
-    left = read_image(shared_data / folder / l)
-    right = read_image(shared_data / folder / r)
-    gt = read_disparity(shared_data / folder / g, scale)
+    folder, left_file, right_file, truth_file, scale = GT_PAIRS[name]
+    left = read_image(shared_data / folder / left_file)
+    right = read_image(shared_data / folder / right_file)
+    gt = read_disparity(shared_data / folder / truth_file, scale)
     qd = match_pair(left, right, method="qdmatch")
     sift = match_pair(left, right, method="sift")
     share, n = gt_correctness(qd.x_left, qd.x_right, gt)
@@ -56,10 +56,10 @@ def test_qdmatch_reaches_the_paper_spread_on_plant_pairs(shared_data):
     assert qd.result.distribution > 3 * sift.result.distribution
     assert qd.correct >= 0.95
     assert qd.result.extras["num_propagated"] > 60000
-    folder, l, r, g, scale = GT_PAIRS["Aloe"]
-    left = read_image(shared_data / folder / l)
-    right = read_image(shared_data / folder / r)
-    gt = read_disparity(shared_data / folder / g, scale)
+    folder, left_file, right_file, truth_file, scale = GT_PAIRS["Aloe"]
+    left = read_image(shared_data / folder / left_file)
+    right = read_image(shared_data / folder / right_file)
+    gt = read_disparity(shared_data / folder / truth_file, scale)
     qd = match_pair(left, right, method="qdmatch")
     share, _ = gt_correctness(qd.x_left, qd.x_right, gt)
     assert qd.distribution >= 0.55 and share >= 0.98
@@ -86,10 +86,10 @@ def test_qdmatch_is_95_percent_correct_on_the_middlebury_scenes(shared_data):
     back above 95 % (96.5 %; 13 of 15 scenes >= 95 %, Playtable 91 %) with every scene
     above 90 % and wider spread than SIFT everywhere."""
     shares = {}
-    for name, (folder, l, r, g, scale) in MIDDLEBURY_GT.items():
-        left = read_image(shared_data / folder / l)
-        right = read_image(shared_data / folder / r)
-        gt = read_disparity(shared_data / folder / g, scale)
+    for name, (folder, left_file, right_file, truth_file, scale) in MIDDLEBURY_GT.items():
+        left = read_image(shared_data / folder / left_file)
+        right = read_image(shared_data / folder / right_file)
+        gt = read_disparity(shared_data / folder / truth_file, scale)
         qd = match_pair(left, right, method="qdmatch")
         sift = match_pair(left, right, method="sift")
         shares[name], n = gt_correctness(qd.x_left, qd.x_right, gt)

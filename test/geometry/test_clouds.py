@@ -33,7 +33,8 @@ def test_check_cloud_accepts_clouds_and_names_what_is_wrong():
     with pytest.raises(ImageError):
         check_cloud(np.zeros(3), organized=None, error=ImageError)
     check_on_grid(np.zeros((4, 5), bool), np.zeros((4, 5, 3)), "mask")
-    with pytest.raises(CanopyStereoError, match=r"^mask is 5x4 but the organized cloud is 6x4 \(draw it on the left\)$"):
+    with pytest.raises(CanopyStereoError,
+                       match=r"^mask is 5x4 but the organized cloud is 6x4 \(draw it on the left\)$"):
         check_on_grid(np.zeros((4, 5), bool), np.zeros((4, 6, 3)), "mask", hint="draw it on the left")
 
 

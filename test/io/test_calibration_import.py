@@ -178,34 +178,31 @@ def test_inconsistent_files_are_one_error_each(tmp_path):
     sub = tmp_path / "cv"
     sub.mkdir()
     intr, extr = write_opencv(CASES["opencv yaml"][0](), sub, "yml")
-    import cv2
-
-    fs = cv2.FileStorage(str(extr), cv2.FILE_STORAGE_READ)
-    fields = {k: fs.getNode(k).mat() for k in ("R", "T", "R1", "R2", "P1", "P2", "Q")}
-    fs.release()
-    fields["T"] = fields["T"] * 1.1        # R1 R2 P1 P2 no longer a rectification of R, T
-    fs = cv2.FileStorage(str(extr), cv2.FILE_STORAGE_WRITE)
-    for k, v in fields.items():
-        fs.write(k, v)
-    fs.release()
+    _rewrite_filestorage(extr, ("R", "T", "R1", "R2", "P1", "P2", "Q"),
+                         T=lambda t: t * 1.1)  # R1 R2 P1 P2 no longer a rectification of R, T
     with pytest.raises(CalibrationError, match="not a rectification"):
         import_calibration("opencv", [intr, extr])
     with pytest.raises(CalibrationError, match="two files"):
         import_calibration("ros-yaml", [left])
 
 
-def test_opencv_file_without_size_needs_image_size(tmp_path):
+def _rewrite_filestorage(path, keys, **change):
+    """Rewrite a FileStorage file with only ``keys``, ``change[key](matrix)`` applied."""
     import cv2
 
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    fields = {k: fs.getNode(k).mat() for k in keys}
+    fs.release()
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    for k, v in fields.items():
+        fs.write(k, change[k](v) if k in change else v)
+    fs.release()
+
+
+def test_opencv_file_without_size_needs_image_size(tmp_path):
     true = CASES["opencv yaml"][0]()
     intr, extr = write_opencv(true, tmp_path, "yml")
-    fs = cv2.FileStorage(str(intr), cv2.FILE_STORAGE_READ)
-    fields = {k: fs.getNode(k).mat() for k in ("M1", "D1", "M2", "D2")}
-    fs.release()
-    fs = cv2.FileStorage(str(intr), cv2.FILE_STORAGE_WRITE)
-    for k, v in fields.items():
-        fs.write(k, v)
-    fs.release()
+    _rewrite_filestorage(intr, ("M1", "D1", "M2", "D2"))   # the sample's intrinsics.yml: no size
     with pytest.raises(CalibrationError, match="--image-size"):
         import_calibration("opencv", [intr, extr])
     got = import_calibration("opencv", [intr, extr], image_size=(640, 480), unit="mm")

@@ -97,7 +97,7 @@ def test_fusion_node_registers_clouds_without_pose_and_drops_non_overlapping(fus
     for k in range(2):
         T = np.linalg.matrix_power(STEP, k)
         _send(clouds, transform_points(invert_transform(T), pts), cols, k)
-        assert wait_for(lambda: node.fusion.view_count == k + 1, TIMEOUT)
+        assert wait_for(lambda k=k: node.fusion.view_count == k + 1, TIMEOUT)
     # the node counts (and keeps last_result) just after the view is fused: wait for the count
     assert wait_for(lambda: node.counts["clouds_registered"] == 1, TIMEOUT), node.counts
     res = node.last_result

@@ -79,7 +79,8 @@ class Ros1:
         self.start("roscore", ["roscore", "-p", str(self.port)])
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline:
-            if subprocess.run(["rostopic", "list"], env=self.env, capture_output=True).returncode == 0:
+            if subprocess.run(["rostopic", "list"], env=self.env, stdin=subprocess.DEVNULL,
+                              capture_output=True).returncode == 0:
                 return
             time.sleep(0.3)
         raise AssertionError("roscore did not come up")
@@ -89,7 +90,8 @@ class Ros1:
         if namespace:
             env["ROS_NAMESPACE"] = namespace
         log = open(self.home / f"{name}.log", "wb")
-        p = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        p = subprocess.Popen(cmd, env=env, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+                             start_new_session=True)
         p.name = name
         self.procs.append(p)
         return p
@@ -189,7 +191,8 @@ def test_stereo_image_proc_and_image_proc_run_on_our_recording(tmp_path):
                                        "/stereo/right/image_raw", "/stereo/right/camera_info"])):
             play = subprocess.run(["rosbag", "play", "-q", "--wait-for-subscribers", "-r", "0.5",
                                    str(bag), "--topics", *topics],
-                                  env=ros.env, capture_output=True, text=True, timeout=120)
+                                  env=ros.env, stdin=subprocess.DEVNULL, capture_output=True, text=True,
+                                  timeout=120)
             assert play.returncode == 0, play.stderr
         time.sleep(3.0)
         for p in procs:  # no abort (image_geometry's frame assertion) and still running
@@ -241,6 +244,8 @@ def test_stereo_image_proc_and_image_proc_run_on_our_recording(tmp_path):
             assert inside.mean() > 0.8
             diffs.append(float(np.median(np.abs(a - b)[inside])))
     assert max(diffs) <= 1, diffs
+    print(f"stereo_image_proc point_cloud2 vs our points2: worst relative difference {worst:.2e} over "
+          f"{n_compared} clouds; image_proc image_rect vs ours: median grey-level differences {diffs}")
 
 
 def _stamp(msg) -> int:

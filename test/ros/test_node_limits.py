@@ -122,7 +122,8 @@ def test_check_cloud_msg():
 @pytest.mark.slow
 def test_refusing_an_oversize_message_schedules_one_release(monkeypatch):
     calls = []
-    monkeypatch.setattr("canopy_stereo.ros.context.release_free_memory", lambda hold_s=0.0: calls.append(hold_s) or True)
+    monkeypatch.setattr("canopy_stereo.ros.context.release_free_memory",
+                        lambda hold_s=0.0: calls.append(hold_s) or True)
     big = _image(4000, 3000)  # 36 MB of payload
     for _ in range(3):
         with pytest.raises(ImageError):
@@ -234,7 +235,8 @@ def test_hostile_burst_into_node_processes_is_dropped_logged_and_memory_returns(
             stamp = T0 + k * 100_000_000
             n = len(clouds)
             pubs["left/image_raw"].publish(convert.image_to_msg(left, "bgr8", stamp_ns=stamp, frame_id="left_camera"))
-            pubs["right/image_raw"].publish(convert.image_to_msg(right, "bgr8", stamp_ns=stamp, frame_id="right_camera"))
+            pubs["right/image_raw"].publish(
+                convert.image_to_msg(right, "bgr8", stamp_ns=stamp, frame_id="right_camera"))
             assert spin_until(lambda: len(clouds) > n, 90.0), f"no cloud for good pair {k}: " + _tails(logs)
             return clouds[-1]
 
@@ -248,7 +250,8 @@ def test_hostile_burst_into_node_processes_is_dropped_logged_and_memory_returns(
         def first_cloud(k):
             stamp = T0 + k * 100_000_000
             pubs["left/image_raw"].publish(convert.image_to_msg(left, "bgr8", stamp_ns=stamp, frame_id="left_camera"))
-            pubs["right/image_raw"].publish(convert.image_to_msg(right, "bgr8", stamp_ns=stamp, frame_id="right_camera"))
+            pubs["right/image_raw"].publish(
+                convert.image_to_msg(right, "bgr8", stamp_ns=stamp, frame_id="right_camera"))
             return spin_until(lambda: len(clouds) > 0, 10.0)
 
         assert any(first_cloud(k) for k in range(12)), "no first cloud: " + _tails(logs)

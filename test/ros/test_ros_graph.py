@@ -75,7 +75,7 @@ def test_croton_bag_through_the_real_nodes_is_metric(croton, tmp_path):
         assert len(points) > 0.6 * 640 * 480 and colors.shape == (len(points), 3)
         errors = relative_depth_errors(points, rig, truth[stamp])
         assert np.median(errors) < 0.01, np.median(errors)
-    for stamp, data in result.outputs["disparity"]:
+    for _stamp, data in result.outputs["disparity"]:
         d = deserialize_message(data, DisparityImage)
         assert d.f == pytest.approx(rect.focal_length, rel=1e-6)
         assert d.t == pytest.approx(rig.baseline * rig.metres_per_unit, rel=1e-6)
@@ -148,9 +148,9 @@ def test_run_keeps_recorded_timing(croton, tmp_path):
     """At rate 2 a 0.3 s bag takes about 0.15 s to play; remapped input topics."""
     bag, rig = croton
     reader = BagReader(bag)
-    frames = [(convert.msg_to_image(l), convert.msg_to_image(r), 1_000_000_000 + k * 200_000_000,
+    frames = [(convert.msg_to_image(lm), convert.msg_to_image(rm), 1_000_000_000 + k * 200_000_000,
                1_000_000_000 + k * 200_000_000 + 3_000_000)
-              for k, ((_, l), (_, r)) in enumerate(zip(reader.read("/stereo/left/image_raw"),
+              for k, ((_, lm), (_, rm)) in enumerate(zip(reader.read("/stereo/left/image_raw"),
                                                        reader.read("/stereo/right/image_raw")))]
     src = write_stereo_bag(tmp_path / "src.mcap", frames)
     remapped = tmp_path / "cam.mcap"

@@ -159,7 +159,7 @@ def test_rectify_node_counts_frames_it_never_received(harness, paper_rig):
         t = T0 + k * 100_000_000
         pl.publish(convert.image_to_msg(left, "bgr8", stamp_ns=t, frame_id="left_camera"))
         pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=t + 3_000_000, frame_id="right_camera"))
-        assert wait_for(lambda: len(out) == sent.index(k) + 1, TIMEOUT)
+        assert wait_for(lambda k=k: len(out) == sent.index(k) + 1, TIMEOUT)
     assert node.stats()["drops"] == {f"left frame: {MISSED_REASON}": 4}
     values = {kv.key: kv.value for kv in node.diagnostics.status().values}
     assert values[f"dropped: left frame: {MISSED_REASON}"] == "4"
@@ -356,7 +356,7 @@ def test_segment_node_propagates_the_plant_model(harness):
     harness.connect(pub)
     for k, img in enumerate(frames):
         pub.publish(convert.image_to_msg(img, "bgr8", stamp_ns=T0 + k, frame_id="rect"))
-        assert wait_for(lambda: len(out) == k + 1, TIMEOUT)
+        assert wait_for(lambda k=k: len(out) == k + 1, TIMEOUT)
     propagator = node.settings["propagator"]
     assert (propagator.full_cuts, propagator.propagated) == (2, 6)
     for msg, img in zip(out, frames):

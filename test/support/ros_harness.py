@@ -381,9 +381,9 @@ def feed_pairs(pub_left, pub_right, frames, stamps_ns, rate_hz: float, right_off
     ``rate_hz``; returns left stamp -> monotonic time the pair's right image left."""
     from canopy_stereo.ros.convert import image_to_msg
 
-    msgs = [(image_to_msg(l, "bgr8", stamp_ns=0, frame_id="left_camera"), image_to_msg(r, "bgr8", stamp_ns=0,
-                                                                                       frame_id="right_camera"))
-            for l, r in frames]
+    msgs = [(image_to_msg(left, "bgr8", stamp_ns=0, frame_id="left_camera"),
+             image_to_msg(right, "bgr8", stamp_ns=0, frame_id="right_camera"))
+            for left, right in frames]
     sent = {}
     t0 = time.monotonic()
     for k, stamp in enumerate(stamps_ns):

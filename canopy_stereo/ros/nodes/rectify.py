@@ -26,7 +26,8 @@ from the drivers' ``left/camera_info`` and ``right/camera_info``, as image_pipel
 frames before both arrive are dropped; :mod:`canopy_stereo.ros.camera_info_rig`),
 ``method`` (empty = the rig's),
 ``H_left``/``H_right`` (unset = the rig's; the rectification is
-:func:`~canopy_stereo.geometry.rig_rectification.rectification_for_rig`'s), ``fps`` (the cameras' frame rate, 0 = measured from the
+:func:`~canopy_stereo.geometry.rig_rectification.rectification_for_rig`'s), ``fps`` (the cameras' frame rate, 0 =
+measured from the
 stamps), ``sync_slop`` (s; -1 = half a frame period at ``fps``), ``queue_size``,
 ``frame_id`` (rectified left optical frame) and ``right_frame_id`` ("" = ``frame_id`` in the
 messages, ``right_camera_rect_optical_frame`` in the transforms), ``world_frame``,
