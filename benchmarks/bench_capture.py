@@ -38,7 +38,6 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from canopy_stereo.geometry.camera import point_depth  # noqa: E402
 from canopy_stereo.pipeline.reconstruct import reconstruct_pair  # noqa: E402
 from canopy_stereo.sim import resolve_rig, rig_at_resolution  # noqa: E402
 from canopy_stereo.sim.sequence import (  # noqa: E402
@@ -55,7 +54,8 @@ SWEEPS = {
     "skew": [(f"skew {s} ms", "along", 0.25, 0.0, s, 0.0, None) for s in (0, 8, 16, 33)],
     "speed": [(f"speed {v} m/s", "along", v, 0.0, 16, 0.0, None) for v in (0.05, 0.1, 0.25, 0.5)],
     "direction": [("along", "along", 0.25, 0.0, 8, 0.0, None), ("across", "across", 0.25, 0.0, 8, 0.0, None),
-                  ("toward", "toward", 0.25, 0.0, 8, 0.0, None), ("turning 20 deg/s", "still", 0.0, 20.0, 8, 0.0, None)],
+                  ("toward", "toward", 0.25, 0.0, 8, 0.0, None),
+                  ("turning 20 deg/s", "still", 0.0, 20.0, 8, 0.0, None)],
     "wind": [(f"wind {w}", "still", 0.0, 0.0, 16, w, None) for w in (1.0, 3.0, 5.0)],
     "jpeg": [(f"JPEG {q}", "along", 0.25, 0.0, 8, 0.0, q) for q in (95, 80, 60)],
 }
