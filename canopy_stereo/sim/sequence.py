@@ -23,15 +23,15 @@ its own instant, with its own exposure and white balance, and sends MJPEG.
   images are JPEG encoded and decoded, as a webcam's MJPEG stream is; the
   encoded bytes are kept for compressed bags).
 
-Each :class:`SequenceFrame` holds the two images, their capture times, the
+Each :class:`SequenceFrame` (a :class:`~canopy_stereo.sim.render.SimResult`) holds the two images, their capture times, the
 left view's truth at the left capture instant (world point and leaf id per
 pixel, the scene's truth dict with the rig pose and leaf speeds) and the
 right view's world points at the right instant.
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
+from dataclasses import fields as dataclass_fields
 
 import cv2
 import numpy as np
@@ -39,7 +39,7 @@ import numpy as np
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.geometry.camera import point_depth
 from canopy_stereo.sim.primitives import Leaf
-from canopy_stereo.sim.render import render_view
+from canopy_stereo.sim.render import SimResult, render_pair
 from canopy_stereo.sim.scene import Scene, axis_angle_matrix, place_in_front_of
 from canopy_stereo.sim.scenes import build_scene
 from canopy_stereo.sim.sensor import CameraEffects
@@ -120,36 +120,27 @@ class CaptureTiming:
 
 
 @dataclass
-class SequenceFrame:
-    """One captured stereo frame of a sequence (world frame and unit of the rig).
+class SequenceFrame(SimResult):
+    """One captured stereo frame of a sequence: a :class:`~canopy_stereo.sim.render.SimResult`
+    (world frame and unit of the rig) whose two views were captured at their own instants.
 
-    Attributes:
+    ``left``/``right`` are the images as the cameras deliver them (after JPEG when the
+    sequence has a quality); ``xyz_left``, ``leaf_ids_left``, ``labels_left``, ... are the
+    left view's truth at ``t_left``, the ``_right`` ones the right view's at ``t_right``;
+    ``truth`` is the scene's truth dict at ``t_left`` (see :mod:`canopy_stereo.sim`) plus
+    ``t_left``, ``t_right``, ``skew_ms``, ``rig_pose`` (``R``, ``d_mm`` from the calibrated
+    pose), ``leaf_speed_mm_s`` (median and max speed of the leaf surfaces from wind),
+    ``jpeg_quality`` and ``sequence`` (the :class:`SequenceSpec`).
+
+    Attributes (beyond :class:`~canopy_stereo.sim.render.SimResult`'s):
         index: frame number.
         t_left, t_right: capture times (s) of the two images.
-        left, right: (H, W, 3) uint8 BGR images as the cameras deliver them (after JPEG
-            when the sequence has a quality).
         jpeg_left, jpeg_right: the JPEG bytes (None for lossless sequences).
-        xyz_left: (H, W, 3) float64 world point at each left pixel centre at ``t_left``
-            (NaN = none); ``xyz_right`` likewise at ``t_right``.
-        leaf_ids_left: (H, W) uint16 leaf id at each left pixel at ``t_left`` (0 = none);
-            ``leaf_ids_right`` likewise at ``t_right``.
-        truth: the scene's truth dict at ``t_left`` (see :mod:`canopy_stereo.sim`; the leaves'
-            ``pixels_right`` count the right view at ``t_right``) plus
-            ``t_left``, ``t_right``, ``skew_ms``, ``rig_pose`` (``R``, ``d_mm`` from the
-            calibrated pose), ``leaf_speed_mm_s`` (median and max speed of the leaf
-            surfaces from wind) and ``jpeg_quality``.
     """
 
-    index: int
-    t_left: float
-    t_right: float
-    left: np.ndarray
-    right: np.ndarray
-    xyz_left: np.ndarray
-    xyz_right: np.ndarray
-    leaf_ids_left: np.ndarray
-    leaf_ids_right: np.ndarray
-    truth: dict
+    index: int = 0
+    t_left: float = 0.0
+    t_right: float = 0.0
     jpeg_left: bytes | None = None
     jpeg_right: bytes | None = None
 
@@ -261,53 +252,34 @@ def jpeg_round_trip(image: np.ndarray, quality: int) -> tuple[np.ndarray, bytes]
 def render_sequence(spec: SequenceSpec, rig, *, progress=None):
     """Render the frames of ``spec`` through ``rig`` (a :class:`~canopy_stereo.io.rig.Rig`).
 
-    Yields one :class:`SequenceFrame` per frame (two ray-cast views each: the left
-    camera at its capture instant, the right one at its own). Deterministic for a
-    given spec. ``progress``: optional callable called after each frame.
+    Yields one :class:`SequenceFrame` per frame (:func:`~canopy_stereo.sim.render.render_pair`
+    with the left camera's scene at its capture instant and the right camera's at its own).
+    Deterministic for a given spec. ``progress``: optional callable called after each frame.
     """
     effects = spec.effects or CameraEffects()
     base = build_scene(spec.scene, spec.seed)
     times = spec.timing.times(spec.frames, seed=spec.seed)
     t_mid = 0.5 * float(times[-1, 0] + times[0, 0])
-    cameras = ((rig.P_left, rig.D_left), (rig.P_right, rig.D_right))
     for k in range(spec.frames):
-        scenes = [scene_at(base, rig, float(times[k, cam]), motion=spec.motion, wind=spec.wind,
-                           t_mid=t_mid, frame=k) for cam in (0, 1)]
-        for scene in scenes:
-            _ = scene.packed  # pack before the threads share it
-
-        def view(cam, scenes=scenes):
-            P, D = cameras[cam]
-            return render_view(scenes[cam], P, D, rig.image_size, supersample=spec.supersample)
-
-        with ThreadPoolExecutor(max_workers=2) as pool:  # the kernels release the GIL
-            views = list(pool.map(view, (0, 1)))
-        rng = np.random.default_rng([int(spec.seed) & 0x7FFFFFFF, k, 0x5E25])
-        images = [effects.expose(v.radiance, cam, rng) for cam, v in enumerate(views)]
-        jpegs: list[bytes | None] = [None, None]
+        left_scene, right_scene = (scene_at(base, rig, float(times[k, cam]), motion=spec.motion, wind=spec.wind,
+                                            t_mid=t_mid, frame=k) for cam in (0, 1))
+        sim = render_pair(left_scene, rig, supersample=spec.supersample, effects=effects, right_scene=right_scene)
+        images, jpegs = [sim.left, sim.right], [None, None]
         if spec.jpeg_quality is not None:
             (images[0], jpegs[0]), (images[1], jpegs[1]) = (jpeg_round_trip(im, spec.jpeg_quality)
                                                           for im in images)
-        lookups = [np.append(sc.packed.leaf_ids, 0).astype(np.uint16) for sc in scenes]  # index -1 -> 0
-        truth = scenes[0].truth()
-        ids = [lookups[cam][v.prim_index] for cam, v in enumerate(views)]
-        counts = [np.bincount(i.ravel(), minlength=int(max(lk.max() for lk in lookups)) + 1) for i in ids]
-        for lf in truth["leaves"]:
-            lf["pixels_left"], lf["pixels_right"] = int(counts[0][lf["id"]]), int(counts[1][lf["id"]])
         R, d = spec.motion.pose(float(times[k, 0]) - t_mid)
         speeds = leaf_speeds(base, float(times[k, 0]), wind=spec.wind)
-        truth.update({"t_left": float(times[k, 0]), "t_right": float(times[k, 1]),
-                      "skew_ms": 1e3 * float(times[k, 1] - times[k, 0]),
-                      "rig_pose": {"R": R.tolist(), "d_mm": d.tolist()},
-                      "leaf_speed_mm_s": {"median": float(np.median(speeds)) if speeds.size else 0.0,
-                                          "max": float(speeds.max()) if speeds.size else 0.0},
-                      "jpeg_quality": spec.jpeg_quality, "image_size": list(rig.image_size),
-                      "camera_effects": effects.as_dict(), "sequence": spec.as_dict()})
-        yield SequenceFrame(index=k, t_left=float(times[k, 0]), t_right=float(times[k, 1]),
-                            left=images[0], right=images[1], xyz_left=views[0].xyz,
-                            xyz_right=views[1].xyz, leaf_ids_left=ids[0],
-                            leaf_ids_right=ids[1],
-                            truth=truth, jpeg_left=jpegs[0], jpeg_right=jpegs[1])
+        sim.truth.update({"t_left": float(times[k, 0]), "t_right": float(times[k, 1]),
+                          "skew_ms": 1e3 * float(times[k, 1] - times[k, 0]),
+                          "rig_pose": {"R": R.tolist(), "d_mm": d.tolist()},
+                          "leaf_speed_mm_s": {"median": float(np.median(speeds)) if speeds.size else 0.0,
+                                              "max": float(speeds.max()) if speeds.size else 0.0},
+                          "jpeg_quality": spec.jpeg_quality, "sequence": spec.as_dict()})
+        fields = {f.name: getattr(sim, f.name) for f in dataclass_fields(SimResult)}
+        fields.update(left=images[0], right=images[1])
+        yield SequenceFrame(**fields, index=k, t_left=float(times[k, 0]), t_right=float(times[k, 1]),
+                            jpeg_left=jpegs[0], jpeg_right=jpegs[1])
         if progress is not None:
             progress()
 
