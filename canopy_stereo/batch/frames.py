@@ -1,4 +1,4 @@
-"""Stereo frames of a raw bag, read without ROS.
+"""Stereo frames of a bag (raw or compressed images), read without ROS.
 
 Batch workers run on machines that may have only the core installed (a
 cluster's Python environment rarely has ROS 2), so this module decodes
@@ -13,6 +13,11 @@ of that header): ``int32 sec, uint32 nanosec, string frame_id, uint32 height,
 uint32 width, string encoding, uint8 is_bigendian, uint32 step,
 sequence<uint8> data`` (strings and sequences: ``uint32`` length, then the
 bytes; strings include their terminating NUL).
+
+A bag holding only compressed images (``sensor_msgs/msg/CompressedImage``, JPEG or PNG, on
+image_transport's ``<topic>/compressed``) is read the same way: :func:`stereo_topics` finds
+them when the raw topics are absent, and :func:`image_to_bgr` decodes either kind
+(:mod:`canopy_stereo.io.compressed_image`).
 """
 from __future__ import annotations
 
@@ -24,6 +29,12 @@ import cv2
 import numpy as np
 
 from canopy_stereo.errors import ImageError
+from canopy_stereo.io.compressed_image import (
+    COMPRESSED_IMAGE_TYPE,
+    CompressedFrame,
+    compressed_topic,
+    parse_compressed_image_cdr,
+)
 
 #: Default stereo topics of canopy_stereo's raw recordings.
 LEFT_TOPIC = "/stereo/left/image_raw"
@@ -103,9 +114,12 @@ def decode_image(data: bytes) -> RawImage:
     return RawImage(sec * 1_000_000_000 + nsec, frame_id, height, width, encoding, big, step, pixels)
 
 
-def image_to_bgr(img: RawImage) -> np.ndarray:
+def image_to_bgr(img: RawImage | CompressedFrame) -> np.ndarray:
     """uint8 BGR (H, W, 3) of an 8-bit colour or mono image (:class:`ImageError` otherwise,
-    or when the data is shorter than ``step * height``)."""
+    or when the data is shorter than ``step * height``), or of a compressed one (decoded;
+    :class:`ImageError` when it is corrupt)."""
+    if isinstance(img, CompressedFrame):
+        return img.to_bgr()
     channels = _CHANNELS.get(img.encoding)
     if channels is None:
         raise ImageError(f"image encoding {img.encoding!r} is not an 8-bit colour or mono image; "
@@ -124,24 +138,38 @@ def image_to_bgr(img: RawImage) -> np.ndarray:
     return cv2.cvtColor(arr, code) if code is not None else arr
 
 
+def stereo_topics(bag, left_topic: str = LEFT_TOPIC, *, right_topic: str = RIGHT_TOPIC) -> tuple[str, str]:
+    """The bag's topics for the stereo pair: ``left_topic`` and ``right_topic`` when the bag has
+    them, else their image_transport ``/compressed`` topics when it has those (a bag holding
+    only compressed images), else the given ones (:func:`raw_stereo_pairs` then names them)."""
+    if left_topic in bag.topics and right_topic in bag.topics:
+        return left_topic, right_topic
+    packed = compressed_topic(left_topic), compressed_topic(right_topic)
+    return packed if all(t in bag.topics for t in packed) else (left_topic, right_topic)
+
+
 def raw_stereo_pairs(bag, left_topic: str = LEFT_TOPIC, *, right_topic: str = RIGHT_TOPIC,
-                     slop_s: float = 0.015) -> Iterator[tuple[int, RawImage, RawImage]]:
-    """``(stamp_ns, left, right)`` :class:`RawImage` pairs of ``bag`` (a
-    :class:`~canopy_stereo.bag.BagReader`), paired by nearest header stamp within
-    ``slop_s`` seconds (:class:`~canopy_stereo.bag.pairing.ApproximateTimePairer`); the
-    pair's stamp is the left image's. Raises :class:`ImageError` when a topic is
-    missing or not an image."""
+                     slop_s: float = 0.015) -> Iterator[tuple[int, RawImage | CompressedFrame,
+                                                          RawImage | CompressedFrame]]:
+    """``(stamp_ns, left, right)`` pairs of ``bag`` (a :class:`~canopy_stereo.bag.BagReader`):
+    :class:`RawImage` for ``sensor_msgs/msg/Image`` topics, still-compressed
+    :class:`~canopy_stereo.io.compressed_image.CompressedFrame` for ``CompressedImage`` ones
+    (decoded by :func:`image_to_bgr` only for the pairs used), paired by nearest header stamp
+    within ``slop_s`` seconds (:class:`~canopy_stereo.bag.pairing.ApproximateTimePairer`); the
+    pair's stamp is the left image's. Raises :class:`ImageError` when a topic is missing or
+    not an image."""
     for topic in (left_topic, right_topic):
         info = bag.topics.get(topic)
         if info is None:
             raise ImageError(f"the bag has no {topic} (topics: {', '.join(sorted(bag.topics)) or 'none'})")
-        if info.type_name != IMAGE_TYPE:
-            raise ImageError(f"{topic} is {info.type_name}, not {IMAGE_TYPE}")
+        if info.type_name not in (IMAGE_TYPE, COMPRESSED_IMAGE_TYPE):
+            raise ImageError(f"{topic} is {info.type_name}, not {IMAGE_TYPE} or {COMPRESSED_IMAGE_TYPE}")
     from canopy_stereo.bag.pairing import ApproximateTimePairer
 
+    compressed = {t for t in (left_topic, right_topic) if bag.topics[t].type_name == COMPRESSED_IMAGE_TYPE}
     pairer = ApproximateTimePairer(slop_s, queue_size=5)
     for m in bag.messages([left_topic, right_topic]):
-        img = decode_image(m.data)
+        img = parse_compressed_image_cdr(m.data) if m.topic in compressed else decode_image(m.data)
         pair, _ = pairer.push(0 if m.topic == left_topic else 1, img.stamp_ns, img)
         if pair is not None:
             left, right = pair.items

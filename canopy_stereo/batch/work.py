@@ -156,7 +156,7 @@ def process_bag(path, options: BatchOptions | None = None) -> dict:
     from canopy_stereo import __version__
     from canopy_stereo.bag import BagReader
     from canopy_stereo.bag.metadata import canopy_metadata, matches_selection
-    from canopy_stereo.batch.frames import image_to_bgr, raw_stereo_pairs
+    from canopy_stereo.batch.frames import image_to_bgr, raw_stereo_pairs, stereo_topics
     from canopy_stereo.skew import SkewCompensator
 
     options = options or BatchOptions()
@@ -171,14 +171,13 @@ def process_bag(path, options: BatchOptions | None = None) -> dict:
         raise CanopyStereoError("no rig: the bag has no canopy_stereo_rig metadata record; give --rig RIG.yaml")
     rig_source = (options.rig_source or "given") if options.rig is not None else "bag"
     # at most max_frames pairs, spread over the pairs the bag can hold (its smaller stream)
-    n_pairs = min((bag.topics[t].message_count if t in bag.topics else 0)
-                  for t in (options.left_topic, options.right_topic))
+    left_topic, right_topic = stereo_topics(bag, options.left_topic, right_topic=options.right_topic)  # or /compressed
+    n_pairs = min((bag.topics[t].message_count if t in bag.topics else 0) for t in (left_topic, right_topic))
     keep = _spread(n_pairs, options.max_frames)
     last = max(keep, default=0)
     measured, failures, first_stamp = [], [], None
     skew = SkewCompensator(enabled=options.skew_compensation)
-    for k, (stamp, left, right) in enumerate(raw_stereo_pairs(bag, options.left_topic,
-                                                              right_topic=options.right_topic,
+    for k, (stamp, left, right) in enumerate(raw_stereo_pairs(bag, left_topic, right_topic=right_topic,
                                                               slop_s=options.sync_slop_s)):
         if k > last:
             break  # the frames to measure are done: read no further

@@ -1,4 +1,4 @@
-"""``canopy-stereo bag``: check a bag's integrity, or repair it into a complete copy."""
+"""``canopy-stereo bag``: check a bag's integrity, repair it into a complete copy, or compress its images."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -6,13 +6,17 @@ from pathlib import Path
 from canopy_stereo.errors import CanopyStereoError
 
 COMMAND = "bag"
-HELP = "check a rosbag2 MCAP bag's integrity (check), or copy everything intact (repair)"
+HELP = ("check a rosbag2 MCAP bag's integrity (check), copy everything intact (repair), or store its "
+        "images compressed (compress)")
 DESCRIPTION = """check FILE: read every chunk of the bag (CRC, size, records), the summary and the
 data-section CRC; print its integrity, topics, message counts, every damaged place (byte offset,
 problem, messages lost) and what is recoverable. Exit 0 when the bag is complete and intact,
 1 when it is damaged or was never closed (cut short), 2 when it cannot be read at all.
 repair FILE -o OUT: write every message that reads intact to OUT, a complete bag (summary,
-indexes, footer) that rosbags, mcap and ros2 bag read; then print the check of FILE."""
+indexes, footer) that rosbags, mcap and ros2 bag read; then print the check of FILE.
+compress FILE -o OUT [--jpeg-quality Q]: copy the bag with every 8-bit image topic stored as
+image_transport's <topic>/compressed (sensor_msgs/CompressedImage: JPEG at Q, default 95; PNG
+for masks; other images stay raw), as robot bags hold them."""
 
 
 def add_arguments(p):
@@ -28,6 +32,12 @@ def add_arguments(p):
     repair.add_argument("--compression", choices=("zstd", "lz4", "none"), default=None,
                         help="chunk compression of OUT (default: that of FILE)")
     repair.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+    comp = sub.add_parser("compress", help="copy with the images compressed (<topic>/compressed)",
+                          description="Copy FILE to OUT with its 8-bit images as CompressedImage.")
+    comp.add_argument("file", metavar="FILE", help="bag (.mcap)")
+    comp.add_argument("-o", "--output", required=True, metavar="OUT", help="compressed bag (.mcap)")
+    comp.add_argument("--jpeg-quality", type=int, default=95, metavar="Q", help="JPEG quality 1-100 (default 95)")
+    comp.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
 
 
 def run(args) -> int:
@@ -41,6 +51,17 @@ def run(args) -> int:
     out = Path(args.output)
     if out.exists() and not args.overwrite:
         raise CanopyStereoError(f"{out} exists (choose another name or pass --overwrite)")
+    if args.bag_command == "compress":
+        from canopy_stereo.ros import require_ros
+
+        require_ros("canopy-stereo bag compress")
+        from canopy_stereo.ros.bag_images import compress_bag
+
+        counts = compress_bag(args.file, out, quality=args.jpeg_quality, overwrite=args.overwrite)
+        for topic, n in sorted(counts.items()):
+            print(f"{topic}: {n}")
+        print(f"compressed: {out} ({Path(args.file).stat().st_size} -> {out.stat().st_size} bytes)")
+        return 0
     check = repair_bag(args.file, out, compression=args.compression, overwrite=args.overwrite)
     written = BagReader(out).verify()
     if not written.ok:  # never claim a repair that did not produce a clean file

@@ -24,6 +24,9 @@ def add_arguments(p):
     p.add_argument("--matcher", choices=matcher_names(), default=None,
                    help=f"disparity matcher (default: {DEFAULT_MATCHER})")
     p.add_argument("--domain-id", type=int, default=None, help="DDS domain (default: private)")
+    p.add_argument("--compressed", action="store_true",
+                   help="replay the bags with their images as JPEG (quality 95) CompressedImage on "
+                        "<topic>/compressed, as robot bags hold them")
     p.add_argument("--view", action="store_true",
                    help="stream the outputs live to the Rerun viewer (extra 'viz'): a window, or the "
                         "web viewer on localhost when there is no display (served until Ctrl-C)")
@@ -53,7 +56,8 @@ def run(args) -> int:
         for k, scene in enumerate(scenes):
             if view is not None and k > 0:
                 view.start_recording(scene, load_rig(bundled_rig(scene)))
-            for line in run_scene(scene, out_dir, matcher=args.matcher, domain_id=args.domain_id, view=view):
+            for line in run_scene(scene, out_dir, matcher=args.matcher, domain_id=args.domain_id, view=view,
+                                  compressed=args.compressed):
                 print(line, flush=True)
     finally:
         if view is not None:

@@ -5,10 +5,12 @@ from canopy_stereo.bag.split import add_split_arguments, split_options
 from canopy_stereo.cli.common import add_rig_argument, check_at_least
 from canopy_stereo.disparity import DEFAULT_MATCHER, default_matcher, matcher_names, matcher_spec
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.io.compressed_image import add_compression_arguments
 
 COMMAND = "run"
 HELP = "replay a stereo bag through the ROS 2 nodes and record their outputs"
-DESCRIPTION = """Publish the bag's /stereo/left/image_raw and /stereo/right/image_raw into the
+DESCRIPTION = """Publish the bag's /stereo/left/image_raw and /stereo/right/image_raw (or, in a bag of
+compressed images, their /compressed topics) into the
 real nodes (rectify, disparity, segment, point cloud), built in this process on a private
 DDS domain, and record /stereo/disparity, /stereo/points2, /stereo/left/mask and the camera
 infos to OUT.mcap. --rate 0 plays as fast as the graph goes. Prints frames in/out, frames
@@ -42,6 +44,7 @@ def add_arguments(p):
     p.add_argument("--compression", choices=("lz4", "zstd", "none"), default="lz4",
                    help="chunk compression of the recorded bag (default lz4)")
     add_split_arguments(p)
+    add_compression_arguments(p)
     p.add_argument("--view", action="store_true",
                    help="stream the outputs live to the Rerun viewer (extra 'viz'): a window, or the "
                         "web viewer on localhost when there is no display (served until Ctrl-C)")
@@ -59,6 +62,7 @@ def run(args) -> int:
     from canopy_stereo.geometry.rig_rectification import rectification_for_rig
     from canopy_stereo.io.rig import load_rig
     from canopy_stereo.pipeline.reconstruct import disparity_range_for
+    from canopy_stereo.ros.compressed import compression_from_args
     from canopy_stereo.ros.graph import GraphOptions
     from canopy_stereo.ros.player import parse_remaps
     from canopy_stereo.ros.runner import open_input_bag, run_bag
@@ -97,7 +101,8 @@ def run(args) -> int:
                          domain_id=args.domain_id, max_in_flight=args.max_in_flight,
                          remap=parse_remaps(args.remap), compression=args.compression,
                          extra_outputs=view.extra_outputs if view else None,
-                         on_output=view.on_output if view else None, **split_options(args))
+                         on_output=view.on_output if view else None,
+                         image_compression=compression_from_args(args), **split_options(args))
         for line in result.summary_lines():
             print(line, flush=True)
     finally:

@@ -14,7 +14,8 @@ world frame (metres), the left rectified image, the depth with the rectified cam
 and pose (image and cloud line up), the plant mask, and the measured leaves (outline, length x
 width) and canopy box and height.
 
-SOURCE is a bag of raw frames (<ns>/left/image_raw, <ns>/right/image_raw: run through the node
+SOURCE is a bag of raw frames (<ns>/left/image_raw, <ns>/right/image_raw, or only their /compressed
+topics: run through the node
 graph; rig from --rig, else from the bag's 'canopy_stereo' metadata record), a bag of recorded
 outputs (<ns>/points2 ...: shown as recorded), or a saved recording (.rrd).
 --save writes a recording file and exits; --web serves the web viewer (shipped in the rerun-sdk
@@ -120,7 +121,8 @@ def _show_bag(src: Path, args) -> int:
                 from canopy_stereo.cli.progress import Progress, warm_up_kernels
 
                 warm_up_kernels()
-                total = bag.topics[f"{ns}/left/image_raw"].message_count
+                left = f"{ns}/left/image_raw"
+                total = (bag.topics.get(left) or bag.topics[f"{left}/compressed"]).message_count
                 with Progress(total, "frames shown") as bar:  # on a terminal only
                     result = run_raw_bag(src, rig, logger, measure=not args.no_measure, matcher=args.matcher,
                                          domain_id=args.domain_id, on_logged=lambda: bar.step())

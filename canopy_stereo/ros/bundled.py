@@ -80,41 +80,62 @@ def bundled_rig(scene: str) -> Path:
 
 
 def write_stereo_bag(path, frames, *, truth_depths=None, compression: str = "zstd",
-                     metadata: dict | None = None, rig: Rig | None = None, jpegs=None) -> Path:
+                     metadata: dict | None = None, rig: Rig | None = None, image_format: str = "raw",
+                     jpeg_quality: int = 95, jpegs=None) -> Path:
     """Write stereo frames (and optional truth depth maps) as a bag.
 
     Args:
         path: output ``.mcap``.
         frames: iterable of ``(left_bgr, right_bgr, left_stamp_ns, right_stamp_ns)``.
-        jpegs: optional list of ``(left JPEG bytes, right JPEG bytes)``, one per frame: the
-            images are then written compressed, as ``sensor_msgs/CompressedImage`` (format
-            ``bgr8; jpeg compressed bgr8``, image_transport's) on ``<topic>/compressed``
-            instead of the raw topics.
         truth_depths: optional list of float (H, W) depth maps (metres, NaN = nothing),
             one per frame, stamped like the left image, on :data:`TRUTH_DEPTH_TOPIC`
             as 16UC1 millimetres (REP 118; 0 = nothing). Rounding to 0.5 mm is
             below 0.1 % of the scene's depth and keeps the bag small.
         metadata, rig: optional ``canopy_stereo`` KEY=VALUE metadata and rig, stored
             as the bag's metadata records (:mod:`canopy_stereo.bag.metadata`).
+        image_format: ``"raw"`` (bgr8 ``Image`` on :data:`LEFT_TOPIC`, :data:`RIGHT_TOPIC`),
+            or ``"jpeg"`` / ``"png"``: ``CompressedImage`` on image_transport's
+            ``<topic>/compressed`` only, as robot bags usually hold them
+            (:mod:`canopy_stereo.io.compressed_image`).
+        jpeg_quality: JPEG quality (1-100) of ``image_format="jpeg"``.
+        jpegs: optional list of ``(left JPEG bytes, right JPEG bytes)``, one per frame (a
+            camera's MJPEG frames, e.g. the simulator's): stored as they are, as
+            ``CompressedImage`` on ``<topic>/compressed`` (format ``bgr8; jpeg compressed bgr8``),
+            whatever ``image_format``.
     """
     from canopy_stereo.bag import BagWriter
     from canopy_stereo.bag.metadata import recording_metadata
+    from canopy_stereo.io.compressed_image import (
+        COMPRESSED_IMAGE_TYPE,
+        compressed_image_cdr,
+        compressed_topic,
+        encode_frame_cdr,
+    )
+    from canopy_stereo.io.image_codec import DEVICE_JPEG_FORMAT
     from canopy_stereo.ros.convert import image_to_msg
 
+    if image_format not in ("raw", "jpeg", "png"):
+        raise CanopyStereoError(f"image_format must be raw, jpeg or png, got {image_format!r}")
     frame = RAW_FRAME
+
+    def write_image(bag, topic, image, stamp_ns, log_ns, jpeg=None):
+        if jpeg is not None:  # a camera's own JPEG bytes, stored as they are
+            cdr = compressed_image_cdr(stamp_ns=stamp_ns, frame_id=frame, fmt=DEVICE_JPEG_FORMAT, data=jpeg)
+        elif image_format == "raw":
+            bag.write(topic, image_to_msg(image, "bgr8", stamp_ns=stamp_ns, frame_id=frame), log_ns)
+            return
+        else:
+            cdr = encode_frame_cdr(image, stamp_ns=stamp_ns, frame_id=frame, codec=image_format,
+                                   quality=jpeg_quality)
+        bag.write(compressed_topic(topic), cdr, log_ns, publish_time_ns=stamp_ns, msg_type=COMPRESSED_IMAGE_TYPE)
 
     transport_ns = 2_000_000  # reception 2 ms after capture
     with BagWriter(path, compression=compression,
                    metadata=recording_metadata(metadata, rig)) as bag:
         for k, (left, right, t_left, t_right) in enumerate(frames):
-            if jpegs is not None:
-                for topic, data, t in ((LEFT_TOPIC, jpegs[k][0], t_left), (RIGHT_TOPIC, jpegs[k][1], t_right)):
-                    bag.write(f"{topic}/compressed", _jpeg_msg(data, t, frame), t + transport_ns)
-            else:
-                bag.write(LEFT_TOPIC, image_to_msg(left, "bgr8", stamp_ns=t_left, frame_id=frame),
-                          t_left + transport_ns)
-                bag.write(RIGHT_TOPIC, image_to_msg(right, "bgr8", stamp_ns=t_right, frame_id=frame),
-                          t_right + transport_ns)
+            jpeg = jpegs[k] if jpegs is not None else (None, None)
+            write_image(bag, LEFT_TOPIC, left, t_left, t_left + transport_ns, jpeg[0])
+            write_image(bag, RIGHT_TOPIC, right, t_right, t_right + transport_ns, jpeg[1])
             if truth_depths is not None:
                 depth_mm = np.rint(np.nan_to_num(np.asarray(truth_depths[k], np.float64) * 1000.0,
                                                  nan=0.0)).clip(0, 65535).astype(np.uint16)
@@ -122,16 +143,6 @@ def write_stereo_bag(path, frames, *, truth_depths=None, compression: str = "zst
                                                           frame_id=frame),
                           t_left + transport_ns + 1)
     return Path(path)
-
-
-def _jpeg_msg(data: bytes, stamp_ns: int, frame_id: str):
-    """``sensor_msgs/CompressedImage`` of JPEG bytes, image_transport's format string."""
-    from sensor_msgs.msg import CompressedImage
-
-    from canopy_stereo.ros.convert import make_header
-
-    return CompressedImage(header=make_header(stamp_ns, frame_id), format="bgr8; jpeg compressed bgr8",
-                           data=bytes(data))
 
 
 def croton_frames(rig: Rig, n_frames: int = 4, *, seed: int = 0, fps: float = 10.0,

@@ -49,26 +49,33 @@ class RawCameraInfoPublisher:
     ``cameracalibrator`` can commit to the node) publishes the new calibration from then on
     and writes it to the ``camera_info_url`` file (``file://`` only; the default URL when none).
 
+    ``of_pair``: one of the two views of a one-device stereo camera (camera_node's ``layout``):
+    its parameter is ``<camera_name>.camera_info_url`` and its service
+    ``<camera_name>/set_camera_info`` (beside its topics, where cameracalibrator's stereo mode
+    looks), so that each side has its own.
+
     Attributes:
         calibration: the camera's :class:`~canopy_stereo.geometry.frames.CameraCalibration`,
             or None (none found: no camera_info until ``set_camera_info``).
         source: where it came from (for the log).
     """
 
-    def __init__(self, node, camera_name: str):
+    def __init__(self, node, camera_name: str, *, of_pair: bool = False):
         self.node = node
         self.camera_name = camera_name
         self.calibration = None
         self.source = ""
         if not node.has_parameter(next(iter(RIG_PARAMETERS))):
             declare_rig_parameters(node)
-        node.declare_text("camera_info_url", "", "calibration file of this camera: file:///path.yaml or "
+        url_parameter = f"{camera_name}.camera_info_url" if of_pair else "camera_info_url"
+        node.declare_text(url_parameter, "", "calibration file of this camera: file:///path.yaml or "
                           "package://<pkg>/<path>, ${NAME} = camera_name, ${ROS_HOME}; empty = the rig's "
                           "left/right camera, else ${ROS_HOME}/camera_info/${NAME}.yaml when it exists",
                           read_only=True)
-        self.url = str(node.get_parameter("camera_info_url").value)
+        self.url = str(node.get_parameter(url_parameter).value)
         self.publisher = node.make_publisher(CameraInfo, f"{camera_name}/camera_info")
-        self.service = node.create_service(SetCameraInfo, "~/set_camera_info",
+        self.service = node.create_service(SetCameraInfo, f"{camera_name}/set_camera_info" if of_pair
+                                           else "~/set_camera_info",
                                            node.guarded(self._on_set_camera_info))
         self.calibration, self.source = self._initial_calibration()
         if self.calibration is None:

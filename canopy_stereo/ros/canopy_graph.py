@@ -3,7 +3,9 @@
 ``canopy_graph`` (``ros2 run canopy_stereo canopy_graph --rig RIG.yaml``) runs
 it from live cameras (``--cameras LEFT RIGHT``) or from a bag (``--bag``, replayed by
 :func:`canopy_stereo.ros.runner.run_bag`), optionally recording the outputs
-(``--record``; with ``--loop`` every pass appends to the same recording, which
+(``--record``; ``--compress-images`` stores the images as image_transport's
+``<topic>/compressed``: the cameras' own JPEG, masks as PNG; with ``--loop`` every pass
+appends to the same recording, which
 ``--split-size`` and ``--split-duration`` split into ``<name>_0.mcap``, ... as
 rosbag2 does). SIGINT, SIGTERM and SIGHUP close the recording validly.
 """
@@ -16,6 +18,8 @@ import time
 
 from canopy_stereo.disparity import DEFAULT_MATCHER, matcher_names
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.io.compressed_image import add_compression_arguments
+from canopy_stereo.ros.compressed import compression_from_args
 from canopy_stereo.ros.context import tune_node_process
 from canopy_stereo.ros.graph import DEFAULT_THREADS, EXECUTOR_CHOICES, CanopyGraph, GraphOptions
 from canopy_stereo.ros.runner import run_bag
@@ -42,6 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
     from canopy_stereo.bag.split import add_split_arguments
 
     add_split_arguments(p)
+    add_compression_arguments(p)
     p.add_argument("--metadata", nargs="+", action="extend", default=[], metavar="KEY=VALUE",
                    help="with --cameras --record: describe the recording (plant_id=A12 plot=row1 ...); "
                         "stored with the rig file as the bag's metadata records")
@@ -82,7 +87,8 @@ def _run_bag_until_interrupted(opts, rig, options: GraphOptions, context, record
     def work():
         try:
             outcome["result"] = run_bag(opts.bag, rig, rate=opts.rate, record=record, options=options,
-                                        context=context, loop=opts.loop, stop=stop, on_pass=_print_pass)
+                                        context=context, loop=opts.loop, stop=stop, on_pass=_print_pass,
+                                        image_compression=compression_from_args(opts))
         except BaseException as exc:  # noqa: BLE001 - re-raised in the main thread
             outcome["error"] = exc
         finally:
@@ -138,6 +144,7 @@ def main(args=None) -> int:
     graph = recorder = writer = None
     try:
         rig = load_rig(opts.rig)
+        compression = compression_from_args(opts)  # checks --jpeg-quality
         if opts.record:
             from canopy_stereo.bag import BagWriter
             from canopy_stereo.bag.split import split_options
@@ -151,6 +158,8 @@ def main(args=None) -> int:
         w = opts.width or rig.image_size[0]
         h = opts.height or rig.image_size[1]
         cam = {"width": w, "height": h, "fps": float(opts.fps), "fourcc": opts.fourcc}
+        if opts.record and compression is not None:  # the cameras' own JPEG is recorded (a device's MJPEG as is)
+            cam.update(transport="both", jpeg_quality=compression.quality)
         graph = CanopyGraph(rig, context, options, cameras=(
             {**cam, "device": str(opts.cameras[0])}, {**cam, "device": str(opts.cameras[1])}))
         if opts.record:
@@ -161,11 +170,13 @@ def main(args=None) -> int:
                                              "left/depth/camera_info", "left/image_rect/camera_info",
                                              "right/image_rect/camera_info", "left/camera_info",
                                              "right/camera_info", "left/image_raw", "right/image_raw")]
+            if compression is not None:
+                topics = [t + "/compressed" if t.endswith("/image_raw") else t for t in topics]
             from canopy_stereo.bag.metadata import parse_key_values, recording_metadata
 
             for name, data in recording_metadata(parse_key_values(opts.metadata), rig).items():
                 writer.add_metadata(name, data)
-            recorder = BagRecorder(writer, topics, context=context,
+            recorder = BagRecorder(writer, topics, context=context, compression=compression,
                                    static_transforms=graph.nodes["rectify_node"].transforms)
             graph.add_node(recorder)
         graph.spin_until_interrupted()

@@ -97,14 +97,23 @@ def canopy_lines(report: dict) -> list[str]:
     return lines
 
 
-def run_scene(scene: str, out_dir, *, matcher=None, domain_id=None, view=None) -> list[str]:
+def run_scene(scene: str, out_dir, *, matcher=None, domain_id=None, view=None,
+              compressed: bool = False) -> list[str]:
     """Run one bundled scene; write its files and return the summary lines.
 
     ``view``: an optional :class:`~canopy_stereo.ros.viewer.LiveView` the graph's outputs
-    are streamed to as they arrive."""
+    are streamed to as they arrive. ``compressed``: replay the bag with its images as JPEG
+    (quality 95) ``CompressedImage``, as a robot records them (written to
+    ``out_dir/<scene>_compressed.mcap`` by :func:`~canopy_stereo.ros.bag_images.compress_bag`)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     bag, rig_path = bundled_bag(scene), bundled_rig(scene)
+    if compressed:
+        from canopy_stereo.ros.bag_images import compress_bag
+
+        packed = out_dir / f"{scene}_compressed.mcap"
+        compress_bag(bag, packed, overwrite=True)
+        bag = packed
     rig = load_rig(rig_path)
     result = run_bag(bag, rig, rate=0, options=GraphOptions(matcher=matcher, parameter_services=False),
                      domain_id=domain_id, keep=("points2", "disparity", "left/mask"),

@@ -17,7 +17,10 @@ that :class:`~canopy_stereo.bag.BagReader` reads up to the last second
 ``OUT_1.mcap``, ... (rosbag2's naming). The metadata pairs (plant_id, plot, treatment,
 date, ...) and the rig file are written at the start of the bag (and of every split file)
 as MCAP metadata records (:mod:`canopy_stereo.bag.metadata`), so the bag describes
-itself (``canopy-stereo batch`` reads them).
+itself (``canopy-stereo batch`` reads them). ``--compress-images [--jpeg-quality Q]`` stores
+every 8-bit ``sensor_msgs/Image`` topic as image_transport's ``<topic>/compressed``
+(``CompressedImage``: JPEG at Q, default 95; PNG for masks), about ten times smaller; depth
+images stay raw (:class:`~canopy_stereo.ros.compressed.RecordingCompression`).
 """
 from __future__ import annotations
 
@@ -35,6 +38,8 @@ from canopy_stereo.bag.messages import qos_profiles_yaml
 from canopy_stereo.bag.msgdefs import message_class, type_name
 from canopy_stereo.bag.split import add_split_arguments, split_options
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.io.compressed_image import IMAGE_TYPE, add_compression_arguments
+from canopy_stereo.ros.compressed import compression_from_args
 from canopy_stereo.ros.qos import recording_qos
 
 #: Topics never recorded by ``--all`` (ROS internals).
@@ -69,12 +74,16 @@ class BagRecorder(Node):
             (:func:`canopy_stereo.ros.tf.write_static_transforms`). Otherwise, unless
             ``/tf_static`` itself is recorded, the transforms of every ``stereo_geometry``
             topic that appears (a rectify_node's) are written there: a bag always has them.
+        compression: a :class:`~canopy_stereo.ros.compressed.RecordingCompression` to store
+            images compressed, or None (as received).
     """
 
     def __init__(self, writer: BagWriter, topics=(), all_topics: bool = False, depth: int = 50,
                  flush_period_s: float = 1.0, on_message=None, node_name: str = "bag_recorder",
-                 static_transforms=None, **kwargs):
+                 static_transforms=None, compression=None, **kwargs):
         super().__init__(node_name, **kwargs)
+        self.compression = compression
+        self._qos_yaml: dict[str, str] = {}
         self._geometry_subs = {}
         self._tf_written = static_transforms is not None
         self.writer = writer
@@ -159,7 +168,9 @@ class BagRecorder(Node):
             if topic in self._pending:
                 self._pending.remove(topic)
             tname = type_name(msg_class)
-            self.writer.add_topic(topic, tname, qos_yaml=qos_profiles_yaml(reliability))
+            self._qos_yaml[topic] = qos_profiles_yaml(reliability)
+            if self.compression is None or tname != IMAGE_TYPE:  # images: declared as they are stored
+                self.writer.add_topic(topic, tname, qos_yaml=self._qos_yaml[topic])
             self.received[topic] = 0
             self.subscriptions_by_topic[topic] = self.create_subscription(
                 msg_class, topic, lambda data, t=topic, n=tname: self._on_message(t, n, data),
@@ -168,7 +179,14 @@ class BagRecorder(Node):
 
     def _on_message(self, topic: str, tname: str, data: bytes) -> None:
         now = time.time_ns()
-        self.writer.write(topic, data, now, publish_time_ns=header_stamp_from_cdr(data), msg_type=tname)
+        stamp = header_stamp_from_cdr(data)
+        if self.compression is not None:
+            out_topic, out_type, out = self.compression.convert(topic, tname, data)
+            if out_topic not in self.writer.topics:
+                self.writer.add_topic(out_topic, out_type, qos_yaml=self._qos_yaml.get(topic))
+            self.writer.write(out_topic, out, now, publish_time_ns=stamp, msg_type=out_type)
+        else:
+            self.writer.write(topic, data, now, publish_time_ns=stamp, msg_type=tname)
         with self._lock:
             self.received[topic] += 1
         if self.on_message is not None:
@@ -196,7 +214,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "stored in the bag's 'canopy_stereo' metadata record")
     p.add_argument("--rig", metavar="RIG.yaml",
                    help="rig file of the cameras, stored in the bag's 'canopy_stereo_rig' metadata record")
+    add_compression_arguments(p)
     return p
+
 
 
 def main(args=None) -> int:
@@ -223,7 +243,7 @@ def main(args=None) -> int:
                                      load_rig(opts.rig) if opts.rig else None)
         writer = BagWriter(opts.output, compression=opts.compression, metadata=records,
                            **split_options(opts))
-        recorder = BagRecorder(writer, opts.topics, all_topics=opts.all)
+        recorder = BagRecorder(writer, opts.topics, all_topics=opts.all, compression=compression_from_args(opts))
         executor = SingleThreadedExecutor()
         executor.add_node(recorder)
         deadline = time.monotonic() + opts.max_duration if opts.max_duration > 0 else None

@@ -31,6 +31,7 @@ from canopy_stereo.bag import BagError, BagReader, BagWriter
 from canopy_stereo.bag.messages import qos_profiles_yaml
 from canopy_stereo.bag.msgdefs import type_name
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.io.compressed_image import COMPRESSED_SUFFIX, IMAGE_TYPE, compressed_topic
 from canopy_stereo.io.rig import Rig
 from canopy_stereo.ros.context import ros_context, wait_for, wait_for_subscribers
 from canopy_stereo.ros.graph import CanopyGraph, GraphOptions
@@ -180,13 +181,18 @@ class _FrameBook:
 
 
 def open_input_bag(bag_path, *, namespace: str = "stereo", remap: dict[str, str] | None = None):
-    """Open a bag for the graph and check it has both raw image topics (after ``remap``).
+    """Open a bag for the graph and check it has both image topics (after ``remap``).
+
+    The graph reads ``<namespace>/left|right/image_raw`` (``sensor_msgs/Image``); a bag holding
+    only compressed images (``sensor_msgs/CompressedImage``, JPEG or PNG) is read from
+    image_transport's ``<namespace>/left|right/image_raw/compressed`` (found there when the
+    raw topics are absent, or remapped onto them), and rectify_node then takes compressed
+    input (:func:`input_transport`).
 
     Returns ``(reader, topics to play, the left input topic)``. Raises :class:`BagError` when
     the bag is truncated or damaged before any intact pair of input topics, and
-    :class:`CanopyStereoError` when it has no ``<namespace>/left|right/image_raw`` (naming the
-    topics it has). Cheap (reads the summary), so a CLI checks its input with it before
-    preparing the kernels.
+    :class:`CanopyStereoError` when it has neither pair of topics (naming the topics it has).
+    Cheap (reads the summary), so a CLI checks its input with it before preparing the kernels.
     """
     bag = BagReader(bag_path)
     remap = dict(remap or {})
@@ -195,15 +201,34 @@ def open_input_bag(bag_path, *, namespace: str = "stereo", remap: dict[str, str]
     in_left, in_right = f"{ns}/left/image_raw", f"{ns}/right/image_raw"
     play_topics = [t for t in bag.topics if remap.get(t, t) in (in_left, in_right)]
     sides = {remap.get(t, t) for t in play_topics}
+    if sides != {in_left, in_right}:  # no raw pair: image_transport's compressed topics
+        c_left, c_right = compressed_topic(in_left), compressed_topic(in_right)
+        compressed = [t for t in bag.topics if remap.get(t, t) in (c_left, c_right)]
+        if {remap.get(t, t) for t in compressed} == {c_left, c_right}:
+            return bag, compressed, c_left
     if sides != {in_left, in_right} and damaged:
         raise BagError(f"{bag.path} is {'truncated' if bag.truncated else 'damaged'} ({bag.problem}): "
                        f"no intact {in_left} and {in_right} messages before the damage (topics "
                        f"read: {', '.join(sorted(bag.topics)) or 'none'})")
     if sides != {in_left, in_right}:
         raise CanopyStereoError(
-            f"{bag.path} has no {in_left} and {in_right} to play (topics: "
+            f"{bag.path} has no {in_left} and {in_right} (nor their /compressed topics) to play (topics: "
             f"{', '.join(sorted(bag.topics)) or 'none'}); use remapping")
     return bag, play_topics, in_left
+
+
+def input_transport(left_topic: str) -> str:
+    """rectify_node's ``image_transport`` for the graph's left input topic (``raw`` or ``compressed``)."""
+    return "compressed" if left_topic.endswith(COMPRESSED_SUFFIX) else "raw"
+
+
+def _with_transport(options: GraphOptions, transport: str) -> GraphOptions:
+    """``options`` with rectify_node reading ``transport`` (unless set explicitly)."""
+    rectify = options.node_parameters.get("rectify_node", {})
+    if transport == "raw" or "image_transport" in rectify:
+        return options
+    params = {**options.node_parameters, "rectify_node": {**rectify, "image_transport": transport}}
+    return replace(options, node_parameters=params)
 
 
 def run_bag(bag_path, rig: Rig, *, rate: float = 1.0, record=None, options: GraphOptions | None = None,
@@ -212,12 +237,12 @@ def run_bag(bag_path, rig: Rig, *, rate: float = 1.0, record=None, options: Grap
             startup_timeout_s: float = 30.0, progress=None, compression: str = "lz4",
             context=None, loop: bool = False, stop: threading.Event | None = None,
             split_size: int = 0, split_duration_s: float = 0.0, extra_outputs: dict | None = None,
-            on_output=None, on_pass=None) -> RunResult:
+            on_output=None, on_pass=None, image_compression=None) -> RunResult:
     """Replay ``bag_path`` through the graph for ``rig``; see the module docstring.
 
     Args:
         bag_path: input bag with ``<ns>/left/image_raw`` and ``<ns>/right/image_raw``
-            (after ``remap``).
+            (after ``remap``), or only their ``/compressed`` topics (:func:`open_input_bag`).
         rig: the rig of the cameras that recorded it.
         rate: playback speed (1 = recorded timing, 0 = as fast as the graph goes).
         record: output bag path for the graph's outputs, an open
@@ -246,6 +271,9 @@ def run_bag(bag_path, rig: Rig, *, rate: float = 1.0, record=None, options: Grap
         on_output: optional ``f(relative topic, stamp_ns, CDR bytes)`` called for every
             output message as it arrives (from the receiving thread; keep it short), e.g.
             to stream the graph to a viewer.
+        image_compression: a :class:`~canopy_stereo.ros.compressed.RecordingCompression` to
+            record the image outputs compressed (``<topic>/compressed``; masks as PNG, depth
+            raw), or None.
     """
     from sensor_msgs.msg import CameraInfo, Image, PointCloud2
     from stereo_msgs.msg import DisparityImage
@@ -257,6 +285,7 @@ def run_bag(bag_path, rig: Rig, *, rate: float = 1.0, record=None, options: Grap
         raise CanopyStereoError(f"max_in_flight must be >= 1, got {max_in_flight}")
     remap = dict(remap or {})
     bag, play_topics, in_left = open_input_bag(bag_path, namespace=options.namespace, remap=remap)
+    options = _with_transport(options, input_transport(in_left))
     ns = "/" + options.namespace.strip("/") if options.namespace.strip("/") else ""
     left_topics = {t for t in play_topics if remap.get(t, t) == in_left}
     outputs = {"points2": PointCloud2, "disparity": DisparityImage, "left/depth": Image,
@@ -274,7 +303,7 @@ def run_bag(bag_path, rig: Rig, *, rate: float = 1.0, record=None, options: Grap
     try:
         _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, remap, startup_timeout_s,
              progress, context, play_topics, left_topics, ns, outputs, result, book, writer, loop, stop,
-             on_output, on_pass)
+             on_output, on_pass, image_compression)
     finally:
         if own_writer:
             result.recorded = writer.close()
@@ -315,7 +344,7 @@ def _hold_every_frame(options: GraphOptions, rate: float, max_in_flight: int) ->
 
 def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, remap, startup_timeout_s,
          progress, context, play_topics, left_topics, ns, outputs, result, book, writer, loop=False,
-         stop=None, on_output_cb=None, on_pass=None) -> None:
+         stop=None, on_output_cb=None, on_pass=None, compression=None) -> None:
     """Build the graph, play, drain and tear down (the body of :func:`run_bag`)."""
     reliability = options.reliability
     options = _hold_every_frame(options, rate, max_in_flight)
@@ -332,8 +361,12 @@ def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, r
                 now = time.monotonic()
                 stamp = header_stamp_from_cdr(bytes(data))
                 if writer is not None:
-                    writer.write(f"{ns}/{rel}", bytes(data), time.time_ns(), publish_time_ns=stamp,
-                                 msg_type=type_name(outputs[rel]))
+                    topic, tname, stored = f"{ns}/{rel}", type_name(outputs[rel]), bytes(data)
+                    if compression is not None:
+                        topic, tname, stored = compression.convert(topic, tname, stored)
+                        if topic not in writer.topics:
+                            writer.add_topic(topic, tname, qos_yaml=qos_profiles_yaml(reliability))
+                    writer.write(topic, stored, time.time_ns(), publish_time_ns=stamp, msg_type=tname)
                 if rel in result.outputs:
                     result.outputs[rel].append((stamp, bytes(data)))
                 if on_output_cb is not None and stamp is not None:
@@ -344,7 +377,7 @@ def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, r
                         progress(book.frames_out)
 
             for rel, cls in outputs.items():
-                if writer is not None:
+                if writer is not None and (compression is None or type_name(cls) != IMAGE_TYPE):
                     writer.add_topic(f"{ns}/{rel}", type_name(cls), qos_yaml=qos_profiles_yaml(reliability))
                 io_node.create_subscription(cls, f"{ns}/{rel}",
                                             io_node.guarded(lambda d, r=rel: on_output(r, d)),

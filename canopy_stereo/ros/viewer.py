@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.io.compressed_image import COMPRESSED_SUFFIX, compressed_topic
 from canopy_stereo.viz.rerun_log import CameraPose, FrameLogger, camera_pose_from_rig
 
 #: Name of the MCAP metadata record that holds the rig of a bag.
@@ -235,14 +236,17 @@ def decode_frame(entry: dict) -> dict:
 
 def bag_kind(bag) -> tuple[str, str]:
     """``("outputs", namespace)`` for a bag with recorded ``points2``, ``("raw", namespace)``
-    for one with ``left/image_raw`` and ``right/image_raw``; else :class:`CanopyStereoError`."""
+    for one with ``left/image_raw`` and ``right/image_raw`` (or only their ``/compressed``
+    topics); else :class:`CanopyStereoError`."""
     topics = set(bag.topics)
     for t in sorted(topics):
         if t.endswith("/points2"):
             return "outputs", t[: -len("/points2")]
-    for t in sorted(topics):
-        if t.endswith("/left/image_raw") and t[: -len("left/image_raw")] + "right/image_raw" in topics:
-            return "raw", t[: -len("/left/image_raw")]
+    for suffix in ("", COMPRESSED_SUFFIX):
+        for t in sorted(topics):
+            left = "/left/image_raw" + suffix
+            if t.endswith(left) and t[: -len(left)] + "/right/image_raw" + suffix in topics:
+                return "raw", t[: -len(left)]
     raise CanopyStereoError(f"{bag.path} has neither raw stereo frames (<ns>/left/image_raw and "
                             f"<ns>/right/image_raw) nor recorded clouds (<ns>/points2); topics: "
                             f"{', '.join(sorted(topics)) or 'none'}")
@@ -251,14 +255,20 @@ def bag_kind(bag) -> tuple[str, str]:
 def show_recorded_outputs(bag, namespace: str, logger: FrameLogger, *, rig=None, measure: bool = False) -> int:
     """Log a bag of recorded graph outputs frame by frame (grouped by header stamp); returns
     the number of frames (clouds) logged."""
+    from canopy_stereo.ros.compressed import decompress_image_cdr
     from canopy_stereo.ros.recorder import header_stamp_from_cdr
 
     prefix = namespace.rstrip("/") + "/"
-    topics = [prefix + rel for rel in FRAME_TOPICS if prefix + rel in bag.topics]
-    streamer = FrameStreamer(logger, rig, need_mask=prefix + "left/mask" in bag.topics, measure=measure)
-    streamer.required = {rel for rel in FRAME_TOPICS if prefix + rel in bag.topics} - {"left/camera_info"}
-    for m in bag.messages(topics):
-        streamer.on_output(m.topic[len(prefix):], header_stamp_from_cdr(m.data), m.data)
+    # images recorded compressed (run --record --compress-images) are read from <topic>/compressed
+    stored = {rel: prefix + rel if prefix + rel in bag.topics else compressed_topic(prefix + rel)
+              for rel in FRAME_TOPICS}
+    present = {rel for rel, t in stored.items() if t in bag.topics}
+    by_topic = {stored[rel]: rel for rel in present}
+    streamer = FrameStreamer(logger, rig, need_mask="left/mask" in present, measure=measure)
+    streamer.required = present - {"left/camera_info"}
+    for m in bag.messages(list(by_topic)):
+        data = decompress_image_cdr(m.data) if m.topic.endswith(COMPRESSED_SUFFIX) else m.data
+        streamer.on_output(by_topic[m.topic], header_stamp_from_cdr(m.data), data)
     streamer.close()
     if streamer.errors:
         raise CanopyStereoError(f"{bag.path}: could not show a frame: {streamer.errors[0]}")

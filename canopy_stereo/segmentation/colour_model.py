@@ -171,13 +171,14 @@ def fit_colour_gmm(pixels: np.ndarray, components: int = COMPONENTS, *, max_samp
     return gmm
 
 
-def colour_log_ratio(image_bgr: np.ndarray, plant: np.ndarray, background: np.ndarray
-                     ) -> tuple[np.ndarray, ColourGMM, ColourGMM]:
+def colour_log_ratio(image_bgr: np.ndarray, plant: np.ndarray, background: np.ndarray, *,
+                     background_gmm: ColourGMM | None = None) -> tuple[np.ndarray, ColourGMM, ColourGMM]:
     """Plant and background colour models and the log likelihood ratio of every pixel.
 
     Args:
         image_bgr: (H, W, 3) uint8 BGR image (grey is converted).
         plant, background: (H, W) bool training pixels of each class.
+        background_gmm: a background model already fitted to ``background`` (not refitted).
 
     Returns:
         ``(llr, plant_gmm, background_gmm)``, ``llr`` (H, W) float64 = ln p(colour | plant)
@@ -188,7 +189,8 @@ def colour_log_ratio(image_bgr: np.ndarray, plant: np.ndarray, background: np.nd
     if plant.shape != img.shape[:2] or background.shape != img.shape[:2]:
         raise ImageError(f"training masks must be {img.shape[1]}x{img.shape[0]} like the image")
     plant_gmm = fit_colour_gmm(img[plant])
-    background_gmm = fit_colour_gmm(img[background])
+    if background_gmm is None:
+        background_gmm = fit_colour_gmm(img[background])
     # each distinct colour once (a 640 x 480 image has a few 10 000 of them)
     packed = (img[..., 0].astype(np.int32) << 16) | (img[..., 1].astype(np.int32) << 8) | img[..., 2]
     colours, index = np.unique(packed.ravel(), return_inverse=True)

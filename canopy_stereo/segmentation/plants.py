@@ -48,6 +48,8 @@ from canopy_stereo.segmentation.shape import (
     inverse_depth,
     jump_edges,
     local_roughness,
+    solids_behind,
+    standing_out,
 )
 
 
@@ -146,15 +148,14 @@ def shape_seed(q: np.ndarray, image_bgr: np.ndarray, *,
         raise ImageError("the depth cue has fewer than 50 valid pixels")
     noise = float(settings.noise)
     r = int(settings.window)
-    planes = fit_planes(q, tolerance=2.5 * noise)
+    planes = fit_planes(q, tolerance=2.5 * noise, iterations=120)
     on_plane = np.zeros((h, w), bool)
-    near_plane = np.zeros((h, w), bool)  # within 4 tolerances of a plane or behind it: matching noise
+    lead = np.full((h, w), np.inf)  # how far each pixel stands in front of every plane
     ground = np.zeros((h, w), bool)
     qmed = float(np.nanmedian(q))
     for plane in planes:
         on_plane |= plane.inliers
-        with np.errstate(invalid="ignore"):
-            near_plane |= plane.residual(q) < 10.0 * noise
+        lead = np.fmin(lead, plane.residual(q))
         if plane.is_ground(qmed, h):
             ground |= plane.inliers
     rms, missing = local_roughness(q, r)
@@ -170,18 +171,21 @@ def shape_seed(q: np.ndarray, image_bgr: np.ndarray, *,
     contact[h - 1 - r:] = True
     if settings.ungrounded_solids:
         contact[:] = True
-    solids = grounded_solids(smooth, contact, min_pixels=max(20, int(settings.min_solid * h * w)))
-    solids = attached_parts(solids, q, objects, jump=2.0 * noise, reach=3 * r)
+    min_solid = max(20, int(settings.min_solid * h * w))
+    solids = grounded_solids(smooth, contact, min_pixels=min_solid)
+    solids |= solids_behind(smooth, solids, q, min_pixels=min_solid)
+    solids = attached_parts(solids, q, objects, jump=3.0 * noise, reach=6 * r)
     k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
     solids_grown = cv2.dilate(solids.astype(np.uint8), k).astype(bool) & ~on_plane
     cap = caps(solids, fraction=settings.cap_fraction) & ~solids_grown
     labels = np.full((h, w), GC_PR_BGD, np.uint8)
     labels[objects & ~solids_grown & ~cap & ~plain] = GC_PR_FGD
-    labels[objects & textured & ~solids_grown & ~cap & ~edges & ~near_plane] = GC_FGD
+    evidence = objects & ~solids_grown & ~cap & standing_out(lead, 3.0 * noise)
+    labels[evidence & textured & ~edges] = GC_FGD
     labels[on_plane & ~rough & ~cv2.dilate(objects.astype(np.uint8), k).astype(bool)] = GC_BGD
     labels[solids] = GC_BGD
     cues = {"planes": on_plane, "ground": ground, "solids": solids_grown, "rough": rough,
-            "textured": textured, "plain": plain & ~solids_grown, "caps": cap, "q": q}
+            "textured": textured, "plain": plain & ~solids_grown, "caps": cap, "evidence": evidence, "q": q}
     return labels, cues
 
 
@@ -218,13 +222,20 @@ def segment_plants(image_bgr, *, disparity=None, points=None, depth=None, camera
     if disparity is not None:
         q = q * (size[0] / w)  # disparities shrink with the image
     labels, cues = shape_seed(q, small, settings=settings)
-    if settings.use_colour:
-        colours = cv2.cvtColor(small, cv2.COLOR_BGR2LAB) if settings.colour_space == "lab" else small
-        labels = _colour_cut(colours, labels, cues["plain"] & (labels == GC_PR_BGD))
-    mask = labels_to_mask(labels) > 0
     cues["seed"] = labels
-    if mask.shape != (h, w):
-        mask = cv2.resize(mask.astype(np.uint8) * 255, (w, h), interpolation=cv2.INTER_LINEAR) >= 128
+    if settings.use_colour:
+        # the cut runs on the full image: crisp leaf edges from cues found at the processing scale
+        full_labels = _resize_map(labels, (w, h))
+        plain = _resize_map((cues["plain"] & (labels == GC_PR_BGD)).astype(np.uint8), (w, h)) > 0
+        colours = cv2.cvtColor(img, cv2.COLOR_BGR2LAB) if settings.colour_space == "lab" else img
+        mask = labels_to_mask(_colour_cut(colours, full_labels, plain)) > 0
+        near_solid = _resize_map((cues["solids"] | cues["caps"]).astype(np.uint8), (w, h)) > 0
+        mask = _with_shape_evidence(mask, _resize_map(cues["evidence"].astype(np.uint8), (w, h)) > 0,
+                                    near_solid)
+    else:
+        mask = labels_to_mask(labels) > 0
+        if mask.shape != (h, w):
+            mask = cv2.resize(mask.astype(np.uint8) * 255, (w, h), interpolation=cv2.INTER_LINEAR) >= 128
     mask = _drop_small_and_sticks(mask, settings)
     instances, plants = plant_instances(mask, q_full)
     return PlantSegmentation(mask=np.where(mask, 255, 0).astype(np.uint8), instances=instances,
@@ -241,14 +252,30 @@ def _colour_cut(img: np.ndarray, labels: np.ndarray, plain: np.ndarray) -> np.nd
         return labels
     # plant training pixels whose colour the background explains best are the background
     # a matcher spread between leaves: leave them out of the plant's model
-    llr, _, _ = colour_log_ratio(img, plant, background)
+    llr, _, background_gmm = colour_log_ratio(img, plant, background)
     cleaner = plant & (llr > 0)
     if cleaner.sum() >= MIN_SAMPLES:
         plant = cleaner
-    llr, plant_gmm, background_gmm = colour_log_ratio(img, plant, background)
+    llr, plant_gmm, background_gmm = colour_log_ratio(img, plant, background, background_gmm=background_gmm)
     relabelled = relabel_by_colour(labels, llr, sure=SURE_LOG_RATIO)
     relabelled[labels == GC_BGD] = GC_BGD  # the shape cue's background stands
     return grabcut_with_models(img, relabelled, plant_gmm, background_gmm)
+
+
+def _with_shape_evidence(mask: np.ndarray, sure: np.ndarray, near_solid: np.ndarray) -> np.ndarray:
+    """``mask`` without the regions that touch a solid object (or the band above it) and hold
+    too few pixels the shape cue is sure stand out of the planes off the solids (fewer than
+    30 % of the region): next to an object, colour may extend a plant but not make one (the
+    lit top of a green box); elsewhere (seedlings a few millimetres above their tray) it may."""
+    n, lab = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    if n <= 1:
+        return mask
+    sizes = np.bincount(lab.ravel(), minlength=n)
+    evidence = np.bincount(lab[sure & mask], minlength=n)
+    touching = np.bincount(lab[near_solid & mask], minlength=n) > 0
+    keep = ~touching | (evidence >= 0.3 * sizes)
+    keep[0] = False
+    return keep[lab]
 
 
 def _drop_small_and_sticks(mask: np.ndarray, settings: PlantSegmenterSettings) -> np.ndarray:

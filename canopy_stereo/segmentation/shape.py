@@ -273,3 +273,50 @@ def caps(solids: np.ndarray, *, fraction: float = 0.3) -> np.ndarray:
         band = max(2, int(fraction * w))
         out[:, x:x + w] |= (rows < top[None, :]) & (rows >= top[None, :] - band) & has[None, :]
     return out
+
+
+def solids_behind(candidates: np.ndarray, solids: np.ndarray, q: np.ndarray, *, min_pixels: int,
+                  ratio: float = 0.92, gap: int = 3) -> np.ndarray:
+    """Components of ``candidates`` (smooth plain regions) of at least ``min_pixels`` that touch a
+    solid (within ``gap`` pixels) and lie behind it (median inverse depth below ``ratio`` times the
+    solid's): a box whose foot the watering can in front of it hides."""
+    n, lab = cv2.connectedComponents((candidates & ~solids).astype(np.uint8), connectivity=8)
+    if n <= 1 or not solids.any():
+        return np.zeros(solids.shape, bool)
+    ns, slab = cv2.connectedComponents(solids.astype(np.uint8), connectivity=8)
+    k = np.ones((2 * gap + 1, 2 * gap + 1), np.uint8)
+    out = np.zeros(solids.shape, bool)
+    for i in range(1, n):
+        region = lab == i
+        if region.sum() < min_pixels:
+            continue
+        ring = cv2.dilate(region.astype(np.uint8), k).astype(bool) & solids
+        if not ring.any():
+            continue
+        q_region = np.nanmedian(q[region])
+        for j in np.unique(slab[ring]):
+            if q_region < ratio * np.nanmedian(q[slab == j]):
+                out |= region
+                break
+    return out
+
+
+def standing_out(lead: np.ndarray, margin: float) -> np.ndarray:
+    """Pixels more than ``margin`` in front of every plane (``lead``: the smallest plane residual)
+    in regions that stand out as a whole (median lead above ``margin``): seedlings a few
+    millimetres above their tray, not the speckle of matching noise around a plane."""
+    front = np.isfinite(lead) & (lead > margin)
+    n, lab = cv2.connectedComponents(front.astype(np.uint8), connectivity=8)
+    if n <= 1:
+        return front
+    sums = np.bincount(lab.ravel(), weights=np.where(front, lead, 0.0).ravel(), minlength=n)
+    counts = np.bincount(lab.ravel(), minlength=n)
+    # mean lead of each region against the margin, over the region grown by its halo of noise
+    grown = cv2.dilate(lab.astype(np.float32), np.ones((5, 5), np.uint8)).astype(np.int64)
+    halo = (grown > 0) & ~front & np.isfinite(lead)
+    hs = np.bincount(grown[halo], weights=lead[halo], minlength=n)
+    hc = np.bincount(grown[halo], minlength=n)
+    mean = (sums + hs) / np.maximum(counts + hc, 1)
+    ok = mean > margin
+    ok[0] = False
+    return ok[lab]

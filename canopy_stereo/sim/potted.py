@@ -8,7 +8,8 @@ leaves, stems, the pot rim as reference surface, up = -y).
 
 * ``potted_distractors``: a green plant in a terracotta pot among things a
   "green things" mask takes for plant: a green watering can (body, lid, spout,
-  rose, handle), a second pot with soil and a green plastic stake, and a green box.
+  rose, handle) at the right, a green box in front at the left, and behind it a
+  second pot with soil and a green plastic stake.
 * ``pots_side_by_side``: two plants that are not green (purple, silver,
   yellowing or variegated; the seed picks) in two pots side by side (terracotta
   and dark green plastic), one measurement set each.
@@ -161,19 +162,19 @@ def build_potted_distractors(seed: int = 0) -> Scene:
     prims = _room(rng)
     background = prims[0]
     leaves, breeze = [], {}
-    px, pz = -60.0 + rng.uniform(-15, 15), 720.0 + rng.uniform(-20, 20)
+    px, pz = -20.0 + rng.uniform(-15, 15), 760.0 + rng.uniform(-20, 20)
     prims += _pot(rng, px, pz, 115.0, 62.0, 82.0, Material("pot", _seed(rng), (115.0,)))
     plant = _potted_plant(rng, prims, leaves, breeze, 1, px, pz, TABLE_Y - 115.0, "green",
                           rng.uniform(230, 270), "plant")
-    # a second pot with soil and a green stake, at the left
-    sx, sz = -280.0 + rng.uniform(-10, 10), 820.0
+    # a second pot with soil and a green stake, behind at the left
+    sx, sz = -190.0 + rng.uniform(-10, 10), 950.0
     prims += _pot(rng, sx, sz, 90.0, 50.0, 64.0, _plastic(rng, (0.04, 0.09, 0.04), 0.1))
     stake_mat = _plastic(rng, (0.05, 0.20, 0.04), 0.05)
-    prims.append(Cylinder([sx + 15.0, TABLE_Y - 82.0, sz], [sx + 22.0, TABLE_Y - 330.0, sz - 5.0], 4.0,
+    prims.append(Cylinder([sx - 20.0, TABLE_Y - 82.0, sz], [sx - 24.0, TABLE_Y - 330.0, sz - 5.0], 4.0,
                           stake_mat, label=LABEL_OBJECT))
-    # a green watering can in front at the right, a green box behind it
-    prims += _watering_can(rng, 150.0 + rng.uniform(-10, 10), 620.0, (0.10, 0.33, 0.12))
-    prims += _box(rng, 300.0, 900.0, 130.0, 160.0, 110.0, (0.06, 0.22, 0.05))
+    # a green box in front at the left, a green watering can at the right
+    prims += _box(rng, -260.0, 620.0, 100.0, 90.0, 90.0, (0.06, 0.22, 0.05))
+    prims += _watering_can(rng, 190.0 + rng.uniform(-10, 10), 640.0, (0.10, 0.33, 0.12))
     return Scene(name="potted_distractors", seed=seed, primitives=prims + leaves, background=background,
                  light=[-0.3, -0.8, -0.5], breeze=breeze, plants=(plant,))
 

@@ -23,21 +23,21 @@ its own instant, with its own exposure and white balance, and sends MJPEG.
   images are JPEG encoded and decoded, as a webcam's MJPEG stream is; the
   encoded bytes are kept for compressed bags).
 
-Each :class:`SequenceFrame` (a :class:`~canopy_stereo.sim.render.SimResult`) holds the two images, their capture times, the
-left view's truth at the left capture instant (world point and leaf id per
-pixel, the scene's truth dict with the rig pose and leaf speeds) and the
-right view's world points at the right instant.
+Each :class:`SequenceFrame` (a :class:`~canopy_stereo.sim.render.SimResult`) holds the two
+images, their capture times, the left view's truth at the left capture instant (world point
+and leaf id per pixel, the scene's truth dict with the rig pose and leaf speeds) and the
+right view's at the right instant.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from dataclasses import fields as dataclass_fields
 
-import cv2
 import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.geometry.camera import point_depth
+from canopy_stereo.io.image_codec import decode_compressed, encode_compressed
 from canopy_stereo.sim.primitives import Leaf
 from canopy_stereo.sim.render import SimResult, render_pair
 from canopy_stereo.sim.scene import Scene, axis_angle_matrix, place_in_front_of
@@ -241,12 +241,10 @@ def leaf_speeds(base: Scene, t_s: float, *, wind: float, dt: float = 1e-3) -> np
 
 
 def jpeg_round_trip(image: np.ndarray, quality: int) -> tuple[np.ndarray, bytes]:
-    """``(decoded BGR image, JPEG bytes)`` of a BGR image at ``quality`` (an MJPEG webcam's frame)."""
-    ok, buf = cv2.imencode(".jpg", image, [int(cv2.IMWRITE_JPEG_QUALITY), int(quality)])
-    if not ok:
-        raise CanopyStereoError("JPEG encoding failed")
-    data = buf.tobytes()
-    return np.asarray(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)), data
+    """``(decoded BGR image, JPEG bytes)`` of a BGR image at ``quality`` (an MJPEG webcam's
+    frame), with the package's one codec (:mod:`canopy_stereo.io.image_codec`)."""
+    fmt, data = encode_compressed(image, codec="jpeg", quality=quality)
+    return decode_compressed(data, fmt), data
 
 
 def render_sequence(spec: SequenceSpec, rig, *, progress=None):

@@ -9,6 +9,9 @@ image_proc (the same image_geometry / stereo geometry as ROS 2 Jazzy), run on a 
   publishes: its ``image_rect`` equals our ``image_rect`` within 1 grey level (median); with
   no lens distortion and ``R != I`` this needs the rectifiable zero-distortion ``D``
   (:data:`canopy_stereo.geometry.frames.ZERO_DISTORTION_RECTIFIABLE`).
+* ``stereo_image_proc``'s whole pipeline on the same raw images and infos (both raw infos in
+  one ``StereoCameraModel``): no abort, and its block-matching disparities on its own
+  rectification agree with our ELAS disparities (median difference under 0.5 px).
 
 Needs apt's ``ros-core python3-rosbag ros-stereo-image-proc ros-image-proc
 libstereo-image-proc-dev libimage-proc-dev libnodeletlib-tools`` (``.ci/run`` installs them);
@@ -45,12 +48,14 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 NODELET = Path("/usr/lib/nodelet/nodelet")
 IMAGE_PROC = Path("/usr/lib/image_proc/image_proc")
+STEREO_IMAGE_PROC = Path("/usr/lib/stereo_image_proc/stereo_image_proc")
 PACKAGES = ("ros-core python3-rosbag ros-stereo-image-proc ros-image-proc python3-image-geometry "
             "libstereo-image-proc-dev libimage-proc-dev libnodeletlib-tools")
 
 
 def _require_image_pipeline() -> None:
-    if NODELET.exists() and IMAGE_PROC.exists() and shutil.which("roscore") and shutil.which("rosbag"):
+    if all(p.exists() for p in (NODELET, IMAGE_PROC, STEREO_IMAGE_PROC)) and shutil.which("roscore") \
+            and shutil.which("rosbag"):
         return
     if shutil.which("apt-get") is None or os.geteuid() != 0:
         pytest.skip("Debian's image_pipeline is not installed and apt is not available here to install it "
@@ -179,22 +184,30 @@ def test_stereo_image_proc_and_image_proc_run_on_our_recording(tmp_path):
                                                           "image_rect:=image_rect_ip",
                                                           "image_rect_color:=image_rect_color_ip"],
                                    namespace=f"/stereo/{side}"))
+        # and stereo_image_proc's whole pipeline from the raw images and camera_node's raw infos
+        # (in /sip: its stereo_image_proc node uses both raw infos in one StereoCameraModel)
+        subprocess.run(["rosparam", "set", "/sip/stereo_image_proc/approximate_sync", "true"], env=ros.env,
+                       stdin=subprocess.DEVNULL, check=True, capture_output=True)
+        procs.append(ros.start("stereo_image_proc", [str(STEREO_IMAGE_PROC)], namespace="/sip"))
         result = tmp_path / "image_pipeline.bag"
         record = ros.start("record", ["rosbag", "record", "-O", str(result), "/stereo/points2_sip",
-                                      "/stereo/left/image_rect_ip", "/stereo/right/image_rect_ip"])
+                                      "/stereo/left/image_rect_ip", "/stereo/right/image_rect_ip",
+                                      "/sip/disparity", "/sip/points2"])
         time.sleep(4.0)  # nodelets subscribed, recorder up
         # one bag after the other: the recording's log times are wall-clock, the raw bag's the
         # capture times
+        raw_topics = ["/stereo/left/image_raw", "/stereo/left/camera_info", "/stereo/right/image_raw",
+                      "/stereo/right/camera_info"]
         for bag, topics in ((bags[0], ["/stereo/disparity", "/stereo/left/image_rect_color",
                                        "/stereo/left/image_rect/camera_info", "/stereo/right/image_rect/camera_info"]),
-                            (bags[1], ["/stereo/left/image_raw", "/stereo/left/camera_info",
-                                       "/stereo/right/image_raw", "/stereo/right/camera_info"])):
+                            (bags[1], raw_topics),
+                            (bags[1], [*raw_topics, *(f"{t}:=/sip{t[len('/stereo'):]}" for t in raw_topics)])):
             play = subprocess.run(["rosbag", "play", "-q", "--wait-for-subscribers", "-r", "0.5",
                                    str(bag), "--topics", *topics],
                                   env=ros.env, stdin=subprocess.DEVNULL, capture_output=True, text=True,
                                   timeout=120)
             assert play.returncode == 0, play.stderr
-        time.sleep(3.0)
+        time.sleep(5.0)  # the last messages through the nodelets into the recorder
         for p in procs:  # no abort (image_geometry's frame assertion) and still running
             assert p.poll() is None, f"{p.name} exited with {p.returncode}:\n{ros.log(p.name)[-2000:]}"
         ros.stop(record)
@@ -202,9 +215,9 @@ def test_stereo_image_proc_and_image_proc_run_on_our_recording(tmp_path):
         ros.close()
 
     theirs = _ros1_messages(result, ["/stereo/points2_sip", "/stereo/left/image_rect_ip",
-                                     "/stereo/right/image_rect_ip"])
+                                     "/stereo/right/image_rect_ip", "/sip/disparity"])
     ours = _ros1_messages(bags[0], ["/stereo/points2", "/stereo/left/image_rect", "/stereo/right/image_rect",
-                                    "/tf_static"])
+                                    "/tf_static", "/stereo/disparity"])
     # clouds: stereo_image_proc's in the left rectified optical frame, ours in canopy_world:
     # put theirs in our frame through the recording's own /tf_static
     tf = {t.child_frame_id: t for m in ours["/tf_static"] for t in m.transforms}
@@ -233,19 +246,42 @@ def test_stereo_image_proc_and_image_proc_run_on_our_recording(tmp_path):
     assert worst <= 1e-6, worst
     diffs = []
     # image_proc's rectification of the raw images against ours (rectify_node stamps a pair
-    # with the left frame's stamp: pairs are matched in order)
+    # with the left frame's stamp; the right camera captured 4 ms later: nearest stamp)
     for side in ("left", "right"):
-        got = sorted(theirs[f"/stereo/{side}/image_rect_ip"], key=_stamp)
-        mine = sorted(ours[f"/stereo/{side}/image_rect"], key=_stamp)
-        assert len(got) == len(mine) >= 3
-        for a_msg, b_msg in zip(got, mine):
+        got = theirs[f"/stereo/{side}/image_rect_ip"]
+        mine = ours[f"/stereo/{side}/image_rect"]
+        assert len(got) >= 3 and len(mine) >= 3
+        for a_msg in got:
+            b_msg = min(mine, key=lambda m: abs(_stamp(m) - _stamp(a_msg)))
+            assert abs(_stamp(b_msg) - _stamp(a_msg)) < 20_000_000
             a, b = _mono(a_msg).astype(int), _mono(b_msg).astype(int)
             inside = (a > 0) & (b > 0)   # both images have content (borders are black in both)
             assert inside.mean() > 0.8
             diffs.append(float(np.median(np.abs(a - b)[inside])))
     assert max(diffs) <= 1, diffs
+    # stereo_image_proc's own matching on its own rectification from our raw infos: the same
+    # rectified geometry as ours, so its disparities agree with ELAS's where both have one
+    assert len(theirs["/sip/disparity"]) >= 2  # approximate sync of 4 frames: the first may wait
+    disparity_diffs = []
+    for msg in theirs["/sip/disparity"]:
+        mine = min(ours["/stereo/disparity"], key=lambda m: abs(_stamp(m) - _stamp(msg)))
+        assert abs(_stamp(mine) - _stamp(msg)) < 20_000_000
+        a, b = _disparity(msg), _disparity(mine)
+        both = np.isfinite(a) & np.isfinite(b) & (a > 0) & (b > 0)
+        assert both.mean() > 0.3
+        disparity_diffs.append(float(np.median(np.abs(a - b)[both])))
+    assert max(disparity_diffs) < 0.5, disparity_diffs
     print(f"stereo_image_proc point_cloud2 vs our points2: worst relative difference {worst:.2e} over "
-          f"{n_compared} clouds; image_proc image_rect vs ours: median grey-level differences {diffs}")
+          f"{n_compared} clouds; image_proc image_rect vs ours: median grey-level differences {diffs}; "
+          f"stereo_image_proc (whole pipeline, raw infos) vs our disparity: median |difference| {disparity_diffs} px")
+
+
+def _disparity(msg) -> np.ndarray:
+    """A DisparityImage's 32FC1 image (H, W), NaN where invalid (below min_disparity)."""
+    img = msg.image
+    d = np.frombuffer(img.data, np.float32).reshape(img.height, img.step // 4)[:, : img.width].astype(np.float64)
+    d[~(d >= msg.min_disparity)] = np.nan
+    return d
 
 
 def _stamp(msg) -> int:

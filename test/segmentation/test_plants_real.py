@@ -53,3 +53,29 @@ def test_segment_auto_with_disparity_takes_plants_not_can_or_pots(shared_data, t
     left = cv2.imread(str(folder / "im0.png"))
     mask = cv2.imread(str(tmp_path / "mask.png"), cv2.IMREAD_GRAYSCALE) > 0
     check_coverage(coverage(mask, mask.shape, cv2.cvtColor(left, cv2.COLOR_BGR2GRAY)))
+
+
+@pytest.mark.slow
+@pytest.mark.shared
+def test_segment_plants_on_the_organized_cloud_of_the_pair(shared_data):
+    """The cloud path (``points=``, as ``reconstruct --auto-mask`` calls it): the pair's cloud
+    triangulated with its own calibration, Z = f B / (d + doffs); camera given or estimated."""
+    from canopy_stereo.disparity import compute_disparity
+    from canopy_stereo.io.middlebury import load_middlebury_2014
+    from canopy_stereo.segmentation import segment_plants
+
+    scene = load_middlebury_2014(shared_data / "middlebury_MiddEval3_testQ" / "Plants")
+    grey = cv2.cvtColor(scene["left"], cv2.COLOR_BGR2GRAY)
+    d = compute_disparity(grey, cv2.cvtColor(scene["right"], cv2.COLOR_BGR2GRAY), matcher="elas",
+                          disp_min=0, disp_max=80).astype(float)
+    d[d < 0] = np.nan
+    calib = scene["calib"]
+    K = calib["cam0"]
+    f, cx, cy = K[0, 0], K[0, 2], K[1, 2]
+    Z = f * calib["baseline"] / (d + calib["doffs"])
+    v, u = np.mgrid[0:d.shape[0], 0:d.shape[1]]
+    cloud = np.dstack([(u - cx) * Z / f, (v - cy) * Z / f, Z])
+    for camera in (np.hstack([K, np.zeros((3, 1))]), None):
+        seg = segment_plants(scene["left"], points=cloud, camera=camera)
+        check_coverage(coverage(seg.mask > 0, grey.shape, grey))
+        assert seg.n_plants == 2

@@ -376,14 +376,17 @@ def croton_frames():
 
 
 def feed_pairs(pub_left, pub_right, frames, stamps_ns, rate_hz: float, right_offset_ns: int = 4_000_000,
-               stop: threading.Event | None = None) -> dict:
+               stop: threading.Event | None = None, make_msg=None) -> dict:
     """Publish ``frames[k % len]`` stamped ``stamps_ns[k]`` (right ``+right_offset_ns``) at
-    ``rate_hz``; returns left stamp -> monotonic time the pair's right image left."""
+    ``rate_hz``; returns left stamp -> monotonic time the pair's right image left.
+    ``make_msg(image, frame_id)`` builds each message (default: a bgr8 Image)."""
     from canopy_stereo.ros.convert import image_to_msg
 
-    msgs = [(image_to_msg(left, "bgr8", stamp_ns=0, frame_id="left_camera"),
-             image_to_msg(right, "bgr8", stamp_ns=0, frame_id="right_camera"))
-            for left, right in frames]
+    if make_msg is None:
+        def make_msg(image, frame_id):
+            return image_to_msg(image, "bgr8", stamp_ns=0, frame_id=frame_id)
+
+    msgs = [(make_msg(left, "left_camera"), make_msg(right, "right_camera")) for left, right in frames]
     sent = {}
     t0 = time.monotonic()
     for k, stamp in enumerate(stamps_ns):

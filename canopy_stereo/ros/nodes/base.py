@@ -49,7 +49,7 @@ from canopy_stereo.ros.context import tune_node_process
 from canopy_stereo.ros.diagnostics import DEFAULT_PERIOD_S, NodeDiagnostics
 from canopy_stereo.ros.intra_process import IntraProcessBus, LocalSubscription
 from canopy_stereo.ros.params import flag_descriptor, number_descriptor, text_descriptor
-from canopy_stereo.ros.qos import OUTPUT_DEPTH, RELIABILITY_CHOICES, publisher_qos, subscription_qos
+from canopy_stereo.ros.qos import OUTPUT_DEPTH, RELIABILITY_CHOICES, publisher_qos, sensor_data_qos, subscription_qos
 
 #: Namespace of the nodes when none is given (``--ros-args -r __ns:=/x`` overrides it).
 DEFAULT_NAMESPACE = "/stereo"
@@ -171,9 +171,12 @@ class CanopyNode(Node):
             self._local_topics.append(pub.topic_name)
         return _CountedPublisher(pub, self.diagnostics, self.intra_process)
 
-    def make_subscription(self, msg_type, topic: str, callback, *, depth: int | None = None, **kwargs):
+    def make_subscription(self, msg_type, topic: str, callback, *, depth: int | None = None,
+                          sensor_data: bool = False, **kwargs):
         """Reliable keep-last subscription (:func:`~canopy_stereo.ros.qos.subscription_qos`)
         whose callback is :meth:`guarded` and counted in the node's diagnostics.
+        ``sensor_data``: REP 2003's sensor-data QoS instead (best effort, keep last), for
+        inputs small enough to cross processes best effort (compressed images).
 
         ``qos_overrides.<topic>.subscription.reliability: best_effort`` (a node parameter)
         accepts a best-effort publisher (large messages between processes may then be lost).
@@ -198,7 +201,8 @@ class CanopyNode(Node):
                                                    int(subscription_qos(depth).depth))
                 self.local_subscriptions.append(sub)
                 return sub
-        sub = self.create_subscription(msg_type, topic, self.guarded(counted), subscription_qos(depth),
+        qos = sensor_data_qos(depth) if sensor_data else subscription_qos(depth)
+        sub = self.create_subscription(msg_type, topic, self.guarded(counted), qos,
                                        qos_overriding_options=QoSOverridingOptions.with_default_policies(),
                                        **kwargs)
         name = sub.topic_name

@@ -1,8 +1,29 @@
 """``camera_node``: one webcam (or a video file / image sequence) -> ``<camera_name>/image_raw``.
 
 Run one per camera, e.g. ``camera_name:=left device:=0`` and
-``camera_name:=right device:=1``. Frames are published as bgr8
-``sensor_msgs/Image`` stamped with the node clock right after capture.
+``camera_name:=right device:=1``, or one for a one-device stereo webcam (``layout``).
+Frames are published as bgr8 ``sensor_msgs/Image`` on ``<camera_name>/image_raw`` and/or
+as JPEG ``sensor_msgs/CompressedImage`` on ``<camera_name>/image_raw/compressed``
+(image_transport's topic and format, ``transport``).
+
+* ``transport``: ``raw`` (default), ``compressed`` or ``both``. A device delivering MJPEG
+  (``fourcc: MJPG``) with ``compressed`` output publishes the device's own JPEG bytes,
+  never decoded (``both``: decoded once for the raw image); files, image sequences and
+  the halves of a stereo layout are encoded at ``jpeg_quality`` (1-100, default 95 as
+  image_transport's);
+* ``layout``: ``mono`` (default), ``side_by_side`` or ``top_bottom``: one capture holding
+  both views of a synchronized stereo webcam (left view left / on top) is split into
+  ``left/image_raw`` and ``right/image_raw`` (and their compressed topics and
+  ``left|right/camera_info``, in the pair's one frame as for two cameras; calibration
+  parameters ``left.camera_info_url``, ``right.camera_info_url``, services
+  ``left/set_camera_info``, ``right/set_camera_info``), both with one stamp;
+  ``camera_name`` and ``frame_id`` then do not apply;
+* stamps: the driver's capture time where the backend gives one (V4L2 buffer timestamps,
+  ``CAP_PROP_POS_MSEC`` of OpenCV's V4L2 backend, on ``CLOCK_MONOTONIC``), mapped onto
+  the ROS clock; else the reception time minus ``stamp_latency`` (s, default 0)
+  (:mod:`canopy_stereo.io.capture_stamps`). ``/diagnostics`` reports ``stamp latency ms``
+  (capture -> reception, measured with driver times) and ``stamp jitter ms`` (spread of
+  the stamp intervals).
 
 Parameters:
 
@@ -41,10 +62,15 @@ import time
 import cv2
 import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import CompressedImage, Image
 
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.io.camera_frames import CAMERA_TRANSPORTS, LAYOUTS, prepare_frame
+from canopy_stereo.io.capture_stamps import CaptureClock
+from canopy_stereo.io.compressed_image import compressed_topic
+from canopy_stereo.io.image_codec import DEFAULT_JPEG_QUALITY
 from canopy_stereo.ros.camera_info import RawCameraInfoPublisher, default_camera_frame
+from canopy_stereo.ros.compressed import compressed_msg
 from canopy_stereo.ros.convert import image_to_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 
@@ -77,8 +103,9 @@ def quiet_opencv_warnings() -> None:
 
 
 def open_capture(source: str, width: int = 0, *, height: int = 0, fps: float = 0.0,
-                 fourcc: str = "") -> cv2.VideoCapture | None:
-    """An opened ``cv2.VideoCapture`` for ``source`` with the requested settings, or None."""
+                 fourcc: str = "", device_jpeg: bool = False) -> cv2.VideoCapture | None:
+    """An opened ``cv2.VideoCapture`` for ``source`` with the requested settings, or None.
+    ``device_jpeg``: a device delivering MJPEG hands over its JPEG bytes undecoded."""
     src = source.strip()
     if src.isdigit():
         cap = cv2.VideoCapture(int(src))
@@ -98,7 +125,22 @@ def open_capture(source: str, width: int = 0, *, height: int = 0, fps: float = 0
             cap.set(cv2.CAP_PROP_FRAME_HEIGHT, height)
         if fps > 0:
             cap.set(cv2.CAP_PROP_FPS, fps)
+        if device_jpeg and fourcc.upper().startswith("MJP"):
+            cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
     return cap
+
+
+def driver_time_ns(cap: cv2.VideoCapture) -> int | None:
+    """The capture time of the frame just read, as the backend reports it (V4L2: the buffer
+    timestamp on CLOCK_MONOTONIC, in ``CAP_PROP_POS_MSEC``), in ns; None when it has none."""
+    get = getattr(cap, "get", None)  # a capture-like source may have no properties
+    if get is None:
+        return None
+    try:
+        ms = float(get(cv2.CAP_PROP_POS_MSEC))
+    except cv2.error:
+        return None
+    return int(ms * 1e6) if ms > 0 else None
 
 
 class CaptureSession(threading.Thread):
@@ -110,6 +152,8 @@ class CaptureSession(threading.Thread):
 
     ``on_frame(session, frame, stamp_ns) -> bool`` is called for every frame (False: stop);
     the session paces reads at ``period_s`` for files and image sequences.
+    ``stamp_now(driver_monotonic_ns)`` stamps a frame as it is received, given the
+    device's capture time on ``CLOCK_MONOTONIC`` (ns; None for files and sequences).
     """
 
     def __init__(self, source: str, settings: dict, on_frame, period_s: float, stamp_now):
@@ -138,7 +182,7 @@ class CaptureSession(threading.Thread):
             next_t = time.monotonic()
             while not self.stop_event.is_set():
                 ok, frame = cap.read()
-                stamp_ns = self.stamp_now()
+                stamp_ns = self.stamp_now(driver_time_ns(cap) if is_device(self.source) and ok else None)
                 if self.stop_event.is_set():
                     break
                 if not ok or frame is None:
@@ -186,6 +230,19 @@ class CameraNode(CanopyNode):
                           read_only=True)
         self.declare_number("open_timeout", OPEN_TIMEOUT_S, "seconds an open may take before the "
                             "source counts as missing", minimum=0.1, maximum=600.0, read_only=True)
+        self.declare_text("transport", "raw", "what is published: raw (<name>/image_raw), compressed "
+                          "(<name>/image_raw/compressed, JPEG: the device's own MJPEG bytes when it "
+                          "delivers MJPEG) or both", choices=CAMERA_TRANSPORTS, read_only=True)
+        self.declare_number("jpeg_quality", DEFAULT_JPEG_QUALITY, "JPEG quality (1-100) of the compressed "
+                            "frames encoded here (files, sequences, split stereo frames)",
+                            minimum=1, maximum=100, read_only=True)
+        self.declare_text("layout", "mono", "mono (one camera) or one device with both views: "
+                          "side_by_side (left view in the left half) or top_bottom (left on top), "
+                          "split into left/ and right/ topics with one stamp", choices=LAYOUTS,
+                          read_only=True)
+        self.declare_number("stamp_latency", 0.0, "seconds between capture and reception subtracted "
+                            "from the reception time when the driver gives no capture time",
+                            minimum=0.0, maximum=10.0, read_only=True)
         self.declare_number("read_timeout", 0.0, "seconds without a frame before an open source counts "
                             f"as stalled; 0 = max({READ_TIMEOUT_MIN_S:g} s, {READ_TIMEOUT_FRAMES} frame periods)",
                             minimum=0.0, maximum=600.0, read_only=True)
@@ -205,8 +262,26 @@ class CameraNode(CanopyNode):
                                                                         READ_TIMEOUT_FRAMES * self.period_s)
         if not self.open_timeout_s > 0:
             raise CanopyStereoError(f"open_timeout must be > 0 s, got {self.open_timeout_s}")
-        self.pub = self.make_publisher(Image, f"{self.camera_name}/image_raw")
-        self.info = RawCameraInfoPublisher(self, self.camera_name)  # <name>/camera_info with a rig
+        self.transport = str(self.get_parameter("transport").value)
+        self.layout = str(self.get_parameter("layout").value)
+        self.jpeg_quality = int(self.get_parameter("jpeg_quality").value)
+        for name, value, choices in (("transport", self.transport, CAMERA_TRANSPORTS),
+                                     ("layout", self.layout, LAYOUTS)):
+            if value not in choices:
+                raise CanopyStereoError(f"{name} must be one of {', '.join(choices)}, got {value!r}")
+        self.clock = CaptureClock(latency_s=float(self.get_parameter("stamp_latency").value))
+        self.settings["device_jpeg"] = self.transport == "compressed" and self.layout == "mono"
+        sides = [self.camera_name] if self.layout == "mono" else ["left", "right"]
+        self.frame_ids = ([self.frame_id] if self.layout == "mono"
+                          else [default_camera_frame(side) for side in sides])
+        self.pubs = [self.make_publisher(Image, f"{side}/image_raw") if self.transport != "compressed" else None
+                     for side in sides]
+        self.pubs_compressed = [self.make_publisher(CompressedImage, compressed_topic(f"{side}/image_raw"))
+                                if self.transport != "raw" else None for side in sides]
+        self.pub = self.pubs[0]
+        # <side>/camera_info with a rig
+        self.infos = [RawCameraInfoPublisher(self, side, of_pair=self.layout != "mono") for side in sides]
+        self.info = self.infos[0]
         self.session: CaptureSession | None = None
         self.abandoned: list[CaptureSession] = []  # sessions still blocked inside OpenCV
         self.backoff = BACKOFF_START_S
@@ -215,6 +290,7 @@ class CameraNode(CanopyNode):
         self.reported_open = False
         self.finished = False
         self._publish_lock = threading.Lock()
+        self._stamp_source = ""
         self._stopping = False
         self.timer = self.create_timer(SUPERVISE_PERIOD_S, self.guarded(self._supervise))
 
@@ -224,20 +300,48 @@ class CameraNode(CanopyNode):
     # ------------------------------------------------------------------ worker side
     def _on_frame(self, session: CaptureSession, frame, stamp_ns: int) -> bool:
         """Publish one captured frame (called on the session's thread); False stops the session."""
-        if frame.ndim == 2:
-            frame = cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
-        msg = image_to_msg(np.ascontiguousarray(frame[..., :3]), "bgr8", stamp_ns=stamp_ns,
-                           frame_id=self.frame_id)
+        try:
+            views = prepare_frame(np.asarray(frame), layout=self.layout, transport=self.transport,
+                                  quality=self.jpeg_quality)
+        except CanopyStereoError as exc:
+            self.drop(str(exc), "captured frame")
+            return True
+        msgs = []
+        for v in views:
+            frame_id = self.frame_ids[v.side]
+            raw = None if v.image is None else image_to_msg(v.image, "bgr8", stamp_ns=stamp_ns, frame_id=frame_id)
+            jpeg = None if v.compressed is None else compressed_msg(v.compressed[1], v.compressed[0],
+                                                                   stamp_ns=stamp_ns, frame_id=frame_id)
+            msgs.append((v, frame_id, raw, jpeg))
         with self._publish_lock:
             if self._stopping or session is not self.session:
                 return False
-            self.pub.publish(msg)
-            self.info.publish(stamp_ns, self.frame_id, frame.shape)
+            for v, frame_id, raw, jpeg in msgs:
+                if raw is not None:
+                    self.pubs[v.side].publish(raw)
+                if jpeg is not None:
+                    self.pubs_compressed[v.side].publish(jpeg)
+                self.infos[v.side].publish(stamp_ns, frame_id, v.shape)
         self.count("frames_published")
         return True
 
-    def _stamp_now(self) -> int:
-        return self.get_clock().now().nanoseconds
+    def _stamp_now(self, driver_monotonic_ns: int | None = None) -> int:
+        """The frame's stamp: the driver's capture time on the ROS clock, else the reception
+        time minus ``stamp_latency`` (:class:`~canopy_stereo.io.capture_stamps.CaptureClock`)."""
+        receive_ns, mono_ns = self.get_clock().now().nanoseconds, time.monotonic_ns()
+        out = self.clock.stamp(receive_ns=receive_ns, receive_monotonic_ns=mono_ns,
+                               driver_monotonic_ns=driver_monotonic_ns)
+        if out.source != self._stamp_source:
+            self._stamp_source = out.source
+            self.get_logger().info(f"camera {self.camera_name}: stamps from "
+                                   + ("the driver's capture times" if out.source == "driver" else
+                                      f"the reception time minus {self.clock.latency_ns / 1e6:g} ms"))
+        if out.latency_ms is not None:
+            self.diagnostics.sample("stamp latency ms", out.latency_ms)
+        jitter = self.clock.jitter_ms
+        if jitter is not None:
+            self.diagnostics.sample("stamp jitter ms", jitter)
+        return out.stamp_ns
 
     # ------------------------------------------------------------------ executor side
     def _supervise(self) -> None:

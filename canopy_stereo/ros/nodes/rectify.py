@@ -2,7 +2,12 @@
 
 The one node that holds the rig (camera matrices as parameters: the rig file).
 Subscribes ``left/image_raw`` and ``right/image_raw`` (``sensor_msgs/Image``,
-bgr8/rgb8/mono8/bgra8/rgba8 of the rig's image size). Publishes, with the left
+bgr8/rgb8/mono8/bgra8/rgba8 of the rig's image size), or with ``image_transport:
+compressed`` (image_transport's convention, the parameter stereo_image_proc has)
+``left/image_raw/compressed`` and ``right/image_raw/compressed``
+(``sensor_msgs/CompressedImage``, JPEG or PNG in any ``format`` drivers write:
+:mod:`canopy_stereo.io.image_codec`; each frame decoded once, a corrupt one dropped
+with its reason; REP 2003 sensor-data QoS, see :mod:`canopy_stereo.ros.qos`). Publishes, with the left
 frame's stamp:
 
 * ``left/image_rect``, ``right/image_rect``: mono8 rectified images;
@@ -31,8 +36,9 @@ measured from the
 stamps), ``sync_slop`` (s; -1 = half a frame period at ``fps``), ``queue_size``,
 ``frame_id`` (rectified left optical frame) and ``right_frame_id`` ("" = ``frame_id`` in the
 messages, ``right_camera_rect_optical_frame`` in the transforms), ``world_frame``,
-``world_z_up_frame`` ("" = none), ``left_camera_frame``/``right_camera_frame`` (raw
-optical frames in the transforms), ``skew_compensation``, ``reliability``, ``diagnostic_period``.
+``world_z_up_frame`` ("" = none), ``image_transport`` (``raw``/``compressed``),
+``left_camera_frame``/``right_camera_frame`` (raw optical frames in the transforms),
+``skew_compensation``, ``reliability``, ``diagnostic_period``.
 
 Skew compensation (``skew_compensation``, default true): free-running webcams capture
 up to half a frame apart; each pair's right image is brought to the left image's
@@ -54,7 +60,7 @@ longer than 2 s are pauses, not losses.
 """
 from __future__ import annotations
 
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import String
 
 from canopy_stereo.bag.pairing import ApproximateTimePairer, FramePeriodEstimator, slop_for_rate
@@ -68,6 +74,7 @@ from canopy_stereo.geometry.frames import (
 )
 from canopy_stereo.geometry.rectification import StereoRectifier
 from canopy_stereo.io.images import to_gray
+from canopy_stereo.ros.compressed import TRANSPORTS, compressed_msg_to_bgr, input_topic
 from canopy_stereo.ros.convert import (
     COLOUR_ENCODINGS,
     image_to_msg,
@@ -124,6 +131,10 @@ class RectifyNode(CanopyNode):
                             minimum=1, maximum=100, read_only=True)
         for name, (default, desc) in _FRAME_PARAMETERS.items():
             self.declare_text(name, default, desc, read_only=True)
+        self.declare_text("image_transport", "raw", "input transport: raw (<side>/image_raw, Image) or "
+                          "compressed (<side>/image_raw/compressed, CompressedImage: JPEG/PNG)",
+                          choices=TRANSPORTS, read_only=True)
+        self.transport = str(self.get_parameter("image_transport").value)
         self.declare_flag("skew_compensation", True, "bring each pair's right image to the left image's "
                           "instant along the right camera's motion (free-running cameras on a moving rig "
                           "or in wind)", read_only=True)
@@ -157,8 +168,14 @@ class RectifyNode(CanopyNode):
         self.pub_info_left = self.make_publisher(CameraInfo, RECT_INFO_TOPICS[0])
         self.pub_info_right = self.make_publisher(CameraInfo, RECT_INFO_TOPICS[1])
         self.pub_geometry = self.create_publisher(String, STEREO_GEOMETRY_TOPIC, latched_qos())
-        self.sub_left = self.make_subscription(Image, "left/image_raw", lambda m: self._on_image(0, m))
-        self.sub_right = self.make_subscription(Image, "right/image_raw", lambda m: self._on_image(1, m))
+        # compressed frames (30-160 kB) cross processes best effort without loss on Fast DDS
+        # (benchmarks/bench_transport_qos.py), raw ones (0.9 MB) do not: REP 2003's
+        # sensor-data QoS for compressed input, which also matches best-effort drivers
+        in_type, packed = (Image, False) if self.transport == "raw" else (CompressedImage, True)
+        self.sub_left = self.make_subscription(in_type, input_topic("left/image_raw", self.transport),
+                                               lambda m: self._on_image(0, m), sensor_data=packed)
+        self.sub_right = self.make_subscription(in_type, input_topic("right/image_raw", self.transport),
+                                                lambda m: self._on_image(1, m), sensor_data=packed)
         if self.get_parameter("use_camera_info").value:
             from canopy_stereo.ros.camera_info_rig import CameraInfoRig
 
@@ -186,15 +203,21 @@ class RectifyNode(CanopyNode):
                                f"sync slop {self.pairer.slop_ns / 1e9:g} s"
                                + (" until the frame period is measured" if self.period_estimator else ""))
 
-    def _on_image(self, side: int, msg: Image) -> None:
+    def _to_bgr(self, msg):
+        """uint8 BGR of an input frame (raw or compressed), checked against the rig's size."""
+        if isinstance(msg, CompressedImage):
+            return compressed_msg_to_bgr(msg, expected_size=self.rig.image_size)
+        check_image_msg(msg, expected_size=self.rig.image_size, encodings=COLOUR_ENCODINGS)
+        return msg_to_bgr(msg, expected_size=self.rig.image_size)
+
+    def _on_image(self, side: int, msg) -> None:
         name = ("left", "right")[side]
         self.count(f"{name}_received")
         if self.rig is None:
             self.drop("no rig yet (waiting for left/camera_info and right/camera_info)", f"{name} frame")
             return
         try:
-            check_image_msg(msg, expected_size=self.rig.image_size, encodings=COLOUR_ENCODINGS)
-            bgr = msg_to_bgr(msg, expected_size=self.rig.image_size)
+            bgr = self._to_bgr(msg)
         except Exception as exc:
             self.drop(str(exc), f"{name} frame")
             return

@@ -1,0 +1,126 @@
+"""Plants, not green things: the automatic plant mask against the current seeder.
+
+Per simulated scene (exact truth, canopy_stereo.sim; depth cue: the cloud that
+reconstruct_pair makes with ELAS from the rendered 640 x 480 pair):
+
+* mask IoU against the truth plant pixels (leaves, stems, fruit);
+* distractor pixels taken: the fraction of the pots', soil's and objects' pixels
+  (a green watering can, a green box, a green stake) in the mask;
+* plants found and, per plant, the height error (%) of measure_plants on the exact
+  cloud with the mask's instances (height above the pot rim / soil; the seeder's
+  mask is split into instances the same way);
+* time per frame of the mask (ms).
+
+Then the real Middlebury 2014 Plants pair (../shared/data, if present): the share
+of each hand-checked region (test/data/plants_regions.json) the mask takes, with
+the ELAS disparity as depth cue, as ``segment --auto`` does.
+
+"seeder" is the current default of the one seeder (segmentation.auto: ExG +
+depth + GrabCut, IMAGE_SEEDER) with the distance map of the same cloud; "plants"
+is segment_plants. Run:  python benchmarks/bench_segmentation.py [--seeds 2]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from canopy_stereo.geometry.camera import camera_centre
+from canopy_stereo.measure import measure_plants
+from canopy_stereo.pipeline.reconstruct import reconstruct_pair
+from canopy_stereo.segmentation import IMAGE_SEEDER, plant_instances, plant_mask, segment_plants
+from canopy_stereo.sim import render_scene
+from canopy_stereo.sim.primitives import DISTRACTOR_LABELS, PLANT_LABELS
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _timed(fn):
+    t = time.perf_counter()
+    out = fn()
+    return out, 1000.0 * (time.perf_counter() - t)
+
+
+def _height_errors(sim, instances, ground):
+    """Per plant found: height error (%) against the truth plant it shows most."""
+    if not instances.any():
+        return []
+    res = measure_plants(sim.xyz_left, instances, camera=sim.rig.P_left, ground=ground, separate=False)
+    errs = []
+    for rep in res["plants"]:
+        ids, counts = np.unique(sim.plants_left[instances == rep["plant_index"]], return_counts=True)
+        k = int(ids[np.argmax(counts)])
+        if k == 0 or "canopy" not in rep:
+            continue
+        truth = sim.truth["plants"][k - 1]["height"]
+        errs.append(100.0 * (rep["canopy"]["height"] / truth - 1.0))
+    return errs
+
+
+def simulated(name: str, seed: int) -> None:
+    sim = render_scene(name, seed=seed)
+    rec = reconstruct_pair(sim.left, sim.right, sim.rig)
+    P = sim.rig.P_left
+    dist = np.linalg.norm(rec.organized - camera_centre(P), axis=-1)
+    truth = np.isin(sim.labels_left, PLANT_LABELS)
+    distractor = np.isin(sim.labels_left, DISTRACTOR_LABELS)
+    in_view = int(np.count_nonzero(np.bincount(sim.plants_left.ravel())[1:] >= 50))
+    ground = "view" if name == "seedling_tray" else "auto"
+    old, old_ms = _timed(lambda: plant_mask(sim.left, IMAGE_SEEDER, depth=dist) > 0)
+    new, new_ms = _timed(lambda: segment_plants(sim.left, points=rec.organized, camera=P))
+    old_inst, _ = plant_instances(old, 1.0 / np.where(np.isfinite(dist), dist, np.nan))
+    for label, mask, inst, ms in (("seeder", old, old_inst, old_ms),
+                                  ("plants", new.mask > 0, new.instances, new_ms)):
+        iou = (mask & truth).sum() / max(1, (mask | truth).sum())
+        taken = (mask & distractor).sum() / max(1, distractor.sum())
+        errs = _height_errors(sim, inst, ground)
+        worst = f"{max(abs(e) for e in errs):6.2f}" if errs else "   n/a"
+        print(f"  {name:<19}{seed:>2}  {label:<7} IoU {iou:5.3f}  distractors taken {100 * taken:5.1f} %  "
+              f"plants {int(inst.max()):>2}/{in_view:<2}  height |err| worst {worst} %  "
+              f"median {np.median(np.abs(errs)) if errs else float('nan'):5.2f} %  {ms:6.0f} ms")
+
+
+def real_plants(shared: Path) -> None:
+    from canopy_stereo.disparity import compute_disparity
+    from canopy_stereo.io.images import read_image
+
+    folder = shared / "middlebury_MiddEval3_testQ" / "Plants"
+    left, right = read_image(folder / "im0.png"), read_image(folder / "im1.png")
+    grey = cv2.cvtColor(left, cv2.COLOR_BGR2GRAY)
+    d = compute_disparity(grey, cv2.cvtColor(right, cv2.COLOR_BGR2GRAY), matcher="elas", disp_min=0, disp_max=80)
+    fx = json.loads((REPO / "test" / "data" / "plants_regions.json").read_text())
+    regions = {}
+    for r in fx["regions"]:
+        m = np.zeros(grey.shape, np.uint8)
+        for poly in r["polygons"]:
+            cv2.fillPoly(m, [np.array(poly, np.int32)], 1)
+        regions[r["name"]] = m.astype(bool) & ((grey <= fx["wall_grey"]) if r["kind"] == "foliage" else True)
+    old, old_ms = _timed(lambda: plant_mask(left, IMAGE_SEEDER, disparity=d) > 0)
+    new, new_ms = _timed(lambda: segment_plants(left, disparity=d))
+    for label, mask, ms in (("seeder", old, old_ms), ("plants", new.mask > 0, new_ms)):
+        cov = "  ".join(f"{k} {100 * (mask & m).sum() / m.sum():5.1f} %" for k, m in regions.items())
+        print(f"  Plants 710x496  {label:<7} {cov}  {ms:6.0f} ms")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", type=int, default=2, help="seeds per distractor scene (default 2)")
+    args = ap.parse_args()
+    segment_plants(np.zeros((32, 32, 3), np.uint8), disparity=np.ones((32, 32)))  # warm-up (imports)
+    print("simulated scenes, 640x480, depth from reconstruct_pair (ELAS); heights on the exact cloud")
+    for name in ("potted_distractors", "pots_side_by_side"):
+        for seed in range(args.seeds):
+            simulated(name, seed)
+    simulated("seedling_tray", 0)
+    shared = REPO.parent / "shared" / "data"
+    if shared.is_dir():
+        print("real pair: share of each hand-checked region taken (foliage: want >= 85 %; can <= 5 %, pots <= 10 %)")
+        real_plants(shared)
+
+
+if __name__ == "__main__":
+    main()
