@@ -33,6 +33,13 @@ cores) need the nodes' CPU per pair to stay below 2 cores x 33 ms = 66 ms in tot
     .venv/bin/python benchmarks/bench_graph.py --configs processes:elas:mask:640x480 --frames 150
     .venv/bin/python benchmarks/bench_graph.py            # all 24 configurations (~15 min)
 
+``--foreign-driver`` (issue 29): the node processes (rectify, ELAS, point_cloud) fed by a driver that
+is not ours (``test/support/foreign_driver.py``, Fast DDS's defaults, no package profile) at
+``--rate``, with the package's 4 MiB UDP receive buffer and with the 208 kB a stock kernel's
+``net.core.rmem_max`` caps it to: clouds per pair, clouds/s, latency median and p95.
+
+    .venv/bin/python benchmarks/bench_graph.py --foreign-driver --rate 30 --frames 300
+
 Older modes, kept: ``--replay`` replays a croton bag through the in-process graph as fast as
 possible (``--matchers``, ``--executors``, ``--no-cli``: frames/s, latency, busy time per node);
 ``--processes`` / ``--processes-only`` compare the four node processes with the in-process
@@ -589,6 +596,92 @@ HEADER = (f"{'configuration':32s} {'offered':>7s} {'delivered':>9s} {'ratio':>6s
           f"{'p95':>6s}  (clouds/s, ms)")
 
 
+#: ``--foreign-driver`` receive buffers: the package's (4 MiB, needs ``net.core.rmem_max`` >= 4 MiB) and
+#: what a stock kernel's ``rmem_max`` (208 kB) caps it to.
+RECEIVE_BUFFERS = {"4MiB (rmem_max >= 4 MiB)": 4194304, "208kB (stock rmem_max)": 212992}
+
+
+def bench_foreign_driver(rate_hz: float, n_frames: int, log_dir: Path, *, scene: str = "plants",
+                         receive_buffer: int = 4194304, nodes=("rectify_node", "disparity_node",
+                                                               "point_cloud_node")) -> dict:
+    """The node processes fed by a driver that is not ours (``test/support/foreign_driver.py``: a
+    process on Fast DDS's defaults, 640x480 bgr8 pairs stamped at publication) at ``rate_hz``; the
+    node processes' profile is the package's with the UDP receive buffer set to ``receive_buffer``
+    (the kernel caps it at ``net.core.rmem_max``: 208 kB stands for a stock kernel). Returns clouds
+    per pair, clouds/s delivered and latency (publication to cloud arrival) median and p95."""
+    import json
+    import subprocess
+    import time
+
+    import numpy as np
+    from sensor_msgs.msg import PointCloud2
+
+    from canopy_stereo.io.rig import save_rig
+    from canopy_stereo.ros.context import FASTDDS_PROFILES, private_domain_id
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout's test package
+    from test.support.foreign_driver import foreign_env
+    from test.support.ros_harness import Probe, ProcessGroup, wait_for
+
+    log_dir.mkdir(parents=True, exist_ok=True)
+    rig, _ = bench_frames(scene, "640x480", n_frames=1)
+    rig_path = save_rig(rig, log_dir / "rig.yaml")
+    profile = log_dir / "fastdds_profiles.xml"
+    profile.write_text(FASTDDS_PROFILES.read_text().replace(
+        "<receiveBufferSize>4194304</receiveBufferSize>",
+        f"<receiveBufferSize>{int(receive_buffer)}</receiveBufferSize>"))
+    group = ProcessGroup(private_domain_id(), log_dir)
+    group.env.update(FASTRTPS_DEFAULT_PROFILES_FILE=str(profile), RMW_FASTRTPS_USE_QOS_FROM_XML="1")
+    probe = None
+    try:
+        group.start_graph(rig_path, nodes=nodes)
+        probe = Probe(group.domain_id, name="bench_probe")
+        clouds = probe.subscribe(PointCloud2, "points2")
+        inputs = {"/stereo/left/image_raw": 1, "/stereo/right/image_raw": 1, "/stereo/disparity": 1,
+                  "/stereo/left/image_rect": 1, "/stereo/left/image_rect_color": 1}
+        if not wait_for(lambda: all(probe.node.count_subscribers(t) >= n for t, n in inputs.items())
+                        and clouds.subscription.get_publisher_count() >= 1, 300.0, group=group):
+            raise RuntimeError("the node processes did not connect:\n" + group.logs())
+        driver = subprocess.run([sys.executable, "-m", "test.support.foreign_driver", "--rate", str(rate_hz),
+                                 "--frames", str(n_frames), "--scene", scene],
+                                cwd=Path(__file__).resolve().parents[1], env=foreign_env(group.env),
+                                capture_output=True, text=True, timeout=600)
+        if driver.returncode != 0:
+            raise RuntimeError(f"the driver failed: {driver.stderr[-2000:]}")
+        out = json.loads(driver.stdout.strip().splitlines()[-1])
+        sent = {int(k): t for k, t in out["sent"].items()}
+        time.sleep(1.0)
+        with clouds.lock:
+            got = {s: t for t, s, _ in clouds.items if s in sent}
+        lat = np.array([got[s] - sent[s] for s in got]) * 1e3
+        span = (max(got.values()) - min(sent.values())) if got else float("nan")
+        return {"pairs": len(sent), "clouds": len(got), "clouds_per_s": len(got) / span if got else 0.0,
+                "offered_per_s": (len(sent) - 1) / (max(sent.values()) - min(sent.values())),
+                "latency_median_ms": float(np.median(lat)) if lat.size else float("nan"),
+                "latency_p95_ms": float(np.percentile(lat, 95)) if lat.size else float("nan")}
+    finally:
+        if probe is not None:
+            probe.close()
+        group.stop_all()
+
+
+def foreign_driver_main(args) -> int:
+    """``--foreign-driver``: the graph fed by a driver on Fast DDS's defaults, with the package's
+    receive buffer and with what a stock ``rmem_max`` leaves of it."""
+    print(f"machine: {os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.2f}; a driver on Fast DDS's "
+          f"defaults, {args.scene} 640x480 bgr8 at {args.rate:g} pairs/s, {args.frames} pairs; rectify, ELAS, "
+          "point_cloud as processes", flush=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        for label, size in RECEIVE_BUFFERS.items():
+            r = bench_foreign_driver(args.rate, args.frames, Path(tmp) / str(size), scene=args.scene,
+                                     receive_buffer=size)
+            print(f"receive buffer {label:26s}: {r['clouds']}/{r['pairs']} clouds, {r['clouds_per_s']:.1f} of "
+                  f"{r['offered_per_s']:.1f} clouds/s, latency median {r['latency_median_ms']:.0f} ms, "
+                  f"p95 {r['latency_p95_ms']:.0f} ms", flush=True)
+    print(f"load average {os.getloadavg()[0]:.2f} at the end")
+    return 0
+
+
 def main(argv=None) -> int:
     import json
     import subprocess
@@ -621,7 +714,13 @@ def main(argv=None) -> int:
     p.add_argument("--processes-only", action="store_true", help="only issue 12's comparison")
     p.add_argument("--rates", nargs="*", type=float, default=[15.0, 30.0],
                    help="--processes: feeding rates (Hz)")
+    p.add_argument("--foreign-driver", action="store_true",
+                   help="the node processes fed by a driver on Fast DDS's defaults (issue 29), with the "
+                        "package's 4 MiB receive buffer and with a stock rmem_max's 208 kB")
     args = p.parse_args(argv)
+    if args.foreign_driver:
+        args.frames = args.frames or 300
+        return foreign_driver_main(args)
     if args.replay or args.processes or args.processes_only:
         args.frames = args.frames or 40
         return legacy_main(args)

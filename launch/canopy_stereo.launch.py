@@ -15,6 +15,20 @@ pattern), ``fps`` (camera rate; the left/right pairing tolerance is half its per
 ``rate`` (bag speed), ``loop`` (``false``; the nodes follow the stamps jumping back at
 every pass).
 
+Mounted on a robot (REP 105), several rigs side by side: ``parent_frame`` (robot frame, e.g.
+``base_link``), ``mount`` (``"[x, y, z, qx, qy, qz, qw]"``: the rig's world frame in
+``parent_frame``) or ``camera_mount`` (the raw left camera's optical frame in ``parent_frame``,
+from a hand-eye calibration), ``frame_prefix`` (prepended to every frame the rig names) and
+``publish_tf`` (``false`` when the robot's URDF owns the camera frames)::
+
+    ros2 launch canopy_stereo canopy_stereo.launch.py namespace:=rig_a frame_prefix:=rig_a/ \
+        parent_frame:=base_link mount:="[0.4, 0.25, 1.1, 0, 0, 0.2588, 0.9659]" left_device:=0 right_device:=1
+    ros2 launch canopy_stereo canopy_stereo.launch.py namespace:=rig_b frame_prefix:=rig_b/ \
+        parent_frame:=base_link mount:="[0.4, -0.25, 0.95, 0, 0, 0, 1]" left_device:=2 right_device:=3
+
+A bag recorded under another namespace (the bundled ``/stereo/...`` bags) is played into
+``namespace``.
+
 In bag mode ``rectify_node`` measures the frame period from the stamps and pairs within
 half of it. The tests evaluate this file with ``test/support/launch_eval.py`` (launch and
 launch_ros are not on PyPI) and start the commands it describes as processes.
@@ -55,19 +69,39 @@ def generate_launch_description():
         DeclareLaunchArgument("bag", default_value="", description="bag to replay instead of cameras"),
         DeclareLaunchArgument("rate", default_value="1.0", description="bag playback speed"),
         DeclareLaunchArgument("loop", default_value="false", description="replay the bag until stopped"),
+        DeclareLaunchArgument("parent_frame", default_value="",
+                              description="robot frame the rig is mounted on ('' = the rig's world frame is a root)"),
+        DeclareLaunchArgument("mount", default_value="",
+                              description="[x, y, z, qx, qy, qz, qw]: the rig's world frame in parent_frame (m)"),
+        DeclareLaunchArgument("camera_mount", default_value="",
+                              description="[x, y, z, qx, qy, qz, qw]: the raw left camera's optical frame in "
+                                          "parent_frame (hand-eye), instead of mount"),
+        DeclareLaunchArgument("frame_prefix", default_value="",
+                              description="prepended to every frame the rig names, e.g. rig_a/"),
+        DeclareLaunchArgument("publish_tf", default_value="true",
+                              description="publish the rig's frames on /tf_static (false: the URDF owns them)"),
     ]
+    prefix = LaunchConfiguration("frame_prefix")
+
+    def text(name):  # a string parameter, '' included (launch_ros reads a value as YAML: quote it)
+        return ["'", LaunchConfiguration(name), "'"]
+
+    def numbers(name):  # a list of numbers, or '' (unset) when the argument is empty
+        return PythonExpression(["'", LaunchConfiguration(name), "' or \"''\""])
+
     cameras = [
         Node(package=PACKAGE, executable="camera_node", name=f"{side}_camera", namespace=ns,
              condition=UnlessCondition(use_bag),
              parameters=[rig, {"camera_name": side, "device": LaunchConfiguration(f"{side}_device"),
-                               "fps": fps}])  # rig: <side>/camera_info
+                               "fps": fps, "frame_id": [prefix, "left_camera_optical_frame"]}])
+        # rig: <side>/camera_info; both cameras in the left optical frame (one stereo frame, REP 104)
         for side in ("left", "right")
     ]
     loop = PythonExpression(["'", LaunchConfiguration("loop"), "'.lower() == 'true'"])
-    remaps = [PythonExpression(["'/stereo/", side, "/image_raw:=' + '", ns, "' + '/", side, "/image_raw'"])
-              for side in ("left", "right")]
+    remaps = [PythonExpression(["'/stereo/", side, "/image_raw:=/' + '", ns, "'.strip('/') + '/", side,
+                                "/image_raw'"]) for side in ("left", "right")]
     players = [
-        Node(package=PACKAGE, executable="bag_play", name="bag_player",
+        Node(package=PACKAGE, executable="bag_play", name="bag_player", namespace=ns,
              condition=IfCondition(PythonExpression([use_bag, " and ", cond])),
              arguments=[bag, "--rate", LaunchConfiguration("rate")] + extra + ["--remap"] + remaps)
         for cond, extra in ((loop, ["--loop"]), (PythonExpression(["not ", loop]), []))
@@ -76,7 +110,10 @@ def generate_launch_description():
     camera_fps = PythonExpression(["0.0 if ", use_bag, " else float('", fps, "')"])
     processing = [
         Node(package=PACKAGE, executable="rectify_node", namespace=ns,
-             parameters=[rig, {"fps": camera_fps}]),
+             parameters=[rig, {"fps": camera_fps, "frame_prefix": text("frame_prefix"),
+                               "parent_frame": text("parent_frame"), "mount": numbers("mount"),
+                               "camera_mount": numbers("camera_mount"),
+                               "publish_tf": LaunchConfiguration("publish_tf")}]),
         Node(package=PACKAGE, executable="disparity_node", namespace=ns,
              parameters=[rig, {"matcher": LaunchConfiguration("matcher"),
                                "elas.subsampling": LaunchConfiguration("elas_subsampling")}]),

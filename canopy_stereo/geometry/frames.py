@@ -20,6 +20,11 @@ z forward, x right, y down):
   and x along the cameras' horizontal viewing direction (REP 103 body axes: x forward,
   y left, z up), so RViz (z up) shows the plant upright.
 
+Mounted on a robot (REP 105), the world frame gets a parent: ``parent -> world`` by the
+*mount* (:func:`mount_transform`), and the z-up view becomes a child of the world frame
+(a frame has one parent). ``frame_prefix`` (:func:`prefixed_frames`) is prepended to every
+frame the rig names, so that two rigs share one tree.
+
 A transform ``T_a_b`` is a 4x4 matrix taking coordinates in frame ``b`` to frame ``a``
 (``x_a = T_a_b @ x_b``), which is what a TF message ``header.frame_id = a``,
 ``child_frame_id = b`` carries. Translations are in metres.
@@ -33,6 +38,7 @@ from numba import njit
 
 from canopy_stereo.errors import RigError
 from canopy_stereo.geometry.camera import decompose_projection
+from canopy_stereo.geometry.transforms import invert_transform
 from canopy_stereo.geometry.triangulation import kernel_mask
 
 #: The rig's world frame (metres).
@@ -379,7 +385,8 @@ class FrameNames:
     Attributes:
         world: the rig's world frame; world_z_up: its z-up view ("" = none);
         raw_left, raw_right: the raw cameras' optical frames;
-        rect_left, rect_right: the rectified cameras' optical frames.
+        rect_left, rect_right: the rectified cameras' optical frames;
+        parent: the robot frame the rig is mounted on ("" = none: the world frame is a root).
     """
 
     world: str = WORLD_FRAME
@@ -388,18 +395,88 @@ class FrameNames:
     raw_right: str = DEFAULT_FRAMES[("raw", "right")]
     rect_left: str = DEFAULT_FRAMES[("rect", "left")]
     rect_right: str = DEFAULT_FRAMES[("rect", "right")]
+    parent: str = ""
 
 
-def stereo_transforms(rig, rect=None, *, names: FrameNames | None = None) -> list[tuple[str, str, np.ndarray]]:
+#: The fields of :class:`FrameNames` that name the rig's own frames (prefixed by ``frame_prefix``).
+RIG_FRAME_FIELDS = ("world", "world_z_up", "raw_left", "raw_right", "rect_left", "rect_right")
+
+
+def prefixed_frames(names: FrameNames, prefix: str) -> FrameNames:
+    """``names`` with ``prefix`` prepended to every frame the rig names (not to ``parent``,
+    the robot's frame; empty names stay empty): ``rig_a/`` + ``canopy_world`` ->
+    ``rig_a/canopy_world``. A prefix is a frame-id fragment: no spaces, no leading ``/``
+    (tf2 rejects frame ids starting with one)."""
+    prefix = str(prefix or "")
+    if prefix.startswith("/") or any(c.isspace() for c in prefix):
+        raise RigError(f"frame_prefix must not start with '/' or hold spaces, got {prefix!r}")
+    values = {f: getattr(names, f) for f in RIG_FRAME_FIELDS}
+    return FrameNames(**{f: (prefix + v if v else v) for f, v in values.items()}, parent=names.parent)
+
+
+def pose_matrix(values, *, name: str = "mount") -> np.ndarray:
+    """4x4 transform of seven numbers ``x y z qx qy qz qw`` (metres; ROS quaternion order),
+    ``T_parent_child``. Raises :class:`RigError` naming ``name`` on a wrong count, a
+    non-finite number or a quaternion whose norm is not 1 (within 1e-3)."""
+    try:
+        v = np.asarray([float(x) for x in values], np.float64)
+    except (TypeError, ValueError):
+        raise RigError(f"{name} must be seven numbers x y z qx qy qz qw, got {values!r}") from None
+    if v.shape != (7,) or not np.all(np.isfinite(v)):
+        raise RigError(f"{name} must be seven finite numbers x y z qx qy qz qw (metres, quaternion), "
+                       f"got {len(v)} number(s)")
+    n = np.linalg.norm(v[3:])
+    if abs(n - 1.0) > 1e-3:
+        raise RigError(f"{name}: the quaternion qx qy qz qw must have norm 1, got {n:.6g}")
+    T = np.eye(4)
+    T[:3, :3] = quaternion_to_rotation(v[3:])
+    T[:3, 3] = v[:3]
+    return T
+
+
+def pose_values(T) -> list[float]:
+    """Seven numbers ``x y z qx qy qz qw`` of a 4x4 rigid transform (inverse of :func:`pose_matrix`)."""
+    T = np.asarray(T, np.float64)
+    return [float(x) for x in T[:3, 3]] + [float(x) for x in rotation_to_quaternion(T[:3, :3])]
+
+
+def mount_transform(rig, *, mount=None, camera_mount=None) -> np.ndarray:
+    """``T_parent_world`` (4x4, metres): where the rig's world frame sits in the robot frame.
+
+    Args:
+        rig: the rig (its left camera's pose in its world frame, for ``camera_mount``).
+        mount: seven numbers ``x y z qx qy qz qw``: the rig's world frame in the parent.
+        camera_mount: seven numbers: the raw left camera's optical frame in the parent (what a
+            hand-eye calibration gives); the world frame follows through the rig's ``P_left``.
+
+    Exactly one of ``mount``/``camera_mount`` may be given; neither = identity.
+    """
+    if mount is not None and camera_mount is not None:
+        raise RigError("give the rig's mount or the left camera's mount (camera_mount), not both")
+    if camera_mount is not None:
+        T_parent_cam = pose_matrix(camera_mount, name="camera_mount")
+        T_world_cam = stereo_extrinsics(rig)[("raw", "left")]
+        return T_parent_cam @ invert_transform(T_world_cam)
+    return np.eye(4) if mount is None else pose_matrix(mount, name="mount")
+
+
+def stereo_transforms(rig, rect=None, *, names: FrameNames | None = None,
+                      mount=None) -> list[tuple[str, str, np.ndarray]]:
     """The static transforms of a rig as ``(parent, child, T_parent_child)`` (4x4, metres).
 
     One tree: ``world_z_up -> world -> {raw_left, raw_right, rect_left, rect_right}``
     (the rectified frames only for a calibrated rectification ``rect``; ``world_z_up``
-    only when named).
+    only when named). Mounted (``names.parent`` set): ``parent -> world -> {the cameras,
+    world_z_up}`` with ``T_parent_world = mount`` (4x4; None = identity,
+    :func:`mount_transform`).
     """
     names = names or FrameNames()
     out = []
-    if names.world_z_up:
+    if names.parent:
+        out.append((names.parent, names.world, np.eye(4) if mount is None else np.asarray(mount, np.float64)))
+        if names.world_z_up:
+            out.append((names.world, names.world_z_up, invert_transform(world_z_up_transform(rig))))
+    elif names.world_z_up:
         out.append((names.world_z_up, names.world, world_z_up_transform(rig)))
     ext = stereo_extrinsics(rig, rect)
     for (kind, side), T in ext.items():

@@ -27,6 +27,7 @@ import yaml
 
 from canopy_stereo.errors import RigError
 from canopy_stereo.geometry.rig import UNIT_TO_METRES, Rig, unit_to_metres
+from canopy_stereo.io.yaml_files import read_text_file, yaml_error_line
 
 __all__ = ["UNIT_TO_METRES", "Rig", "load_rig", "rig_from_parameters", "rig_from_yaml", "rig_to_yaml",
            "save_rig", "unit_to_metres"]
@@ -41,6 +42,8 @@ def rig_from_parameters(params: dict, source: str = "rig") -> Rig:
         raise RigError(f"{source}: missing parameter(s) {', '.join(missing)}")
     known = {"world_unit", "image_width", "image_height", "P_left", "P_right", "D_left", "D_right",
              "distortion_model"}
+    for name in ("image_width", "image_height", "P_left", "P_right", "D_left", "D_right"):
+        _check_numbers(params.get(name), name, source)
     try:
         return Rig(
             P_left=params["P_left"],
@@ -58,13 +61,20 @@ def rig_from_parameters(params: dict, source: str = "rig") -> Rig:
         raise RigError(f"{source}: {exc}") from None
 
 
+def _check_numbers(value, name: str, source: str) -> None:
+    """Refuse a number written as a string (``image_width: "640"``): the schema says number, and
+    a ROS node given the same file gets a string parameter, so every entry point refuses it."""
+    items = value if isinstance(value, (list, tuple)) else [value]
+    for item in items:
+        if isinstance(item, (str, bytes, bool)):
+            raise RigError(f"{source}: {name} must be {'numbers' if items is value else 'a number'}, "
+                           f"got {item!r} (write it without quotes)")
+
+
 def load_rig(path) -> Rig:
     """Read a rig file (ROS 2 parameter YAML); raises :class:`RigError` on any problem."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise RigError(f"cannot read rig file {path}: {exc.strerror or exc}") from None
+    text = read_text_file(path, "rig file", error=RigError)
     return rig_from_yaml(text, source=f"rig file {path}")
 
 
@@ -74,7 +84,7 @@ def rig_from_yaml(text: str, source: str = "rig") -> Rig:
     try:
         doc = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise RigError(f"{source} is not valid YAML: {exc}") from None
+        raise RigError(f"{source} is not valid YAML: {yaml_error_line(exc)}") from None
     if not isinstance(doc, dict):
         raise RigError(f"{source} is not a ROS 2 parameter file (expected a mapping)")
     params = None

@@ -40,8 +40,9 @@ def reference_surface(organized: np.ndarray, plant: np.ndarray, others: np.ndarr
     points' horizontal distances from the foot) and from 60 % of the plant's height (or
     twice its reach: a top view sees the leaves, not the stem down to the soil) below
     its foot to 10 % above, lie more than :data:`RING_PX` pixels from every plant, and
-    are not on the ground plane. Their 98th percentile height is the reference: ``pot_rim`` when the container stands more
-    than 3 % of the plant's height (a pot wall), else ``soil``; without container
+    are not on the ground plane. Their 98th percentile height is the reference:
+    ``pot_rim`` when the container stands more than 3 % of the plant's height (a pot
+    wall), else ``soil``; without container
     points the ground plane (``ground``, height 0), else ``none`` (the plant's lowest point).
 
     Args:

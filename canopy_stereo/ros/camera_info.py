@@ -23,7 +23,7 @@ from sensor_msgs.srv import SetCameraInfo
 from canopy_stereo.errors import CalibrationError, CanopyStereoError, RigError
 from canopy_stereo.geometry.frames import FrameNames, optical_frame, raw_camera_calibration, stereo_info_frame
 from canopy_stereo.ros.convert import camera_info_matrices, camera_info_msg
-from canopy_stereo.ros.params import RIG_PARAMETERS, declare_rig_parameters, rig_from_node
+from canopy_stereo.ros.params import RIG_PARAMETERS, declare_rig_parameters, rig_from_node, rig_given
 
 CAMERA_SIDES = ("left", "right")
 
@@ -97,6 +97,8 @@ class RawCameraInfoPublisher:
             try:
                 rig = rig_from_node(self.node)
             except RigError as exc:
+                if rig_given(self.node):  # a broken rig stops the node (exit 2), as in the other nodes
+                    raise
                 self.node.get_logger().info(f"camera {self.camera_name}: no rig ({exc})")
             else:
                 return raw_camera_calibration(rig, self.camera_name), "the rig"

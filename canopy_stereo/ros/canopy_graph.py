@@ -57,7 +57,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--segment-depth-cue", action="store_true",
                    help="segment_node seeds GrabCut with the disparity too (near = plant)")
     p.add_argument("--organized", action="store_true", help="organized clouds")
-    p.add_argument("--namespace", default="/stereo")
+    p.add_argument("--namespace", default="/stereo",
+                   help="namespace of the nodes and topics (default /stereo); a bag recorded under "
+                        "another one (the bundled /stereo/... bags) is played into this one")
+    m = p.add_argument_group("mounting on a robot (REP 105; rectify_node's parameters)")
+    m.add_argument("--parent-frame", default="", metavar="FRAME",
+                   help="robot frame the rig is mounted on, e.g. base_link or tool0")
+    mount = m.add_mutually_exclusive_group()
+    mount.add_argument("--mount", nargs=7, type=float, metavar=("X", "Y", "Z", "QX", "QY", "QZ", "QW"),
+                       help="the rig's world frame in --parent-frame (metres, unit quaternion)")
+    mount.add_argument("--camera-mount", nargs=7, type=float, metavar=("X", "Y", "Z", "QX", "QY", "QZ", "QW"),
+                       help="the raw left camera's optical frame in --parent-frame (hand-eye calibration)")
+    m.add_argument("--frame-prefix", default="", metavar="PREFIX",
+                   help="prepended to every frame the rig names, e.g. rig_a/ (two rigs in one TF tree)")
+    m.add_argument("--no-tf", action="store_true",
+                   help="publish (and record) no /tf_static: the robot's URDF owns the camera frames")
     p.add_argument("--executor", choices=EXECUTOR_CHOICES, default="per-node",
                    help="one single-threaded executor per node (default) or one multi-threaded one")
     p.add_argument("--threads", type=int, default=DEFAULT_THREADS,
@@ -115,13 +129,17 @@ def main(args=None) -> int:
     """``canopy_graph`` executable (``--ros-args`` after the options are passed to every node)."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
-    from rclpy.utilities import remove_ros_args
 
     from canopy_stereo.io.rig import load_rig
+    from canopy_stereo.ros.context import init_ros, strip_ros_args
     from canopy_stereo.ros.nodes.base import install_stop_signals
 
     argv = sys.argv if args is None else args
-    opts = build_parser().parse_args(remove_ros_args(argv)[1:])
+    try:
+        opts = build_parser().parse_args(strip_ros_args(argv)[1:])
+    except CanopyStereoError as exc:
+        print(f"canopy_graph: error: {exc}", file=sys.stderr)
+        return 2
     if opts.metadata and not (opts.cameras and opts.record):
         print("canopy_graph: error: --metadata describes a recording from cameras: use it with "
               "--cameras and --record", file=sys.stderr)
@@ -130,7 +148,12 @@ def main(args=None) -> int:
                            segment=not opts.no_segment or opts.use_mask, use_mask=opts.use_mask,
                            segment_depth_cue=opts.segment_depth_cue, organized=opts.organized,
                            threads=opts.threads, executor=opts.executor, recut_every=opts.recut_every,
-                           disparity_threads=opts.disparity_threads, intra_process=not opts.no_intra_process)
+                           disparity_threads=opts.disparity_threads, intra_process=not opts.no_intra_process,
+                           parent_frame=opts.parent_frame, mount=opts.mount, camera_mount=opts.camera_mount,
+                           publish_tf=not opts.no_tf, frame_prefix=opts.frame_prefix)
+    if (opts.mount or opts.camera_mount) and not opts.parent_frame:
+        print("canopy_graph: error: --mount/--camera-mount need --parent-frame", file=sys.stderr)
+        return 2
     if opts.cameras:
         # free-running cameras: the pairing tolerance is half a frame period at the camera rate
         if not opts.fps > 0:
@@ -138,7 +161,11 @@ def main(args=None) -> int:
             return 2
         # (CanopyGraph gives rectify_node the cameras' fps: pairing within half a frame period)
     tune_node_process()
-    rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    try:
+        init_ros(argv)  # a bad --params-file or --ros-args: one line, exit 2
+    except CanopyStereoError as exc:
+        print(f"canopy_graph: error: {exc}", file=sys.stderr)
+        return 2
     install_stop_signals()
     context = rclpy.get_default_context()
     graph = recorder = writer = None
@@ -177,7 +204,7 @@ def main(args=None) -> int:
             for name, data in recording_metadata(parse_key_values(opts.metadata), rig).items():
                 writer.add_metadata(name, data)
             recorder = BagRecorder(writer, topics, context=context, compression=compression,
-                                   static_transforms=graph.nodes["rectify_node"].transforms)
+                                   static_transforms=graph.nodes["rectify_node"].tf_transforms)
             graph.add_node(recorder)
         graph.spin_until_interrupted()
         return 0

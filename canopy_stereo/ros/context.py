@@ -8,7 +8,9 @@ not see each other's topics.
 from __future__ import annotations
 
 import functools
+import hashlib
 import os
+import re
 import sys
 import tempfile
 import threading
@@ -18,6 +20,9 @@ from pathlib import Path
 
 import rclpy
 from rclpy.context import Context
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
+from canopy_stereo.errors import CanopyStereoError
 
 #: Domains used for private runs: 100 .. 199, clear of the default 0
 #: and inside the range every DDS vendor accepts (0..232).
@@ -238,7 +243,16 @@ _FASTDDS_USER_SETTINGS = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PRO
 _FASTDDS_CWD_FILES = ("DEFAULT_FASTRTPS_PROFILES.xml", "DEFAULT_FASTDDS_PROFILES.xml")
 
 
-def use_bounded_dds_memory() -> bool:
+#: Resolved topics of the raw camera images with the default namespace; the profile's readers
+#: of these topics listen on UDP (canopy_stereo/data/fastdds_profiles.xml).
+RAW_IMAGE_TOPICS = ("/stereo/left/image_raw", "/stereo/right/image_raw")
+
+
+#: Prefix of the profiles written for other raw image topics (see :func:`use_bounded_dds_memory`).
+_GENERATED_PROFILES = "canopy_stereo_fastdds_"
+
+
+def use_bounded_dds_memory(raw_topics=RAW_IMAGE_TOPICS) -> bool:
     """Make Fast DDS readers free each received sample instead of keeping the largest one.
 
     rmw_fastrtps gives every data reader a sample pool that grows to the largest
@@ -259,25 +273,161 @@ def use_bounded_dds_memory() -> bool:
     (``RMW_IMPLEMENTATION``) or the user configures Fast DDS already (one of
     ``FASTRTPS_DEFAULT_PROFILES_FILE``, ``FASTDDS_DEFAULT_PROFILES_FILE``,
     ``RMW_FASTRTPS_USE_QOS_FROM_XML``, ``SKIP_DEFAULT_XML`` set, or a
-    ``DEFAULT_FASTRTPS_PROFILES.xml`` in the working directory).
+    ``DEFAULT_FASTRTPS_PROFILES.xml`` in the working directory), unless that is the package's
+    profile (inherited from a parent process that ran nodes).
+
+    The profile's readers of the raw camera images, which listen on UDP (see the profile), are
+    named after ``raw_topics``: for other topics than :data:`RAW_IMAGE_TOPICS` (another
+    namespace, remapped inputs) a copy named after them is written to the temporary directory
+    (one per set of names) and selected instead.
     """
     if os.environ.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp") not in ("rmw_fastrtps_cpp", ""):
         return False
-    if any(k in os.environ for k in _FASTDDS_USER_SETTINGS) or any(os.path.exists(f) for f in _FASTDDS_CWD_FILES):
-        return os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE") == str(FASTDDS_PROFILES)
+    current = os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE", "")
+    ours = current == str(FASTDDS_PROFILES) or Path(current).name.startswith(_GENERATED_PROFILES)
+    if not ours and (any(k in os.environ for k in _FASTDDS_USER_SETTINGS)
+                     or any(os.path.exists(f) for f in _FASTDDS_CWD_FILES)):
+        return False
     if not FASTDDS_PROFILES.is_file():
         return False
-    os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(FASTDDS_PROFILES)
+    profiles = FASTDDS_PROFILES
+    if tuple(raw_topics) != RAW_IMAGE_TOPICS:  # another namespace or remapped inputs: profiles named so
+        text = FASTDDS_PROFILES.read_text(encoding="utf-8")
+        for default, topic in zip(RAW_IMAGE_TOPICS, raw_topics):
+            text = text.replace(f'profile_name="{default}"', f'profile_name="{topic}"')
+        digest = hashlib.sha1(text.encode()).hexdigest()[:12]
+        profiles = Path(tempfile.gettempdir()) / f"{_GENERATED_PROFILES}{digest}.xml"
+        try:
+            if not profiles.is_file():
+                tmp = profiles.with_name(f"{profiles.name}.{os.getpid()}")
+                tmp.write_text(text, encoding="utf-8")
+                tmp.replace(profiles)
+        except OSError:
+            profiles = FASTDDS_PROFILES
+    os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(profiles)
     os.environ["RMW_FASTRTPS_USE_QOS_FROM_XML"] = "1"
     return True
 
 
-def tune_node_process() -> None:
+def raw_image_topics(argv, namespace: str = "/stereo") -> tuple[str, str]:
+    """The resolved ``left/image_raw`` and ``right/image_raw`` of a node started with ``argv``:
+    its ``--ros-args`` namespace (``-r __ns:=/x``) and remappings (``-r left/image_raw:=/cam/image``,
+    also node-prefixed ``rectify_node:left/image_raw:=...``) applied, as rcl resolves them."""
+    remaps, in_ros, it = {}, False, iter(argv or [])
+    for token in it:
+        if token == "--ros-args":
+            in_ros = True
+        elif token == "--":
+            in_ros = False
+        elif in_ros and token in ("-r", "--remap"):
+            rule = next(it, "")
+            if ":=" not in rule:
+                continue
+            source, target = rule.split(":=", 1)
+            if ":" in source:  # node-prefixed rule
+                source = source.split(":", 1)[1]
+            if source == "__ns":
+                namespace = target
+            else:
+                remaps[source] = target
+    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+
+    def resolve(name: str) -> str:
+        target = remaps.get(name, remaps.get(f"{ns}/{name}", name))
+        return target if target.startswith("/") else f"{ns}/{target}"
+
+    return resolve("left/image_raw"), resolve("right/image_raw")
+
+
+def tune_node_process(argv=None) -> None:
     """Process settings for running pipeline nodes: :func:`tune_thread_switching`,
-    :func:`tune_memory_allocator` and :func:`use_bounded_dds_memory`."""
+    :func:`tune_memory_allocator` and :func:`use_bounded_dds_memory` (its raw image readers
+    named after the topics ``argv``'s ``--ros-args`` resolve them to: :func:`raw_image_topics`)."""
     tune_thread_switching()
     tune_memory_allocator()
-    use_bounded_dds_memory()
+    use_bounded_dds_memory(raw_image_topics(argv) if argv is not None else RAW_IMAGE_TOPICS)
+
+
+def init_ros(argv, *, context=None, domain_id: int | None = None) -> None:
+    """``rclpy.init`` for an executable's command line, with its problems as one line.
+
+    The ``--params-file`` files of ``argv``'s ``--ros-args`` are checked first
+    (:func:`~canopy_stereo.ros.params.check_parameter_file`: missing, unreadable, not UTF-8,
+    not YAML, not shaped like a parameter file); anything rcl still refuses (a list mixing
+    types, a malformed ``-p`` or ``-r`` rule) is raised as :class:`CanopyStereoError` with
+    rcl's reason, without its source locations, and rcl's own log line is held back. No
+    signal handlers are installed (executables install :func:`install_stop_signals`).
+    """
+    from canopy_stereo.ros.params import check_parameter_file, parameter_files
+
+    for path in parameter_files(argv):
+        check_parameter_file(path)
+    kwargs = {} if domain_id is None else {"domain_id": int(domain_id)}
+    try:
+        with _c_stderr_held():
+            rclpy.init(args=list(argv), context=context,
+                       signal_handler_options=rclpy.signals.SignalHandlerOptions.NO, **kwargs)
+    except _rclpy.RCLError as exc:
+        raise CanopyStereoError(rcl_error_reason(str(exc))) from None
+
+
+def strip_ros_args(argv) -> list[str]:
+    """``argv`` without its ``--ros-args`` sections (rclpy's ``remove_ros_args``), for an
+    executable's own argument parser; a bad ``--params-file`` or ``--ros-args`` is raised as
+    :class:`CanopyStereoError` in one line, as :func:`init_ros` does."""
+    from rclpy.utilities import remove_ros_args
+
+    from canopy_stereo.ros.params import check_parameter_file, parameter_files
+
+    for path in parameter_files(argv):
+        check_parameter_file(path)
+    try:
+        with _c_stderr_held():
+            return list(remove_ros_args(list(argv)))
+    except _rclpy.RCLError as exc:
+        raise CanopyStereoError(rcl_error_reason(str(exc))) from None
+
+
+def rcl_error_reason(text: str) -> str:
+    """rcl's error text as one readable line: source locations (``, at /x/y.c:12``) removed,
+    a parameter file's problem as ``parameter file PATH: reason``."""
+    text = re.sub(r",? at /\S+:\d+", "", " ".join(text.split())).strip()
+    for prefix in ("failed to initialize rcl: ", "Failed to parse ROS arguments: "):
+        text = text.removeprefix(prefix)
+    m = re.match(r"Couldn't parse params file: '--params-file (.*?)'\. Error: (.*)", text)
+    if m:
+        return f"parameter file {m.group(1)}: {m.group(2)}"
+    m = re.match(r"Couldn't parse (.*?): '(.*?)'\. Error: (.*)", text)
+    if m:
+        return f"invalid --ros-args {m.group(1)} {m.group(2)!r}: {m.group(3)}"
+    return text
+
+
+@contextmanager
+def _c_stderr_held():
+    """Send what C code writes to file descriptor 2 to a temporary file while the block runs;
+    written out afterwards when the block succeeds, dropped when it raises (rcl logs its
+    own line for a command line it refuses, which the caller reports in its words)."""
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):  # no usable stderr: nothing to hold
+        yield
+        return
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        ok = False
+        try:
+            yield
+            ok = True
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            if ok:
+                held.seek(0)
+                data = held.read()
+                if data:
+                    os.write(2, data)
 
 
 @contextmanager

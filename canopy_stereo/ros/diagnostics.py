@@ -3,8 +3,9 @@
 ``diagnostic_updater`` is not on PyPI, so this is a small publisher of the same
 messages: every :class:`~canopy_stereo.ros.nodes.base.CanopyNode` reports, about
 once per second (parameter ``diagnostic_period``), one ``DiagnosticStatus``
-named ``"<node name>: pipeline"`` (``hardware_id`` the node's fully qualified
-name, or the camera device) with these key/values over the last window:
+named ``"<namespace>/<node name>: pipeline"`` (the fully qualified name without its
+leading ``/``, so that two rigs in their own namespaces never share a status name;
+``hardware_id`` the node's fully qualified name, or the camera device) with these key/values over the last window:
 
 * ``in <topic> Hz`` / ``out <topic> Hz``: messages received / published per second
   (and ``... total`` since start);
@@ -15,10 +16,12 @@ name, or the camera device) with these key/values over the last window:
 * ``busy %``: share of the window spent in callbacks;
 * node-specific statistics, e.g. ``pair offset mean ms`` / ``max ms`` of the
   rectify node (left/right stamp difference of the pairs it made);
-* ``time jumps``: stamps that went backwards and reset the node's pairing.
+* ``time jumps``: stamps that went backwards and reset the node's pairing;
+* ``warning: <reason>``: inputs kept but suspicious (a zero stamp restamped with the receive
+  time, a stamp far from the receive time: :mod:`canopy_stereo.ros.stamps`).
 
 Level: ERROR when a callback failed with an internal error in the window, WARN
-when inputs were dropped or inputs stopped arriving (after having arrived),
+when inputs were dropped, warned about, or stopped arriving (after having arrived),
 else OK. ``rqt_robot_monitor``, ``diagnostic_aggregator`` and Foxglove read it as
 they read ``diagnostic_updater``'s output.
 """
@@ -58,7 +61,7 @@ class NodeDiagnostics:
 
     def __init__(self, node, period_s: float = DEFAULT_PERIOD_S, hardware_id: str = ""):
         self.node = node
-        self.name = f"{node.get_name()}: pipeline"
+        self.name = f"{node.get_fully_qualified_name().lstrip('/')}: pipeline"
         self.hardware_id = hardware_id or node.get_fully_qualified_name()
         self._lock = threading.Lock()
         self._arrivals: OrderedDict = OrderedDict()
@@ -69,6 +72,7 @@ class NodeDiagnostics:
         self._out_total = Counter()
         self._drops = Counter()
         self._drops_total = 0
+        self._warnings = Counter()
         self._latencies: list[float] = []
         self._samples: dict[str, list[float]] = {}
         self._notes = Counter()
@@ -116,6 +120,11 @@ class NodeDiagnostics:
             if internal:
                 self._errors += 1
 
+    def warned(self, reason: str) -> None:
+        """An input was kept but is suspicious for ``reason`` (WARN, without a drop)."""
+        with self._lock:
+            self._warnings[reason] += 1
+
     def sample(self, key: str, value: float) -> None:
         """A value of a node-specific statistic (reported as mean and max per window)."""
         with self._lock:
@@ -137,6 +146,13 @@ class NodeDiagnostics:
         with self._lock:
             self._jumps += 1
 
+    def restart(self) -> None:
+        """Start the window (and the report timer's period) now, e.g. once the node is ready."""
+        with self._lock:
+            self._window_start = time.monotonic()
+        if self.timer is not None:
+            self.timer.reset()
+
     # ------------------------------------------------------------------ report
     def status(self, reset: bool = True) -> DiagnosticStatus:
         """The status over the window since the last report (``reset``: start a new window)."""
@@ -155,6 +171,8 @@ class NodeDiagnostics:
             values.append(("dropped total", str(self._drops_total)))
             for reason, n in self._drops.most_common():
                 values.append((f"dropped: {reason}", str(n)))
+            for reason, n in self._warnings.most_common():
+                values.append((f"warning: {reason}", str(n)))
             if self._latencies:
                 lat = np.asarray(self._latencies) * 1e3
                 values.append(("latency median ms", _fmt(float(np.median(lat)))))
@@ -174,6 +192,9 @@ class NodeDiagnostics:
             elif n_drops:
                 top, n = self._drops.most_common(1)[0]
                 level, message = DiagnosticStatus.WARN, f"dropped {n_drops} input(s), e.g. {n}x {top}"
+            elif self._warnings:
+                top, n = self._warnings.most_common(1)[0]
+                level, message = DiagnosticStatus.WARN, f"{n}x {top}"
             elif silent_s is not None and silent_s > 3 * elapsed and silent_s > 3.0:
                 level, message = DiagnosticStatus.WARN, f"no input for {silent_s:.0f} s"
             else:
@@ -185,6 +206,7 @@ class NodeDiagnostics:
                 self._in.clear()
                 self._out.clear()
                 self._drops.clear()
+                self._warnings.clear()
                 self._latencies.clear()
                 self._samples.clear()
                 self._notes.clear()

@@ -13,7 +13,18 @@ with the overlap figures). The clouds are fused on a voxel grid
 views, colour, view counts, free-space outlier removal when the rig is known)
 and the model is published on ``canopy_points`` (``PointCloud2``, frame
 ``frame_id``) every ``publish_period`` seconds when it changed, a lower rate
-than the clouds arrive.
+than the clouds arrive. Each cloud fused is also reported on ``view_pose``
+(``geometry_msgs/PoseStamped``, the cloud's stamp, frame ``frame_id``): the pose it was
+placed with (given, looked up in TF or registered), so a robot or a test can check it.
+
+Poses from TF (``fixed_frame`` set, e.g. ``base_link``, ``odom`` or ``map``): each cloud is
+placed by ``T_fixed_frame<-cloud frame`` looked up in ``/tf`` + ``/tf_static`` at the
+cloud's stamp, interpolated between the transforms around it (slerp + lerp; an arm's
+joint states arrive at their own rate, not at the image stamps), through tf2_ros on a ROS
+install and :class:`~canopy_stereo.ros.tf_listener.TransformListener`'s own buffer without
+it. A cloud whose transform is not there yet waits up to ``tf_timeout`` seconds; then it is
+dropped with tf's reason (unknown frame, frames not connected, extrapolation into the past
+or future, and by how much). The pose topic is not used in this mode, nor ICP.
 
 Reset: the service ``~/reset`` (``std_srvs/Trigger``) forgets every cloud;
 the next one re-anchors the world frame when it comes without a pose.
@@ -22,7 +33,10 @@ Parameters: ``voxel_size`` (m, 0.002), ``publish_period`` (s, 2.0), ``pose_slop`
 (s, 0.05), ``pose_wait`` (s, 1.0: how long a cloud waits for its pose),
 ``register_without_pose`` (true), ``min_overlap`` (0.5), ``max_views`` (0 = all),
 ``min_views`` (1), ``free_space`` (true; needs the rig: ``rig_file`` or the rig
-parameters, for the left camera), ``frame_id`` (``canopy_world``).
+parameters, for the left camera; the clouds must then be in the rig's world frame, the
+point_cloud_node default), ``fixed_frame`` ("" = poses from the pose topic; else from TF),
+``tf_timeout`` (s, 0.5), ``frame_id`` (frame of ``canopy_points``; "" = ``fixed_frame``, or
+``canopy_world`` without one).
 """
 from __future__ import annotations
 
@@ -39,8 +53,9 @@ from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.fusion.errors import RegistrationError
 from canopy_stereo.fusion.incremental import IncrementalFusion
 from canopy_stereo.fusion.registration import RegistrationSettings
+from canopy_stereo.geometry.tf_buffer import TransformLookupError
 from canopy_stereo.geometry.transforms import check_transform, make_transform
-from canopy_stereo.ros.convert import cloud2_to_points, points_to_cloud2, stamp_to_ns
+from canopy_stereo.ros.convert import cloud2_to_points, make_header, points_to_cloud2, stamp_to_ns
 from canopy_stereo.ros.limits import MAX_IMAGE_PIXELS, check_cloud_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.params import declare_rig_parameters, rig_from_node
@@ -97,7 +112,12 @@ class FusionNode(CanopyNode):
                             minimum=1, maximum=100000, read_only=True)
         self.declare_flag("free_space", True, "drop single-view points other views see through "
                           "(needs the rig)", read_only=True)
-        self.declare_text("frame_id", "canopy_world", "frame_id of canopy_points")
+        self.declare_text("frame_id", "", "frame_id of canopy_points ('' = fixed_frame, or canopy_world "
+                          "without one)")
+        self.declare_text("fixed_frame", "", "poses from /tf + /tf_static: the frame the clouds are fused "
+                          "in, e.g. base_link, odom or map ('' = poses from the pose topic)", read_only=True)
+        self.declare_number("tf_timeout", 0.5, "seconds a cloud waits for its transform (fixed_frame)",
+                            minimum=0.0, maximum=60.0)
         declare_rig_parameters(self)
         voxel = float(self.get_parameter("voxel_size").value)
         if not voxel > 0:
@@ -111,20 +131,29 @@ class FusionNode(CanopyNode):
                                         min_views=int(self.get_parameter("min_views").value))
         self._lock = threading.Lock()
         self._poses: deque = deque(maxlen=POSE_HISTORY)       # (stamp_ns, T)
-        self._pending: deque = deque(maxlen=20)               # (stamp_ns, arrival s, points, colours)
+        self._pending: deque = deque(maxlen=20)      # (stamp_ns, arrival s, points, colours, frame_id)
+        self.fixed_frame = str(self.get_parameter("fixed_frame").value).lstrip("/")
+        self.tf = None
+        if self.fixed_frame:
+            from canopy_stereo.ros.tf_listener import TransformListener
+
+            self.tf = TransformListener(self)
         self._changed = False
         self._last_stamp = 0
         self.last_result = None
         self.pub = self.make_publisher(PointCloud2, "canopy_points")
+        self.pub_view_pose = self.make_publisher(PoseStamped, "view_pose")
         self.sub_cloud = self.make_subscription(PointCloud2, "points2", self._on_cloud)
-        self.sub_pose = self.make_subscription(PoseStamped, "pose", self._on_pose, depth=50)
+        if self.tf is None:
+            self.sub_pose = self.make_subscription(PoseStamped, "pose", self._on_pose, depth=50)
         self.reset_service = self.create_service(Trigger, "~/reset", self._on_reset)
         self.timer = self.create_timer(float(self.get_parameter("publish_period").value),
                                        self.guarded(self._publish))
         self.pending_timer = self.create_timer(0.1, self.guarded(self._flush_pending))
         self.get_logger().info(f"fusing points2 at {voxel * 1000:g} mm voxels, publishing canopy_points "
                                f"every {self.get_parameter('publish_period').value:g} s"
-                               + ("" if self.P_left_m is not None else " (no rig: no free-space test)"))
+                               + ("" if self.P_left_m is not None else " (no rig: no free-space test)")
+                               + (f"; poses from TF ({self.tf.backend}) in {self.fixed_frame}" if self.tf else ""))
 
     # ------------------------------------------------------------------ set-up
     def _camera(self):
@@ -150,19 +179,26 @@ class FusionNode(CanopyNode):
                         else self.image_size[0] * self.image_size[1])
         points, colors = cloud2_to_points(msg)
         stamp = stamp_to_ns(msg.header.stamp)
+        frame = msg.header.frame_id.lstrip("/")
         with self._lock:
-            if not self._poses:
+            if not self._poses and self.tf is None:
                 pose = None
                 waiting = False
             else:
-                pose = self._match(stamp)
+                pose = self._match(stamp, frame)
                 waiting = pose is None
             if waiting:
-                self._pending.append((stamp, time.monotonic(), points, colors))
+                self._pending.append((stamp, time.monotonic(), points, colors, frame))
                 return
         self._add(stamp, points, colors, pose)
 
-    def _match(self, stamp: int):
+    def _match(self, stamp: int, frame: str):
+        """The cloud's pose (4x4, cloud frame -> fusion frame), or None when not (yet) known."""
+        if self.tf is not None:
+            try:
+                return self.tf.lookup(self.fixed_frame, frame, stamp_ns=stamp)
+            except TransformLookupError:
+                return None
         slop = int(float(self.get_parameter("pose_slop").value) * 1e9)
         best = min(self._poses, key=lambda p: abs(p[0] - stamp), default=None)
         if best is not None and abs(best[0] - stamp) <= slop:
@@ -171,22 +207,35 @@ class FusionNode(CanopyNode):
 
     def _flush_pending(self) -> None:
         """Place waiting clouds whose pose arrived; give up on those that waited too long."""
-        wait = float(self.get_parameter("pose_wait").value)
-        ready = []
+        wait = float(self.get_parameter("tf_timeout" if self.tf is not None else "pose_wait").value)
+        ready, expired = [], []
         with self._lock:
             keep = deque(maxlen=self._pending.maxlen)
             while self._pending:
-                stamp, arrived, points, colors = self._pending.popleft()
-                pose = self._match(stamp)
+                stamp, arrived, points, colors, frame = item = self._pending.popleft()
+                pose = self._match(stamp, frame)
                 if pose is not None:
                     ready.append((stamp, points, colors, pose))
-                elif time.monotonic() - arrived > wait:
-                    ready.append((stamp, points, colors, None))
+                elif time.monotonic() - arrived <= wait:
+                    keep.append(item)
+                elif self.tf is not None:
+                    expired.append((stamp, frame))
                 else:
-                    keep.append((stamp, arrived, points, colors))
+                    ready.append((stamp, points, colors, None))
             self._pending = keep
+        for stamp, frame in expired:
+            self._drop_without_transform(stamp, frame, wait)
         for stamp, points, colors, pose in ready:
             self.guarded(self._add)(stamp, points, colors, pose)
+
+    def _drop_without_transform(self, stamp: int, frame: str, waited_s: float) -> None:
+        try:
+            self.tf.lookup(self.fixed_frame, frame, stamp_ns=stamp)
+            reason = "its transform arrived too late"
+        except TransformLookupError as exc:
+            reason = str(exc)
+        self.drop(f"no transform {self.fixed_frame} <- {frame or '(empty frame_id)'} at the cloud's stamp "
+                  f"within tf_timeout {waited_s:g} s: {reason}", "cloud")
 
     def _add(self, stamp: int, points, colors, pose) -> None:
         if pose is None and not bool(self.get_parameter("register_without_pose").value):
@@ -202,6 +251,9 @@ class FusionNode(CanopyNode):
             self.drop(f"registration failed: {exc}", "cloud")
             return
         self.last_result = res
+        view_pose = PoseStamped(header=make_header(stamp, self._frame_id()))
+        matrix_to_pose(res.pose, view_pose.pose)
+        self.pub_view_pose.publish(view_pose)
         self.count("clouds_registered" if res.registered else "clouds_placed")
         if res.registered:
             self.get_logger().info(f"cloud {res.index} registered: ICP rmse {res.rmse * 1000:.2f} mm, "
@@ -216,8 +268,17 @@ class FusionNode(CanopyNode):
             self._changed = False
             stamp = self._last_stamp
         self.pub.publish(points_to_cloud2(fused.points, fused.colors, stamp_ns=stamp,
-                                          frame_id=self.get_parameter("frame_id").value, organized=False))
+                                          frame_id=self._frame_id(), organized=False))
         self.count("models_published")
+
+    def destroy_node(self):
+        if self.tf is not None:
+            self.tf.close()
+        return super().destroy_node()
+
+    def _frame_id(self) -> str:
+        """Frame of the fused model and the view poses."""
+        return self.get_parameter("frame_id").value or self.fixed_frame or "canopy_world"
 
     def _on_reset(self, request, response):
         with self._lock:

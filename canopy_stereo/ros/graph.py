@@ -31,6 +31,7 @@ from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
 
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.rig import Rig
+from canopy_stereo.ros.camera_info import default_camera_frame
 from canopy_stereo.ros.intra_process import IntraProcessBus
 from canopy_stereo.ros.params import parameters_from_dict, rig_parameter_overrides
 
@@ -67,6 +68,9 @@ class GraphOptions:
         intra_process: messages between the graph's nodes travel over an
             :class:`~canopy_stereo.ros.intra_process.IntraProcessBus` (the message object,
             no DDS; outputs still go to DDS for everyone else); False: through DDS only.
+        parent_frame, mount, camera_mount, publish_tf, frame_prefix: ``rectify_node``'s
+            mounting parameters (:mod:`canopy_stereo.ros.mounting`; ``mount``/``camera_mount``
+            seven numbers or None); the cameras' frame ids get ``frame_prefix`` too.
     """
 
     namespace: str = "/stereo"
@@ -84,6 +88,20 @@ class GraphOptions:
     propagate_scale: float | None = None
     disparity_threads: int | None = None
     intra_process: bool = True
+    parent_frame: str = ""
+    mount: list | None = None
+    camera_mount: list | None = None
+    publish_tf: bool = True
+    frame_prefix: str = ""
+
+    def mounting_parameters(self) -> dict:
+        """``rectify_node``'s mounting parameters of these options (unset ones left out)."""
+        out = {"parent_frame": self.parent_frame, "publish_tf": bool(self.publish_tf),
+               "frame_prefix": self.frame_prefix}
+        for name in ("mount", "camera_mount"):
+            if getattr(self, name) is not None:
+                out[name] = [float(v) for v in getattr(self, name)]
+        return out
 
 
 class CanopyGraph:
@@ -122,7 +140,7 @@ class CanopyGraph:
         self.bus = IntraProcessBus() if o.intra_process else None
         common = {"reliability": o.reliability}
         per_node = {
-            "rectify_node": {},
+            "rectify_node": o.mounting_parameters(),
             "disparity_node": ({} if o.matcher is None else {"matcher": o.matcher})
             | ({} if o.disparity_threads is None else {"threads": int(o.disparity_threads)}),
             # nothing waits for every mask unless use_mask: let GrabCut skip frames under load
@@ -143,6 +161,8 @@ class CanopyGraph:
             if cameras is not None:
                 for side, params in zip(("left", "right"), cameras):
                     values = {"camera_name": side, **common, **params}
+                    if o.frame_prefix and "frame_id" not in values:
+                        values["frame_id"] = o.frame_prefix + default_camera_frame(side)
                     self._add(f"{side}_camera", CameraNode, values, rig_params=True)  # camera_info
             for name, cls in classes.items():
                 if name == "segment_node" and not (o.segment or o.use_mask):

@@ -14,10 +14,59 @@ import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.parameter import Parameter
 
-from canopy_stereo.errors import RigError
+from canopy_stereo.errors import CanopyStereoError, RigError
 from canopy_stereo.geometry.rectification import Rectification
 from canopy_stereo.geometry.rig_rectification import rectification_for_rig
 from canopy_stereo.io.rig import Rig, load_rig, rig_from_parameters
+from canopy_stereo.io.yaml_files import read_yaml_file
+
+
+def parameter_files(argv) -> list[str]:
+    """The ``--params-file`` paths of a command line's ``--ros-args`` sections, in order."""
+    files, in_ros, it = [], False, iter(argv or [])
+    for token in it:
+        if token == "--ros-args":
+            in_ros = True
+        elif token == "--":
+            in_ros = False
+        elif in_ros and token == "--params-file":
+            files.append(next(it, ""))
+    return files
+
+
+def check_parameter_file(path) -> None:
+    """Check that ``path`` is a readable UTF-8 ROS 2 parameter file (``<node>: ros__parameters:
+    {...}``, nodes possibly under namespaces) before rcl parses it; raises
+    :class:`CanopyStereoError` with one line naming the file and the problem. (rcl's own
+    parser would fail with a multi-line ``RCLError`` and its own log line.)"""
+    doc = read_yaml_file(path, "parameter file")
+    if doc is None:
+        return  # empty: rcl accepts it (no parameters)
+    _check_parameter_tree(doc, path, ())
+
+
+def _check_parameter_tree(doc, path, keys: tuple) -> None:
+    where = "/".join(str(k) for k in keys) or "the top level"
+    if not isinstance(doc, dict):
+        raise CanopyStereoError(
+            f"parameter file {path} is not a ROS 2 parameter file: {where} is a {_yaml_kind(doc)}, "
+            "expected '<node name>: ros__parameters: {name: value, ...}'")
+    for key, value in doc.items():
+        if key == "ros__parameters":
+            if not isinstance(value, dict):
+                raise CanopyStereoError(f"parameter file {path}: ros__parameters of {where} is a "
+                                        f"{_yaml_kind(value)}, expected a mapping of parameter names to values")
+            continue
+        _check_parameter_tree(value, path, keys + (key,))
+
+
+def _yaml_kind(value) -> str:
+    if isinstance(value, list):
+        return "list"
+    if value is None:
+        return "empty value"
+    return f"{type(value).__name__} ({value!r:.40})"
+
 
 
 def number_descriptor(description: str, *, minimum, maximum, step=0, integer: bool,
@@ -111,6 +160,13 @@ def rig_from_node(node) -> Rig:
         rig = load_rig(rig_file)
         return rig
     return rig_from_parameters(params, source=f"node {node.get_name()} parameters")
+
+
+def rig_given(node) -> bool:
+    """True when the node was given a rig (``rig_file`` or any rig parameter), so that a rig
+    that cannot be built is an error rather than "no rig"."""
+    return bool(node.get_parameter("rig_file").value) or any(
+        _value(node, name) is not None for name in RIG_PARAMETERS)
 
 
 def rectification_from_node(node, rig: Rig) -> Rectification:

@@ -193,13 +193,21 @@ def main(args=None) -> int:
     """``bag_play`` executable."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
-    from rclpy.utilities import remove_ros_args
 
+    from canopy_stereo.ros.context import init_ros, strip_ros_args
     from canopy_stereo.ros.nodes.base import install_stop_signals
 
     argv = sys.argv if args is None else args
-    opts = build_parser().parse_args(remove_ros_args(argv)[1:])
-    rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    try:
+        opts = build_parser().parse_args(strip_ros_args(argv)[1:])
+    except CanopyStereoError as exc:
+        print(f"bag_play: error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        init_ros(argv)  # a bad --params-file or --ros-args: one line, exit 2
+    except CanopyStereoError as exc:
+        print(f"bag_play: error: {exc}", file=sys.stderr)
+        return 2
     install_stop_signals()
     node = None
     def damaged(d) -> None:  # each damaged place once, as it is found; the rest still plays

@@ -94,7 +94,7 @@ class BagRecorder(Node):
         self.received = {}
         self._lock = threading.Lock()
         self._pending = [self.resolve_topic_name(t) for t in topics]
-        if static_transforms is not None:
+        if static_transforms:  # [] (publish_tf false: the robot owns the frames): none written
             from canopy_stereo.ros.tf import write_static_transforms
 
             write_static_transforms(writer, static_transforms, time.time_ns())
@@ -223,18 +223,28 @@ def main(args=None) -> int:
     """``bag_record`` executable; SIGINT/SIGTERM/SIGHUP end the recording with a valid file."""
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-    from rclpy.utilities import remove_ros_args
+
+    from canopy_stereo.ros.context import init_ros, strip_ros_args
 
     argv = sys.argv if args is None else args
-    opts = build_parser().parse_args(remove_ros_args(argv)[1:])
+    try:
+        opts = build_parser().parse_args(strip_ros_args(argv)[1:])
+    except CanopyStereoError as exc:
+        print(f"bag_record: error: {exc}", file=sys.stderr)
+        return 2
     if not opts.topics and not opts.all:
         print("bag_record: error: name topics to record or use --all", file=sys.stderr)
         return 2
     stop = threading.Event()
-    rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    try:
+        init_ros(argv)  # a bad --params-file or --ros-args: one line, exit 2
+    except CanopyStereoError as exc:
+        print(f"bag_record: error: {exc}", file=sys.stderr)
+        return 2
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # finish the file, then exit
         signal.signal(sig, lambda *_: stop.set())
     recorder = None
+    status = 0
     try:
         from canopy_stereo.bag.metadata import parse_key_values, recording_metadata
         from canopy_stereo.io.rig import load_rig
@@ -252,18 +262,24 @@ def main(args=None) -> int:
             executor.spin_once(timeout_sec=0.1)
             if deadline is not None and time.monotonic() >= deadline:
                 break
-        return 0
     except CanopyStereoError as exc:
         print(f"bag_record: error: {exc}", file=sys.stderr)
-        return 2
+        status = 2
     except (KeyboardInterrupt, ExternalShutdownException):
-        return 0
+        pass
     finally:
         if recorder is not None:
-            recorder.close()
-            counts = ", ".join(f"{t}: {n}" for t, n in recorder.received.items())
-            files = ", ".join(str(p) for p in recorder.writer.paths)
-            print(f"bag_record: wrote {files} ({counts or 'no messages'})", file=sys.stderr)
+            try:
+                recorder.close()
+            except CanopyStereoError as exc:  # the disk filled up: closing fails the same way
+                if status == 0:
+                    print(f"bag_record: error: {exc}", file=sys.stderr)
+                status = 2
+            else:
+                counts = ", ".join(f"{t}: {n}" for t, n in recorder.received.items())
+                files = ", ".join(str(p) for p in recorder.writer.paths)
+                print(f"bag_record: wrote {files} ({counts or 'no messages'})", file=sys.stderr)
             recorder.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
+    return status

@@ -180,6 +180,30 @@ class _FrameBook:
             self.cond.notify_all()
 
 
+def stereo_input_remap(topics, *, namespace: str, remap: dict[str, str] | None = None) -> dict[str, str]:
+    """``remap`` plus, when the bag has no ``<namespace>/left|right/image_raw`` (nor their
+    ``/compressed`` topics) after it, the remapping of the bag's one stereo pair recorded under
+    another namespace (the bundled ``/stereo/...`` bags played into ``/rig_a``):
+    ``/stereo/left/image_raw -> /rig_a/left/image_raw``, the same for the right camera (and for
+    ``.../image_raw/compressed``). A bag with several such pairs is left alone (the caller then
+    names the topics it has)."""
+    remap = dict(remap or {})
+    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+    suffixes = ("image_raw", "image_raw/compressed")
+    mapped = {remap.get(t, t) for t in topics}
+    if any({f"{ns}/left/{s}", f"{ns}/right/{s}"} <= mapped for s in suffixes):
+        return remap
+    for suffix in suffixes:
+        left = f"/left/{suffix}"
+        prefixes = [t[: -len(left)] for t in topics if t.endswith(left) and t not in remap
+                    and f"{t[: -len(left)]}/right/{suffix}" in topics]
+        if len(prefixes) == 1:
+            for side in ("left", "right"):
+                remap[f"{prefixes[0]}/{side}/{suffix}"] = f"{ns}/{side}/{suffix}"
+            return remap
+    return remap
+
+
 def open_input_bag(bag_path, *, namespace: str = "stereo", remap: dict[str, str] | None = None):
     """Open a bag for the graph and check it has both image topics (after ``remap``).
 
@@ -195,7 +219,7 @@ def open_input_bag(bag_path, *, namespace: str = "stereo", remap: dict[str, str]
     Cheap (reads the summary), so a CLI checks its input with it before preparing the kernels.
     """
     bag = BagReader(bag_path)
-    remap = dict(remap or {})
+    remap = stereo_input_remap(bag.topics, namespace=namespace, remap=remap)
     damaged = bag.truncated or bool(bag.damage)
     ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
     in_left, in_right = f"{ns}/left/image_raw", f"{ns}/right/image_raw"
@@ -254,7 +278,9 @@ def run_bag(bag_path, rig: Rig, *, rate: float = 1.0, record=None, options: Grap
         timeout_s: give up waiting for any single frame after this long.
         keep: output topics whose messages are returned in :attr:`RunResult.outputs`
             (names relative to the namespace, e.g. ``"points2"``).
-        remap: bag topic -> topic to publish it on.
+        remap: bag topic -> topic to publish it on (a bag with one raw stereo pair under
+            another namespace is remapped into ``options.namespace`` without it:
+            :func:`stereo_input_remap`).
         progress: optional ``f(frames_out)`` callback per cloud.
         compression: chunk compression of the output bag (lz4 keeps up with the graph;
             zstd is smaller but costs about 20 ms per megabyte of output on this machine).
@@ -283,8 +309,8 @@ def run_bag(bag_path, rig: Rig, *, rate: float = 1.0, record=None, options: Grap
         raise CanopyStereoError(f"rate must be >= 0, got {rate}")
     if max_in_flight < 1:
         raise CanopyStereoError(f"max_in_flight must be >= 1, got {max_in_flight}")
-    remap = dict(remap or {})
     bag, play_topics, in_left = open_input_bag(bag_path, namespace=options.namespace, remap=remap)
+    remap = stereo_input_remap(bag.topics, namespace=options.namespace, remap=remap)
     options = _with_transport(options, input_transport(in_left))
     ns = "/" + options.namespace.strip("/") if options.namespace.strip("/") else ""
     left_topics = {t for t in play_topics if remap.get(t, t) == in_left}
@@ -352,10 +378,11 @@ def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, r
         graph = CanopyGraph(rig, ctx, options)
         io_node = CanopyNode("canopy_run", context=ctx, namespace=ns or "/",
                              start_parameter_services=False)
-        if writer is not None:  # the rig's frames, always in the bag (REP 105 /tf_static)
+        tf_transforms = graph.nodes["rectify_node"].tf_transforms
+        if writer is not None and tf_transforms:  # the rig's frames in the bag (REP 105 /tf_static)
             from canopy_stereo.ros.tf import write_static_transforms
 
-            write_static_transforms(writer, graph.nodes["rectify_node"].transforms, time.time_ns())
+            write_static_transforms(writer, tf_transforms, time.time_ns())
         try:
             def on_output(rel: str, data: bytes) -> None:
                 now = time.monotonic()

@@ -20,7 +20,8 @@ JSON fields: ``format`` (1), ``method`` (``fusiello``/``hartley``), ``world_fram
 ``world_unit``, ``metres_per_unit``, ``image_size`` ``[w, h]``, ``P_left``/``P_right``
 (12 numbers, world units), ``H_left``/``H_right`` (9 numbers), ``frames`` (name ->
 frame id: ``world``, ``world_z_up``, ``raw_left``, ``raw_right``, ``rect_left``,
-``rect_right``), ``transforms`` (list of ``{"parent", "child", "matrix"}``, ``matrix`` =
+``rect_right``, ``parent``: the robot frame the rig is mounted on, "" = none),
+``transforms`` (list of ``{"parent", "child", "matrix"}``, ``matrix`` =
 16 numbers, row-major 4x4 ``T_parent_child`` in metres).
 """
 from __future__ import annotations
@@ -45,8 +46,12 @@ def _floats(a) -> list[float]:
     return [float(v) for v in np.asarray(a, np.float64).ravel()]
 
 
-def stereo_geometry_msg(rig, rect: Rectification, names: FrameNames) -> String:
-    """The ``stereo_geometry`` message of a rig and its rectification."""
+def stereo_geometry_msg(rig, rect: Rectification, names: FrameNames, *, transforms=None) -> String:
+    """The ``stereo_geometry`` message of a rig and its rectification (``transforms``: the
+    rig's ``(parent, child, T)`` list when already computed, e.g. with a mount; default
+    :func:`~canopy_stereo.geometry.frames.stereo_transforms` of the unmounted rig)."""
+    if transforms is None:
+        transforms = stereo_transforms(rig, rect, names=names)
     data = {
         "format": FORMAT, "method": rect.method, "world_frame": names.world,
         "world_unit": rig.world_unit, "metres_per_unit": rig.metres_per_unit,
@@ -55,7 +60,7 @@ def stereo_geometry_msg(rig, rect: Rectification, names: FrameNames) -> String:
         "H_left": _floats(rect.H_left), "H_right": _floats(rect.H_right),
         "frames": {k: getattr(names, k) for k in FrameNames.__dataclass_fields__},
         "transforms": [{"parent": p, "child": c, "matrix": _floats(T)}
-                       for p, c, T in stereo_transforms(rig, rect, names=names)],
+                       for p, c, T in transforms],
     }
     return String(data=json.dumps(data))
 

@@ -114,6 +114,53 @@ def serialize_tf_message(transforms: list[TransformStamped]) -> bytes:
     return b"\x00\x01\x00\x00" + bytes(w.buf)
 
 
+def parse_tf_message(data: bytes) -> list[tuple[int, str, str, np.ndarray]]:
+    """``[(stamp_ns, parent, child, T_parent_child), ...]`` of a CDR ``tf2_msgs/msg/TFMessage``
+    (a recording's ``/tf`` or ``/tf_static``), read without the tf2_msgs package. Raises
+    :class:`~canopy_stereo.errors.CanopyStereoError` on bytes that are not such a message."""
+    from canopy_stereo.errors import CanopyStereoError
+
+    buf = bytes(data)
+    if len(buf) < 8 or buf[0] != 0 or buf[1] not in (0, 1):
+        raise CanopyStereoError("TFMessage is not CDR (bad encapsulation header)")
+    order = "<" if buf[1] == 1 else ">"
+    pos = 4
+
+    def take(fmt: str):
+        nonlocal pos
+        size = struct.calcsize(order + fmt[0])
+        pos += (-(pos - 4)) % size
+        end = pos + struct.calcsize(order + fmt)
+        if end > len(buf):
+            raise CanopyStereoError(f"TFMessage is cut short ({len(buf)} bytes)")
+        values = struct.unpack(order + fmt, buf[pos:end])
+        pos = end
+        return values
+
+    def string() -> str:
+        nonlocal pos
+        (n,) = take("I")
+        if n < 1 or pos + n > len(buf):
+            raise CanopyStereoError("TFMessage holds a malformed string")
+        text = buf[pos:pos + n - 1].decode("utf-8", errors="replace")
+        pos += n
+        return text
+
+    (count,) = take("I")
+    if count > len(buf) // 64:
+        raise CanopyStereoError(f"TFMessage claims {count} transforms in {len(buf)} bytes")
+    out = []
+    for _ in range(count):
+        sec, nsec = take("iI")
+        parent, child = string(), string()
+        x, y, z, qx, qy, qz, qw = take("ddddddd")
+        T = np.eye(4)
+        T[:3, :3] = quaternion_to_rotation([qx, qy, qz, qw])
+        T[:3, 3] = [x, y, z]
+        out.append((sec * 1_000_000_000 + nsec, parent, child, T))
+    return out
+
+
 def write_static_transforms(writer, transforms, log_time_ns: int, *, topic: str = TF_STATIC_TOPIC) -> None:
     """Write ``[(parent, child, T), ...]`` (or TransformStamped messages) as one
     ``tf2_msgs/msg/TFMessage`` on ``/tf_static`` into a :class:`BagWriter`, with the
@@ -131,7 +178,8 @@ def write_static_transforms(writer, transforms, log_time_ns: int, *, topic: str 
 
 
 class StaticTransformPublisher:
-    """Publish transforms once on ``/tf_static`` (latched) when tf2_msgs is importable.
+    """Publish transforms once on ``/tf_static`` (latched) when tf2_msgs is importable (none
+    when ``transforms`` is empty).
 
     Attributes:
         available: True when tf2_msgs was found and the transforms were published.
@@ -141,7 +189,7 @@ class StaticTransformPublisher:
         cls = tf_message_class()
         self.available = cls is not None
         self.publisher = None
-        if not self.available:
+        if not self.available or not transforms:
             return
         stamp = node.get_clock().now().nanoseconds if stamp_ns is None else int(stamp_ns)
         self.publisher = node.create_publisher(cls, TF_STATIC_TOPIC, latched_qos())

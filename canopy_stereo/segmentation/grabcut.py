@@ -75,6 +75,26 @@ def grabcut_labels(image_bgr, labels: np.ndarray, *, iterations: int = 5) -> np.
     return lab
 
 
+def clip_rect(rect, size) -> tuple[int, int, int, int]:
+    """``rect`` ``(x, y, w, h)`` (pixels) clipped to an image of ``size`` ``(width, height)``,
+    as ``(x, y, w, h)``; raises :class:`ImageError` when it is not 4 numbers, has no area,
+    lies (almost) outside the image or covers all of it (GrabCut needs background outside)."""
+    try:
+        x, y, w, h = (int(round(float(v))) for v in rect)
+    except (TypeError, ValueError):
+        raise ImageError(f"rectangle must be 4 numbers x, y, w, h; got {rect!r}") from None
+    W, H = (int(v) for v in size)
+    if w <= 0 or h <= 0:
+        raise ImageError(f"rectangle must have positive width and height, got {w}x{h}")
+    x0, y0 = max(x, 0), max(y, 0)
+    x1, y1 = min(x + w, W), min(y + h, H)
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        raise ImageError(f"rectangle {x},{y},{w},{h} lies (almost) outside the {W}x{H} image")
+    if x0 == 0 and y0 == 0 and x1 == W and y1 == H:
+        raise ImageError("the rectangle covers the whole image; GrabCut needs background outside it")
+    return x0, y0, x1 - x0, y1 - y0
+
+
 def grabcut_rect(image_bgr, rect, *, iterations: int = 5) -> np.ndarray:
     """Plant mask from a rectangle around the plant (the paper's interaction).
 
@@ -89,19 +109,9 @@ def grabcut_rect(image_bgr, rect, *, iterations: int = 5) -> np.ndarray:
     """
     img = _check_image(image_bgr)
     it = _check_iterations(iterations)
-    try:
-        x, y, w, h = (int(round(float(v))) for v in rect)
-    except (TypeError, ValueError):
-        raise ImageError(f"rectangle must be 4 numbers x, y, w, h; got {rect!r}") from None
     H, W = img.shape[:2]
-    if w <= 0 or h <= 0:
-        raise ImageError(f"rectangle must have positive width and height, got {w}x{h}")
-    x0, y0 = max(x, 0), max(y, 0)
-    x1, y1 = min(x + w, W), min(y + h, H)
-    if x1 - x0 < 2 or y1 - y0 < 2:
-        raise ImageError(f"rectangle {x},{y},{w},{h} lies (almost) outside the {W}x{H} image")
-    if x0 == 0 and y0 == 0 and x1 == W and y1 == H:
-        raise ImageError("the rectangle covers the whole image; GrabCut needs background outside it")
+    x0, y0, cw, ch = clip_rect(rect, (W, H))
+    x1, y1 = x0 + cw, y0 + ch
     labels = np.full((H, W), GC_BGD, np.uint8)
     labels[y0:y1, x0:x1] = GC_PR_FGD
     bgd = np.zeros((1, 65), np.float64)

@@ -43,6 +43,7 @@ from canopy_stereo.segmentation.shape import (
     attached_parts,
     caps,
     edge_density,
+    fit_ground,
     fit_planes,
     grounded_solids,
     inverse_depth,
@@ -149,10 +150,17 @@ def shape_seed(q: np.ndarray, image_bgr: np.ndarray, *,
     noise = float(settings.noise)
     r = int(settings.window)
     planes = fit_planes(q, tolerance=2.5 * noise, iterations=120)
+    qmed = float(np.nanmedian(q))
+    if not any(p.is_ground(qmed, h) for p in planes):
+        taken = np.zeros((h, w), bool)
+        for p in planes:
+            taken |= p.inliers
+        ground_plane = fit_ground(q, ~taken, tolerance=2.5 * noise)
+        if ground_plane is not None:
+            planes.append(ground_plane)
     on_plane = np.zeros((h, w), bool)
     lead = np.full((h, w), np.inf)  # how far each pixel stands in front of every plane
     ground = np.zeros((h, w), bool)
-    qmed = float(np.nanmedian(q))
     for plane in planes:
         on_plane |= plane.inliers
         lead = np.fmin(lead, plane.residual(q))

@@ -126,7 +126,7 @@ def fit_planes(q: np.ndarray, *, tolerance: float, min_fraction: float = 0.06, m
     rng = np.random.default_rng(seed)
     reach = max(4, w // 8)
     planes: list[Plane] = []
-    for _ in range(max_planes + 2):
+    for _ in range(max_planes + 6):
         if len(planes) >= max_planes:
             break
         idx = np.flatnonzero(free)
@@ -169,6 +169,56 @@ def fit_planes(q: np.ndarray, *, tolerance: float, min_fraction: float = 0.06, m
         if inliers.sum() >= min_fraction * n_valid and behind <= 0.1 * inliers.sum():
             planes.append(Plane(best, inliers))
     return planes
+
+
+def fit_ground(q: np.ndarray, free: np.ndarray, *, tolerance: float, iterations: int = 300,
+               seed: int = 1) -> Plane | None:
+    """A ground plane (a table, a bench, a floor: ``q`` growing down the image) among the
+    ``free`` pixels of the lower 40 % of the image, when :func:`fit_planes` found none.
+
+    Hypotheses are drawn from three pixels anywhere in that band (a table seen in pieces
+    between pots holds together), only planes seen from above are scored, and the
+    inliers must cover at least 2 % of the valid pixels in regions of 0.5 % of the image.
+    """
+    h, w = q.shape
+    v, u = np.mgrid[0:h, 0:w]
+    valid = np.isfinite(q)
+    band = free & valid & (v >= 0.6 * h)
+    idx = np.flatnonzero(band)
+    if len(idx) < 50:
+        return None
+    rng = np.random.default_rng(seed)
+    sample = idx if len(idx) <= 4000 else rng.choice(idx, 4000, replace=False)
+    A = np.stack([u.ravel()[sample], v.ravel()[sample], np.ones(len(sample))], 1).astype(np.float64)
+    b = q.ravel()[sample]
+    qmed = float(np.nanmedian(q))
+    best, best_count = None, 0
+    for _ in range(iterations):
+        pick = rng.choice(len(sample), 3, replace=False)
+        try:
+            coeffs = np.linalg.solve(A[pick], b[pick])
+        except np.linalg.LinAlgError:
+            continue
+        if not coeffs[1] * h > 0.3 * qmed:
+            continue
+        count = int(np.sum(np.abs(A @ coeffs - b) < tolerance))
+        if count > best_count:
+            best, best_count = coeffs, count
+    if best is None:
+        return None
+    inl = np.abs(A @ best - b) < tolerance
+    if inl.sum() >= 3:
+        best = np.linalg.lstsq(A[inl], b[inl], rcond=None)[0]
+    with np.errstate(invalid="ignore"):
+        close = free & valid & (np.abs(q - (best[0] * u + best[1] * v + best[2])) < tolerance)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(close.astype(np.uint8), connectivity=8)
+    big = stats[:, cv2.CC_STAT_AREA] >= 0.005 * h * w
+    big[0] = False
+    inliers = big[lab]
+    plane = Plane(best, inliers)
+    if inliers.sum() < 0.02 * valid.sum() or not plane.is_ground(qmed, h):
+        return None
+    return plane
 
 
 def local_roughness(q: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray]:

@@ -1,6 +1,12 @@
 """Fixtures of the ROS tests, built on the ``harness`` fixture of test/conftest.py."""
 from __future__ import annotations
 
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
 import pytest
 
 FUSION_TIMEOUT = 30.0
@@ -33,3 +39,20 @@ def fusion_harness(harness):
     assert wait_for(lambda: sub.get_publisher_count() >= 1, FUSION_TIMEOUT)
     assert reset.wait_for_service(timeout_sec=FUSION_TIMEOUT)
     return node, clouds, poses, reset, models
+
+
+@pytest.fixture(scope="session")
+def tf2_msgs_build(tmp_path_factory):
+    """``tf2_msgs`` (TFMessage) built once per session from its ``.msg`` with the rosidl
+    generators of rclpy's wheels (test/support/build_tf2_msgs.py): the folder to pass to
+    ``build_tf2_msgs.environment``. Skips without a C/C++ compiler or catkin_pkg."""
+    if not (shutil.which("gcc") and shutil.which("g++")):
+        pytest.skip("no C/C++ compiler to build tf2_msgs' type support")
+    pytest.importorskip("catkin_pkg")
+    repo = Path(__file__).resolve().parents[2]
+    out = tmp_path_factory.mktemp("tf2_msgs")
+    env = dict(os.environ, AMENT_PREFIX_PATH=sys.prefix)
+    proc = subprocess.run([sys.executable, str(repo / "test" / "support" / "build_tf2_msgs.py"), str(out)],
+                          env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return out

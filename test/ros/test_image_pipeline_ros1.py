@@ -94,12 +94,22 @@ class Ros1:
         env = dict(self.env)
         if namespace:
             env["ROS_NAMESPACE"] = namespace
-        log = open(self.home / f"{name}.log", "wb")
-        p = subprocess.Popen(cmd, env=env, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
-                             start_new_session=True)
+        with open(self.home / f"{name}.log", "wb") as log:  # the child keeps its own descriptor
+            p = subprocess.Popen(cmd, env=env, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+                                 start_new_session=True)
         p.name = name
         self.procs.append(p)
         return p
+
+    def run(self, name, cmd, timeout_s: float) -> int:
+        """Run ``cmd`` to its end in its own process group (killed whole after ``timeout_s``:
+        ``rosbag play`` is a wrapper around the real player)."""
+        p = self.start(name, cmd)
+        try:
+            return p.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            self.stop(p, signal.SIGKILL)
+            raise AssertionError(f"{name} did not finish in {timeout_s} s:\n{self.log(name)[-2000:]}") from None
 
     def log(self, name) -> str:
         return (self.home / f"{name}.log").read_text(errors="replace")
@@ -202,11 +212,9 @@ def test_stereo_image_proc_and_image_proc_run_on_our_recording(tmp_path):
                                        "/stereo/left/image_rect/camera_info", "/stereo/right/image_rect/camera_info"]),
                             (bags[1], raw_topics),
                             (bags[1], [*raw_topics, *(f"{t}:=/sip{t[len('/stereo'):]}" for t in raw_topics)])):
-            play = subprocess.run(["rosbag", "play", "-q", "--wait-for-subscribers", "-r", "0.5",
-                                   str(bag), "--topics", *topics],
-                                  env=ros.env, stdin=subprocess.DEVNULL, capture_output=True, text=True,
-                                  timeout=120)
-            assert play.returncode == 0, play.stderr
+            rc = ros.run("play", ["rosbag", "play", "-q", "--wait-for-subscribers", "-r", "0.5", str(bag),
+                                  "--topics", *topics], timeout_s=120)
+            assert rc == 0, ros.log("play")[-2000:]
         time.sleep(5.0)  # the last messages through the nodelets into the recorder
         for p in procs:  # no abort (image_geometry's frame assertion) and still running
             assert p.poll() is None, f"{p.name} exited with {p.returncode}:\n{ros.log(p.name)[-2000:]}"

@@ -186,11 +186,25 @@ def test_shared_multithreaded_executor_runs_the_graph_too(croton):
 
 
 def test_run_needs_the_input_topics(croton, tmp_path):
+    """A bag under another namespace is played into the graph's when it has one raw stereo
+    pair (stereo_input_remap); with two pairs it is ambiguous: refused, naming the topics."""
+    from canopy_stereo.bag import BagReader, BagWriter
     from canopy_stereo.errors import CanopyStereoError
+    from canopy_stereo.ros.runner import stereo_input_remap
 
     bag, rig = croton
-    with pytest.raises(CanopyStereoError, match="no /other/left/image_raw .*topics: /stereo/left"):
-        run_bag(bag, rig, options=GraphOptions(namespace="/other", parameter_services=False))
+    topics = set(BagReader(bag).topics)
+    assert stereo_input_remap(topics, namespace="/rig_a") == {
+        "/stereo/left/image_raw": "/rig_a/left/image_raw", "/stereo/right/image_raw": "/rig_a/right/image_raw"}
+    assert stereo_input_remap(topics, namespace="stereo") == {}
+    two = tmp_path / "two_pairs.mcap"
+    with BagWriter(two) as w:
+        for m in BagReader(bag).messages():
+            for ns in ("/cam1/", "/cam2/"):
+                w.write(m.topic.replace("/stereo/", ns), m.data, m.log_time_ns,
+                        publish_time_ns=m.publish_time_ns, msg_type=m.type_name)
+    with pytest.raises(CanopyStereoError, match="no /other/left/image_raw .*topics: /cam1/left"):
+        run_bag(two, rig, options=GraphOptions(namespace="/other", parameter_services=False))
 
 
 def test_launch_file_names_only_existing_executables():

@@ -38,13 +38,16 @@ def test_launch_file_evaluates_to_one_process_per_node():
     play = cmds[0]
     assert play.arguments[:3] == [str(CROTON_BAG), "--rate", "1.0"] and "--loop" in play.arguments
     rect = cmds[1]
-    assert rect.parameters == {"fps": 0.0}  # from a bag: measured from the stamps
+    assert rect.parameters == {"fps": 0.0,  # from a bag: measured from the stamps
+                               "frame_prefix": "", "parent_frame": "", "mount": "", "camera_mount": "",
+                               "publish_tf": True}  # not mounted: the rig's world frame is a root
     assert ["-r", "__ns:=/stereo"] == rect.ros_args[:2] and str(CROTON_RIG) in rect.ros_args
     cmds, _ = evaluate({"left_device": "0", "right_device": "2", "fps": "10"})
     assert [c.executable for c in cmds] == ["camera_node", "camera_node", "rectify_node", "disparity_node",
                                             "segment_node", "point_cloud_node"]
-    assert cmds[0].parameters == {"camera_name": "left", "device": 0, "fps": 10}  # integer fps, as launch_ros
-    assert cmds[2].parameters == {"fps": 10.0}  # pairing tolerance from the camera rate
+    assert cmds[0].parameters == {"camera_name": "left", "device": 0, "fps": 10,  # integer fps, as launch_ros
+                                  "frame_id": "left_camera_optical_frame"}
+    assert cmds[2].parameters["fps"] == 10.0  # pairing tolerance from the camera rate
     assert cmds[3].parameters == {"matcher": "elas", "elas.subsampling": False}
     assert cmds[4].parameters == {"queue_size": 1, "depth_cue": False}  # no mask used: the newest image
     assert set(declared) >= {"rig", "namespace", "left_device", "right_device", "fps", "matcher", "use_mask",
@@ -124,3 +127,43 @@ def test_canopy_graph_loop_replays_without_rebuilding(ros_processes):
     passes = [tuple(map(int, m.groups())) for m in re.finditer(
         r"^frames in: (\d+), frames out: (\d+) \(after pass \d+\)", log, re.MULTILINE)]
     assert len(passes) >= 2 and all(i <= frames_in and o <= frames_out for i, o in passes), log
+
+
+def test_launch_two_mounted_rigs_side_by_side(ros_processes):
+    """Two launches (namespace + frame_prefix + parent_frame + mount) evaluate to nodes that
+    never share a name, and their rectify_nodes (processes of their own, one DDS domain)
+    put each rig under base_link by its own mount, every frame prefixed."""
+    from std_msgs.msg import String
+
+    from canopy_stereo.geometry.frames import pose_matrix
+    from canopy_stereo.ros.stereo_geometry import parse_stereo_geometry
+    from canopy_stereo.ros.tf import latched_qos
+
+    mounts = {"rig_a": [0.4, 0.25, 1.1, 0.0, 0.0, 0.25881904510252074, 0.9659258262890683],
+              "rig_b": [0.4, -0.25, 0.95, 0.0, 0.0, 0.0, 1.0]}
+    launched = {}
+    for ns, mount in mounts.items():
+        cmds, _ = evaluate({"bag": str(CROTON_BAG), "rig": str(CROTON_RIG), "namespace": ns,
+                            "frame_prefix": f"{ns}/", "parent_frame": "base_link", "mount": str(mount)})
+        launched[ns] = {c.executable: c for c in cmds}
+        rect = launched[ns]["rectify_node"]
+        assert rect.parameters["mount"] == mount and rect.parameters["frame_prefix"] == f"{ns}/"
+        assert f"/stereo/left/image_raw:=/{ns}/left/image_raw" in launched[ns]["bag_play"].arguments
+    # every node (the bag player's too) lives in its rig's namespace: no name twice
+    names = [(c.name or c.executable, next(a for a in c.ros_args if a.startswith("__ns:=")))
+             for cmds in launched.values() for c in cmds.values()]
+    assert len(names) == len(set(names))
+    probe = Probe(ros_processes.domain_id, namespace="/")
+    try:
+        got = {ns: [] for ns in mounts}
+        for ns in mounts:
+            probe.node.create_subscription(String, f"/{ns}/stereo_geometry", got[ns].append, latched_qos())
+        ros_processes.start_launched([launched[ns]["rectify_node"] for ns in mounts])
+        assert wait_for(lambda: all(got.values()), 60.0, group=ros_processes), ros_processes.logs()
+    finally:
+        probe.close()
+    for ns, mount in mounts.items():
+        g = parse_stereo_geometry(got[ns][0])
+        assert g.world_frame == f"{ns}/canopy_world" and g.frames["parent"] == "base_link"
+        assert all(v.startswith(f"{ns}/") for k, v in g.frames.items() if v and k != "parent")
+        np.testing.assert_allclose(g.lookup("base_link", f"{ns}/canopy_world"), pose_matrix(mount), atol=1e-12)

@@ -242,3 +242,37 @@ def test_latest_only_processes_the_newest_jobs_and_drops_superseded_ones(ctx):
         assert node.stats()["drops"] == {"pair: superseded by newer ones while the node was busy": 2}
     finally:
         node.destroy_node()
+
+
+def test_segment_node_checks_rect_against_the_image_size(ctx):
+    """A rect outside the images is refused where their size is known: at start (image_width and
+    image_height given), and by a later ``ros2 param set`` once an image has been seen; one that
+    fits is accepted."""
+    from canopy_stereo.ros.nodes.segment import SegmentNode
+
+    with pytest.raises(CanopyStereoError, match=r"rectangle 5000,5000,100,100 lies \(almost\) outside the 640x480"):
+        _make(ctx, SegmentNode, False, image_width=640, image_height=480, rect=[5000, 5000, 100, 100])
+    node = _make(ctx, SegmentNode, False, rect=[5000, 5000, 100, 100])  # size unknown yet: accepted
+    try:
+        node.image_size_seen = (640, 480)  # as after the first image
+        result = node.set_parameters([Parameter("rect", value=[5000, 5000, 100, 100])])[0]
+        assert not result.successful and "outside the 640x480 image" in result.reason
+        assert node.set_parameters([Parameter("rect", value=[100, 80, 300, 250])])[0].successful
+    finally:
+        node.destroy_node()
+
+
+def test_disparity_node_checks_disp_max_against_the_image_width(ctx):
+    """The rig's image_width is known: a disp_max at or beyond it is refused at start and by a
+    later ``ros2 param set``."""
+    from canopy_stereo.ros.nodes.disparity import DisparityNode
+
+    with pytest.raises(CanopyStereoError, match=r"disp_max \(700\) must be smaller than the image width \(640 px\)"):
+        _make(ctx, DisparityNode, True, disp_max=700)
+    node = _make(ctx, DisparityNode, True)
+    try:
+        result = node.set_parameters([Parameter("disp_max", value=640)])[0]
+        assert not result.successful and "image width (640 px)" in result.reason
+        assert node.set_parameters([Parameter("disp_max", value=96)])[0].successful
+    finally:
+        node.destroy_node()

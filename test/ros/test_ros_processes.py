@@ -131,14 +131,14 @@ def test_every_node_process_reports_on_diagnostics(graph):
         for st in deserialize_message(data, DiagnosticArray).status:
             statuses.setdefault(st.name, []).append(st)
     names = {name.split(":")[0] for name in statuses}
-    assert set(NODES) <= names
-    rect = max((status_values(s) for s in statuses["rectify_node: pipeline"]),
+    assert {f"stereo/{n}" for n in NODES} <= names  # namespaced: two rigs never share a status name
+    rect = max((status_values(s) for s in statuses["stereo/rectify_node: pipeline"]),
                key=lambda v: float(v.get("out /stereo/left/image_rect Hz", 0)))
     assert 5.0 < float(rect["in /stereo/left/image_raw Hz"]) < 15.0
     assert 5.0 < float(rect["out /stereo/left/image_rect Hz"]) < 15.0
     assert 3.5 < float(rect["pair offset ms mean"]) < 4.5  # the driver's right images are 4 ms late
     assert 0 < float(rect["latency median ms"]) < 1000
-    pc = [status_values(s) for s in statuses["point_cloud_node: pipeline"]]
+    pc = [status_values(s) for s in statuses["stereo/point_cloud_node: pipeline"]]
     assert any(float(v.get("out /stereo/points2 Hz", 0)) > 5.0 for v in pc)
     assert all("dropped" in v and "busy %" in v for v in pc)
 

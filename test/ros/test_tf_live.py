@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 import time
@@ -26,6 +25,7 @@ from canopy_stereo.geometry.frames import quaternion_to_rotation, stereo_transfo
 from canopy_stereo.geometry.rectification import fusiello_rectify  # noqa: E402
 from canopy_stereo.io.rig import load_rig  # noqa: E402
 from canopy_stereo.ros.context import private_domain_id  # noqa: E402
+from test.support.build_tf2_msgs import environment  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -53,24 +53,9 @@ rclpy.shutdown()
 """
 
 
-@pytest.fixture(scope="module")
-def tf2_msgs_build(tmp_path_factory):
-    if not (shutil.which("gcc") and shutil.which("g++")):
-        pytest.skip("no C/C++ compiler to build tf2_msgs' type support")
-    pytest.importorskip("catkin_pkg")
-    out = tmp_path_factory.mktemp("tf2_msgs")
-    env = dict(os.environ, AMENT_PREFIX_PATH=sys.prefix)
-    proc = subprocess.run([sys.executable, str(REPO / "test" / "support" / "build_tf2_msgs.py"), str(out)],
-                          env=env, capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    return out
-
-
 def _env(build, domain):
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    env["PYTHONPATH"] = os.pathsep.join([str(build / "python"), str(REPO), env.get("PYTHONPATH", "")])
-    env["LD_LIBRARY_PATH"] = os.pathsep.join([str(build / "lib"), env.get("LD_LIBRARY_PATH", "")])
-    return env
+    return environment(build, dict(os.environ, ROS_DOMAIN_ID=str(domain),
+                                   ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST"))
 
 
 def test_generated_tf2_msgs_is_the_real_type(tf2_msgs_build):

@@ -2,7 +2,7 @@
 watering can, a green box, a pot with soil and a green stake; two plants that are not green
 (purple, silver, yellowing, variegated) side by side; a seedling tray. The depth cue is the
 cloud the pipeline reconstructs (ELAS) from the rendered pair."""
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import pytest
@@ -17,7 +17,7 @@ SCENES = [("potted_distractors", 0), ("potted_distractors", 1), ("pots_side_by_s
           ("pots_side_by_side", 1), ("seedling_tray", 0)]
 
 
-@lru_cache(maxsize=None)
+@cache
 def segmented(name, seed):
     sim = render_scene(name, seed=seed)
     rec = reconstruct_pair(sim.left, sim.right, sim.rig)

@@ -116,5 +116,16 @@ def build(out: pathlib.Path, prefix: pathlib.Path = pathlib.Path(sys.prefix)) ->
     return out
 
 
+def environment(out, base: dict | None = None) -> dict:
+    """``base`` (default: this process's environment) with the build at ``out`` importable:
+    ``OUT/python`` and the checkout on PYTHONPATH, ``OUT/lib`` on LD_LIBRARY_PATH."""
+    env = dict(os.environ if base is None else base)
+    repo = pathlib.Path(__file__).resolve().parents[2]
+    out = pathlib.Path(out)
+    env["PYTHONPATH"] = os.pathsep.join([str(out / "python"), str(repo), env.get("PYTHONPATH", "")])
+    env["LD_LIBRARY_PATH"] = os.pathsep.join([str(out / "lib"), env.get("LD_LIBRARY_PATH", "")])
+    return env
+
+
 if __name__ == "__main__":
     print(build(pathlib.Path(sys.argv[1])))

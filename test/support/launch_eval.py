@@ -18,8 +18,9 @@ API the file uses, and the tests then start the resulting command lines as proce
   ``<executable> <arguments> --ros-args -r __node:=<name> -r __ns:=<namespace>
   --params-file <file>...``, where each parameter *dict* is written to a temporary
   parameter file under ``/**`` with every performed string value read as YAML (as
-  launch_ros does: ``"15.0"`` becomes a double, ``"false"`` a bool), and each path is
-  passed as ``--params-file`` itself;
+  launch_ros does: ``"15.0"`` becomes a double, ``"false"`` a bool, ``"[1, 2]"`` a list;
+  an empty string is YAML null, which launch_ros rejects, and so does this), and each
+  path is passed as ``--params-file`` itself;
 * ``FindPackageShare("canopy_stereo")`` is the package's share directory when the ament
   index knows it, else the checkout (it has the same ``config/``, ``launch/``, ``bags/``).
 """
@@ -241,14 +242,19 @@ def evaluate(arguments: dict | None = None, path: Path = LAUNCH_FILE, param_dir:
 
 
 def _parameter_value(value, context):
-    """launch_ros: a performed substitution is read as YAML; plain Python values stay."""
+    """launch_ros (``evaluate_parameter_dict``): a performed substitution is read as YAML and
+    must give a scalar or a non-empty list of one type (an empty string, YAML null, is a
+    TypeError there: quote it); plain Python values stay."""
     if isinstance(value, (bool, int, float)) or value is None:
         return value
     if isinstance(value, (list, tuple)) and not any(hasattr(v, "perform") for v in value):
         return list(value)
     text = perform(value, context)
-    try:
-        parsed = yaml.safe_load(text)
-    except yaml.YAMLError:
-        return text
-    return text if isinstance(parsed, (dict, list)) or parsed is None else parsed
+    parsed = yaml.safe_load(text)
+    if type(parsed) in (bool, int, float, str, bytes):
+        return parsed
+    if isinstance(parsed, list) and parsed and type(parsed[0]) in (bool, int, float, str) \
+            and all(isinstance(v, type(parsed[0])) for v in parsed):
+        return parsed
+    raise TypeError(f"launch_ros rejects the parameter value {text!r} (YAML {type(parsed).__name__}): "
+                    "allowed are bool, int, float, str and non-empty lists of one of them")

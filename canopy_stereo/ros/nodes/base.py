@@ -38,6 +38,7 @@ from collections import Counter, deque
 
 import rclpy
 from rcl_interfaces.msg import ParameterType
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException, ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -45,17 +46,21 @@ from rclpy.parameter import Parameter
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.ros.context import tune_node_process
+from canopy_stereo.ros.context import init_ros, tune_node_process
 from canopy_stereo.ros.diagnostics import DEFAULT_PERIOD_S, NodeDiagnostics
 from canopy_stereo.ros.intra_process import IntraProcessBus, LocalSubscription
 from canopy_stereo.ros.params import flag_descriptor, number_descriptor, text_descriptor
 from canopy_stereo.ros.qos import OUTPUT_DEPTH, RELIABILITY_CHOICES, publisher_qos, sensor_data_qos, subscription_qos
+from canopy_stereo.ros.stamps import ZERO_STAMP_CHOICES, StampCheck
 
 #: Namespace of the nodes when none is given (``--ros-args -r __ns:=/x`` overrides it).
 DEFAULT_NAMESPACE = "/stereo"
 
 #: Seconds between repeated log lines for the same drop reason.
 DROP_LOG_PERIOD_S = 5.0
+
+#: Frame size (width, height) nodes warm up on when the rig's image size is not given.
+WARM_UP_SIZE = (640, 480)
 
 #: Distinct drop reasons counted one by one; later ones count as "other reasons" (a sender
 #: varying its image sizes must not grow the counters without bound).
@@ -91,6 +96,8 @@ class CanopyNode(Node):
         self.counts: Counter = Counter()
         self.busy_s = 0.0
         self.drops: Counter = Counter()
+        self.warnings: Counter = Counter()  # reason -> inputs kept with a warning (see warn)
+        self.warm_up_s = 0.0  # seconds the warm-up before subscribing took (see warm_up)
         self._drop_logged: dict[str, float] = {}
         self._jump_logged = float("-inf")
         self._jumps_unlogged = 0
@@ -172,7 +179,7 @@ class CanopyNode(Node):
         return _CountedPublisher(pub, self.diagnostics, self.intra_process)
 
     def make_subscription(self, msg_type, topic: str, callback, *, depth: int | None = None,
-                          sensor_data: bool = False, **kwargs):
+                          sensor_data: bool = False, with_info: bool = False, **kwargs):
         """Reliable keep-last subscription (:func:`~canopy_stereo.ros.qos.subscription_qos`)
         whose callback is :meth:`guarded` and counted in the node's diagnostics.
         ``sensor_data``: REP 2003's sensor-data QoS instead (best effort, keep last), for
@@ -181,6 +188,9 @@ class CanopyNode(Node):
         ``qos_overrides.<topic>.subscription.reliability: best_effort`` (a node parameter)
         accepts a best-effort publisher (large messages between processes may then be lost).
 
+        ``with_info``: ``callback(msg, info)`` with rclpy's message info (a dict with
+        ``received_timestamp`` and ``source_timestamp``, ns; None from an intra-process bus).
+
         With an intra-process bus, a topic that another node of the bus publishes is
         received from the bus instead (a :class:`~canopy_stereo.ros.intra_process.LocalSubscription`
         with the same keep-last depth; its QoS overrides do not apply).
@@ -188,10 +198,10 @@ class CanopyNode(Node):
         diagnostics = self.diagnostics
         name = topic
 
-        def counted(msg):
+        def counted(msg, info=None):
             stamp = _header_stamp_ns(msg)
             diagnostics.received(name, stamp)
-            return callback(msg)
+            return callback(msg, info) if with_info else callback(msg)
 
         if self.intra_process is not None and not kwargs:
             resolved = self.resolve_topic_name(topic)
@@ -202,11 +212,24 @@ class CanopyNode(Node):
                 self.local_subscriptions.append(sub)
                 return sub
         qos = sensor_data_qos(depth) if sensor_data else subscription_qos(depth)
-        sub = self.create_subscription(msg_type, topic, self.guarded(counted), qos,
+        guarded = self.guarded(counted)
+        if with_info:  # rclpy passes the message info to callbacks of exactly two arguments
+            def with_message_info(msg, info):
+                return guarded(msg, info)
+        kwargs.setdefault("event_callbacks", SubscriptionEventCallbacks(
+            message_lost=lambda info: self._samples_lost(topic, info)))
+        sub = self.create_subscription(msg_type, topic, with_message_info if with_info else guarded, qos,
                                        qos_overriding_options=QoSOverridingOptions.with_default_policies(),
                                        **kwargs)
         name = sub.topic_name
         return sub
+
+    def _samples_lost(self, topic: str, info) -> None:
+        """Fast DDS reports samples a publisher sent that will never arrive (its history dropped
+        them before this reader had them all): drops on /diagnostics, naming the topic."""
+        for _ in range(max(0, int(getattr(info, "total_count_change", 0)))):
+            self.drop("lost in transport: the publisher's sample never arrived whole (DDS sample lost; "
+                      "README: camera drivers that are not ours)", self.resolve_topic_name(topic))
 
     # ------------------------------------------------------------------ accounting
     def count(self, what: str, n: int = 1) -> None:
@@ -251,6 +274,83 @@ class CanopyNode(Node):
         suffix = f" ({n} so far)" if n > 1 else ""
         detail = f" (last: {reason})" if key.endswith(": other reasons") else ""
         self.get_logger().warning(f"dropped {key}{detail}{suffix}")
+
+    def declare_frame_size(self) -> None:
+        """Declare ``image_width`` and ``image_height`` (the rig file sets them): the size of the
+        frames the node prepares for before subscribing (see :meth:`warm_up_size`)."""
+        for name in ("image_width", "image_height"):
+            self.declare_number(name, 0, f"{name.split('_')[1]} of the rig's images in pixels (the rig file "
+                                "sets it): kernels and buffers are prepared on frames of this size before "
+                                f"the node subscribes; 0 = {WARM_UP_SIZE[0]}x{WARM_UP_SIZE[1]}",
+                                minimum=0, maximum=16384, read_only=True)
+
+    def warm_up_size(self) -> tuple[int, int]:
+        """``(width, height)`` of the frame to warm up on: ``image_width``/``image_height`` when
+        declared and set, else :data:`WARM_UP_SIZE`."""
+        if self.has_parameter("image_width") and self.has_parameter("image_height"):
+            w, h = (int(self.get_parameter(n).value or 0) for n in ("image_width", "image_height"))
+            if w > 0 and h > 0:
+                return w, h
+        return WARM_UP_SIZE
+
+    def warm_up(self, what: str, fn) -> float:
+        """Run ``fn()`` once before the node subscribes: its numba kernels are loaded (or, with
+        an empty cache, compiled) and its buffers allocated on a frame of the rig's size, so
+        that the first frame of a stream is processed as fast as the others. Logs how long it
+        took; a failure is logged and the node goes on (the first frame then pays). Returns the
+        seconds spent."""
+        t0 = time.perf_counter()
+        try:
+            fn()
+        except Exception as exc:  # noqa: BLE001 - a warm-up never stops a node
+            self.get_logger().warning(f"warm-up failed ({type(exc).__name__}: {exc}); the first "
+                                      "frame will load the kernels")
+        self.warm_up_s = time.perf_counter() - t0
+        self.diagnostics.restart()  # the first report covers the node's time ready, not its warm-up
+        self.get_logger().info(f"ready in {self.warm_up_s:.2f} s ({what}) before subscribing")
+        return self.warm_up_s
+
+    def warn(self, reason: str, what: str = "message") -> None:
+        """Report an input that is kept but suspicious (WARN on /diagnostics; logged at most
+        every :data:`DROP_LOG_PERIOD_S` per reason)."""
+        key = f"{what}: {reason}"
+        self.diagnostics.warned(key)
+        now = time.monotonic()
+        with self._stats_lock:
+            self.warnings[key] += 1
+            n = self.warnings[key]
+            last = self._drop_logged.get(key)
+            if last is not None and now - last < DROP_LOG_PERIOD_S:
+                return
+            self._drop_logged[key] = now
+        self.get_logger().warning(f"{key}" + (f" ({n} so far)" if n > 1 else ""))
+
+    def declare_stamp_checks(self, n_streams: int) -> StampCheck:
+        """Declare ``zero_stamps`` and ``max_stamp_gap`` and return the :class:`StampCheck` of
+        ``n_streams`` input streams they configure (:mod:`canopy_stereo.ros.stamps`)."""
+        self.declare_text("zero_stamps", "restamp", "frames stamped 0 (a driver that does not stamp): "
+                          "restamp = use the receive time, drop = drop them; a warning either way",
+                          choices=ZERO_STAMP_CHOICES, read_only=True)
+        self.declare_number("max_stamp_gap", 0.0, "seconds a frame's stamp may differ from its receive "
+                            "time before a warning naming the gap (0 = never; a bag played with its "
+                            "recorded stamps is far from now)", minimum=0.0, maximum=1e9, read_only=True)
+        zero = self.get_parameter("zero_stamps").value
+        if zero not in ZERO_STAMP_CHOICES:
+            raise CanopyStereoError(f"zero_stamps must be one of {', '.join(ZERO_STAMP_CHOICES)}, got {zero!r}")
+        return StampCheck(n_streams, zero_stamps=zero, max_gap_s=float(self.get_parameter("max_stamp_gap").value))
+
+    def checked_stamp(self, check: StampCheck, stream: int, stamp_ns: int, what: str, *,
+                      info: dict | None = None) -> int | None:
+        """The stamp to use for an input of ``stream`` stamped ``stamp_ns`` (None: dropped as a
+        duplicate or a zero stamp), warnings and drops reported as ``what``. The receive time is
+        the middleware's (``info['received_timestamp']``, see :meth:`make_subscription`), else now."""
+        received = (info or {}).get("received_timestamp") or self.get_clock().now().nanoseconds
+        verdict = check.check(stream, stamp_ns, int(received))
+        for reason in verdict.warnings:
+            self.warn(reason, what)
+        if verdict.stamp_ns is None:
+            self.drop(verdict.drop_reason, what)
+        return verdict.stamp_ns
 
     def guarded(self, fn):
         """Wrap a callback: user-fixable errors drop the message, anything else is
@@ -445,14 +545,19 @@ def run_node(factory, args=None) -> int:
     """Entry point body of a node executable: init, build, spin until Ctrl-C/SIGTERM.
 
     ``factory()`` builds the node after ``rclpy.init`` (so ``--ros-args`` apply).
-    A configuration error (:class:`CanopyStereoError`, e.g. no rig) is printed as
-    one line and gives exit status 2.
+    A configuration error (:class:`CanopyStereoError`: no rig, a broken rig file, a bad
+    ``--params-file`` or ``--ros-args``, see :func:`~canopy_stereo.ros.context.init_ros`)
+    is printed as one line and gives exit status 2.
     """
     from rclpy.executors import SingleThreadedExecutor
 
     args = sys.argv if args is None else args
-    tune_node_process()
-    rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    tune_node_process(args)  # before rclpy.init: the DDS profile for this node's topics
+    try:
+        init_ros(args)  # a bad --params-file or --ros-args: one line, exit 2
+    except CanopyStereoError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     install_stop_signals()
     node = executor = None
     try:

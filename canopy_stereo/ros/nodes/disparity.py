@@ -135,6 +135,8 @@ class DisparityNode(CanopyNode):
             for parameter in spec.parameters:
                 self.declare_parameter(f"{matcher}.{parameter.name}", None,
                                        matcher_parameter_descriptor(spec, parameter))
+        self.declare_frame_size()
+        self.image_width_seen = 0  # width of the latest rectified camera_info (0: none yet)
         self._config_lock = threading.Lock()
         self.config = self._build_config({})
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -144,6 +146,8 @@ class DisparityNode(CanopyNode):
         self.pub = self.make_publisher(DisparityImage, "disparity")
         self.matching = self.latest_only(self._match, "rectified pair",
                                          depth=int(self.get_parameter("waiting_pairs").value))
+        w, h = self.warm_up_size()
+        self.warm_up(f"{self.config['matcher']} on {w}x{h} pairs", self._warm_up)
         self.sub_left = self.make_subscription(Image, "left/image_rect", lambda m: self._on_image(0, m))
         self.sub_right = self.make_subscription(Image, "right/image_rect", lambda m: self._on_image(1, m))
         self.sub_info_left = self.make_subscription(CameraInfo, RECT_INFO_TOPICS[0],
@@ -169,6 +173,9 @@ class DisparityNode(CanopyNode):
         dmin, dmax = (None if dmin < 0 else dmin), (None if dmax < 0 else dmax)
         if dmin is not None and dmax is not None and dmax <= dmin:
             raise CanopyStereoError(f"disp_max ({dmax}) must be greater than disp_min ({dmin})")
+        width = self.image_width_seen or int(self.get_parameter("image_width").value)
+        if dmax is not None and width > 0 and dmax >= width:  # the image size is known: check against it
+            raise CanopyStereoError(f"disp_max ({dmax}) must be smaller than the image width ({width} px)")
         params = {}
         for name in available_matchers():  # every value set is checked; the active matcher's are used
             for parameter in matcher_spec(name).parameters:
@@ -212,6 +219,7 @@ class DisparityNode(CanopyNode):
         self.count(f"{('left', 'right')[stream - 2]}_camera_info_received")
         if msg.width > 0 and msg.height > 0:  # images must have the rectified cameras' size
             self.expected_size = (int(msg.width), int(msg.height))
+            self.image_width_seen = int(msg.width)
         self._push(stream, msg, msg)
 
     def _push(self, stream: int, msg, item) -> None:
@@ -222,6 +230,20 @@ class DisparityNode(CanopyNode):
         if items is not None:
             (left, frame_id), (right, _), info_l, info_r = items
             self.matching.submit(stamp, frame_id, left, right, info_l, info_r)
+
+    def _warm_up(self) -> None:
+        """The configured matcher on a synthetic textured pair of the rig's size (its kernels
+        loaded or compiled, its buffers allocated), nothing published."""
+        from canopy_stereo.sim.stereo_pair import synthetic_pair
+
+        c = self.config
+        w, h = self.warm_up_size()
+        lo = 0 if c["disp_min"] is None else c["disp_min"]
+        hi = lo + TYPICAL_RANGE if c["disp_max"] is None else c["disp_max"]
+        left, right, _ = synthetic_pair(w, h, plane=(0.0, 0.0, float((lo + hi) // 2)), texture="blocks")
+        apply_thread_budget(c["threads"])
+        disp = compute_disparity(left, right, matcher=c["matcher"], disp_min=lo, disp_max=hi, **c["params"])
+        disparity_to_msg(disp, 500.0, 0.1, lo, hi, delta_d=c["delta_d"], stamp_ns=1, frame_id="")
 
     def _match(self, stamp_ns: int, frame_id: str, left, right, info_l, info_r) -> None:
         with self._config_lock:

@@ -154,6 +154,7 @@ class PointCloudNode(CanopyNode):
         self.declare_number("queue_size", 15, "stamps kept while waiting for the other inputs with "
                             "the same stamp (colour images arrive a disparity computation earlier)",
                             minimum=1, maximum=100, read_only=True)
+        self.declare_frame_size()
         self.use_mask = bool(self.get_parameter("use_mask").value)
         if self.get_parameter("cloud_frame").value not in CLOUD_FRAMES:
             raise CanopyStereoError(f"cloud_frame must be one of {', '.join(CLOUD_FRAMES)}, got "
@@ -174,6 +175,8 @@ class PointCloudNode(CanopyNode):
         self.pub_depth_info = self.make_publisher(CameraInfo, "left/depth/camera_info")
         self.sub_geometry = self.create_subscription(String, STEREO_GEOMETRY_TOPIC,
                                                      self.guarded(self._on_geometry), latched_qos())
+        w, h = self.warm_up_size()
+        self.warm_up(f"reprojection of {w}x{h} disparities", self._warm_up)
         self.sub_disp = self.make_subscription(DisparityImage, "disparity", lambda m: self._on(0, m))
         self.sub_color = self.make_subscription(Image, "left/image_rect_color", lambda m: self._on(1, m))
         self.sub_info = self.make_subscription(CameraInfo, RECT_INFO_TOPICS[0], lambda m: self._on(2, m))
@@ -189,6 +192,22 @@ class PointCloudNode(CanopyNode):
                 return SetParametersResult(successful=False, reason=f"cloud_frame must be one of "
                                            f"{', '.join(CLOUD_FRAMES)}, got {p.value!r}")
         return SetParametersResult(successful=True)
+
+    def _warm_up(self) -> None:
+        """A disparity of the rig's size through conversion and reprojection into cloud and
+        depth messages (the kernel loaded or compiled, the buffers allocated), nothing published."""
+        w, h = self.warm_up_size()
+        rng = np.random.default_rng(0)
+        disp = rng.uniform(10.0, 40.0, (h, w)).astype(np.float32)
+        disp[::7] = np.nan
+        bgr = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+        Q = np.array([[1.0, 0, 0, -w / 2], [0, 1, 0, -h / 2], [0, 0, 0, 500.0], [0, 0, 10.0, 0]])
+        mask = np.full((h, w), 255, np.uint8) if self.use_mask else None
+        for organized in (False, True):
+            records, depth = reproject_disparity_records(disp, Q, T=np.eye(4), rgb=pack_bgr_image(bgr),
+                                                         mask=mask, organized=organized)
+            records_to_cloud2(records, 1, frame_id="", organized_shape=(h, w) if organized else None)
+        depth_to_msg(depth, 1, frame_id="")
 
     def _on_geometry(self, msg: String) -> None:
         try:

@@ -23,22 +23,34 @@ frame's stamp:
   matrices);
 * ``stereo_geometry`` (latched): what a ``CameraInfo`` cannot carry
   (:mod:`canopy_stereo.ros.stereo_geometry`);
-* ``/tf_static`` (latched, when tf2_msgs is importable): ``canopy_world_z_up ->
-  canopy_world -> {left,right}_camera_optical_frame, {left,right}_camera_rect_optical_frame``.
+* ``/tf_static`` (latched, when tf2_msgs is importable and ``publish_tf`` is true):
+  ``canopy_world_z_up -> canopy_world -> {left,right}_camera_optical_frame,
+  {left,right}_camera_rect_optical_frame``; mounted (``parent_frame`` set):
+  ``parent_frame -> canopy_world -> {the cameras, canopy_world_z_up}``.
+
+Mounting on a robot (REP 105): ``parent_frame`` (the robot frame carrying the rig, e.g.
+``base_link`` or ``tool0``; "" = the world frame is a root), ``mount`` (seven numbers
+``x y z qx qy qz qw``, metres: the rig's world frame in ``parent_frame``) or instead
+``camera_mount`` (seven numbers: the raw left camera's optical frame in ``parent_frame``,
+as a hand-eye calibration gives it), ``publish_tf`` (false when the robot's URDF and
+robot_state_publisher already own the camera frames: then nothing goes to ``/tf_static``;
+``stereo_geometry`` still carries the rig's transforms), ``frame_prefix`` (prepended to
+every frame the rig names, e.g. ``rig_a/``, so that two rigs share one TF tree).
 
 Parameters: the rig (:mod:`canopy_stereo.ros.params`), or ``use_camera_info`` (true: the rig
 from the drivers' ``left/camera_info`` and ``right/camera_info``, as image_pipeline takes it;
 frames before both arrive are dropped; :mod:`canopy_stereo.ros.camera_info_rig`),
 ``method`` (empty = the rig's),
 ``H_left``/``H_right`` (unset = the rig's; the rectification is
-:func:`~canopy_stereo.geometry.rig_rectification.rectification_for_rig`'s), ``fps`` (the cameras' frame rate, 0 =
-measured from the
-stamps), ``sync_slop`` (s; -1 = half a frame period at ``fps``), ``queue_size``,
+:func:`~canopy_stereo.geometry.rig_rectification.rectification_for_rig`'s), ``fps`` (the
+cameras' frame rate, 0 = measured from the stamps), ``sync_slop`` (s; -1 = half a frame
+period at ``fps``), ``queue_size``,
 ``frame_id`` (rectified left optical frame) and ``right_frame_id`` ("" = ``frame_id`` in the
 messages, ``right_camera_rect_optical_frame`` in the transforms), ``world_frame``,
 ``world_z_up_frame`` ("" = none), ``image_transport`` (``raw``/``compressed``),
 ``left_camera_frame``/``right_camera_frame`` (raw optical frames in the transforms),
-``skew_compensation``, ``reliability``, ``diagnostic_period``.
+``zero_stamps``, ``max_stamp_gap``, the mounting parameters above, ``skew_compensation``,
+``reliability``, ``diagnostic_period``.
 
 Skew compensation (``skew_compensation``, default true): free-running webcams capture
 up to half a frame apart; each pair's right image is brought to the left image's
@@ -52,6 +64,12 @@ little texture, ...; those pairs go on as they came, logged once per reason).
 Stamps that go back further than the pairing tolerance (a looping bag, a
 restarted driver) reset the pairing with one log line; pairing goes on.
 
+Stamps that make no sense (:mod:`canopy_stereo.ros.stamps`): a zero stamp is restamped with
+the receive time (``zero_stamps: restamp``, the default) or dropped (``drop``), a warning on
+``/diagnostics`` either way; a stamp repeated by the driver is dropped as ``duplicate stamp``
+(and its gap not counted as lost); ``max_stamp_gap`` (s, 0 = off) warns about stamps that far
+from the receive time, naming the gap.
+
 Frames that never reached the node (overwritten in its keep-last input queue while it
 was busy, or lost upstream) are counted as drops (``left frame: missed ...``, in
 ``/diagnostics``): a gap of ``k`` frame periods between two left stamps (the period
@@ -60,6 +78,7 @@ longer than 2 s are pauses, not losses.
 """
 from __future__ import annotations
 
+import numpy as np
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import String
 
@@ -69,6 +88,7 @@ from canopy_stereo.geometry.frames import (
     WORLD_FRAME,
     WORLD_Z_UP_FRAME,
     FrameNames,
+    prefixed_frames,
     stereo_info_frame,
     stereo_transforms,
 )
@@ -84,6 +104,7 @@ from canopy_stereo.ros.convert import (
     uncalibrated_camera_info,
 )
 from canopy_stereo.ros.limits import check_image_msg
+from canopy_stereo.ros.mounting import declare_mount_parameters, mount_from_node
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.params import declare_rig_parameters, rectification_from_node, rig_from_node
 from canopy_stereo.ros.stereo_geometry import STEREO_GEOMETRY_TOPIC, stereo_geometry_msg
@@ -143,21 +164,26 @@ class RectifyNode(CanopyNode):
         self.declare_flag("use_camera_info", False, "take the rig from the drivers' left/camera_info and "
                           "right/camera_info (REP 104, as image_pipeline does) instead of a rig file",
                           read_only=True)
+        declare_mount_parameters(self)
         self.rig = None
         p = {name: str(self.get_parameter(name).value) for name in _FRAME_PARAMETERS}
-        self.frames = FrameNames(world=p["world_frame"], world_z_up=p["world_z_up_frame"],
-                                 raw_left=p["left_camera_frame"], raw_right=p["right_camera_frame"],
-                                 rect_left=p["frame_id"],
-                                 rect_right=p["right_frame_id"] or DEFAULT_FRAMES[("rect", "right")])
+        self.mounting = mount_from_node(self)
+        self.frames = prefixed_frames(FrameNames(
+            world=p["world_frame"], world_z_up=p["world_z_up_frame"], raw_left=p["left_camera_frame"],
+            raw_right=p["right_camera_frame"], rect_left=p["frame_id"],
+            rect_right=p["right_frame_id"] or DEFAULT_FRAMES[("rect", "right")],
+            parent=self.mounting.parent_frame), self.mounting.frame_prefix)
         self.frame_id = self.frames.rect_left
         #: frame ids of the left and right rectified messages (one, unless right_frame_id is set)
-        self.message_frames = (self.frame_id, p["right_frame_id"] or stereo_info_frame(self.frames, "rect"))
+        self.message_frames = (self.frame_id, self.frames.rect_right if p["right_frame_id"]
+                               else stereo_info_frame(self.frames, "rect"))
         slop = float(self.get_parameter("sync_slop").value)
         fps = float(self.get_parameter("fps").value)
         # sync_slop >= 0 is fixed; otherwise half a frame period, measured unless fps is given
         self.period_estimator = FramePeriodEstimator() if slop < 0 and fps <= 0 else None
         if slop < 0:
             slop = slop_for_rate(fps) if fps > 0 else INITIAL_SLOP_S
+        self.stamp_check = self.declare_stamp_checks(2)  # zero, duplicate, far-off stamps
         self.left_gaps = FramePeriodEstimator(1, max_interval_s=MISSED_MAX_GAP_S)
         self._last_left_ns = None
         self.pairer = ApproximateTimePairer(slop, int(self.get_parameter("queue_size").value),
@@ -168,37 +194,56 @@ class RectifyNode(CanopyNode):
         self.pub_info_left = self.make_publisher(CameraInfo, RECT_INFO_TOPICS[0])
         self.pub_info_right = self.make_publisher(CameraInfo, RECT_INFO_TOPICS[1])
         self.pub_geometry = self.create_publisher(String, STEREO_GEOMETRY_TOPIC, latched_qos())
-        # compressed frames (30-160 kB) cross processes best effort without loss on Fast DDS
-        # (benchmarks/bench_transport_qos.py), raw ones (0.9 MB) do not: REP 2003's
-        # sensor-data QoS for compressed input, which also matches best-effort drivers
-        in_type, packed = (Image, False) if self.transport == "raw" else (CompressedImage, True)
-        self.sub_left = self.make_subscription(in_type, input_topic("left/image_raw", self.transport),
-                                               lambda m: self._on_image(0, m), sensor_data=packed)
-        self.sub_right = self.make_subscription(in_type, input_topic("right/image_raw", self.transport),
-                                                lambda m: self._on_image(1, m), sensor_data=packed)
+        #: the rig's transform tree ``[(parent, child, T_parent_child)]`` (metres), mount included,
+        #: and what of it goes to /tf_static and into recordings (nothing when the robot owns the
+        #: frames); empty until the rig is known
+        self.transforms: list = []
+        self.tf_transforms: list = []
         if self.get_parameter("use_camera_info").value:
             from canopy_stereo.ros.camera_info_rig import CameraInfoRig
 
+            self._subscribe()
             self.camera_info_rig = CameraInfoRig(self, self.guarded(self._use_rig))
             self.get_logger().info("waiting for left/camera_info and right/camera_info (the rig)")
         else:
-            self._use_rig(rig_from_node(self))
+            self._use_rig(rig_from_node(self))  # warmed up on the rig's size, then subscribed
+            self._subscribe()
+
+    def _subscribe(self) -> None:
+        """The camera image subscriptions (with the middleware's receive time, for zero stamps).
+        Compressed frames (30-160 kB) cross processes best effort without loss on Fast DDS
+        (benchmarks/bench_transport_qos.py), raw ones (0.9 MB) do not: REP 2003's sensor-data
+        QoS for compressed input, which also matches best-effort drivers."""
+        in_type, packed = (Image, False) if self.transport == "raw" else (CompressedImage, True)
+        self.sub_left = self.make_subscription(in_type, input_topic("left/image_raw", self.transport),
+                                               lambda m, i: self._on_image(0, m, i), sensor_data=packed,
+                                               with_info=True)
+        self.sub_right = self.make_subscription(in_type, input_topic("right/image_raw", self.transport),
+                                                lambda m, i: self._on_image(1, m, i), sensor_data=packed,
+                                                with_info=True)
 
     def _use_rig(self, rig) -> None:
         """Rectify with ``rig`` from now on; publish its geometry and static transforms (latched)."""
         self.rect = rectification_from_node(self, rig)
         self.rectifier = StereoRectifier(rig, self.rect)
         self.rig = rig
-        self.pub_geometry.publish(stereo_geometry_msg(self.rig, self.rect, self.frames))
-        self.transforms = stereo_transforms(self.rig, self.rect, names=self.frames)
-        self.tf_static = StaticTransformPublisher(self, self.transforms)
+        self.transforms = stereo_transforms(self.rig, self.rect, names=self.frames,
+                                            mount=self.mounting.transform(rig))
+        self.pub_geometry.publish(stereo_geometry_msg(self.rig, self.rect, self.frames,
+                                                      transforms=self.transforms))
+        self.tf_transforms = self.transforms if self.mounting.publish_tf else []
+        self.tf_static = StaticTransformPublisher(self, self.tf_transforms)
         if self.rect.method != "fusiello":
             self.get_logger().info("hartley rectification: the rectified camera_info is uncalibrated "
                                    "(a projective rectification has no metric camera)")
-        if not self.tf_static.available:
+        if not self.mounting.publish_tf:
+            self.get_logger().info("publish_tf is false: no /tf_static (the robot's URDF owns the frames "
+                                   f"{', '.join(c for _, c, _ in self.transforms)})")
+        elif not self.tf_static.available:
             self.get_logger().info("tf2_msgs is not installed: no /tf_static (the transforms are on "
                                    f"{STEREO_GEOMETRY_TOPIC} and in recorded bags)")
         w, h = self.rig.image_size
+        self.warm_up(f"rectification of {w}x{h} pairs", self._warm_up)
         self.get_logger().info(f"rectifying {w}x{h} pairs ({self.rect.method}), "
                                f"sync slop {self.pairer.slop_ns / 1e9:g} s"
                                + (" until the frame period is measured" if self.period_estimator else ""))
@@ -210,7 +255,7 @@ class RectifyNode(CanopyNode):
         check_image_msg(msg, expected_size=self.rig.image_size, encodings=COLOUR_ENCODINGS)
         return msg_to_bgr(msg, expected_size=self.rig.image_size)
 
-    def _on_image(self, side: int, msg) -> None:
+    def _on_image(self, side: int, msg, info: dict | None = None) -> None:
         name = ("left", "right")[side]
         self.count(f"{name}_received")
         if self.rig is None:
@@ -221,7 +266,10 @@ class RectifyNode(CanopyNode):
         except Exception as exc:
             self.drop(str(exc), f"{name} frame")
             return
-        stamp = stamp_to_ns(msg.header.stamp)
+        stamp = self.checked_stamp(self.stamp_check, side, stamp_to_ns(msg.header.stamp), f"{name} frame",
+                                   info=info)
+        if stamp is None:  # a duplicate, or a zero stamp with zero_stamps: drop
+            return
         if side == 0:
             self._count_missed(stamp)
         if self.period_estimator is not None:
@@ -258,16 +306,26 @@ class RectifyNode(CanopyNode):
                                    "(paired as it came)")
         return left, right
 
+    def _warm_up(self) -> None:
+        """One pair of the rig's size through conversion and rectification, nothing published."""
+        w, h = self.rig.image_size
+        frame = np.random.default_rng(0).integers(0, 256, (h, w, 3), dtype=np.uint8)
+        bgr = msg_to_bgr(image_to_msg(frame, "bgr8", stamp_ns=1, frame_id=""), expected_size=(w, h))
+        left_r, right_r = self.rectifier.rectify(bgr, bgr)
+        image_to_msg(left_r, "bgr8", stamp_ns=1, frame_id="")
+        image_to_msg(to_gray(right_r), "mono8", stamp_ns=1, frame_id="")
+
     def _count_missed(self, stamp_ns: int) -> None:
         """Count the left frames missing between the previous left stamp and ``stamp_ns``."""
         period_s = self.left_gaps.observe(0, stamp_ns)
         last, self._last_left_ns = self._last_left_ns, stamp_ns
+        duplicates = self.stamp_check.take_duplicates(0)  # sent, with a repeated stamp: not lost
         if period_s is None or last is None:
             return
         gap_s = (stamp_ns - last) / 1e9
         if gap_s <= 1.5 * period_s or gap_s > MISSED_MAX_GAP_S:
             return
-        for _ in range(int(round(gap_s / period_s)) - 1):
+        for _ in range(int(round(gap_s / period_s)) - 1 - duplicates):
             self.drop(MISSED_REASON, "left frame")
 
     def camera_infos(self, stamp_ns: int) -> tuple[CameraInfo, CameraInfo]:

@@ -56,8 +56,9 @@ from canopy_stereo.bag.pairing import ExactTimeSynchronizer
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.ros.convert import COLOUR_ENCODINGS, image_to_msg, msg_to_bgr, msg_to_disparity, stamp_to_ns
 from canopy_stereo.ros.limits import SEGMENT_MIN_SIZE, check_disparity_msg, check_image_msg
-from canopy_stereo.ros.nodes.base import CanopyNode, run_node
+from canopy_stereo.ros.nodes.base import WARM_UP_SIZE, CanopyNode, run_node
 from canopy_stereo.segmentation.auto import VIDEO_SEEDER, decode_setting, seeder_fields
+from canopy_stereo.segmentation.grabcut import clip_rect
 from canopy_stereo.segmentation.propagate import DEFAULT_RECUT_EVERY, MaskPropagator
 
 #: Streams of the exact-time pairing with ``depth_cue``.
@@ -96,6 +97,7 @@ class SegmentNode(CanopyNode):
                             minimum=0, maximum=16384, read_only=True)
         size = (int(self.get_parameter("image_width").value), int(self.get_parameter("image_height").value))
         self.expected_size = size if min(size) > 0 else None
+        self.image_size_seen = None  # (width, height) of the latest image: new rects are checked against it
         self.settings = self._settings({})
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.pub = self.make_publisher(Image, "left/mask")
@@ -106,8 +108,22 @@ class SegmentNode(CanopyNode):
             self.sync = ExactTimeSynchronizer(2, max(depth, 5), on_jump=self.time_jump_handler(_STREAMS))
             self.sub_disp = self.make_subscription(DisparityImage, "disparity", lambda m: self._on(1, m),
                                                    depth=depth)
+        w, h = self.expected_size or WARM_UP_SIZE
+        self.warm_up(f"segmentation of {w}x{h} images", self._warm_up)
         self.sub = self.make_subscription(Image, "left/image_rect_color", lambda m: self._on(0, m),
                                           depth=depth)
+
+    def _warm_up(self) -> None:
+        """A full cut and a propagated frame on a synthetic image of the rig's size, with a
+        propagator of its own (the node's starts fresh), nothing published."""
+        from canopy_stereo.sim.stereo_pair import synthetic_pair
+
+        w, h = self.expected_size or WARM_UP_SIZE
+        left, _, disparity = synthetic_pair(w, h, plane=(0.0, 0.0, 20.0), texture="blocks", colour=True)
+        propagator = self._settings({})["propagator"]
+        for _ in range(2):
+            mask = propagator.segment(left, disparity=disparity if self.depth_cue else None)
+        image_to_msg(mask, "mono8", stamp_ns=1, frame_id="")
 
     def _settings(self, changes: dict) -> dict:
         """``{"rect": (x, y, w, h) or None, "seeder": SeederSettings}`` of the parameters with
@@ -126,6 +142,9 @@ class SegmentNode(CanopyNode):
         if not seeder.depth_cue and seeder.colour_model:
             raise CanopyStereoError("colour_model on needs depth_cue (it learns from the disparity)")
         rect = tuple(rect) if rect[2] > 0 and rect[3] > 0 else None
+        size = self.expected_size or self.image_size_seen
+        if rect is not None and size is not None:  # an image size is known: the rectangle must fit it
+            clip_rect(rect, size)
         recut_every, propagate_scale = int(value("recut_every")), float(value("propagate_scale"))
         return {"rect": rect, "seeder": seeder, "recut_every": recut_every, "propagate_scale": propagate_scale,
                 "propagator": MaskPropagator(settings=seeder, rect=rect, recut_every=recut_every,
@@ -147,6 +166,14 @@ class SegmentNode(CanopyNode):
             check_image_msg(msg, expected_size=self.expected_size, encodings=COLOUR_ENCODINGS,
                             min_size=SEGMENT_MIN_SIZE)
             item = msg_to_bgr(msg)
+            self.image_size_seen = (item.shape[1], item.shape[0])
+            rect = self.settings["rect"]
+            if rect is not None:
+                try:
+                    clip_rect(rect, self.image_size_seen)
+                except CanopyStereoError as exc:
+                    raise CanopyStereoError(f"parameter rect {list(rect)} does not fit the images: {exc}; "
+                                            "set rect within them, or [0, 0, 0, 0] (automatic)") from None
         else:
             self.count("disparity_received")
             check_disparity_msg(msg, expected_size=self.expected_size)
