@@ -19,17 +19,23 @@ rig's would; ``--scene croton`` uses the bundled synthetic croton instead), and 
 * frames each node output (``out`` totals on ``/diagnostics``) and inputs it dropped;
 * memory: peak RSS (``VmHWM``) of each node process, or of the one process.
 
-Configuration ``MODE:MATCHER:MASK:SIZE``: MODE ``processes`` (rectify, disparity,
+Configuration ``MODE:MATCHER:MASK:SIZE[:TRANSPORT]``: MODE ``processes`` (rectify, disparity,
 [segment,] point_cloud, one process each, as ``ros2 run``/the launch file start them) or
 ``inprocess`` (the same nodes in one process, as ``canopy_graph``/``canopy-stereo run``);
 MATCHER ``elas``/``sgbm``; MASK ``mask`` (segment_node runs and point_cloud_node keeps only
 plant pixels, ``use_mask``) or ``nomask`` (no segment_node); SIZE ``320x240``, ``640x480`` or
-``1280x960``. Each configuration runs in a fresh process (``--one``), so that memory peaks and
-numba/DDS state do not carry over. CPU time is much less sensitive to a loaded machine than
-wall-clock rates: the targets (>= 27 clouds/s, median latency < 100 ms, 640x480 at 30 Hz, on 2
-cores) need the nodes' CPU per pair to stay below 2 cores x 33 ms = 66 ms in total.
+``1280x960``; TRANSPORT ``raw`` (default: bgr8 ``Image`` on ``<side>/image_raw``) or
+``compressed`` (the cameras send JPEG, quality ``--jpeg-quality`` 95, as ``CompressedImage`` on
+``<side>/image_raw/compressed``, encoded beforehand as a webcam's MJPEG is; rectify_node runs
+with ``image_transport: compressed`` and decodes each frame; ``--compressed`` = the two
+``--quick`` configurations with compressed inputs). Each configuration runs in a fresh
+process (``--one``), so that memory peaks and numba/DDS state do not carry over. CPU time is
+much less sensitive to a loaded machine than wall-clock rates: the targets (>= 27 clouds/s,
+median latency < 100 ms, 640x480 at 30 Hz, on 2 cores) need the nodes' CPU per pair to stay
+below 2 cores x 33 ms = 66 ms in total.
 
     .venv/bin/python benchmarks/bench_graph.py --quick
+    .venv/bin/python benchmarks/bench_graph.py --compressed   # JPEG camera streams
     .venv/bin/python benchmarks/bench_graph.py --configs processes:elas:mask:640x480 --frames 150
     .venv/bin/python benchmarks/bench_graph.py            # all 24 configurations (~15 min)
 
@@ -200,6 +206,10 @@ MATCHERS = ("elas", "sgbm")
 MASKS = ("mask", "nomask")
 #: ``--quick``: the issue's graph (four processes, ELAS, the mask, 640x480) and the same in one process.
 QUICK_CONFIGS = ("processes:elas:mask:640x480", "inprocess:elas:mask:640x480")
+#: Input transports (TRANSPORT of a configuration).
+TRANSPORTS = ("raw", "compressed")
+#: The headline configurations with JPEG camera streams (``--compressed``).
+COMPRESSED_CONFIGS = tuple(f"{c}:compressed" for c in QUICK_CONFIGS)
 #: Crop of the 710x496 Plants pair to 640x480 (centre of the drift), pixels.
 PLANTS_CROP = (35, 8)
 #: Drift of the crop window (pixels, each way) and its period (frames).
@@ -216,23 +226,27 @@ class Config:
     matcher: str
     mask: bool
     size: str
+    transport: str = "raw"
 
     @classmethod
     def parse(cls, text: str) -> Config:
-        """``MODE:MATCHER:MASK:SIZE`` -> Config (ValueError naming the bad part)."""
+        """``MODE:MATCHER:MASK:SIZE[:TRANSPORT]`` -> Config (ValueError naming the bad part)."""
         parts = text.split(":")
-        if len(parts) != 4:
-            raise ValueError(f"configuration {text!r}: expected MODE:MATCHER:MASK:SIZE, "
+        if len(parts) not in (4, 5):
+            raise ValueError(f"configuration {text!r}: expected MODE:MATCHER:MASK:SIZE[:TRANSPORT], "
                              "e.g. processes:elas:mask:640x480")
-        mode, matcher, mask, size = parts
+        mode, matcher, mask, size = parts[:4]
+        transport = parts[4] if len(parts) == 5 else "raw"
         for value, choices, what in ((mode, MODES, "mode"), (matcher, MATCHERS, "matcher"),
-                                     (mask, MASKS, "mask"), (size, tuple(SIZES), "size")):
+                                     (mask, MASKS, "mask"), (size, tuple(SIZES), "size"),
+                                     (transport, TRANSPORTS, "transport")):
             if value not in choices:
                 raise ValueError(f"configuration {text!r}: {what} must be one of {', '.join(choices)}")
-        return cls(mode, matcher, mask == "mask", size)
+        return cls(mode, matcher, mask == "mask", size, transport)
 
     def __str__(self) -> str:
-        return f"{self.mode}:{self.matcher}:{'mask' if self.mask else 'nomask'}:{self.size}"
+        text = f"{self.mode}:{self.matcher}:{'mask' if self.mask else 'nomask'}:{self.size}"
+        return text if self.transport == "raw" else f"{text}:{self.transport}"
 
     @property
     def nodes(self) -> tuple[str, ...]:
@@ -406,7 +420,7 @@ def parse_node_parameter(text: str) -> tuple[str, str, object]:
 
 def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rate_hz: float = 30.0,
                log_dir: Path, threads: int | None = None, node_parameters: dict | None = None,
-               intra_process: bool = True) -> dict:
+               intra_process: bool = True, jpeg_quality: int = 95) -> dict:
     """Feed the graph of ``config`` ``n_frames`` pairs at ``rate_hz``; the figures (see the module
     docstring) as a dict. Runs in the calling process (``main`` gives each configuration a fresh one)."""
     import threading
@@ -429,6 +443,8 @@ def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rat
     domain = private_domain_id()
     params = {"disparity_node": {"matcher": config.matcher},
               "point_cloud_node": {"use_mask": config.mask}}
+    if config.transport == "compressed":
+        params["rectify_node"] = {"image_transport": "compressed"}
     if threads:
         params["disparity_node"]["threads"] = int(threads)
     for node, values in (node_parameters or {}).items():
@@ -455,8 +471,22 @@ def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rat
             graph.spin_in_background()
             pids = {}
         diagnostics = DiagnosticsTotals(probe.node)
-        pub_l = probe.publisher(Image, "left/image_raw")
-        pub_r = probe.publisher(Image, "right/image_raw")
+        if config.transport == "compressed":  # JPEG from the cameras, as webcams deliver MJPEG
+            from sensor_msgs.msg import CompressedImage
+
+            from canopy_stereo.ros.compressed import image_to_compressed_msg
+
+            pub_l = probe.publisher(CompressedImage, "left/image_raw/compressed")
+            pub_r = probe.publisher(CompressedImage, "right/image_raw/compressed")
+
+            def to_msg(image, frame_id):
+                return image_to_compressed_msg(image, quality=jpeg_quality, frame_id=frame_id)
+        else:
+            pub_l = probe.publisher(Image, "left/image_raw")
+            pub_r = probe.publisher(Image, "right/image_raw")
+
+            def to_msg(image, frame_id):
+                return image_to_msg(image, "bgr8", stamp_ns=0, frame_id=frame_id)
 
         def on_cloud(data):
             t = time.time_ns()
@@ -472,9 +502,7 @@ def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rat
         if not wait_for(lambda: sub.get_publisher_count() >= 1 and pub_l.get_subscription_count() >= 1
                         and pub_r.get_subscription_count() >= 1, 60.0, group=group):
             raise RuntimeError("the graph did not connect" + (":\n" + group.logs() if group else ""))
-        msgs = [(image_to_msg(left, "bgr8", stamp_ns=0, frame_id="left_camera"),
-                 image_to_msg(right, "bgr8", stamp_ns=0, frame_id="right_camera"))
-                for left, right in frames]
+        msgs = [(to_msg(left, "left_camera"), to_msg(right, "right_camera")) for left, right in frames]
 
         def publish(k: int) -> int:
             stamp = time.time_ns()
@@ -690,6 +718,9 @@ def main(argv=None) -> int:
     p.add_argument("--configs", nargs="+", metavar="MODE:MATCHER:MASK:SIZE",
                    help="configurations to run (default: all 24; see the module docstring)")
     p.add_argument("--quick", action="store_true", help=f"only {' and '.join(QUICK_CONFIGS)}")
+    p.add_argument("--compressed", action="store_true",
+                   help=f"only {' and '.join(COMPRESSED_CONFIGS)} (JPEG camera streams)")
+    p.add_argument("--jpeg-quality", type=int, default=95, help="JPEG quality of compressed inputs (default 95)")
     p.add_argument("--scene", choices=("plants", "croton"), default="plants",
                    help="frames: the real Middlebury Plants pair (default) or the synthetic croton")
     p.add_argument("--rate", type=float, default=30.0, help="camera rate (pairs/s)")
@@ -726,7 +757,9 @@ def main(argv=None) -> int:
         return legacy_main(args)
     n_frames = args.frames or 90
     try:
-        configs = [Config.parse(c) for c in (args.configs or (QUICK_CONFIGS if args.quick else all_configs()))]
+        named = args.configs or (QUICK_CONFIGS if args.quick else COMPRESSED_CONFIGS if args.compressed
+                                 else all_configs())
+        configs = [Config.parse(c) for c in named]
         if args.one:
             configs = [Config.parse(args.one)]
         node_parameters: dict = {}
@@ -739,7 +772,7 @@ def main(argv=None) -> int:
         with tempfile.TemporaryDirectory() as tmp:
             result = run_config(configs[0], scene=args.scene, n_frames=n_frames, rate_hz=args.rate,
                                 log_dir=Path(tmp), threads=args.threads, node_parameters=node_parameters,
-                                intra_process=not args.no_intra_process)
+                                intra_process=not args.no_intra_process, jpeg_quality=args.jpeg_quality)
         Path(args.json).write_text(json.dumps(result))
         return 0
     print(f"machine: {os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.2f} at start; "
@@ -753,7 +786,8 @@ def main(argv=None) -> int:
         for config in configs:
             out = Path(tmp) / f"{str(config).replace(':', '_')}.json"
             cmd = [sys.executable, str(Path(__file__).resolve()), "--one", str(config), "--json", str(out),
-                   "--scene", args.scene, "--rate", str(args.rate), "--frames", str(n_frames)]
+                   "--scene", args.scene, "--rate", str(args.rate), "--frames", str(n_frames),
+                   "--jpeg-quality", str(args.jpeg_quality)]
             if args.threads:
                 cmd += ["--threads", str(args.threads)]
             if args.no_intra_process:

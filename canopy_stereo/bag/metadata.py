@@ -17,6 +17,11 @@ string maps, beside rosbag2's own ``rosbag2`` record, ignored by ``ros2 bag``):
 
 ``canopy-stereo batch`` turns every key of ``canopy_stereo`` into a column of
 its trait table and filters on them (``--select plot=row1``).
+
+This module is the one reader and writer of both records: the recorders
+(``bag_record --rig``, ``canopy_graph --record``) write them with
+:func:`recording_metadata`; ``batch``, ``run`` and ``view`` read the rig with
+:func:`canopy_metadata` / :func:`rig_from_bag`.
 """
 from __future__ import annotations
 
@@ -98,6 +103,17 @@ def rosbag2_custom_data(record: dict) -> dict[str, str]:
         info = info["rosbag2_bagfile_information"]
     custom = info.get("custom_data") if isinstance(info, dict) else None
     return {str(k): str(v) for k, v in custom.items()} if isinstance(custom, dict) else {}
+
+
+def rig_from_bag(path):
+    """The :class:`~canopy_stereo.io.rig.Rig` recorded in the bag ``path``'s
+    :data:`RIG_RECORD`, or None when it has none. Raises
+    :class:`~canopy_stereo.bag.errors.BagError` for a file that is not a readable bag and
+    :class:`~canopy_stereo.errors.RigError` for a rig record that does not parse."""
+    from canopy_stereo.bag.reader import BagReader
+
+    with BagReader(path) as bag:
+        return canopy_metadata(bag.metadata(), source=str(path))[1]
 
 
 def canopy_metadata(records: dict, source: str = "bag"):

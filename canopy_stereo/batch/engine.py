@@ -15,7 +15,6 @@ submits only the bags that have no row yet.
 from __future__ import annotations
 
 import os
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +22,7 @@ from pathlib import Path
 from canopy_stereo.batch.table import ResultTable
 from canopy_stereo.batch.work import BatchOptions, run_bag_task
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.progress import Progress
 
 BAG_SUFFIX = ".mcap"
 #: glibc settings of the LocalCluster's workers (as the ROS node processes' allocator tuning,
@@ -76,32 +76,6 @@ def expand_inputs(inputs) -> list[str]:
         else:
             raise CanopyStereoError(f"input not found: {p}")
     return list(dict.fromkeys(out))
-
-
-class _Progress:
-    """One status line on a terminal (stderr); silent otherwise."""
-
-    def __init__(self, total: int, enabled: bool | None = None):
-        self.total = total
-        self.enabled = sys.stderr.isatty() if enabled is None else enabled
-        self.t0 = time.monotonic()
-        self.done = self.failed = 0
-
-    def update(self, ok: bool) -> None:
-        self.done += 1
-        self.failed += 0 if ok else 1
-        if not self.enabled:
-            return
-        el = time.monotonic() - self.t0
-        eta = el / self.done * (self.total - self.done)
-        sys.stderr.write(f"\r[{self.done}/{self.total}] {self.failed} failed, "
-                         f"{el:.0f} s elapsed, ~{eta:.0f} s left   ")
-        sys.stderr.flush()
-
-    def close(self) -> None:
-        if self.enabled and self.done:
-            sys.stderr.write("\n")
-            sys.stderr.flush()
 
 
 def _client(scheduler: str | None, workers: int):
@@ -167,7 +141,7 @@ def run_batch(inputs, out, *, options: BatchOptions | None = None, workers: int 
     if todo:
         client, cluster = _client(scheduler, workers)  # fails before anything is written
     table.write()
-    bar = _Progress(len(todo), progress)
+    bar = Progress(len(todo), "bags", force=progress, keep=True)
     if todo:
         try:
             _run(client, todo, options, table, summary, bar)
@@ -217,4 +191,4 @@ def _run(client, todo, options, table, summary, bar) -> None:
             table.add_error(path, value)
             summary.failed += 1
         fut.release()
-        bar.update(status != "error")
+        bar.step(ok=status != "error")

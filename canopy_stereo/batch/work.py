@@ -155,7 +155,7 @@ def process_bag(path, options: BatchOptions | None = None) -> dict:
     """
     from canopy_stereo import __version__
     from canopy_stereo.bag import BagReader
-    from canopy_stereo.bag.metadata import canopy_metadata, matches_selection
+    from canopy_stereo.bag.metadata import RIG_RECORD, canopy_metadata, matches_selection
     from canopy_stereo.batch.frames import image_to_bgr, raw_stereo_pairs, stereo_topics
     from canopy_stereo.skew import SkewCompensator
 
@@ -168,7 +168,7 @@ def process_bag(path, options: BatchOptions | None = None) -> dict:
         raise Skipped(str(path))
     rig = options.rig if options.rig is not None else bag_rig
     if rig is None:
-        raise CanopyStereoError("no rig: the bag has no canopy_stereo_rig metadata record; give --rig RIG.yaml")
+        raise CanopyStereoError(f"no rig: the bag has no {RIG_RECORD} metadata record; give --rig RIG.yaml")
     rig_source = (options.rig_source or "given") if options.rig is not None else "bag"
     # at most max_frames pairs, spread over the pairs the bag can hold (its smaller stream)
     left_topic, right_topic = stereo_topics(bag, options.left_topic, right_topic=options.right_topic)  # or /compressed

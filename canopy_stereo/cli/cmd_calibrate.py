@@ -121,7 +121,7 @@ def run(args) -> int:
         from canopy_stereo.io.images import ImageFiles
 
         pattern = tuple(parse_int_list(args.pattern, 2, "--pattern"))
-        from canopy_stereo.cli.progress import Progress
+        from canopy_stereo.progress import Progress
 
         bar = None
 

@@ -58,7 +58,7 @@ def run(args) -> int:
                                     "(stored value / disparity)")
         gt = read_disparity(args.gt, args.gt_scale)
 
-    from canopy_stereo.cli.progress import Progress
+    from canopy_stereo.progress import Progress
 
     with Progress(len(methods), "matching with method") as bar:  # on a terminal only
         rows = run_study(left, right, methods=methods, gt_disparity=gt, progress=bar.step)

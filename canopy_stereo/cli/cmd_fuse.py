@@ -98,7 +98,8 @@ def run(args) -> int:
     dupes = sorted({n for n in names if names.count(n) > 1})
     if dupes:
         raise CanopyStereoError(f"view folder names must differ (they name the poses): {', '.join(dupes)}")
-    from canopy_stereo.cli.progress import Progress, warm_up_kernels
+    from canopy_stereo.cli.progress import warm_up_kernels
+    from canopy_stereo.progress import Progress
 
     if any(not (f / "cloud.ply").is_file() for f in folders):
         warm_up_kernels()  # views given as image pairs are reconstructed with ELAS

@@ -30,7 +30,8 @@ def add_arguments(p):
 def run(args) -> int:
     from canopy_stereo.errors import CanopyStereoError
     from canopy_stereo.features.study import parse_methods
-    from canopy_stereo.pipeline.paper import Progress, run_paper
+    from canopy_stereo.pipeline.paper import run_paper
+    from canopy_stereo.progress import Progress
 
     try:
         import matplotlib  # noqa: F401
@@ -38,7 +39,7 @@ def run(args) -> int:
         raise CanopyStereoError("the paper's figures need matplotlib: pip install "
                                 "'canopy_stereo[plot]'") from None
     methods = parse_methods(args.methods) if args.methods else None
-    progress = Progress(7, stream=sys.stderr, enabled=not args.quiet)
+    progress = Progress(7, stream=sys.stderr, lines=True, force=not args.quiet)
     numbers = run_paper(args.output, quick=args.quick, seed=args.seed, methods=methods,
                         progress=progress, calibration=not args.no_calibration)
     print(f"report written to {args.output}/report.md ({numbers['timings_s']['total']:.1f} s)")

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from canopy_stereo.bag.split import add_split_arguments, split_options
-from canopy_stereo.cli.common import add_rig_argument, check_at_least
+from canopy_stereo.cli.common import check_at_least
 from canopy_stereo.disparity import DEFAULT_MATCHER, default_matcher, matcher_names, matcher_spec
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.compressed_image import add_compression_arguments
@@ -23,7 +23,8 @@ MAX_DOMAIN_ID = 232
 
 def add_arguments(p):
     p.add_argument("--bag", required=True, metavar="BAG.mcap", help="input bag (rosbag2 MCAP)")
-    add_rig_argument(p)
+    p.add_argument("--rig", metavar="RIG.yaml",
+                   help="rig file (ROS 2 parameter YAML; default: the rig recorded in the bag by bag_record --rig)")
     p.add_argument("--rate", type=float, default=1.0,
                    help="playback speed factor; 0 = as fast as the graph goes (default 1)")
     p.add_argument("--record", metavar="OUT.mcap", help="record the graph's outputs to this bag")
@@ -59,6 +60,7 @@ def run(args) -> int:
     install_stop_signals()  # SIGTERM/SIGHUP stop like Ctrl-C: the recording is closed validly
     import math
 
+    from canopy_stereo.bag.metadata import RIG_RECORD, rig_from_bag
     from canopy_stereo.geometry.rig_rectification import rectification_for_rig
     from canopy_stereo.io.rig import load_rig
     from canopy_stereo.pipeline.reconstruct import disparity_range_for
@@ -72,13 +74,15 @@ def run(args) -> int:
     check_at_least(args.max_in_flight, 1, "--max-in-flight")
     if args.domain_id is not None and not 0 <= args.domain_id <= MAX_DOMAIN_ID:
         raise CanopyStereoError(f"--domain-id must be in 0..{MAX_DOMAIN_ID}, got {args.domain_id}")
-    rig = load_rig(args.rig)
+    rig = load_rig(args.rig) if args.rig else rig_from_bag(args.bag)
+    if rig is None:
+        raise CanopyStereoError(f"{args.bag} has no '{RIG_RECORD}' metadata record: give the rig with --rig RIG.yaml")
     # the nodes read the rig's method and disparity range: check them here with the same
     # code as 'reconstruct' (one line and exit 2 instead of a graph that silently ignores them)
     try:
         disparity_range_for(rig, rectification_for_rig(rig))
     except CanopyStereoError as exc:
-        raise CanopyStereoError(f"rig {args.rig}: {exc}") from None
+        raise CanopyStereoError(f"rig {args.rig or args.bag}: {exc}") from None
     options = GraphOptions(matcher=args.matcher, segment=not args.no_segment or args.use_mask,
                            use_mask=args.use_mask, organized=args.organized,
                            parameter_services=False,

@@ -271,7 +271,7 @@ def _run_views(args, rig, out: Path, effects) -> int:
     mode = args.mode or "turntable"
     if args.elevation is not None and mode != "orbit":
         raise CanopyStereoError("--elevation needs --orbit (a turntable's rig does not move)")
-    from canopy_stereo.cli.progress import Progress
+    from canopy_stereo.progress import Progress
 
     with Progress(args.views, f"rendering {args.scene} view") as bar:
         seq = render_views(args.scene, rig, n_views=args.views, mode=mode, seed=args.seed,

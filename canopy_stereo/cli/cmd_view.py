@@ -95,15 +95,16 @@ def _show_bag(src: Path, args) -> int:
 
     require_ros("canopy-stereo view")
     from canopy_stereo.bag import BagReader
+    from canopy_stereo.bag.metadata import RIG_RECORD, rig_from_bag
     from canopy_stereo.io.rig import load_rig
-    from canopy_stereo.ros.viewer import RIG_METADATA_NAME, bag_kind, rig_from_bag, run_raw_bag, show_recorded_outputs
+    from canopy_stereo.ros.viewer import bag_kind, run_raw_bag, show_recorded_outputs
     from canopy_stereo.viz.rerun_log import FrameLogger, close_recording, open_recording, serve_web
 
     bag = BagReader(src)
     kind, ns = bag_kind(bag)
     rig = load_rig(args.rig) if args.rig else rig_from_bag(src)
     if kind == "raw" and rig is None:
-        raise CanopyStereoError(f"{src} holds raw frames but no rig (no '{RIG_METADATA_NAME}' metadata "
+        raise CanopyStereoError(f"{src} holds raw frames but no rig (no '{RIG_RECORD}' metadata "
                                 "record): give the rig with --rig RIG.yaml")
     if kind == "raw" and ns != "/stereo":
         raise CanopyStereoError(f"{src}: raw frames under {ns}/, the graph reads /stereo/left/image_raw "
@@ -118,7 +119,8 @@ def _show_bag(src: Path, args) -> int:
         logger = FrameLogger(rec, with_measurements=not args.no_measure)
         try:
             if kind == "raw":
-                from canopy_stereo.cli.progress import Progress, warm_up_kernels
+                from canopy_stereo.cli.progress import warm_up_kernels
+                from canopy_stereo.progress import Progress
 
                 warm_up_kernels()
                 left = f"{ns}/left/image_raw"

@@ -4,14 +4,14 @@
   tiny synthetic pair. On the first run of an installation numba compiles them (about
   15 s to a minute; cached on disk afterwards): if that takes longer than a second the
   user is told what is happening, and when it is done, how long it took.
-* :class:`Progress` shows ``label k/N`` with the elapsed time and an estimate of the
-  rest on a terminal (stderr is a TTY) and stays quiet in logs and CI.
+* progress of a long command: the package's one reporter,
+  :class:`canopy_stereo.progress.Progress` (``label k/N`` with the elapsed time and an
+  estimate of the rest on a terminal; quiet in logs and CI).
 
-Both write to stderr, so stdout keeps only a command's results.
+It writes to stderr, so stdout keeps only a command's results.
 """
 from __future__ import annotations
 
-import os
 import sys
 import threading
 import time
@@ -105,48 +105,3 @@ def warm_up_kernels(*, say_after_s: float = 2.0, stream=None) -> float | None:
         print(f"{what} in {elapsed:.1f} s" + (" (cached for later runs)" if compiled else ""),
               file=stream, flush=True)
     return elapsed
-
-
-class Progress:
-    """``label k/N, elapsed, about T left`` on a terminal; nothing when stderr is not a TTY
-    (logs, CI) unless ``force``.
-
-    Use as ``with Progress(n, "views") as p: ... p.step(name)``.
-    """
-
-    def __init__(self, total: int, label: str, *, stream=None, force: bool | None = None):
-        self.total = int(total)
-        self.label = label
-        self.stream = stream or sys.stderr
-        tty = hasattr(self.stream, "isatty") and self.stream.isatty() and os.environ.get("TERM") != "dumb"
-        self.enabled = tty if force is None else bool(force)
-        self.done = 0
-        self.t0 = time.perf_counter()
-        self._width = 0
-
-    def step(self, what: str = "", n: int = 1) -> None:
-        """One more item done (``what``: its name, shown)."""
-        self.done += n
-        if not self.enabled:
-            return
-        elapsed = time.perf_counter() - self.t0
-        left = ""
-        if 0 < self.done < self.total:
-            left = f", about {elapsed / self.done * (self.total - self.done):.0f} s left"
-        text = f"{self.label} {self.done}/{self.total} ({elapsed:.0f} s{left})" + (f": {what}" if what else "")
-        pad = max(0, self._width - len(text))
-        self._width = len(text)
-        self.stream.write("\r" + text + " " * pad)
-        self.stream.flush()
-
-    def close(self) -> None:
-        if self.enabled and self._width:
-            self.stream.write("\r" + " " * self._width + "\r")
-            self.stream.flush()
-            self._width = 0
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()

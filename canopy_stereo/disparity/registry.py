@@ -426,13 +426,14 @@ def get_matcher(name: str) -> Matcher:
     return matcher_spec(name).function
 
 
-def compute_disparity(left: np.ndarray, right: np.ndarray, *, matcher: str = "sgbm",
+def compute_disparity(left: np.ndarray, right: np.ndarray, *, matcher: str = DEFAULT_MATCHER,
                       disp_min: int = 0, disp_max: int = 128, **params) -> np.ndarray:
     """Left disparity (float32 (H, W), pixels, invalid = -1) of a rectified pair.
 
     Args:
         left, right: rectified uint8 images (grey or BGR) of equal size.
-        matcher: registered matcher name (``"sgbm"``, ``"elas"``).
+        matcher: registered matcher name (default :data:`DEFAULT_MATCHER`, ``"elas"``, as
+            every entry point; ``"sgbm"``, ...).
         disp_min, disp_max: search range in pixels (``disp_max > disp_min``).
         **params: matcher-specific parameters, checked against the matcher's schema
             (:meth:`MatcherSpec.check`: names, types, ranges).

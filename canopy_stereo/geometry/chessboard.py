@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from canopy_stereo.errors import CalibrationError
+from canopy_stereo.geometry.board_corners import detect_board_corners
 from canopy_stereo.geometry.calibration import StereoCalibration, TriangulationCheck, triangulation_check
 from canopy_stereo.geometry.distortion import undistort_pixels
 
@@ -39,17 +40,6 @@ def board_points(pattern: tuple[int, int], square_size: float) -> np.ndarray:
     grid = np.zeros((rows * cols, 3), np.float64)
     grid[:, :2] = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2) * float(square_size)
     return grid
-
-
-def find_corners(gray: np.ndarray, pattern: tuple[int, int]) -> np.ndarray | None:
-    """Sub-pixel inner corners (M, 2) of a ``pattern = (cols, rows)`` board, or None."""
-    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
-    found, corners = cv2.findChessboardCorners(gray, pattern, flags=flags)
-    if not found:
-        return None
-    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
-    corners = cv2.cornerSubPix(gray, corners, (11, 11), (-1, -1), crit)
-    return corners.reshape(-1, 2).astype(np.float64)
 
 
 def image_sequence(images, side: str) -> tuple:
@@ -107,7 +97,7 @@ def detect_stereo_chessboards(left_images, right_images, *, pattern=(9, 6), squa
             size = (gl.shape[1], gl.shape[0])
         elif size != (gl.shape[1], gl.shape[0]):
             raise CalibrationError(f"{ln} is {gl.shape[1]}x{gl.shape[0]}, expected {size[0]}x{size[1]}")
-        cl, cr = find_corners(gl, pattern), find_corners(gr, pattern)
+        cl, cr = detect_board_corners(gl, pattern), detect_board_corners(gr, pattern)
         if cl is None or cr is None:
             continue
         lefts.append(cl)

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import json
 import platform
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,6 +37,7 @@ import cv2
 import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.progress import Progress
 
 # ----------------------------------------------------------------------------- the paper's numbers
 
@@ -96,36 +96,6 @@ FEATURE_SCENES = (
     ("3", "banyan", "citrus_branch", "synthetic citrus branch (canopy_stereo.sim, small leaves)"),
     ("4", "croton", "croton", "synthetic croton (canopy_stereo.sim, the paper's rig)"),
 )
-
-
-# ----------------------------------------------------------------------------- progress
-
-
-class Progress:
-    """Step messages with the elapsed time, on a stream (stderr by default)."""
-
-    def __init__(self, total: int, stream=None, enabled: bool = True):
-        self.total = int(total)
-        self.step = 0
-        self.stream = stream if stream is not None else sys.stderr
-        self.enabled = enabled
-        self.t0 = time.perf_counter()
-
-    def elapsed(self) -> float:
-        return time.perf_counter() - self.t0
-
-    def start(self, message: str) -> None:
-        """A new step."""
-        self.step += 1
-        self._say(f"[{self.step}/{self.total}] {message}")
-
-    def detail(self, message: str) -> None:
-        """A line within the current step."""
-        self._say(f"      {message}")
-
-    def _say(self, text: str) -> None:
-        if self.enabled:
-            print(f"{self.elapsed():7.1f} s  {text}", file=self.stream, flush=True)
 
 
 # ----------------------------------------------------------------------------- data
@@ -501,7 +471,7 @@ def run_paper(out_dir, *, quick: bool = False, seed: int = 0, methods=None,
         seed: seed of the rendered scenes (croton, citrus branch, calibration noise).
         methods: feature methods of Tables 2-4 (default :data:`FULL_METHODS`, or
             :data:`QUICK_METHODS` when ``quick``).
-        progress: a :class:`Progress` (default: silent).
+        progress: a :class:`~canopy_stereo.progress.Progress` log (``lines=True``; default: silent).
         calibration: run Table 1 / Figure 5.
 
     Returns:
@@ -516,13 +486,13 @@ def run_paper(out_dir, *, quick: bool = False, seed: int = 0, methods=None,
 
     methods = list(methods) if methods is not None else list(QUICK_METHODS if quick else FULL_METHODS)
     methods = parse_methods(",".join(methods))
-    progress = progress or Progress(7, enabled=False)
+    progress = progress or Progress(7, lines=True, force=False)
     t_start = time.perf_counter()
     timings = {}
     numbers = {"mode": "quick" if quick else "full", "seed": int(seed), "methods": methods,
                "environment": _environment()}
 
-    progress.start("Table 1 / Figure 5: world-rig calibration on rendered photographs")
+    progress.step("Table 1 / Figure 5: world-rig calibration on rendered photographs")
     t = time.perf_counter()
     if calibration:
         try:
@@ -533,30 +503,30 @@ def run_paper(out_dir, *, quick: bool = False, seed: int = 0, methods=None,
         numbers["calibration"] = {"available": False, "reason": "skipped (--no-calibration)"}
     timings["calibration"] = time.perf_counter() - t
 
-    progress.start("loading the shipped pairs (Plants bag, rendering croton and citrus branch)")
+    progress.step("loading the shipped pairs (Plants bag, rendering croton and citrus branch)")
     t = time.perf_counter()
     pairs = {"plants": plants_pair(), "croton": rendered_pair("croton", seed),
              "citrus_branch": rendered_pair("citrus_branch", seed)}
     timings["data"] = time.perf_counter() - t
 
-    progress.start("Tables 2-4: feature study")
+    progress.step("Tables 2-4: feature study")
     t = time.perf_counter()
     numbers["features"] = section_features(out, pairs, methods, progress)
     timings["features"] = time.perf_counter() - t
 
-    progress.start("Figure 11: Hartley rectification, epipolar lines before and after")
+    progress.step("Figure 11: Hartley rectification, epipolar lines before and after")
     t = time.perf_counter()
     numbers["rectification"] = section_rectification(out, pairs["croton"], progress)
     timings["rectification"] = time.perf_counter() - t
 
     recon_cache: dict = {}
-    progress.start("Figure 15: rectified pairs and reconstructions (croton, Plants)")
+    progress.step("Figure 15: rectified pairs and reconstructions (croton, Plants)")
     t = time.perf_counter()
     numbers["fig15"] = section_reconstruction(out, pairs, "fig15_rectified_and_3d",
                                               ("croton", "plants"), progress, recon_cache)
     timings["fig15"] = time.perf_counter() - t
 
-    progress.start("Figures 16-17: citrus branch pair and its reconstruction")
+    progress.step("Figures 16-17: citrus branch pair and its reconstruction")
     t = time.perf_counter()
     numbers["fig17"] = section_reconstruction(out, pairs, "fig17_citrus_branch_3d",
                                               ("citrus_branch",), progress, recon_cache)
@@ -568,7 +538,7 @@ def run_paper(out_dir, *, quick: bool = False, seed: int = 0, methods=None,
     numbers["fig16"] = {"figure": str(fig16.relative_to(out)), "title": pair.title}
     timings["fig17"] = time.perf_counter() - t
 
-    progress.start("Figures 20-22: the two marked croton leaves")
+    progress.step("Figures 20-22: the two marked croton leaves")
     t = time.perf_counter()
     numbers["leaves"] = section_leaves(out, pairs["croton"], recon_cache, progress)
     timings["leaves"] = time.perf_counter() - t
@@ -783,5 +753,5 @@ def format_report(numbers: dict) -> str:
 
 
 __all__ = ["FEATURE_SCENES", "FULL_METHODS", "PAPER_FEATURE_TABLES", "PAPER_LEAVES", "PAPER_TABLE1",
-           "Progress", "QUICK_METHODS", "StereoPair", "format_report", "plants_pair", "rendered_pair",
+           "QUICK_METHODS", "StereoPair", "format_report", "plants_pair", "rendered_pair",
            "run_paper"]

@@ -19,57 +19,8 @@ from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.compressed_image import COMPRESSED_SUFFIX, compressed_topic
 from canopy_stereo.viz.rerun_log import CameraPose, FrameLogger, camera_pose_from_rig
 
-#: Name of the MCAP metadata record that holds the rig of a bag.
-RIG_METADATA_NAME = "canopy_stereo"
-
 #: Graph topics (relative to the namespace) a frame is made of.
 FRAME_TOPICS = ("points2", "disparity", "left/mask", "left/image_rect_color", "left/camera_info")
-
-
-def rig_from_bag(path):
-    """The rig stored in the bag's ``canopy_stereo`` MCAP metadata record, or None.
-
-    The record's values are read as a rig file (ROS 2 parameter YAML, or a bare
-    ``ros__parameters`` mapping); the first value that is a rig wins. A record whose keys
-    are the parameters themselves (``P_left``, ``image_width``, ..., values in YAML) is read
-    as one rig too.
-    """
-    import yaml
-    from mcap.reader import make_reader
-
-    from canopy_stereo.io.rig import rig_from_parameters
-
-    try:
-        with open(path, "rb") as f:
-            records = list(make_reader(f).iter_metadata())
-    except Exception:  # noqa: BLE001 - a bag without a readable summary has no metadata index
-        return None
-    for record in records:
-        if record.name != RIG_METADATA_NAME:
-            continue
-        for key, text in sorted(record.metadata.items(), key=lambda kv: kv[0] != "rig"):
-            try:
-                doc = yaml.safe_load(text)
-            except yaml.YAMLError:
-                continue
-            if not isinstance(doc, dict):
-                continue
-            params = doc
-            for value in doc.values():
-                if isinstance(value, dict) and "ros__parameters" in value:
-                    params = value["ros__parameters"]
-                    break
-            if isinstance(params, dict) and "P_left" in params:
-                return rig_from_parameters(params, source=f"{path} metadata {RIG_METADATA_NAME}/{key}")
-        if "P_left" in record.metadata:
-            params = {}
-            for key, text in record.metadata.items():
-                try:
-                    params[key] = yaml.safe_load(text)
-                except yaml.YAMLError:
-                    params[key] = text
-            return rig_from_parameters(params, source=f"{path} metadata {RIG_METADATA_NAME}")
-    return None
 
 
 def measure_frame(organized_m: np.ndarray, mask: np.ndarray, *, rig=None):

@@ -296,15 +296,16 @@ def test_usage_errors_are_one_line(tmp_path, season, capsys):
 
 
 def test_progress_line_only_on_a_terminal(capsys):
-    from canopy_stereo.batch.engine import _Progress
+    from canopy_stereo.progress import Progress
 
-    bar = _Progress(3, enabled=True)
-    bar.update(True)
-    bar.update(False)
+    bar = Progress(3, "bags", force=True, keep=True)  # as batch.engine.run_batch makes it
+    bar.step(ok=True)
+    bar.step(ok=False)
     bar.close()
     err = capsys.readouterr().err
-    assert "[1/3] 0 failed" in err and "[2/3] 1 failed" in err and err.endswith("\n")
-    quiet = _Progress(3)  # stderr is not a terminal under pytest
-    quiet.update(True)
+    assert "bags 1/3" in err and "0 failed" in err and "bags 2/3" in err and "1 failed" in err
+    assert err.endswith("\n")
+    quiet = Progress(3, "bags", keep=True)  # stderr is not a terminal under pytest
+    quiet.step()
     quiet.close()
     assert capsys.readouterr().err == ""

@@ -138,8 +138,7 @@ def test_view_reopens_saved_recording(croton_recording, tmp_path):
 def test_view_raw_bag_without_rig_asks_for_rig(tmp_path):
     pytest.importorskip("rerun")
     pytest.importorskip("rclpy")
-    bare = tmp_path / "bare.mcap"
-    _copy_bag(CROTON_BAG, bare, rig_path=None)  # without any rig record
+    bare = CROTON_BAG  # (the bundled bag has no rig record)
     res = run_cli_subprocess("view", bare, "--save", tmp_path / "x.rrd", timeout=120)
     assert res.returncode == 2
     assert "--rig" in res.stderr and len(res.stderr.strip().splitlines()) == 1, res.stderr
@@ -167,45 +166,21 @@ def test_view_recorded_outputs_bag_as_recorded(tmp_path):
     assert len(ents["/world/canopy"]) == 4 and len(ents["/measurements/height_mm"]) == 4
 
 
-def _copy_bag(src, dst, rig_path):
-    """A copy of bag ``src`` without its ``canopy_stereo`` metadata record, and with the rig
-    file ``rig_path`` in a new one (None: none)."""
-    from mcap.reader import make_reader
-    from mcap.writer import Writer
-
-    with open(src, "rb") as fin, open(dst, "wb") as fout:
-        reader = make_reader(fin)
-        header = reader.get_header()
-        writer = Writer(fout)
-        writer.start(profile=header.profile, library=header.library)
-        schemas, channels = {}, {}
-        for schema, channel, message in reader.iter_messages():
-            if schema.id not in schemas:
-                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
-            if channel.id not in channels:
-                channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding,
-                                                               schemas[schema.id], channel.metadata)
-            writer.add_message(channels[channel.id], message.log_time, message.data, message.publish_time,
-                               message.sequence)
-        for record in reader.iter_metadata():
-            if record.name != "canopy_stereo":
-                writer.add_metadata(record.name, record.metadata)
-        if rig_path is not None:
-            writer.add_metadata("canopy_stereo", {"rig": rig_path.read_text()})
-        writer.finish()
-
-
 @pytest.mark.slow
 @pytest.mark.ros
 def test_view_takes_the_rig_from_the_bag_metadata(tmp_path):
     pytest.importorskip("rerun")
     pytest.importorskip("rclpy")
+    from canopy_stereo.bag import BagReader
+    from canopy_stereo.bag.metadata import rig_from_bag
     from canopy_stereo.io.rig import load_rig
-    from canopy_stereo.ros.viewer import rig_from_bag
+    from test.support.ros_harness import record_with_bag_record
 
-    bag, bare = tmp_path / "with_rig.mcap", tmp_path / "bare.mcap"
-    _copy_bag(CROTON_BAG, bag, CROTON_RIG)
-    _copy_bag(CROTON_BAG, bare, None)
+    # recorded the way a user does: bag_record --rig (its own process) of the raw frames
+    bag, bare = tmp_path / "with_rig.mcap", CROTON_BAG
+    frames = [(m.topic, m.type_name, m.data) for m in BagReader(CROTON_BAG).messages(log_time_order=True)
+              if m.topic.endswith("image_raw")]
+    record_with_bag_record(bag, frames, args=["--rig", CROTON_RIG])
     assert rig_from_bag(bare) is None
     rig = rig_from_bag(bag)
     assert np.allclose(rig.P_left, load_rig(CROTON_RIG).P_left)
@@ -216,6 +191,11 @@ def test_view_takes_the_rig_from_the_bag_metadata(tmp_path):
     assert len(ents["/world/cloud"]) == 4
     assert any(r["Transform3D:translation"].is_valid for _, r in ents["/world/camera"]
                if "Transform3D:translation" in r)  # the camera is placed in the world
+    # `run` without --rig takes it from the same record (one reader: canopy_stereo.bag.metadata)
+    res = run_cli_subprocess("run", "--bag", bag, "--rate", "0", "--matcher", "sgbm", "--no-segment", timeout=600)
+    assert res.returncode == 0 and "frames out: 4" in res.stdout, res.stderr[-2000:]
+    res = run_cli_subprocess("run", "--bag", bare, "--rate", "0", timeout=120)
+    assert res.returncode == 2 and "--rig" in res.stderr and len(res.stderr.strip().splitlines()) == 1
 
 
 @pytest.mark.slow

@@ -74,6 +74,18 @@ def test_compute_disparity_validates_against_the_schema():
         compute_disparity(img, img, matcher="elas", subpixel=1)
 
 
+def test_compute_disparity_defaults_to_the_package_matcher_elas():
+    from canopy_stereo.disparity import DEFAULT_MATCHER
+
+    assert DEFAULT_MATCHER == "elas"
+    rng = np.random.default_rng(1)
+    left = rng.integers(0, 255, (48, 64), np.uint8)
+    right = np.roll(left, -5, axis=1)  # the scene 5 px to the left in the right image
+    default = compute_disparity(left, right, disp_min=0, disp_max=16)
+    np.testing.assert_array_equal(default, compute_disparity(left, right, matcher="elas", disp_min=0, disp_max=16))
+    assert not np.array_equal(default, compute_disparity(left, right, matcher="sgbm", disp_min=0, disp_max=16))
+
+
 def _subparsers(parser):
     return next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
 

@@ -84,7 +84,8 @@ def test_real_chessboard_rig(shared_data):
 @pytest.mark.slow
 def test_hartley_from_pooled_qdmatch_on_raw_chessboard_pairs(shared_data):
     """Issue 6 target: Hartley from quasi-dense matches, corners' median |dv| <= 0.5 px."""
-    from canopy_stereo.geometry.chessboard import calibrate_stereo_chessboard, find_corners
+    from canopy_stereo.geometry.board_corners import detect_board_corners
+    from canopy_stereo.geometry.chessboard import calibrate_stereo_chessboard
     from canopy_stereo.io.images import ImageFiles, read_image
     from canopy_stereo.io.rig import Rig
     from canopy_stereo.pipeline.reconstruct import rectify_rig
@@ -98,7 +99,7 @@ def test_hartley_from_pooled_qdmatch_on_raw_chessboard_pairs(shared_data):
     rect = rectify_rig(rig, "hartley", match_pairs=pairs)
     dv = []
     for left, right in pairs:
-        cl, cr = find_corners(left[:, :, 0], (9, 6)), find_corners(right[:, :, 0], (9, 6))
+        cl, cr = detect_board_corners(left[:, :, 0], (9, 6)), detect_board_corners(right[:, :, 0], (9, 6))
         pl = apply_homography(rect.H_left, undistort_pixels(rig.P_left, rig.D_left, cl))
         pr = apply_homography(rect.H_right, undistort_pixels(rig.P_right, rig.D_right, cr))
         dv.append(pl[:, 1] - pr[:, 1])

@@ -8,6 +8,7 @@ import pytest
 import yaml
 
 from canopy_stereo.errors import CalibrationError, ImageError
+from canopy_stereo.geometry.board_corners import detect_board_corners  # noqa: E402
 from canopy_stereo.geometry.camera import camera_centre, project
 from canopy_stereo.geometry.triangulation import triangulate_dlt
 from canopy_stereo.geometry.world_rig import (
@@ -16,7 +17,6 @@ from canopy_stereo.geometry.world_rig import (
     board_symmetries,
     board_world_points,
     calibrate_world_rig,
-    detect_board_corners,
     paper_layout_placements,
     resolve_corner_order,
 )

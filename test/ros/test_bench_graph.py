@@ -21,11 +21,15 @@ def test_configs_parse_and_cover_the_matrix():
     assert str(c) == "processes:elas:mask:640x480"
     assert c.nodes == ("rectify_node", "disparity_node", "segment_node", "point_cloud_node")
     assert "segment_node" not in bench_graph.Config.parse("inprocess:sgbm:nomask:320x240").nodes
+    c = bench_graph.Config.parse("inprocess:elas:mask:640x480:compressed")
+    assert c.transport == "compressed" and str(c) == "inprocess:elas:mask:640x480:compressed"
+    assert bench_graph.Config.parse("inprocess:elas:mask:640x480:raw") == bench_graph.Config.parse(
+        "inprocess:elas:mask:640x480")
     every = bench_graph.all_configs()
     assert len(every) == len(set(every)) == 24
     for bad, word in (("processes:elas:mask", "MODE:MATCHER:MASK:SIZE"), ("threads:elas:mask:640x480", "mode"),
                       ("processes:bm:mask:640x480", "matcher"), ("processes:elas:on:640x480", "mask"),
-                      ("processes:elas:mask:800x600", "size")):
+                      ("processes:elas:mask:800x600", "size"), ("processes:elas:mask:640x480:png", "transport")):
         with pytest.raises(ValueError, match=word):
             bench_graph.Config.parse(bad)
 

@@ -60,7 +60,7 @@ def reprojection_case(rig):
     """point_cloud_node's inputs for a smooth disparity field on ``rig`` (Fusiello): the
     rectification, the disparities (px, NaN = invalid), the DisparityImage as the node reads
     it, T_world_optical from stereo_geometry and Q from the left rectified CameraInfo."""
-    from canopy_stereo.ros.nodes.point_cloud import reprojection_from_messages
+    from canopy_stereo.geometry.cloud_assembly import disparity_image_reprojection
 
     rect = fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
     t = rect.baseline * rig.metres_per_unit
@@ -70,7 +70,7 @@ def reprojection_case(rig):
                                          frame_id="left_camera_rect_optical_frame")
     geometry = parse_stereo_geometry(stereo_geometry_msg(rig, rect, FrameNames()))
     T = geometry.lookup("canopy_world", info.header.frame_id)
-    Q = reprojection_from_messages(msg.f, msg.t, info)
+    Q = disparity_image_reprojection(msg.f, msg.t, convert.camera_info_matrices(info)[3])
     return rect, disp, msg, T, Q
 
 
@@ -79,14 +79,15 @@ def test_camera_info_path_equals_back_mapping_and_dlt(paper_rig, rig_name):
     """point_cloud_node's path (Q from the DisparityImage and the left rectified CameraInfo,
     then T_world_optical from stereo_geometry) gives the points of the exact back-mapping +
     DLT path with the rig's P, to 1e-6 relative."""
+    from canopy_stereo.geometry.cloud_assembly import cloud_from_disparity
     from canopy_stereo.geometry.frames import reproject_disparity_points
-    from canopy_stereo.ros.nodes.point_cloud import cloud_from_disparity
 
     rig = paper_rig if rig_name == "paper" else verged_rig()
     rect, disp, msg, T, Q = reprojection_case(rig)
     pts, index, depth = reproject_disparity_points(msg.disparity, Q, T=T)
     bgr = np.zeros((*disp.shape, 3), np.uint8)
-    ref, _ = cloud_from_disparity(np.where(np.isfinite(disp), disp, -1), bgr, rig, rect, organized=False)
+    ref, _ = cloud_from_disparity(np.where(np.isfinite(disp), disp, -1), bgr, rect, rig.P_left, rig.P_right,
+                                  scale=rig.metres_per_unit, organized=False)
     assert len(pts) == len(ref) == np.isfinite(disp).sum()
     scale = np.linalg.norm(ref.astype(np.float64), axis=1)
     err = np.linalg.norm(pts.astype(np.float64) - ref, axis=1) / scale

@@ -44,7 +44,7 @@ def _rectify(harness, rig, **params):
     return node, out, diagnostics, pl, pr
 
 
-def _statuses(diagnostics, name="rectify_node: pipeline"):
+def _statuses(diagnostics, name="stereo/rectify_node: pipeline"):
     return [s for msg in list(diagnostics) for s in msg.status if s.name == name]
 
 

@@ -404,3 +404,42 @@ def feed_pairs(pub_left, pub_right, frames, stamps_ns, rate_hz: float, right_off
         pub_right.publish(right)
         sent[stamp] = time.monotonic()
     return sent
+
+
+def record_with_bag_record(out: Path, messages, *, args=(), timeout_s: float = 30.0) -> str:
+    """Run the ``bag_record`` executable (its own process, a private domain) recording the
+    topics of ``messages`` (``[(topic, type name, CDR bytes), ...]``, e.g. a bag's messages)
+    into ``out`` with the further command-line ``args`` (``["--rig", RIG]``); publish the
+    messages in order (reliable, depth 10), then stop it with SIGINT. Returns its stderr;
+    raises AssertionError when it does not subscribe or does not exit with 0."""
+    from rclpy.node import Node
+
+    from canopy_stereo.bag.msgdefs import message_class
+    from canopy_stereo.ros.context import private_domain_id, ros_context
+    from canopy_stereo.ros.qos import publisher_qos
+
+    domain = private_domain_id()
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    topics = list(dict.fromkeys(topic for topic, _, _ in messages))
+    proc = subprocess.Popen(executable_command("bag_record") + ["-o", str(out), *topics, *map(str, args)],
+                            env=env, stderr=subprocess.PIPE, text=True)
+    with killed_at_exit(proc):
+        with ros_context(domain) as ctx:
+            node = Node("bag_record_feeder", context=ctx, start_parameter_services=False)
+            pubs = {}
+            for topic, type_name, _ in messages:
+                if topic not in pubs:
+                    pubs[topic] = node.create_publisher(message_class(type_name), topic,
+                                                        publisher_qos("reliable", 10))
+            assert wait_for(lambda: all(p.get_subscription_count() >= 1 for p in pubs.values()), timeout_s), \
+                "bag_record did not subscribe"
+            time.sleep(0.2)
+            for topic, _, data in messages:
+                pubs[topic].publish(data)
+                time.sleep(0.05)
+            time.sleep(0.5)
+            node.destroy_node()
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=timeout_s)
+    assert proc.returncode == 0, err
+    return err

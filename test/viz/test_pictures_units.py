@@ -77,7 +77,7 @@ def test_disparity_and_depth_pictures_have_a_colour_bar_with_units():
 def test_progress_only_on_a_terminal():
     import io
 
-    from canopy_stereo.cli.progress import Progress
+    from canopy_stereo.progress import Progress
 
     log = io.StringIO()  # not a TTY: logs and CI stay quiet
     with Progress(3, "view", stream=log) as bar:

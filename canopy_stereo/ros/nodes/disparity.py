@@ -225,8 +225,7 @@ class DisparityNode(CanopyNode):
     def _push(self, stream: int, msg, item) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
         items, dropped = self.sync.push(stream, stamp, item)
-        for d in dropped:
-            self.drop(d.reason, _STREAMS[d.stream], log=not d.reason.startswith("time jumped back"))
+        self.drop_unpaired(dropped, _STREAMS)
         if items is not None:
             (left, frame_id), (right, _), info_l, info_r = items
             self.matching.submit(stamp, frame_id, left, right, info_l, info_r)
