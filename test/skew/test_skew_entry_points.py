@@ -39,13 +39,13 @@ def test_batch_measures_the_pairs_the_compensation_gives(monkeypatch, moving_bag
 
     def fake_measure(left, right, rig, **kw):
         seen.append((left, right))
-        return {name: 1.0 for name in work.TRAITS}
+        return {1: {name: 1.0 for name in work.TRAITS}}
 
-    monkeypatch.setattr(work, "measure_frame", fake_measure)
-    row = work.process_bag(str(path), work.BatchOptions(skew_compensation=enabled, max_frames=max_frames,
-                                                        sync_slop_s=0.03))
+    monkeypatch.setattr(work, "measure_frame_plants", fake_measure)
+    rows = work.process_bag(str(path), work.BatchOptions(skew_compensation=enabled, max_frames=max_frames,
+                                                         sync_slop_s=0.03))
     keep = sorted(work._spread(len(frames), max_frames))
-    assert row["frames"] == len(keep) == len(seen)
+    assert rows[0]["frames"] == len(keep) == len(seen)
     core = SkewCompensator(enabled=enabled)
     want = [core.compensate(left, right, stamp_left_ns=tl, stamp_right_ns=tr)[:2] for left, right, tl, tr in frames]
     for (got_l, got_r), k in zip(seen, keep):
