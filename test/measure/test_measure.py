@@ -1,6 +1,7 @@
 """Leaf and canopy measurement on analytic scenes with exact answers."""
 from __future__ import annotations
 
+import csv
 import json
 
 import numpy as np
@@ -224,8 +225,15 @@ def test_measure_organized_report_with_leaf_ids(rig, tmp_path):
     out = write_report(report, tmp_path / "r.json", csv=tmp_path / "leaves.csv")
     again = json.loads(out.read_text())
     assert again["leaves"][0]["id"] == 7
-    rows = (tmp_path / "leaves.csv").read_text().splitlines()
-    assert rows[0].startswith("id,length,width,area") and len(rows) == 3
+    # written in the one unit set: lengths mm, areas cm^2, volumes cm^3 (the cloud is in mm)
+    assert again["units"] == {"length": "mm", "area": "cm^2", "volume": "cm^3", "leaf_area_density": "1/cm"}
+    assert again["leaves"][0]["length"] == pytest.approx(report["leaves"][0]["length"])
+    assert again["leaves"][0]["area"] == pytest.approx(report["leaves"][0]["area"] / 100.0)
+    assert again["canopy"]["hull_volume"] == pytest.approx(canopy["hull_volume"] / 1000.0)
+    assert again["canopy"]["voxel_size"] == pytest.approx(vs)
+    rows = list(csv.reader(open(tmp_path / "leaves.csv", encoding="utf-8")))
+    assert rows[0][:5] == ["id", "length_mm", "width_mm", "area_cm2", "chord_mm"] and len(rows) == 3
+    assert float(rows[1][3]) == pytest.approx(report["leaves"][0]["area"] / 100.0, abs=1e-4)
 
 
 @pytest.mark.slow
