@@ -1,9 +1,13 @@
 """ament_python build of canopy_stereo (also a plain pip-installable package)."""
+import re
 from glob import glob
 
 from setuptools import find_packages, setup
 
 PACKAGE = "canopy_stereo"
+
+#: The version, from package.xml (the one place it is written; ROS tools read it there).
+VERSION = re.search(r"<version>\s*([^<\s]+)\s*</version>", open("package.xml", encoding="utf-8").read()).group(1)
 
 #: The viewer's one dependency, pinned (canopy_stereo.viz.RERUN_REQUIREMENT says the same).
 RERUN = "rerun-sdk==0.41.0; python_version >= '3.11'"
@@ -27,7 +31,7 @@ CONSOLE_SCRIPTS = ["canopy-stereo = canopy_stereo.cli:main"] + [
 
 setup(
     name=PACKAGE,
-    version="0.1.0",
+    version=VERSION,
     description="Metric stereo reconstruction and measurement of plant canopies (ROS 2 + CLI)",
     long_description=open("README.md", encoding="utf-8").read(),
     long_description_content_type="text/markdown",

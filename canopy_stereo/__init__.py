@@ -18,5 +18,21 @@ Conventions used everywhere:
 """
 from canopy_stereo.errors import CanopyStereoError
 
-__version__ = "0.1.0"
+
+def _version() -> str:
+    """package.xml's version (the one place it is written) beside a source tree, else the
+    installed distribution's (which setup.py took from package.xml)."""
+    import re
+    from importlib.metadata import version
+    from pathlib import Path
+
+    xml = Path(__file__).resolve().parent.parent / "package.xml"
+    if xml.is_file():
+        found = re.search(r"<version>\s*([^<\s]+)\s*</version>", xml.read_text(encoding="utf-8"))
+        if found:
+            return found.group(1)
+    return version("canopy_stereo")
+
+
+__version__ = _version()
 __all__ = ["CanopyStereoError", "__version__"]

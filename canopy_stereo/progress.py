@@ -85,6 +85,14 @@ class Progress:
     def _line(self, text: str) -> None:
         print(f"{self.elapsed():7.1f} s  {text}", file=self.stream, flush=True)
 
+    def note(self, line: str) -> None:
+        """Print ``line`` on the stream now, whether the reporter shows progress or not (a
+        failure as it happens): over a wiped status line on a terminal, which the next step redraws."""
+        if self.enabled and self._width and not self.lines:
+            self.stream.write("\r" + " " * self._width + "\r")
+            self._width = 0
+        print(line, file=self.stream, flush=True)
+
     def close(self) -> None:
         """End the status line: kept with a newline (``keep``), else wiped."""
         if self.enabled and self._width:

@@ -50,3 +50,19 @@ def test_core_has_no_ros_imports():
             continue
         text = path.read_text()
         assert not re.search(r"^\s*(import|from)\s+(rclpy|sensor_msgs|stereo_msgs)", text, re.M), path
+
+
+def test_one_version_from_package_xml_and_a_ros_changelog():
+    """package.xml holds the version; setup.py and canopy_stereo.__version__ read it; CHANGELOG.rst
+    is in catkin_generate_changelog's format with a section for it."""
+    import canopy_stereo
+
+    version = ET.parse(REPO / "package.xml").getroot().findtext("version")
+    assert re.fullmatch(r"\d+\.\d+\.\d+", version)
+    assert canopy_stereo.__version__ == version
+    setup_py = (REPO / "setup.py").read_text()
+    assert "version=VERSION" in setup_py and not re.search(r"version=\s*[\"']\d", setup_py)
+    lines = (REPO / "CHANGELOG.rst").read_text().splitlines()
+    assert lines[1] == "Changelog for package canopy_stereo" and set(lines[0]) == set(lines[2]) == {"^"}
+    headings = [(a, b) for a, b in zip(lines, lines[1:]) if b and set(b) == {"-"} and len(b) == len(a)]
+    assert any(re.fullmatch(rf"{re.escape(version)} \(\d{{4}}-\d{{2}}-\d{{2}}\)", a) for a, _ in headings)

@@ -45,11 +45,15 @@ from typing import Any
 
 @dataclass(frozen=True)
 class Dropped:
-    """A message that left a synchronizer without being paired."""
+    """A message that left a synchronizer without being paired.
+
+    ``after_jump``: dropped because time jumped back (queued before the jump); the jump
+    itself is reported once through ``on_jump``."""
 
     stream: int
     stamp_ns: int
     reason: str
+    after_jump: bool = False
 
 
 @dataclass(frozen=True)
@@ -217,7 +221,7 @@ class ApproximateTimePairer:
                 keep = [True] * len(q.stamps)
             else:
                 keep = [i != stream and s <= stamp_ns + self.slop_ns for s in q.stamps]
-            dropped += [Dropped(i, s, "time jumped back: queued before the jump")
+            dropped += [Dropped(i, s, "time jumped back: queued before the jump", after_jump=True)
                         for s, k in zip(q.stamps, keep) if not k]
             q.stamps[:] = [s for s, k in zip(q.stamps, keep) if k]
             q.items[:] = [it for it, k in zip(q.items, keep) if k]
@@ -353,7 +357,7 @@ class ExactTimeSynchronizer:
                 # this stream's messages from before the jump can no longer complete a set
                 for key in [k for k, slots in self._pending.items()
                             if k[0] < self._epoch and slots[stream] is None]:
-                    dropped += self._drop_set(key, "time jumped back: queued before the jump")
+                    dropped += self._drop_set(key, "time jumped back: queued before the jump", after_jump=True)
             epoch = self._stream_epoch[stream]
             last = self._last_emitted.get(epoch)
             if last is not None and stamp_ns <= last:
@@ -368,7 +372,7 @@ class ExactTimeSynchronizer:
                 for old in [k for k in self._pending if k[0] < epoch or (k[0] == epoch and k[1] < stamp_ns)]:
                     reason = ("time jumped back: queued before the jump" if old[0] < epoch
                               else "incomplete when a later set completed")
-                    dropped += self._drop_set(old, reason)
+                    dropped += self._drop_set(old, reason, after_jump=old[0] < epoch)
                 self._last_emitted[epoch] = stamp_ns
                 for e in [e for e in self._last_emitted if e < epoch]:
                     del self._last_emitted[e]
@@ -379,9 +383,9 @@ class ExactTimeSynchronizer:
                 dropped += self._drop_set(next(iter(self._pending)), f"incomplete (queue of {self.queue_size} full)")
             return None, dropped
 
-    def _drop_set(self, key: tuple[int, int], reason: str) -> list[Dropped]:
+    def _drop_set(self, key: tuple[int, int], reason: str, *, after_jump: bool = False) -> list[Dropped]:
         slots = self._pending.pop(key)
-        return [Dropped(i, key[1], reason) for i, s in enumerate(slots) if s is not None]
+        return [Dropped(i, key[1], reason, after_jump) for i, s in enumerate(slots) if s is not None]
 
     def pending(self) -> int:
         """Number of incomplete stamps waiting."""

@@ -78,6 +78,29 @@ def expand_inputs(inputs) -> list[str]:
     return list(dict.fromkeys(out))
 
 
+class _workers_ignore_interrupts:
+    """While the LocalCluster starts its processes, SIGINT is ignored: they inherit that,
+    so a Ctrl-C at a terminal (sent to the whole process group) stops the batch here, in
+    one line, instead of in every worker with a traceback each; SIGTERM from a job
+    scheduler is handled the same way by the command."""
+
+    def __enter__(self):
+        import signal
+        import threading
+
+        self.previous = None
+        if threading.current_thread() is threading.main_thread():
+            self.previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        return self
+
+    def __exit__(self, *exc):
+        import signal
+
+        if self.previous is not None:
+            signal.signal(signal.SIGINT, self.previous)
+        return False
+
+
 def _client(scheduler: str | None, workers: int):
     """``(client, cluster)``: connected to ``scheduler``, or to a new LocalCluster."""
     try:
@@ -99,7 +122,7 @@ def _client(scheduler: str | None, workers: int):
     environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}))
     environ.update({"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"})
     environ.update(_MALLOC_ENV)
-    with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}), _workers_ignore_interrupts():
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                dashboard_address=None, silence_logs=logging.ERROR)
     return Client(cluster), cluster
@@ -149,11 +172,7 @@ def run_batch(inputs, out, *, options: BatchOptions | None = None, workers: int 
             summary.interrupted = True
         finally:
             bar.close()
-            try:
-                client.close()
-            finally:
-                if cluster is not None:
-                    cluster.close()
+            _close_quietly(client, cluster, interrupted=summary.interrupted)
     summary.outputs += [out / "plants.csv", out / "errors.csv"]
     pq = table.write_parquet()
     if pq is not None:
@@ -164,6 +183,33 @@ def run_batch(inputs, out, *, options: BatchOptions | None = None, workers: int 
         summary.outputs += plot_traits(table, out / "plots")
     summary.seconds = time.monotonic() - t0
     return summary
+
+
+def _close_quietly(client, cluster, *, interrupted: bool) -> None:
+    """Close the client and the LocalCluster; after an interruption without Dask's
+    shutdown chatter (its loggers silenced, a second Ctrl-C during the close ignored)."""
+    import logging
+    import signal
+    import threading
+
+    previous = None
+    if interrupted:
+        for name in ("distributed", "tornado", "asyncio"):
+            logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+        if threading.current_thread() is threading.main_thread():
+            previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        try:
+            client.close(timeout=10)
+        finally:
+            if cluster is not None:
+                cluster.close(timeout=10)
+    except Exception:  # noqa: BLE001 - closing after an interruption: nothing left to save
+        if not interrupted:
+            raise
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
 
 
 def _run(client, todo, options, table, summary, bar) -> None:
@@ -183,12 +229,13 @@ def _run(client, todo, options, table, summary, bar) -> None:
         except Exception as exc:  # noqa: BLE001 - a worker that died on this bag
             status, value = "error", f"worker failed: {type(exc).__name__}: {' '.join(str(exc).split())}"
         if status == "ok":
-            table.add_row(value)
+            table.add_rows(value)
             summary.succeeded += 1
         elif status == "skipped":
             summary.skipped += 1
         else:
             table.add_error(path, value)
             summary.failed += 1
+            bar.note(f"failed: {value}" if str(path) in str(value) else f"failed: {path}: {value}")  # as it happens
         fut.release()
         bar.step(ok=status != "error")

@@ -1,8 +1,10 @@
 """The batch's tidy outputs: ``plants.csv`` (+ ``plants.parquet``) and ``errors.csv``.
 
-``plants.csv``: one row per bag, columns in this order:
+``plants.csv``: one row per plant of each bag, columns in this order:
 
 * ``source``: the bag's absolute path (the key ``--resume`` matches on);
+* ``plant_index``: the plant of the row (1..N left to right in the image, as the
+  measuring pipeline numbers them; 0 = the bag's plants measured as one);
 * every key of the bags' ``canopy_stereo`` metadata record (``plant_id``,
   ``plot``, ``treatment``, ``date`` first when present, the others sorted;
   empty where a bag lacks the key; a key equal to a fixed column's name is
@@ -10,10 +12,11 @@
 * ``recorded_at`` (UTC, ISO 8601, the first measured pair's stamp), ``frames``
   (pairs measured), ``frames_failed``;
 * the traits of :data:`~canopy_stereo.batch.work.TRAITS` with their units in
-  their names (medians over the frames; empty = not measurable);
-* ``rig`` (``bag`` or the ``--rig`` file), ``canopy_stereo_version``.
+  their names (medians over the frames; empty = not measurable), ``height_reference``
+  (the surface the height is measured from: ``pot_rim``, ``soil``, ``ground``, ``none``);
+* ``rig`` (``bag``, the ``rig.yaml`` beside the bag or the ``--rig`` file), ``canopy_stereo_version``.
 
-Rows are sorted by ``source``. ``errors.csv``: ``source, reason`` (one line).
+Rows are sorted by ``source`` and ``plant_index``. ``errors.csv``: ``source, reason`` (one line).
 Both files are rewritten whole and atomically (temporary file + rename) each
 time a bag completes, so an interrupted batch leaves complete tables that hold
 every bag finished before the interruption.
@@ -26,7 +29,7 @@ import os
 import tempfile
 from pathlib import Path
 
-from canopy_stereo.batch.work import TRAITS
+from canopy_stereo.batch.work import REFERENCE_COLUMN, TRAITS
 
 PLANTS_CSV = "plants.csv"
 PLANTS_PARQUET = "plants.parquet"
@@ -34,10 +37,10 @@ ERRORS_CSV = "errors.csv"
 
 #: Metadata keys placed first, in this order, when present.
 PREFERRED_KEYS = ("plant_id", "plot", "treatment", "date")
-HEAD = ("source",)
-TAIL = ("recorded_at", "frames", "frames_failed", *TRAITS, "rig", "canopy_stereo_version")
+HEAD = ("source", "plant_index")
+TAIL = ("recorded_at", "frames", "frames_failed", *TRAITS, REFERENCE_COLUMN, "rig", "canopy_stereo_version")
 FIXED = frozenset(HEAD + TAIL)
-INTEGER_COLUMNS = ("frames", "frames_failed")
+INTEGER_COLUMNS = ("plant_index", "frames", "frames_failed")
 NUMERIC_COLUMNS = INTEGER_COLUMNS + tuple(TRAITS)
 
 
@@ -53,6 +56,15 @@ def format_value(value) -> str:
 def metadata_column(key: str) -> str:
     """Column name of metadata key ``key`` (``meta_<key>`` if it clashes with a fixed column)."""
     return f"meta_{key}" if key in FIXED else key
+
+
+def _key(cells: dict) -> tuple[str, int]:
+    """Row key: the source and its plant index (0 when the table has none: older tables)."""
+    try:
+        index = int(str(cells.get("plant_index") or 0))
+    except ValueError:
+        index = 0
+    return str(cells["source"]), index
 
 
 def _atomic_write(path: Path, write) -> None:
@@ -93,7 +105,7 @@ class ResultTable:
         self.out = Path(out)
         if create:
             self.out.mkdir(parents=True, exist_ok=True)
-        self.rows: dict[str, dict[str, str]] = {}
+        self.rows: dict[tuple[str, int], dict[str, str]] = {}  # (source, plant_index) -> cells
         self.errors: dict[str, str] = {}
         self.metadata_keys: list[str] = []
         if resume:
@@ -103,14 +115,14 @@ class ResultTable:
                     self.metadata_keys.append(c)
             for r in rows:
                 if r.get("source"):
-                    self.rows[r["source"]] = {k: (v or "") for k, v in r.items() if k}
+                    self.rows[_key(r)] = {k: (v or "") for k, v in r.items() if k}
             _, errs = _read_csv(self.out / ERRORS_CSV)
             self.errors = {e["source"]: e.get("reason", "") for e in errs if e.get("source")}
 
     @property
     def done(self) -> set[str]:
         """Sources with a row in the table."""
-        return set(self.rows)
+        return {source for source, _ in self.rows}
 
     def columns(self) -> list[str]:
         """Column names in output order."""
@@ -119,18 +131,27 @@ class ResultTable:
         rest = sorted(k for k in keys if k not in PREFERRED_KEYS)
         return [*HEAD, *first, *rest, *TAIL]
 
-    def add_row(self, row: dict) -> None:
-        """Add (or replace) the row of a processed bag (:func:`~canopy_stereo.batch.work.process_bag`)
-        and rewrite the table; a previous error of that source is removed."""
-        cells = {k: format_value(row.get(k)) for k in (*HEAD, *TAIL)}
-        for key, value in (row.get("metadata") or {}).items():
-            col = metadata_column(key)
-            if col not in self.metadata_keys:
-                self.metadata_keys.append(col)
-            cells[col] = format_value(value)
-        self.rows[cells["source"]] = cells
-        self.errors.pop(cells["source"], None)
+    def add_rows(self, rows: list[dict]) -> None:
+        """Add (or replace) the rows of a processed bag, one per plant
+        (:func:`~canopy_stereo.batch.work.process_bag`), and rewrite the table; the bag's
+        earlier rows and error are removed."""
+        sources = {str(r["source"]) for r in rows}
+        self.rows = {k: v for k, v in self.rows.items() if k[0] not in sources}
+        for row in rows:
+            cells = {k: format_value(row.get(k)) for k in (*HEAD, *TAIL)}
+            for key, value in (row.get("metadata") or {}).items():
+                col = metadata_column(key)
+                if col not in self.metadata_keys:
+                    self.metadata_keys.append(col)
+                cells[col] = format_value(value)
+            self.rows[_key(cells)] = cells
+        for source in sources:
+            self.errors.pop(source, None)
         self.write()
+
+    def add_row(self, row: dict) -> None:
+        """:meth:`add_rows` of one row."""
+        self.add_rows([row])
 
     def add_error(self, source: str, reason: str) -> None:
         """Record a failed bag (one-line reason) and rewrite ``errors.csv``."""
@@ -145,8 +166,8 @@ class ResultTable:
         def plants(f):
             w = csv.DictWriter(f, fieldnames=cols, restval="", extrasaction="ignore", lineterminator="\n")
             w.writeheader()
-            for src in sorted(self.rows):
-                w.writerow(self.rows[src])
+            for key in sorted(self.rows):
+                w.writerow(self.rows[key])
 
         def errors(f):
             w = csv.writer(f, lineterminator="\n")
@@ -166,7 +187,7 @@ class ResultTable:
         except ImportError:
             return None
         cols = self.columns()
-        rows = [self.rows[s] for s in sorted(self.rows)]
+        rows = [self.rows[k] for k in sorted(self.rows)]
         arrays = {}
         for c in cols:
             vals = [r.get(c, "") for r in rows]

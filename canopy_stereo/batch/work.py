@@ -1,16 +1,10 @@
 """One bag -> one row of traits: the unit of work of ``canopy-stereo batch``.
 
-Each stereo pair of the bag goes through the core exactly as
-``canopy-stereo reconstruct --measure`` takes a pair:
-:func:`~canopy_stereo.pipeline.reconstruct.reconstruct_pair` (the rig's
-rectification: Fusiello unless the rig file names Hartley with its homographies; ELAS, triangulation with the rig's
-world-frame ``P``), then the
-automatic plant mask :func:`~canopy_stereo.segmentation.auto_plant_mask` (the
-vegetation index plus the distance of the reconstructed points from the left
-camera centre as the depth cue), then
-:func:`~canopy_stereo.measure.measure_scene` (canopy extents and volumes, leaves
-separated and measured) with the left camera given. The frames' traits are
-aggregated by their median; ``frames`` counts the frames measured.
+Each stereo pair of the bag goes through the package's one measuring pipeline,
+:func:`~canopy_stereo.pipeline.plant.measure_stereo_pair` (as ``reconstruct --measure``,
+``demo`` and ``view``: reconstruction, the automatic plant mask, leaves and canopy
+measured with the same defaults). The frames' traits are aggregated by their median;
+``frames`` counts the frames measured.
 
 Everything here is pure Python over the core (no rclpy): it runs in Dask
 workers that read the bag by its path from shared storage.
@@ -27,6 +21,7 @@ import numpy as np
 
 from canopy_stereo.disparity import DEFAULT_MATCHER
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.measure.plant import DEFAULT_COLOUR_INDEX, DEFAULT_VOXEL_SIZE_MM
 
 #: Trait columns of a row, in order: name -> description (units in the name).
 TRAITS = {
@@ -35,13 +30,16 @@ TRAITS = {
     "canopy_depth_mm": "canopy extent along the view",
     "hull_volume_cm3": "convex hull volume of the canopy points",
     "voxel_volume_cm3": "volume of the voxels the canopy points occupy",
+    "voxel_size_mm": "voxel edge of voxel_volume_cm3",
     "leaf_count": "leaves measured (separated from the plant mask, large enough)",
     "leaf_area_cm2": "summed one-sided area of the measured leaves",
     "mean_leaf_length_mm": "mean leaf length along the surface",
     "mean_leaf_width_mm": "mean leaf width",
     "leaf_area_density_cm-1": "leaf area / hull volume",
-    "plant_fraction": "fraction of the left image the plant mask covers",
+    "plant_fraction": "fraction of the left image the plant covers",
 }
+#: Text columns of a row beside the traits: the surface the height is measured from.
+REFERENCE_COLUMN = "height_reference"
 
 
 @dataclass(frozen=True)
@@ -50,7 +48,8 @@ class BatchOptions:
 
     Attributes:
         rig: a :class:`~canopy_stereo.io.rig.Rig` used for every bag (overrides
-            the rig recorded in the bag), or None to use each bag's own.
+            the rig recorded in the bag), or None to use each bag's own, else the
+            :data:`RIG_BESIDE` in its folder (:func:`resolve_rig`).
         rig_source: how ``rig`` was given (for the ``rig`` column), e.g. its path.
         select: ``{key: {values}}`` metadata filter (see
             :func:`~canopy_stereo.bag.metadata.parse_selection`).
@@ -59,13 +58,21 @@ class BatchOptions:
         max_frames: measure at most this many pairs, evenly spread (0 = all).
         left_topic, right_topic: raw image topics.
         sync_slop_s: largest left/right stamp difference of a pair (s).
+        voxel_size_mm: voxel edge of the voxel volume (mm).
+        name_pattern: metadata from the file name, e.g. ``"{plant_id}_{date}"``
+            (:func:`~canopy_stereo.batch.naming.fields_from_name`); "" = none.
+        sidecar: file name -> {key: value} metadata (``--metadata TABLE.csv``,
+            :func:`~canopy_stereo.batch.naming.read_sidecar`).
     """
 
     rig: object = None
     rig_source: str = ""
     select: dict = field(default_factory=dict)
-    index: str = "exg"
+    index: str = DEFAULT_COLOUR_INDEX
     matcher: str = DEFAULT_MATCHER
+    voxel_size_mm: float = DEFAULT_VOXEL_SIZE_MM
+    name_pattern: str = ""
+    sidecar: dict = field(default_factory=dict)
     max_frames: int = 0
     left_topic: str = "/stereo/left/image_raw"
     right_topic: str = "/stereo/right/image_raw"
@@ -76,55 +83,70 @@ class Skipped(Exception):
     """The bag is not selected (not an error)."""
 
 
-def measure_frame(left_bgr, right_bgr, rig, *, index: str = "exg", matcher: str = DEFAULT_MATCHER) -> dict:
-    """Traits (see :data:`TRAITS`) of one stereo pair, as ``reconstruct --measure`` with
-    the automatic plant mask. Raises :class:`CanopyStereoError` when the pair cannot be
-    reconstructed, segmented or measured."""
-    from canopy_stereo.geometry.camera import camera_centre
-    from canopy_stereo.measure import measure_scene
-    from canopy_stereo.pipeline.reconstruct import reconstruct_pair
-    from canopy_stereo.segmentation import auto_plant_mask
+def measure_frame(left_bgr, right_bgr, rig, *, index: str = DEFAULT_COLOUR_INDEX, matcher: str = DEFAULT_MATCHER,
+                  voxel_size_mm: float = DEFAULT_VOXEL_SIZE_MM) -> dict:
+    """Traits (see :data:`TRAITS`) of one stereo pair, all its plants as one canopy: the
+    package's one measuring pipeline (:func:`~canopy_stereo.pipeline.plant.measure_stereo_pair`,
+    as ``reconstruct --measure``, ``demo`` and ``view``). Raises :class:`CanopyStereoError`
+    when the pair cannot be reconstructed, segmented or measured."""
+    from canopy_stereo.pipeline.plant import measure_stereo_pair
 
-    rec = reconstruct_pair(left_bgr, right_bgr, rig, matcher=matcher)
-    distance = np.linalg.norm(rec.organized - camera_centre(rig.P_left), axis=-1)
-    mask = auto_plant_mask(left_bgr, depth=distance, index=index) > 0
-    res = measure_scene(rec.organized, mask=mask, ground="auto", unit=rig.world_unit, camera=rig.P_left)
-    return traits_of_report(res.report, rig.metres_per_unit * 1000.0, plant_fraction=float(mask.mean()))
+    _, res = measure_stereo_pair(left_bgr, right_bgr, rig, matcher=matcher, index=index, voxel_size_mm=voxel_size_mm)
+    from canopy_stereo.measure.plant import plant_summary
+
+    return plant_traits(plant_summary(res.report), plant_fraction=float(res.mask.mean()))
 
 
-def traits_of_report(report: dict, mm_per_unit: float, *, plant_fraction: float = float("nan")) -> dict:
-    """The :data:`TRAITS` of a measurement report (REPORT.json dict in world units)."""
-    c = report["canopy"]
-    leaves = report["leaves"]
-    mm, mm2, mm3 = mm_per_unit, mm_per_unit ** 2, mm_per_unit ** 3
+def measure_frame_plants(left_bgr, right_bgr, rig, *, index: str = DEFAULT_COLOUR_INDEX,
+                         matcher: str = DEFAULT_MATCHER, voxel_size_mm: float = DEFAULT_VOXEL_SIZE_MM) -> dict:
+    """``{plant_index: traits}`` of one stereo pair, one entry per plant the measuring
+    pipeline finds (``report["plants"]``: 1..N left to right; 0 for a plant measured as the
+    scene), with :data:`REFERENCE_COLUMN`."""
+    from canopy_stereo.pipeline.plant import measure_stereo_pair
 
-    def num(v, scale):
-        return float("nan") if v is None else float(v) * scale
+    _, res = measure_stereo_pair(left_bgr, right_bgr, rig, matcher=matcher, index=index, voxel_size_mm=voxel_size_mm)
+    out = {}
+    for p in res.report["plants"]:
+        k = int(p["plant_index"])
+        share = float(res.mask.mean()) if res.instances is None or len(res.report["plants"]) == 1 \
+            else float(np.mean(res.instances == k))
+        out[k] = plant_traits(p, plant_fraction=share)
+    return out
 
-    leaf_area_cm2 = sum(lf["area"] for lf in leaves) * mm2 / 100.0
-    hull_cm3 = num(c["hull_volume"], mm3 / 1000.0)
+
+def plant_traits(plant: dict, *, plant_fraction: float = float("nan")) -> dict:
+    """The :data:`TRAITS` (and :data:`REFERENCE_COLUMN`) of one entry of a measurement
+    report's ``plants`` (:func:`~canopy_stereo.measure.plant.measure_plant`; mm, cm^2, cm^3)."""
+    c = plant["canopy"]
+
+    def num(v):
+        return float("nan") if v is None else float(v)
+
+    hull_cm3 = num(c["hull_volume"])
+    area = num(plant.get("leaf_area"))
     return {
-        "canopy_height_mm": num(c["height"], mm),
-        "canopy_width_mm": num(c["width"], mm),
-        "canopy_depth_mm": num(c["depth"], mm),
-        "hull_volume_cm3": hull_cm3,
-        "voxel_volume_cm3": num(c["voxel_volume"], mm3 / 1000.0),
-        "leaf_count": float(len(leaves)),
-        "leaf_area_cm2": leaf_area_cm2,
-        "mean_leaf_length_mm": float(np.mean([lf["length"] for lf in leaves])) * mm if leaves else float("nan"),
-        "mean_leaf_width_mm": float(np.mean([lf["width"] for lf in leaves])) * mm if leaves else float("nan"),
-        "leaf_area_density_cm-1": leaf_area_cm2 / hull_cm3 if hull_cm3 > 0 else float("nan"),
+        "canopy_height_mm": num(c["height"]), "canopy_width_mm": num(c["width"]),
+        "canopy_depth_mm": num(c["depth"]), "hull_volume_cm3": hull_cm3,
+        "voxel_volume_cm3": num(c["voxel_volume"]), "voxel_size_mm": num(c["voxel_size"]),
+        "leaf_count": float(plant.get("n_leaves", 0)), "leaf_area_cm2": area,
+        "mean_leaf_length_mm": num(plant.get("mean_leaf_length")),
+        "mean_leaf_width_mm": num(plant.get("mean_leaf_width")),
+        "leaf_area_density_cm-1": area / hull_cm3 if hull_cm3 > 0 else float("nan"),
         "plant_fraction": float(plant_fraction),
+        REFERENCE_COLUMN: (plant.get("reference") or {}).get("kind", ""),
     }
 
 
 def aggregate(frames: list[dict]) -> dict:
-    """Median of each trait over the frames where it is finite (NaN when none)."""
+    """Median of each trait over the frames where it is finite (NaN when none); the
+    :data:`REFERENCE_COLUMN` most frames used."""
     out = {}
     for name in TRAITS:
         vals = np.array([f[name] for f in frames], np.float64)
         vals = vals[np.isfinite(vals)]
         out[name] = float(np.median(vals)) if vals.size else float("nan")
+    refs = [f.get(REFERENCE_COLUMN, "") for f in frames if f.get(REFERENCE_COLUMN)]
+    out[REFERENCE_COLUMN] = max(set(refs), key=refs.count) if refs else ""
     return out
 
 
@@ -139,37 +161,78 @@ def _spread(n_total: int, n_keep: int) -> set[int]:
     return set(np.unique(np.linspace(0, n_total - 1, n_keep).round().astype(int)).tolist())
 
 
-def process_bag(path, options: BatchOptions | None = None) -> dict:
-    """Measure every stereo pair of the bag at ``path`` and aggregate them into a row.
+#: A rig file beside the bags (in a bag's folder) that ``batch`` uses when the bag has none.
+RIG_BESIDE = "rig.yaml"
 
-    Returns ``{"source", "metadata": {...}, "recorded_at", "frames", "frames_failed",
-    "rig", "canopy_stereo_version", <TRAITS>}``. Raises :class:`Skipped` when the bag's
-    metadata does not match ``options.select``, :class:`CanopyStereoError` (one-line
-    message) when it cannot be read (missing, not MCAP, truncated), has no rig, no
-    stereo pair, or no frame could be measured.
+
+def resolve_rig(path, bag_rig, options: BatchOptions):
+    """``(rig, source)`` of the bag at ``path``: ``--rig`` (``options.rig``), else the bag's
+    own rig record, else :data:`RIG_BESIDE` in the bag's folder; :class:`CanopyStereoError`
+    naming all three when none is found."""
+    from pathlib import Path
+
+    from canopy_stereo.io.rig import load_rig
+
+    if options.rig is not None:
+        return options.rig, options.rig_source or "given"
+    if bag_rig is not None:
+        return bag_rig, "bag"
+    beside = Path(path).parent / RIG_BESIDE
+    if beside.is_file():
+        return load_rig(beside), str(beside)
+    raise CanopyStereoError(f"no rig: the bag has no canopy_stereo_rig metadata record and there is no "
+                            f"{RIG_BESIDE} beside it; give --rig RIG.yaml")
+
+
+def bag_metadata(path, recorded: dict, options: BatchOptions) -> dict:
+    """The metadata of the bag at ``path``: its recorded ``canopy_stereo`` keys, updated with
+    the fields of its file name (``options.name_pattern``,
+    :func:`~canopy_stereo.batch.naming.fields_from_name`) and its row of the sidecar table
+    (``options.sidecar``: file name -> {key: value})."""
+    from pathlib import Path
+
+    from canopy_stereo.batch.naming import fields_from_name, sidecar_row
+
+    meta = dict(recorded)
+    if options.name_pattern:
+        meta.update(fields_from_name(Path(path).name, options.name_pattern))
+    if options.sidecar:
+        meta.update(sidecar_row(options.sidecar, path))
+    return meta
+
+
+def process_bag(path, options: BatchOptions | None = None) -> list[dict]:
+    """Measure every stereo pair of the bag at ``path`` and aggregate them into one row per plant.
+
+    Returns rows ``{"source", "plant_index", "metadata": {...}, "recorded_at", "frames",
+    "frames_failed", "rig", "canopy_stereo_version", <TRAITS>, height_reference}``, one per
+    plant the measuring pipeline numbers (1..N left to right; the frames' values of a plant
+    aggregated by their median). Raises :class:`Skipped` when the bag's metadata does not
+    match ``options.select``, :class:`CanopyStereoError` (one-line message) when it cannot
+    be read (missing, not MCAP, truncated), has no rig (:func:`resolve_rig`), no stereo pair,
+    or no frame could be measured.
     """
     from canopy_stereo import __version__
     from canopy_stereo.bag import BagReader
-    from canopy_stereo.bag.metadata import RIG_RECORD, canopy_metadata, matches_selection
+    from canopy_stereo.bag.metadata import canopy_metadata, matches_selection
     from canopy_stereo.batch.frames import image_to_bgr, raw_stereo_pairs, stereo_topics
 
     options = options or BatchOptions()
     bag = BagReader(path)
     if bag.truncated:
         raise CanopyStereoError(f"truncated bag: {bag.problem}")
-    meta, bag_rig = canopy_metadata(bag.metadata(), source=str(path))
+    recorded, bag_rig = canopy_metadata(bag.metadata(), source=str(path))
+    meta = bag_metadata(path, recorded, options)
     if options.select and not matches_selection(meta, options.select):
         raise Skipped(str(path))
-    rig = options.rig if options.rig is not None else bag_rig
-    if rig is None:
-        raise CanopyStereoError(f"no rig: the bag has no {RIG_RECORD} metadata record; give --rig RIG.yaml")
-    rig_source = (options.rig_source or "given") if options.rig is not None else "bag"
+    rig, rig_source = resolve_rig(path, bag_rig, options)
     # at most max_frames pairs, spread over the pairs the bag can hold (its smaller stream)
     left_topic, right_topic = stereo_topics(bag, options.left_topic, right_topic=options.right_topic)  # or /compressed
     n_pairs = min((bag.topics[t].message_count if t in bag.topics else 0) for t in (left_topic, right_topic))
     keep = _spread(n_pairs, options.max_frames)
     last = max(keep, default=0)
-    measured, failures, first_stamp = [], [], None
+    per_plant: dict[int, list[dict]] = {}
+    n_frames, failures, first_stamp = 0, [], None
     for k, (stamp, left, right) in enumerate(raw_stereo_pairs(bag, left_topic, right_topic=right_topic,
                                                               slop_s=options.sync_slop_s)):
         if k > last:
@@ -178,18 +241,23 @@ def process_bag(path, options: BatchOptions | None = None) -> dict:
             continue
         first_stamp = stamp if first_stamp is None else first_stamp
         try:
-            measured.append(measure_frame(image_to_bgr(left), image_to_bgr(right), rig,
-                                          index=options.index, matcher=options.matcher))
+            plants = measure_frame_plants(image_to_bgr(left), image_to_bgr(right), rig, index=options.index,
+                                          matcher=options.matcher, voxel_size_mm=options.voxel_size_mm)
         except CanopyStereoError as exc:
             failures.append(f"frame {k}: {exc}")
+            continue
+        n_frames += 1
+        for index, traits in plants.items():
+            per_plant.setdefault(index, []).append(traits)
     if first_stamp is None:
         raise CanopyStereoError(f"no stereo pair on {options.left_topic} and {options.right_topic} "
                                 f"within {options.sync_slop_s:g} s")
-    if not measured:
+    if not per_plant:
         raise CanopyStereoError(f"no frame could be measured ({len(failures)} tried; {failures[0]})")
-    return {"source": str(path), "metadata": meta, "recorded_at": _iso_utc(first_stamp),
-            "frames": len(measured), "frames_failed": len(failures), **aggregate(measured),
-            "rig": rig_source, "canopy_stereo_version": __version__}
+    return [{"source": str(path), "plant_index": index, "metadata": meta, "recorded_at": _iso_utc(first_stamp),
+             "frames": len(frames), "frames_failed": len(failures) + n_frames - len(frames), **aggregate(frames),
+             "rig": rig_source, "canopy_stereo_version": __version__}
+            for index, frames in sorted(per_plant.items())]
 
 
 def one_line(exc: BaseException) -> str:
@@ -199,8 +267,8 @@ def one_line(exc: BaseException) -> str:
 
 
 def run_bag_task(path: str, options: BatchOptions) -> tuple[str, object]:
-    """The Dask task: ``("ok", row)``, ``("skipped", None)`` or ``("error", reason)``;
-    it never raises for a bad bag (only a dying worker fails the task)."""
+    """The Dask task: ``("ok", rows)`` (one per plant), ``("skipped", None)`` or
+    ``("error", reason)``; it never raises for a bad bag (only a dying worker fails the task)."""
     try:
         return "ok", process_bag(path, options)
     except Skipped:

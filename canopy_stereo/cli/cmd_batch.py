@@ -5,13 +5,18 @@ import sys
 
 COMMAND = "batch"
 HELP = "measure every bag of a season into one trait table (Dask: this machine or a cluster)"
-DESCRIPTION = """Reconstruct and measure each stereo pair of each bag with the core of
-`reconstruct --measure` (automatic plant mask, canopy extents and volumes, leaves), aggregate
-a bag's frames by their median and write OUT/plants.csv (one row per bag: source, the bag's
-metadata keys, frames, traits with their units in the column names, package version),
-OUT/plants.parquet (with pyarrow), OUT/plots/<plant>.png and OUT/errors.csv. Runs on an
-embedded Dask LocalCluster of --workers processes, or on a running cluster (--scheduler).
-Exit status 1 when any bag failed, 2 for a usage error, 130 when interrupted."""
+DESCRIPTION = """Reconstruct and measure each stereo pair of each bag with the package's one
+measuring pipeline (as `reconstruct --measure`, `demo` and `view`: automatic plant mask,
+canopy extents and volumes, leaves), aggregate a bag's frames by their median and write
+OUT/plants.csv (one row per plant of each bag: source, plant_index 1..N left to right, the
+bag's metadata keys, frames, traits with their units in the column names, the height's
+reference surface, package version), OUT/plants.parquet (with pyarrow),
+OUT/plots/<plant>.png and OUT/errors.csv. The rig: --rig, else the bag's own record, else a
+rig.yaml beside the bag. Metadata: the bag's record, the file name (--name-pattern) and a
+table keyed by file name (--metadata). Each failed bag is printed as one line as it
+happens. Runs on an embedded Dask LocalCluster of --workers processes, or on a running
+cluster (--scheduler). Exit status 1 when any bag failed, 2 for a usage error, 130 when
+interrupted (Ctrl-C or SIGTERM: one line, the rows finished so far kept)."""
 
 
 def add_arguments(p):
@@ -22,7 +27,14 @@ def add_arguments(p):
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="bag (.mcap) or folder of bags (searched recursively)")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
     p.add_argument("--rig", metavar="RIG.yaml",
-                   help="rig file for every bag (default: each bag's own canopy_stereo_rig record)")
+                   help="rig file for every bag (default: each bag's own canopy_stereo_rig record, else a "
+                        "rig.yaml beside the bag)")
+    p.add_argument("--name-pattern", metavar="PATTERN", default="",
+                   help="metadata from the file names, e.g. '{plant_id}_{treatment}_{date}' (each {key} one or "
+                        "more characters, the rest literal; or a regular expression with (?P<key>...) groups)")
+    p.add_argument("--metadata", metavar="TABLE.csv",
+                   help="metadata from a table with one row per bag, keyed by file name (column file, filename "
+                        "or bag, else the first), the other columns its keys (as PlantCV's metadata files)")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1, metavar="N",
                    help="worker processes of the embedded LocalCluster, one thread each (default: the "
                         "number of CPUs; ignored with --scheduler)")
@@ -35,6 +47,8 @@ def add_arguments(p):
                    help="only bags whose metadata KEY is VALUE (values of one key: any; keys: all)")
     p.add_argument("--index", choices=("exg", "exgr", "none"), default="exg",
                    help="colour cue of the automatic plant mask (default exg; none: depth and learned colour)")
+    p.add_argument("--voxel-size", type=float, default=10.0, metavar="MM",
+                   help="voxel edge of voxel_volume_cm3, millimetres (default 10; a column of the table)")
     p.add_argument("--matcher", choices=matcher_names(), default=DEFAULT_MATCHER,
                    help=f"dense matcher (default {DEFAULT_MATCHER})")
     p.add_argument("--max-frames", type=int, default=0, metavar="N",
@@ -58,6 +72,8 @@ def run(args) -> int:
 
     if args.max_frames < 0:
         raise CanopyStereoError(f"--max-frames must be >= 0, got {args.max_frames}")
+    if not args.voxel_size > 0:
+        raise CanopyStereoError(f"--voxel-size must be > 0 mm, got {args.voxel_size}")
     if not args.sync_slop >= 0:
         raise CanopyStereoError(f"--sync-slop must be >= 0 s, got {args.sync_slop}")
     rig = None
@@ -65,8 +81,19 @@ def run(args) -> int:
         from canopy_stereo.io.rig import load_rig
 
         rig = load_rig(args.rig)
+    sidecar = {}
+    if args.metadata:
+        from canopy_stereo.batch.naming import read_sidecar
+
+        sidecar = read_sidecar(args.metadata)
+    if args.name_pattern:
+        from canopy_stereo.batch.naming import pattern_regex
+
+        pattern_regex(args.name_pattern)  # a bad pattern fails now, in one line
     options = BatchOptions(rig=rig, rig_source=args.rig or "", select=parse_selection(args.select),
+                           name_pattern=args.name_pattern, sidecar=sidecar,
                            index=args.index, matcher=args.matcher, max_frames=args.max_frames,
+                           voxel_size_mm=args.voxel_size,
                            left_topic=args.left_topic, right_topic=args.right_topic,
                            sync_slop_s=args.sync_slop)
     _sigterm_interrupts()

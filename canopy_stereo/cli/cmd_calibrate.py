@@ -145,8 +145,11 @@ def run(args) -> int:
     print(cal.check.table(args.unit))
     rig = Rig(P_left=cal.P_left, P_right=cal.P_right, image_size=(w, h), world_unit=args.unit,
               D_left=cal.D_left, D_right=cal.D_right)
-    save_rig(rig, args.output, comment=f"canopy-stereo calibrate; baseline {rig.baseline:.2f} {args.unit}")
-    print(f"wrote {args.output} (baseline {rig.baseline:.2f} {args.unit})")
+    rig = _with_working_distance(rig, cal.check)
+    save_rig(rig, args.output, comment=f"canopy-stereo calibrate; baseline {rig.baseline:.2f} {args.unit}; "
+                                       f"working distance {_working_distance_text(rig)} (seen, with margin)")
+    print(f"wrote {args.output} (baseline {rig.baseline:.2f} {args.unit}; working distance "
+          f"{_working_distance_text(rig)}, the disparity range searched)")
     if args.plot:
         from canopy_stereo.geometry.chessboard import plot_triangulation_errors
 
@@ -238,16 +241,31 @@ def _run_world_rig(args) -> int:
     print(f"reprojection RMS: left {cal.rms_left:.3f} px, right {cal.rms_right:.3f} px")
     print(cal.table())
     print("(paper's Table 1: mean absolute error X 0.42, Y 0.36, Z 2.78 mm; std 0.35, 0.31, 1.74 mm)")
-    rig = cal.rig
+    rig = _with_working_distance(cal.rig, cal.fit_check)
     save_rig(rig, args.output, comment=(
         f"canopy-stereo calibrate --world-rig {placements_path}: Gold Standard from "
         f"{len(cal.used_pairs)} pairs; RMS left {cal.rms_left:.3f} px, right {cal.rms_right:.3f} px; "
-        f"baseline {rig.baseline:.2f} {rig.world_unit}"))
-    print(f"wrote {args.output} (baseline {rig.baseline:.2f} {rig.world_unit})")
+        f"baseline {rig.baseline:.2f} {rig.world_unit}; working distance {_working_distance_text(rig)} "
+        "(seen, with margin)"))
+    print(f"wrote {args.output} (baseline {rig.baseline:.2f} {rig.world_unit}; working distance "
+          f"{_working_distance_text(rig)}, the disparity range searched)")
     if args.plot:
         plot_world_rig_errors(cal, args.plot)
         print(f"wrote {args.plot}")
     return 0 if np.all(np.isfinite(cal.table1.mean_abs)) else 1
+
+
+def _with_working_distance(rig, check):
+    """The rig with ``near_m``/``far_m``: the distances the calibration saw, with margin
+    (:func:`~canopy_stereo.geometry.calibration.observed_working_distance`)."""
+    from canopy_stereo.geometry.calibration import observed_working_distance
+
+    near_m, far_m = observed_working_distance(check, metres_per_unit=rig.metres_per_unit)
+    return rig.with_extra(near_m=near_m, far_m=far_m)
+
+
+def _working_distance_text(rig) -> str:
+    return f"{rig.extra['near_m']:g} to {rig.extra['far_m']:g} m"
 
 
 def _run_import(args) -> int:

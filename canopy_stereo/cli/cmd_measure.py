@@ -58,26 +58,29 @@ def add_arguments(p):
 
 
 def _print_summary(report: dict) -> None:
-    u = report["unit"]
+    """The report's leaves and canopy in the one unit set (mm, cm^2, cm^3)."""
+    from canopy_stereo.measure import lab_report
+
+    report = lab_report(report)
     leaves = report["leaves"]
     if leaves:
-        print(f"{'leaf':>6} {'length':>9} {'width':>9} {'area':>11}  ({u}, {u}^2)")
+        print(f"{'leaf':>6} {'length':>9} {'width':>9} {'area':>11}  (mm, mm, cm^2)")
         for lf in leaves:
             flag = "" if lf.get("reliable", True) else "  (unreliable: " + (
                 "edge-on" if (lf.get("view_angle_deg") or 0) > 75 else "incomplete") + ")"
-            print(f"{lf['id']:>6} {lf['length']:>9.1f} {lf['width']:>9.1f} {lf['area']:>11.1f}{flag}")
+            print(f"{lf['id']:>6} {lf['length']:>9.1f} {lf['width']:>9.1f} {lf['area']:>11.2f}{flag}")
     for s in report.get("skipped_leaves", []):
         print(f"skipped leaf {s['id']}: {s['reason']}")
     c = report["canopy"]
     frame = report["frame"]["kind"]
-    print(f"canopy ({frame} frame): height {c['height']:.1f} {u}, width {c['width']:.1f} {u}, "
-          f"depth {c['depth']:.1f} {u}")
-    print(f"hull volume {c['hull_volume']:.6g} {u}^3, voxel volume {c['voxel_volume']:.6g} {u}^3 "
-          f"({c['voxel_size']:g} {u} voxels)")
+    print(f"canopy ({frame} frame): height {c['height']:.1f} mm, width {c['width']:.1f} mm, "
+          f"depth {c['depth']:.1f} mm")
+    print(f"hull volume {c['hull_volume']:.6g} cm^3, voxel volume {c['voxel_volume']:.6g} cm^3 "
+          f"({c['voxel_size']:g} mm voxels)")
     if c.get("leaf_area") is not None:
         lad = c.get("leaf_area_density")
-        print(f"leaf area {c['leaf_area']:.6g} {u}^2"
-              + (f", leaf-area density {lad:.4g} 1/{u}" if lad is not None else ""))
+        print(f"leaf area {c['leaf_area']:.6g} cm^2"
+              + (f", leaf-area density {lad:.4g} 1/cm" if lad is not None else ""))
 
 
 def run(args) -> int:

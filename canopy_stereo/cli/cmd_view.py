@@ -129,9 +129,13 @@ def _show_bag(src: Path, args) -> int:
                     result = run_raw_bag(src, rig, logger, measure=not args.no_measure, matcher=args.matcher,
                                          domain_id=args.domain_id, on_logged=lambda: bar.step())
                 print(f"{src}: {result.frames_in} frames through the graph, {logger.frames} shown")
+                _print_first_measurement(result.viewer_measurements)
             else:
-                n = show_recorded_outputs(bag, ns, logger, rig=rig, measure=not args.no_measure)
+                measured: list = []
+                n = show_recorded_outputs(bag, ns, logger, rig=rig, measure=not args.no_measure,
+                                          measurements=measured)
                 print(f"{src}: {n} recorded frames shown" + ("" if rig else " (no rig: camera pose unknown)"))
+                _print_first_measurement(sorted(measured, key=lambda m: m[0]))
         finally:
             close_recording(rec)
         done = True
@@ -145,3 +149,15 @@ def _show_bag(src: Path, args) -> int:
         if args.save and not done:
             Path(args.save).unlink(missing_ok=True)  # no half-written recording is left behind
     return 0 if logger.frames > 0 else 1
+
+
+def _print_first_measurement(measurements) -> None:
+    """The first measured frame's summary (the one measuring pipeline's lines: mm, cm^2, cm^3)."""
+    from canopy_stereo.measure.plant import measurement_lines
+
+    for k, (_, report) in enumerate(measurements):
+        if report is not None:
+            print(f"frame {k + 1} of {len(measurements)}:")
+            for line in measurement_lines(report):
+                print("  " + line)
+            return

@@ -203,3 +203,19 @@ def calibrate_stereo_points(X, x_left, x_right) -> StereoCalibration:
     P_right, rms_r = gold_standard_projection(X, x_right)
     check = triangulation_check(P_left, P_right, X, x_left, x_right)
     return StereoCalibration(P_left, P_right, rms_l, rms_r, check)
+
+
+#: Margins of the working distance a calibration writes: nearer than the nearest point
+#: seen and farther than the farthest, as factors of their distances.
+NEAR_MARGIN, FAR_MARGIN = 0.7, 2.0
+
+
+def observed_working_distance(check: TriangulationCheck, *, metres_per_unit: float) -> tuple[float, float]:
+    """``(near_m, far_m)``: the distances (metres) at which the calibration saw its points,
+    widened by :data:`NEAR_MARGIN` and :data:`FAR_MARGIN`, rounded to millimetres (the
+    rig file's ``near_m``/``far_m``: the disparity range searched covers them)."""
+    d = np.asarray(check.distance, np.float64) * float(metres_per_unit)
+    d = d[np.isfinite(d) & (d > 0)]
+    if d.size == 0:
+        raise CalibrationError("no calibration point with a distance: no working distance to write")
+    return round(float(d.min()) * NEAR_MARGIN, 3), round(float(d.max()) * FAR_MARGIN, 3)

@@ -67,13 +67,19 @@ def rig_from_middlebury(calib: dict | str | Path) -> Rig:
     K0, K1, B = calib["cam0"], calib["cam1"], float(calib["baseline"])
     P_left = K0 @ np.hstack([np.eye(3), np.zeros((3, 1))])
     P_right = K1 @ np.hstack([np.eye(3), np.array([[-B], [0.0], [0.0]])])
-    extra = {}
-    if "ndisp" in calib:
-        doffs = float(calib["doffs"])
-        extra = {"disp_min": max(0, int(np.floor(doffs)) - 1),
-                 "disp_max": int(np.ceil(doffs + float(calib["ndisp"]))) + 1}
     return Rig(P_left=P_left, P_right=P_right,
-               image_size=(int(calib["width"]), int(calib["height"])), world_unit="mm", extra=extra)
+               image_size=(int(calib["width"]), int(calib["height"])), world_unit="mm",
+               extra=middlebury_disparity_range(calib))
+
+
+def middlebury_disparity_range(calib: dict) -> dict:
+    """``{"disp_min", "disp_max"}`` (pixels) of the Fusiello-rectified pair for a parsed
+    ``calib.txt`` with ``ndisp`` (disparities ``f B / Z = d + doffs``), else ``{}``."""
+    if "ndisp" not in calib:
+        return {}
+    doffs = float(calib["doffs"])
+    return {"disp_min": max(0, int(np.floor(doffs)) - 1),
+            "disp_max": int(np.ceil(doffs + float(calib["ndisp"]))) + 1}
 
 
 def read_disparity(path, scale: float | None = None) -> np.ndarray:

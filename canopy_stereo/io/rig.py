@@ -16,7 +16,9 @@ One format serves the CLI and the ROS nodes::
                                        # (fisheye, [k1, k2, k3, k4])
 
 Other keys under ``ros__parameters`` (node parameters such as ``method`` or
-``H_left``) are preserved in :attr:`Rig.extra`. The :class:`Rig` itself (and the
+``H_left``) are preserved in :attr:`Rig.extra`; a key the package does not know
+(:mod:`canopy_stereo.io.rig_keys`, e.g. the typo ``disp_mx``) is an error naming the
+nearest valid key. The :class:`Rig` itself (and the
 world units) is :mod:`canopy_stereo.geometry.rig`; this module reads and writes it.
 """
 from __future__ import annotations
@@ -27,6 +29,7 @@ import yaml
 
 from canopy_stereo.errors import RigError
 from canopy_stereo.geometry.rig import UNIT_TO_METRES, Rig, unit_to_metres
+from canopy_stereo.io.rig_keys import check_rig_keys
 from canopy_stereo.io.yaml_files import read_text_file, yaml_error_line
 
 __all__ = ["UNIT_TO_METRES", "Rig", "load_rig", "rig_from_parameters", "rig_from_yaml", "rig_to_yaml",
@@ -37,6 +40,7 @@ def rig_from_parameters(params: dict, source: str = "rig") -> Rig:
     """Build a :class:`Rig` from a ``ros__parameters`` mapping."""
     if not isinstance(params, dict):
         raise RigError(f"{source}: ros__parameters must be a mapping")
+    check_rig_keys(params, source=source)  # a typo (disp_mx) is an error, not a silent default
     missing = [k for k in ("P_left", "P_right", "image_width", "image_height") if k not in params]
     if missing:
         raise RigError(f"{source}: missing parameter(s) {', '.join(missing)}")

@@ -21,10 +21,12 @@ from canopy_stereo.measure.plants import REFERENCE_KINDS, measure_plants, refere
 from canopy_stereo.measure.plot import plot_views
 from canopy_stereo.measure.report import load_cloud, write_leaves_csv, write_report
 from canopy_stereo.measure.scene import SceneMeasurement, measure_organized, measure_points, measure_scene
+from canopy_stereo.measure.units import LAB_UNITS, lab_report
 from canopy_stereo.measure.viewpoint import estimate_camera
 
 __all__ = [
-    "LeafMeasurement", "MeasuringFrame", "SceneMeasurement", "canopy_dimensions", "estimate_camera",
+    "LAB_UNITS", "LeafMeasurement", "lab_report", "MeasuringFrame", "SceneMeasurement", "canopy_dimensions",
+    "estimate_camera",
     "hull_volume", "load_cloud", "measure_leaf", "measure_organized", "measure_points",
     "measure_scene", "plot_views", "REFERENCE_KINDS", "measure_plants", "reference_surface", "separate_leaves",
     "voxel_volume", "write_leaves_csv", "write_report",

@@ -38,7 +38,7 @@ def reference_surface(organized: np.ndarray, plant: np.ndarray, others: np.ndarr
     horizontal reach of the foot of the plant (the centre of its lowest 5 % of
     points; reach: the larger of half its height and the 90th percentile of its
     points' horizontal distances from the foot) and from 60 % of the plant's height (or
-    twice its reach: a top view sees the leaves, not the stem down to the soil) below
+    four times its reach: a top view sees the leaves, not the stem down to the soil) below
     its foot to 10 % above, lie more than :data:`RING_PX` pixels from every plant, and
     are not on the ground plane. Their 98th percentile height is the reference:
     ``pot_rim`` when the container stands more than 3 % of the plant's height (a pot
@@ -68,7 +68,7 @@ def reference_surface(organized: np.ndarray, plant: np.ndarray, others: np.ndarr
     candidates = finite & ~near
     C = frame.to_frame(organized[candidates])
     keep = ((np.linalg.norm(C[:, :2] - foot, axis=1) <= reach)
-            & (C[:, 2] >= foot_z - max(0.6 * height, 2.0 * reach)) & (C[:, 2] <= foot_z + 0.1 * height))
+            & (C[:, 2] >= foot_z - max(0.6 * height, 4.0 * reach)) & (C[:, 2] <= foot_z + 0.1 * height))
     has_ground = frame.ground_plane is not None
     if has_ground:
         keep &= C[:, 2] > 0.01 * scale

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.measure.units import lab_report, mm_per_unit
 
 #: Most points drawn per view.
 MAX_PLOT_POINTS = 30000
@@ -35,7 +36,8 @@ def plot_views(measurement, path, *, title: str | None = None, dpi: int = 120) -
         title: optional figure title.
 
     The views are in the measuring frame (x across, y away from the camera,
-    z up) with the canopy's bounding box, its width, depth and height, and
+    z up), in millimetres (areas cm^2, volumes cm^3: the package's one unit set) with the
+    canopy's bounding box, its width, depth and height, and
     each reliable leaf's length and width lines labelled with its id.
     """
     try:
@@ -46,12 +48,14 @@ def plot_views(measurement, path, *, title: str | None = None, dpi: int = 120) -
     except ImportError as exc:  # pragma: no cover - matplotlib is a declared extra
         raise CanopyStereoError(f"plotting needs matplotlib ({exc}); pip install matplotlib") from None
     report = measurement.report
-    unit = report.get("unit", "")
+    mm = mm_per_unit(report.get("unit", "mm"))  # the views in millimetres, whatever the cloud's unit
+    lab = lab_report(report)  # labels in the one unit set: mm, cm^2, cm^3
+    unit = "mm"
     frame = measurement.frame
-    F = frame.to_frame(measurement.canopy_points)
+    F = frame.to_frame(measurement.canopy_points) * mm
     if len(F) > MAX_PLOT_POINTS:
         F = F[np.random.default_rng(0).choice(len(F), MAX_PLOT_POINTS, replace=False)]
-    can = report["canopy"]
+    can = lab["canopy"]
     lo, hi = np.asarray(can["bbox_min"]), np.asarray(can["bbox_max"])
     span = float(np.max(hi - lo)) or 1.0
     fig, axes = plt.subplots(1, 2, figsize=(12, 6))
@@ -75,11 +79,11 @@ def plot_views(measurement, path, *, title: str | None = None, dpi: int = 120) -
         if j == 2 and frame.ground_plane is not None:
             ax.axhline(0.0, color="saddlebrown", lw=1.0)
             ax.text(lo[i], 0.0, "ground", color="saddlebrown", fontsize=8, va="bottom")
-        for leaf in report.get("leaves", []):
+        for leaf, raw in zip(lab.get("leaves", []), report.get("leaves", [])):
             if not leaf.get("reliable", True):
                 continue  # edge-on or cut-off leaves: their lines would mislead
-            ends = frame.to_frame(np.asarray(leaf["ends"]))
-            wends = frame.to_frame(np.asarray(leaf["width_ends"]))
+            ends = frame.to_frame(np.asarray(raw["ends"])) * mm
+            wends = frame.to_frame(np.asarray(raw["width_ends"])) * mm
             ax.plot(ends[:, i], ends[:, j], color="crimson", lw=1.2)
             ax.plot(wends[:, i], wends[:, j], color="darkorange", lw=1.0)
             c = ends.mean(axis=0)
@@ -91,10 +95,10 @@ def plot_views(measurement, path, *, title: str | None = None, dpi: int = 120) -
         ax.set_aspect("equal", adjustable="datalim")
         ax.margins(0.12)
         ax.grid(True, lw=0.3, alpha=0.5)
-    sub = (f"hull volume {can['hull_volume']:.4g} {unit}^3, voxel volume {can['voxel_volume']:.4g} "
-           f"{unit}^3 ({can['voxel_size']:g} {unit} voxels)")
+    sub = (f"hull volume {can['hull_volume']:.4g} cm^3, voxel volume {can['voxel_volume']:.4g} "
+           f"cm^3 ({can['voxel_size']:g} mm voxels)")
     if can.get("leaf_area") is not None:
-        sub += f", leaf area {can['leaf_area']:.4g} {unit}^2"
+        sub += f", leaf area {can['leaf_area']:.4g} cm^2"
     fig.suptitle((title + "\n" if title else "") + sub + "\nleaves: length (red) x width (orange)",
                  fontsize=10)
     fig.tight_layout()

@@ -1,9 +1,12 @@
 """The measurement report: REPORT.json and the per-leaf CSV written, clouds to measure read.
 
-REPORT.json layout (lengths in ``unit``, areas in ``unit``^2, volumes in ``unit``^3)::
+REPORT.json layout as written (:func:`write_report`: the package's one unit set,
+:mod:`canopy_stereo.measure.units`: lengths and coordinates in mm, areas in cm^2, volumes
+in cm^3, leaf-area density in 1/cm, whatever the rig's unit; the dict
+:func:`~canopy_stereo.measure.measure_scene` returns is in its cloud's ``unit``)::
 
     {"unit": "mm",
-     "units": {"length": "mm", "area": "mm^2", "volume": "mm^3", "leaf_area_density": "1/mm"},
+     "units": {"length": "mm", "area": "cm^2", "volume": "cm^3", "leaf_area_density": "1/cm"},
      "source": {...},                    # image size, points, camera, leaf ids / mask used
      "frame": {...},                     # measuring frame (see frame.MeasuringFrame)
      "leaves": [{"id", "length", "width", "area", "normal", "centroid", "chord",
@@ -30,10 +33,11 @@ import numpy as np
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.ply import read_ply
 from canopy_stereo.measure.scene import check_organized
+from canopy_stereo.measure.units import lab_report
 
-#: Columns of the per-leaf CSV.
-CSV_COLUMNS = ["id", "length", "width", "area", "chord", "normal_x", "normal_y", "normal_z",
-               "centroid_x", "centroid_y", "centroid_z", "plane_rms", "n_pixels", "n_points",
+#: Columns of the per-leaf CSV (units in the names; the others are counts, flags, a unit vector).
+CSV_COLUMNS = ["id", "length_mm", "width_mm", "area_cm2", "chord_mm", "normal_x", "normal_y", "normal_z",
+               "centroid_x_mm", "centroid_y_mm", "centroid_z_mm", "plane_rms_mm", "n_pixels", "n_points",
                "complete", "touches_border", "view_angle_deg", "reliable", "surface_model"]
 
 
@@ -79,10 +83,12 @@ def _to_builtin(obj):
 
 
 def write_report(report: dict, path, *, csv=None) -> Path:
-    """Write ``report`` as JSON to ``path`` (and the leaves as CSV to ``csv``).
+    """Write ``report`` as JSON to ``path`` (and the leaves as CSV to ``csv``), in the
+    package's one unit set (:func:`~canopy_stereo.measure.units.lab_report`).
 
     Non-finite numbers are written as ``null``. Returns the JSON path.
     """
+    report = lab_report(report)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(_to_builtin(report), indent=2) + "\n", encoding="utf-8")
@@ -92,7 +98,8 @@ def write_report(report: dict, path, *, csv=None) -> Path:
 
 
 def write_leaves_csv(report: dict, path) -> Path:
-    """One row per measured leaf (:data:`CSV_COLUMNS`), lengths in the report's unit."""
+    """One row per measured leaf (:data:`CSV_COLUMNS`: lengths mm, areas cm^2)."""
+    report = lab_report(report)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "w", newline="", encoding="utf-8") as f:
@@ -100,7 +107,7 @@ def write_leaves_csv(report: dict, path) -> Path:
         w.writerow(CSV_COLUMNS)
         for lf in report.get("leaves", []):
             n, c = lf["normal"], lf["centroid"]
-            w.writerow([lf["id"], f"{lf['length']:.3f}", f"{lf['width']:.3f}", f"{lf['area']:.3f}",
+            w.writerow([lf["id"], f"{lf['length']:.3f}", f"{lf['width']:.3f}", f"{lf['area']:.4f}",
                         f"{lf['chord']:.3f}", f"{n[0]:.5f}", f"{n[1]:.5f}", f"{n[2]:.5f}",
                         f"{c[0]:.3f}", f"{c[1]:.3f}", f"{c[2]:.3f}", f"{lf['plane_rms']:.4f}",
                         lf["n_pixels"], lf["n_points"], int(lf["complete"]), int(lf["touches_border"]),

@@ -318,13 +318,12 @@ def section_rectification(out: Path, pair: StereoPair, progress: Progress) -> di
 
 
 def _plant_mask(pair: StereoPair, recon):
-    """The package's automatic plant mask (vegetation index + depth GrabCut) of the left image."""
-    from canopy_stereo.geometry.camera import camera_centre
-    from canopy_stereo.segmentation import auto_plant_mask
+    """The measuring pipeline's automatic plant mask
+    (:func:`~canopy_stereo.measure.plant.automatic_plant_mask`) of the left image."""
+    from canopy_stereo.measure.plant import automatic_plant_mask
 
-    depth = np.linalg.norm(recon.organized - camera_centre(pair.rig.P_left), axis=2)
     try:
-        return auto_plant_mask(pair.left, depth=depth) > 0
+        return automatic_plant_mask(pair.left, recon.organized, pair.rig)
     except CanopyStereoError:
         return None
 

@@ -45,6 +45,7 @@ class Reconstruction:
         rectified: ``(left, right)`` rectified BGR images.
         disp_range: ``(disp_min, disp_max)`` searched, pixels.
         timings: stage name -> seconds.
+        warnings: one line each, things the user should know (the range too narrow, ...).
     """
 
     points: np.ndarray
@@ -56,6 +57,7 @@ class Reconstruction:
     rectified: tuple
     disp_range: tuple[int, int]
     timings: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
 
     def bounding_box(self) -> tuple[np.ndarray, np.ndarray]:
         """(min xyz, max xyz) of the points, world units."""
@@ -108,9 +110,44 @@ def _whole_pixels(value, name: str) -> int:
     return int(f)
 
 
-def disparity_range_for(rig, rect: Rectification, *, disp_min=None, disp_max=None) -> tuple[int, int]:
-    """Search range: explicit values win, then ``disp_min``/``disp_max`` in the rig
-    file's extra parameters, then :func:`default_disparity_range`.
+def _metres(value, name: str) -> float | None:
+    if value is None:
+        return None
+    try:
+        f = float(value)
+    except (TypeError, ValueError):
+        raise CanopyStereoError(f"{name} must be a distance in metres, got {value!r}") from None
+    if not np.isfinite(f) or f <= 0:
+        raise CanopyStereoError(f"{name} must be a positive distance in metres, got {value!r}")
+    return f
+
+
+def working_distance_range(rect: Rectification, *, near_m=None, far_m=None,
+                           metres_per_unit: float = 1e-3) -> tuple[int, int]:
+    """Disparity range (pixels, one pixel of margin each side) of a working distance:
+    depths along the rectified optical axis from ``near_m`` (None = 8 baselines) to
+    ``far_m`` (None = infinity) metres, for a metric (Fusiello) rectification whose
+    baseline is in world units of ``metres_per_unit`` metres."""
+    from canopy_stereo.geometry.rectification import metric_disparity_range
+
+    near, far = _metres(near_m, "near_m"), _metres(far_m, "far_m")
+    if rect.method != "fusiello":
+        raise CanopyStereoError("a working distance (near_m/far_m) needs a metric (fusiello) rectification; "
+                                "give disp_min/disp_max in pixels instead")
+    if near is not None and far is not None and far <= near:
+        raise CanopyStereoError(f"far_m ({far:g} m) must be greater than near_m ({near:g} m)")
+    k = 1.0 / metres_per_unit  # metres -> world units of the baseline
+    return metric_disparity_range(rect.focal_length, rect.baseline, doffs=rect.doffs,
+                                  near_depth=None if near is None else near * k,
+                                  far_depth=None if far is None else far * k)
+
+
+def disparity_range_for(rig, rect: Rectification, *, disp_min=None, disp_max=None, near_m=None,
+                        far_m=None) -> tuple[int, int]:
+    """Search range (pixels), first found wins: explicit ``disp_min``/``disp_max``, an
+    explicit working distance ``near_m``/``far_m`` (metres, :func:`working_distance_range`),
+    the rig file's ``disp_min``/``disp_max``, the rig file's ``near_m``/``far_m``, then
+    :func:`default_disparity_range` (depths beyond 8 baselines).
 
     The one check of a disparity range (``reconstruct``, ``run`` and ``disparity_node``):
     whole pixels, ``0 <= disp_min < disp_max``; else :class:`CanopyStereoError`.
@@ -124,8 +161,16 @@ def disparity_range_for(rig, rect: Rectification, *, disp_min=None, disp_max=Non
     lowered by that ``doffs``; the bundled ``config/croton_rig.yaml`` was.)
     """
     dmin, dmax = default_disparity_range(rect)
-    dmin = _whole_pixels(rig.extra.get("disp_min", dmin) if disp_min is None else disp_min, "disp_min")
-    dmax = _whole_pixels(rig.extra.get("disp_max", dmax) if disp_max is None else disp_max, "disp_max")
+    if near_m is not None or far_m is not None:
+        dmin, dmax = working_distance_range(rect, near_m=near_m, far_m=far_m, metres_per_unit=rig.metres_per_unit)
+    else:
+        if rig.extra.get("near_m") is not None or rig.extra.get("far_m") is not None:
+            dmin, dmax = working_distance_range(rect, near_m=rig.extra.get("near_m"), far_m=rig.extra.get("far_m"),
+                                                metres_per_unit=rig.metres_per_unit)
+        dmin = rig.extra.get("disp_min", dmin)
+        dmax = rig.extra.get("disp_max", dmax)
+    dmin = _whole_pixels(dmin if disp_min is None else disp_min, "disp_min")
+    dmax = _whole_pixels(dmax if disp_max is None else disp_max, "disp_max")
     if dmin < 0:
         raise CanopyStereoError(f"disp_min must be >= 0 pixels, got {dmin} (a negative disparity "
                                 "puts the point behind the cameras)")
@@ -134,9 +179,17 @@ def disparity_range_for(rig, rect: Rectification, *, disp_min=None, disp_max=Non
     return dmin, dmax
 
 
+def rig_matcher_params(rig, matcher: str, *, given=None) -> dict:
+    """Matcher parameters for ``matcher``: the rig file's ``<matcher>: {name: value}`` entry
+    (e.g. ``elas: {subpixel: true}``, as ``disparity_node`` reads it from the same file as
+    ``elas.subpixel``) updated with the ``given`` ones."""
+    from_rig = rig.extra.get(matcher) if hasattr(rig, "extra") else None
+    return {**(from_rig if isinstance(from_rig, dict) else {}), **(given or {})}
+
+
 def reconstruct_pair(left_bgr, right_bgr, rig, *, method: str | None = None, matcher: str = DEFAULT_MATCHER,
-                     mask=None, disp_min=None, disp_max=None, matcher_params=None,
-                     rectification: Rectification | None = None) -> Reconstruction:
+                     mask=None, disp_min=None, disp_max=None, near_m=None, far_m=None, matcher_params=None,
+                     rectification: Rectification | None = None, check_order: bool = True) -> Reconstruction:
     """Reconstruct one stereo pair into world coordinates.
 
     Args:
@@ -147,12 +200,18 @@ def reconstruct_pair(left_bgr, right_bgr, rig, *, method: str | None = None, mat
         matcher: disparity matcher name (``"elas"``, the paper's, or ``"sgbm"``).
         mask: optional (H, W) foreground mask on the original left image (non-zero = keep).
         disp_min, disp_max: disparity search range in rectified pixels (default: from
-            the rig file or the rectification).
-        matcher_params: extra keyword arguments for the matcher.
+            the working distance or the rig file, :func:`disparity_range_for`).
+        near_m, far_m: working distance (metres along the optical axis) the range covers.
+        matcher_params: extra keyword arguments for the matcher (over the rig file's
+            ``<matcher>: {...}`` parameters, which ``disparity_node`` reads too).
         rectification: reuse a precomputed rectification (skips that stage).
+        check_order: refuse a swapped pair (:func:`~canopy_stereo.disparity.checks.check_not_swapped`,
+            :class:`CanopyStereoError`).
 
     Returns:
-        A :class:`Reconstruction` in the rig's world units.
+        A :class:`Reconstruction` in the rig's world units; its ``warnings`` name pixels
+        piling up at the ends of the searched range
+        (:func:`~canopy_stereo.disparity.checks.range_limit_warning`).
     """
     timings: dict[str, float] = {}
     left, right = to_bgr(left_bgr, "left"), to_bgr(right_bgr, "right")
@@ -175,11 +234,26 @@ def reconstruct_pair(left_bgr, right_bgr, rig, *, method: str | None = None, mat
     left_r, right_r = cached_rectifier(rig, rect).rectify(left, right)
     timings["warp"] = time.perf_counter() - t
 
+    dmin, dmax = disparity_range_for(rig, rect, disp_min=disp_min, disp_max=disp_max, near_m=near_m, far_m=far_m)
+    matches = None
+    if check_order:
+        from canopy_stereo.disparity.checks import check_not_swapped
+
+        t = time.perf_counter()
+        swapped = cached_rectifier(rig, rect).rectify(right, left)
+        matches = check_not_swapped((to_gray(left_r), to_gray(right_r)),
+                                    (to_gray(swapped[0]), to_gray(swapped[1])), disp_min=dmin, disp_max=dmax)
+        timings["order check"] = time.perf_counter() - t
+
     t = time.perf_counter()
-    dmin, dmax = disparity_range_for(rig, rect, disp_min=disp_min, disp_max=disp_max)
     disp = compute_disparity(to_gray(left_r), to_gray(right_r), matcher=matcher, disp_min=dmin,
-                             disp_max=dmax, **(matcher_params or {}))
+                             disp_max=dmax, **rig_matcher_params(rig, matcher, given=matcher_params))
     timings["disparity"] = time.perf_counter() - t
+    from canopy_stereo.disparity.checks import range_limit_warning
+
+    metric = rect.method == "fusiello"
+    warning = range_limit_warning(disp, dmin, dmax, matches=matches, focal_px=rect.focal_length if metric else None,
+                                  baseline_m=rect.baseline * rig.metres_per_unit if metric else None)
 
     t = time.perf_counter()
     organized = organized_from_disparity(disp, rect, rig.P_left, rig.P_right, rig.image_size,
@@ -194,4 +268,5 @@ def reconstruct_pair(left_bgr, right_bgr, rig, *, method: str | None = None, mat
     colors = left[vv, uu][:, ::-1].copy()
     return Reconstruction(points=points, colors=colors, pixels=np.stack([uu, vv], axis=1),
                           organized=organized, disparity=disp, rectification=rect,
-                          rectified=(left_r, right_r), disp_range=(dmin, dmax), timings=timings)
+                          rectified=(left_r, right_r), disp_range=(dmin, dmax), timings=timings,
+                          warnings=[warning] if warning else [])

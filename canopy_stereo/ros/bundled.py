@@ -163,8 +163,8 @@ def make_croton(bag_path, rig_path, paper_rig: Rig, *, n_frames: int = 4, seed: 
     """Render and write the croton bag and its rig file (the paper rig with the
     disparity range of the scene and sub-pixel ELAS)."""
     frames, depths, (dmin, dmax) = croton_frames(paper_rig, n_frames, seed=seed)
-    write_stereo_bag(bag_path, frames, truth_depths=depths)
     rig = paper_rig.with_extra(disp_min=dmin, disp_max=dmax, elas={"subpixel": True})
+    write_stereo_bag(bag_path, frames, truth_depths=depths, rig=rig)  # the rig in the bag: batch needs no --rig
     save_rig(rig, rig_path, comment=(
         "The paper's rig (config/paper_rig.yaml) for the bundled synthetic croton bag "
         "(bags/croton.mcap),\nwith the scene's disparity range (f B / Z of the Fusiello rectification: "
@@ -191,7 +191,7 @@ def make_plants(bag_path, rig_path, scene_folder) -> tuple[Path, Path]:
     dmin, dmax = max(0, int(np.floor(shift)) - 1), int(np.ceil(shift + ndisp)) + 1
     rig = rig.with_extra(disp_min=dmin, disp_max=dmax)
     left, right = read_image(folder / "im0.png"), read_image(folder / "im1.png")
-    write_stereo_bag(bag_path, [(left, right, EPOCH_NS, EPOCH_NS)])
+    write_stereo_bag(bag_path, [(left, right, EPOCH_NS, EPOCH_NS)], rig=rig)
     save_rig(rig, rig_path, comment=(
         'Middlebury 2014 "Plants" (MiddEval3 test, quarter size; Scharstein et al., GCPR 2014).\n'
         f"World frame = left camera (cam0), millimetres; from calib.txt (baseline {calib['baseline']:g} mm, "

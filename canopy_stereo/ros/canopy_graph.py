@@ -1,7 +1,8 @@
 """The ``canopy_graph`` executable: the node graph of :mod:`canopy_stereo.ros.graph` in one process.
 
 ``canopy_graph`` (``ros2 run canopy_stereo canopy_graph --rig RIG.yaml``) runs
-it from live cameras (``--cameras LEFT RIGHT``) or from a bag (``--bag``, replayed by
+it from live cameras (``--cameras LEFT RIGHT``, or ``--stereo-camera DEVICE --layout
+side_by_side|top_bottom`` for a one-device stereo webcam) or from a bag (``--bag``, replayed by
 :func:`canopy_stereo.ros.runner.run_bag`), optionally recording the outputs
 (``--record``; ``--compress-images`` stores the images as image_transport's
 ``<topic>/compressed``: the cameras' own JPEG, masks as PNG; with ``--loop`` every pass
@@ -32,6 +33,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rig", required=True, metavar="RIG.yaml", help="rig file (ROS 2 parameter YAML)")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--bag", metavar="BAG.mcap", help="replay this bag's left/right image_raw")
+    src.add_argument("--stereo-camera", metavar="DEVICE",
+                     help="one device delivering both views in one frame (a synchronized stereo webcam; "
+                          "--layout)")
     src.add_argument("--cameras", nargs=2, metavar=("LEFT", "RIGHT"),
                      help="camera devices (V4L2 index, /dev path, video file or image pattern)")
     p.add_argument("--rate", type=float, default=1.0, help="bag playback speed (0 = as fast as possible)")
@@ -42,6 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--width", type=int, default=0, help="camera width (default: the rig's)")
     p.add_argument("--height", type=int, default=0, help="camera height (default: the rig's)")
     p.add_argument("--fourcc", default="", help="camera pixel format, e.g. MJPG")
+    p.add_argument("--layout", choices=("side_by_side", "top_bottom"), default="side_by_side",
+                   help="--stereo-camera: left view in the left half (side_by_side) or on top")
     p.add_argument("--record", metavar="OUT.mcap", help="record the outputs")
     from canopy_stereo.bag.split import add_split_arguments
 
@@ -140,7 +146,7 @@ def main(args=None) -> int:
     except CanopyStereoError as exc:
         print(f"canopy_graph: error: {exc}", file=sys.stderr)
         return 2
-    if opts.metadata and not (opts.cameras and opts.record):
+    if opts.metadata and not ((opts.cameras or opts.stereo_camera) and opts.record):
         print("canopy_graph: error: --metadata describes a recording from cameras: use it with "
               "--cameras and --record", file=sys.stderr)
         return 2
@@ -154,7 +160,7 @@ def main(args=None) -> int:
     if (opts.mount or opts.camera_mount) and not opts.parent_frame:
         print("canopy_graph: error: --mount/--camera-mount need --parent-frame", file=sys.stderr)
         return 2
-    if opts.cameras:
+    if opts.cameras or opts.stereo_camera:
         # free-running cameras: the pairing tolerance is half a frame period at the camera rate
         if not opts.fps > 0:
             print("canopy_graph: error: --fps must be > 0", file=sys.stderr)
@@ -187,8 +193,13 @@ def main(args=None) -> int:
         cam = {"width": w, "height": h, "fps": float(opts.fps), "fourcc": opts.fourcc}
         if opts.record and compression is not None:  # the cameras' own JPEG is recorded (a device's MJPEG as is)
             cam.update(transport="both", jpeg_quality=compression.quality)
-        graph = CanopyGraph(rig, context, options, cameras=(
-            {**cam, "device": str(opts.cameras[0])}, {**cam, "device": str(opts.cameras[1])}))
+        if opts.stereo_camera:  # one capture holds both views: twice the width (or height)
+            wide = opts.layout == "side_by_side"
+            cameras: tuple = ({**cam, "width": w * (2 if wide else 1), "height": h * (1 if wide else 2),
+                               "device": str(opts.stereo_camera), "layout": opts.layout},)
+        else:
+            cameras = ({**cam, "device": str(opts.cameras[0])}, {**cam, "device": str(opts.cameras[1])})
+        graph = CanopyGraph(rig, context, options, cameras=cameras)
         if opts.record:
             from canopy_stereo.ros.recorder import BagRecorder
 

@@ -112,7 +112,8 @@ class CanopyGraph:
         context: an initialised rclpy context (:func:`canopy_stereo.ros.context.ros_context`).
         options: :class:`GraphOptions`.
         cameras: ``(left_params, right_params)`` for two ``camera_node`` (``device``,
-            ``fps``, ...), or None when frames come from elsewhere (a bag). With cameras,
+            ``fps``, ...), or ``(params,)`` for one ``camera_node`` of a one-device stereo
+            camera (with its ``layout``), or None when frames come from elsewhere (a bag). With cameras,
             ``rectify_node`` gets their ``fps`` and pairs within half a frame period.
     """
 
@@ -158,7 +159,12 @@ class CanopyGraph:
         classes = {"rectify_node": RectifyNode, "disparity_node": DisparityNode,
                    "segment_node": SegmentNode, "point_cloud_node": PointCloudNode}
         try:
-            if cameras is not None:
+            if cameras is not None and len(cameras) == 1:  # one device with both views (``layout``)
+                values = {**common, **cameras[0]}
+                if o.frame_prefix and "frame_id" not in values:
+                    values["frame_id"] = o.frame_prefix + default_camera_frame("left")
+                self._add("stereo_camera", CameraNode, values, rig_params=True)
+            elif cameras is not None:
                 for side, params in zip(("left", "right"), cameras):
                     values = {"camera_name": side, **common, **params}
                     if o.frame_prefix and "frame_id" not in values:

@@ -20,29 +20,33 @@ from canopy_stereo.io.compressed_image import COMPRESSED_SUFFIX, compressed_topi
 from canopy_stereo.viz.rerun_log import CameraPose, FrameLogger, camera_pose_from_rig
 
 #: Graph topics (relative to the namespace) a frame is made of.
-FRAME_TOPICS = ("points2", "disparity", "left/mask", "left/image_rect_color", "left/camera_info")
+FRAME_TOPICS = ("points2", "disparity", "left/mask", "left/image_rect_color", "left/camera_info", "left/image_raw")
 
 
-def measure_frame(organized_m: np.ndarray, mask: np.ndarray, *, rig=None):
-    """Leaves and canopy of one organized cloud (metres, rectified left grid) and its plant
-    mask, measured in millimetres (:func:`canopy_stereo.measure.measure_scene`); None when
-    there is nothing to measure."""
-    from canopy_stereo.geometry.clouds import check_cloud
-    from canopy_stereo.measure import measure_scene
+def measure_frame(frame: dict, *, rig=None):
+    """The plant of one decoded graph frame (:func:`decode_frame`: ``raw`` left image,
+    ``disparity``; without the raw image the recorded ``mask``) measured by the package's
+    one measuring pipeline (:func:`canopy_stereo.ros.measuring.measure_graph_frame`, the
+    numbers of ``demo``, ``reconstruct --measure`` and ``batch``). Returns the
+    :class:`~canopy_stereo.measure.plant.PlantMeasurement` with its mask and leaf ids carried
+    to the rectified grid the viewer draws on, or None when there is nothing to measure or
+    no rig to measure with."""
+    from dataclasses import replace
 
-    if mask is None or organized_m is None:
+    from canopy_stereo.geometry.rig_rectification import rectification_for_rig
+    from canopy_stereo.measure.plant import to_rectified_grid
+    from canopy_stereo.ros.measuring import measure_graph_frame
+
+    if rig is None or frame.get("disparity") is None or (frame.get("raw") is None and frame.get("mask") is None):
         return None
     try:
-        organized_m = check_cloud(organized_m)
+        measured = measure_graph_frame(frame.get("raw"), frame["disparity"], rig, mask_rect=frame.get("mask"))
     except CanopyStereoError:
         return None
-    plant = np.asarray(mask) > 0
-    if plant.shape != organized_m.shape[:2] or plant.sum() < 50:
-        return None
-    try:
-        return measure_scene(organized_m * 1000.0, mask=plant, unit="mm", camera="auto")
-    except CanopyStereoError:
-        return None
+    rect = rectification_for_rig(rig)  # outlines and mask are drawn over the rectified image
+    ids = measured.scene.leaf_ids
+    return replace(measured, mask=to_rectified_grid(measured.mask, rig, rect) > 0,
+                   scene=replace(measured.scene, leaf_ids=None if ids is None else to_rectified_grid(ids, rig, rect)))
 
 
 class FrameStreamer:
@@ -52,6 +56,7 @@ class FrameStreamer:
         logger: where frames go.
         rig: the rig (places the camera in the world), or None (pinhole only).
         need_mask: wait for the plant mask too before a frame is complete.
+        need_raw: wait for the raw left image too (measuring a graph run: the plant is found on it).
         measure: measure leaves and canopy of each frame (needs organized clouds and masks).
         drop_when_busy: live use: when the logger is still busy with earlier frames,
             skip frames instead of queueing them (the graph never waits).
@@ -59,10 +64,11 @@ class FrameStreamer:
     """
 
     def __init__(self, logger: FrameLogger, rig=None, *, need_mask: bool = True, measure: bool = False,
-                 drop_when_busy: bool = False, on_logged=None):
+                 drop_when_busy: bool = False, on_logged=None, need_raw: bool = False):
         self.logger = logger
         self.set_rig(rig)
-        self.required = {"points2", "disparity", "left/image_rect_color"} | ({"left/mask"} if need_mask else set())
+        self.required = ({"points2", "disparity", "left/image_rect_color"} | ({"left/mask"} if need_mask else set())
+                         | ({"left/image_raw"} if need_raw else set()))
         self.measure = measure
         self.pending: dict[int, dict] = {}
         self.lock = threading.Lock()
@@ -71,6 +77,8 @@ class FrameStreamer:
         self.skipped = 0
         self.logged = 0
         self.errors: list[str] = []
+        #: (stamp, REPORT.json dict in mm/cm^2/cm^3 or None) of each frame logged, in order
+        self.measurements: list[tuple[int, dict | None]] = []
         self.on_logged = on_logged
         self.worker = threading.Thread(target=self._work, name="canopy_viewer", daemon=True)
         self.worker.start()
@@ -87,6 +95,10 @@ class FrameStreamer:
 
     # called from the graph's receiving thread
     def on_output(self, rel: str, stamp: int, data: bytes) -> None:
+        if rel == "left/image_raw" + COMPRESSED_SUFFIX:  # a compressed recording's raw left image
+            from canopy_stereo.ros.compressed import decompress_image_cdr
+
+            rel, data = "left/image_raw", decompress_image_cdr(data)
         if rel not in FRAME_TOPICS or stamp is None:
             return
         done = []
@@ -141,13 +153,12 @@ class FrameStreamer:
         pose = pose if pose is not None else self.pose
         if pose is None and frame.get("K") is not None:
             pose = CameraPose(K=frame["K"], size=frame["size"])
-        measurement = None
-        if self.measure and frame.get("organized") is not None and frame.get("mask") is not None:
-            measurement = measure_frame(frame["organized"], frame["mask"],
-                                        rig=rig if rig is not None else self.rig)
+        measured = measure_frame(frame, rig=rig if rig is not None else self.rig) if self.measure else None
+        self.measurements.append((stamp, None if measured is None else measured.report))
         self.logger.log_frame(stamp, points_m=frame.get("points"), colors=frame.get("colors"),
                               image_bgr=frame.get("image"), depth_m=frame.get("depth"),
-                              mask=frame.get("mask"), camera=pose, measurement=measurement)
+                              mask=frame.get("mask") if measured is None else measured.mask.astype(np.uint8) * 255,
+                              camera=pose, measurement=None if measured is None else measured.scene)
         self.logged += 1
         if self.on_logged is not None:
             self.on_logged()
@@ -155,8 +166,8 @@ class FrameStreamer:
 
 def decode_frame(entry: dict) -> dict:
     """Arrays of one frame's CDR messages (relative topic -> bytes): ``points`` (N, 3) m,
-    ``colors``, ``organized`` (H, W, 3) m or None, ``depth`` (H, W) m, ``image`` BGR,
-    ``mask``, ``K``/``size`` from the camera info."""
+    ``colors``, ``organized`` (H, W, 3) m or None, ``depth`` (H, W) m, ``image`` BGR
+    (rectified), ``raw`` BGR (the raw left image), ``mask``, ``K``/``size`` from the camera info."""
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import CameraInfo, Image, PointCloud2
     from stereo_msgs.msg import DisparityImage
@@ -176,6 +187,8 @@ def decode_frame(entry: dict) -> dict:
         out["disparity"] = disp
     if "left/image_rect_color" in entry:
         out["image"] = msg_to_bgr(deserialize_message(entry["left/image_rect_color"], Image))
+    if "left/image_raw" in entry:
+        out["raw"] = msg_to_bgr(deserialize_message(entry["left/image_raw"], Image))
     if "left/mask" in entry:
         out["mask"] = msg_to_image(deserialize_message(entry["left/mask"], Image))
     if "left/camera_info" in entry:
@@ -203,9 +216,11 @@ def bag_kind(bag) -> tuple[str, str]:
                             f"{', '.join(sorted(topics)) or 'none'}")
 
 
-def show_recorded_outputs(bag, namespace: str, logger: FrameLogger, *, rig=None, measure: bool = False) -> int:
+def show_recorded_outputs(bag, namespace: str, logger: FrameLogger, *, rig=None, measure: bool = False,
+                          measurements: list | None = None) -> int:
     """Log a bag of recorded graph outputs frame by frame (grouped by header stamp); returns
-    the number of frames (clouds) logged."""
+    the number of frames (clouds) logged. ``measurements``: a list extended with the
+    ``(stamp, report or None)`` of each frame logged."""
     from canopy_stereo.ros.compressed import decompress_image_cdr
     from canopy_stereo.ros.recorder import header_stamp_from_cdr
 
@@ -221,6 +236,8 @@ def show_recorded_outputs(bag, namespace: str, logger: FrameLogger, *, rig=None,
         data = decompress_image_cdr(m.data) if m.topic.endswith(COMPRESSED_SUFFIX) else m.data
         streamer.on_output(by_topic[m.topic], header_stamp_from_cdr(m.data), data)
     streamer.close()
+    if measurements is not None:
+        measurements.extend(streamer.measurements)
     if streamer.errors:
         raise CanopyStereoError(f"{bag.path}: could not show a frame: {streamer.errors[0]}")
     return streamer.logged
@@ -229,23 +246,30 @@ def show_recorded_outputs(bag, namespace: str, logger: FrameLogger, *, rig=None,
 def run_raw_bag(path, rig, logger: FrameLogger, *, measure: bool = True, matcher=None,
                 domain_id=None, progress=None, on_logged=None):
     """Run a bag of raw frames through the graph (organized clouds, plant masks) and log
-    every frame as it comes out; returns the :class:`~canopy_stereo.ros.runner.RunResult`."""
+    every frame as it comes out; returns the :class:`~canopy_stereo.ros.runner.RunResult`
+    with ``viewer_frames`` (frames logged) and ``viewer_measurements`` (``(stamp, report
+    or None)`` per frame, by stamp)."""
     from sensor_msgs.msg import Image
 
     from canopy_stereo.ros.graph import GraphOptions
     from canopy_stereo.ros.runner import run_bag
 
-    streamer = FrameStreamer(logger, rig, need_mask=True, measure=measure, on_logged=on_logged)
+    streamer = FrameStreamer(logger, rig, need_mask=True, measure=measure, on_logged=on_logged, need_raw=measure)
     options = GraphOptions(matcher=matcher, segment=True, organized=True, parameter_services=False)
+    from sensor_msgs.msg import CompressedImage
+
+    extra = {"left/image_rect_color": Image,
+             **({"left/image_raw": Image, "left/image_raw" + COMPRESSED_SUFFIX: CompressedImage} if measure else {})}
     try:
         result = run_bag(Path(path), rig, rate=0, options=options, domain_id=domain_id,
-                         extra_outputs={"left/image_rect_color": Image}, on_output=streamer.on_output,
+                         extra_outputs=extra, on_output=streamer.on_output,
                          progress=progress)
     finally:
         streamer.close()
     if streamer.errors:
         raise CanopyStereoError(f"{path}: could not show a frame: {streamer.errors[0]}")
     result.viewer_frames = streamer.logged
+    result.viewer_measurements = sorted(streamer.measurements, key=lambda m: m[0])
     return result
 
 

@@ -267,7 +267,15 @@ def _colour_cut(img: np.ndarray, labels: np.ndarray, plain: np.ndarray) -> np.nd
     llr, plant_gmm, background_gmm = colour_log_ratio(img, plant, background, background_gmm=background_gmm)
     relabelled = relabel_by_colour(labels, llr, sure=SURE_LOG_RATIO)
     relabelled[labels == GC_BGD] = GC_BGD  # the shape cue's background stands
-    return grabcut_with_models(img, relabelled, plant_gmm, background_gmm)
+    # the cut only where something is in doubt or plant: the box around those pixels, 8 px margin
+    vs, us = np.nonzero(relabelled != GC_BGD)
+    if not len(vs):
+        return relabelled
+    y0, y1 = max(0, vs.min() - 8), min(img.shape[0], vs.max() + 9)
+    x0, x1 = max(0, us.min() - 8), min(img.shape[1], us.max() + 9)
+    relabelled[y0:y1, x0:x1] = grabcut_with_models(img[y0:y1, x0:x1], relabelled[y0:y1, x0:x1],
+                                                   plant_gmm, background_gmm)
+    return relabelled
 
 
 def _with_shape_evidence(mask: np.ndarray, sure: np.ndarray, near_solid: np.ndarray) -> np.ndarray:

@@ -270,6 +270,8 @@ class FrameLogger:
                                        labels=[label], colors=[(255, 80, 200)]))
             for name in ("height", "width", "depth"):
                 rec.log(f"{MEASUREMENTS}/{name}_mm", rr.Scalars(canopy[name] * to_mm))
+            if canopy.get("hull_volume") is not None:  # the package's one unit set: volumes in cm^3
+                rec.log(f"{MEASUREMENTS}/hull_volume_cm3", rr.Scalars(canopy["hull_volume"] * to_mm ** 3 / 1000.0))
             rec.log(f"{MEASUREMENTS}/leaves", rr.Scalars(float(canopy.get("n_leaves", 0))))
 
     def _log_leaf_outlines(self, leaf_ids: np.ndarray, report: dict, to_mm: float) -> None:

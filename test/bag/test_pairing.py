@@ -216,3 +216,27 @@ def test_the_camera_that_follows_a_jump_finds_the_other_cameras_new_frames():
     # left restarts first and runs 3 frames ahead of the right camera's restart
     pairs, drops = _run(p, [(0, 10), (0, 110), (0, 210), (1, 12), (1, 112), (1, 212)])
     assert pairs == [(10, 12), (110, 112), (210, 212)] and drops == []
+
+
+def test_drops_of_a_time_jump_say_so_and_others_do_not():
+    """``Dropped.after_jump`` (what a node's drop_unpaired counts without logging: the jump is
+    logged once) is set exactly on the drops of a jump, for both synchronizers."""
+    p = ApproximateTimePairer(0.05, 5)
+    for k in range(3):
+        p.push(0, (100_000 + 100 * k) * MS, k)
+        p.push(1, (100_000 + 100 * k + 4) * MS, k)
+    _, stale = p.push(1, 100_504 * MS, "in flight")  # queued, then the cameras restart earlier
+    _, jumped = p.push(0, 1000 * MS, "restart")
+    assert not stale and [(d.stamp_ns, d.after_jump) for d in jumped] == [(100_504 * MS, True)]
+    s = ExactTimeSynchronizer(2, queue_size=1, jump_tolerance_s=0)
+    s.push(0, 100, "a")
+    _, full = s.push(0, 200, "b")                     # queue of 1 full: an ordinary drop
+    assert [(d.stamp_ns, d.after_jump) for d in full] == [(100, False)]
+    s = ExactTimeSynchronizer(2, queue_size=4, jump_tolerance_s=0)
+    for stamp in (100, 200):
+        s.push(0, stamp, stamp)
+        s.push(1, stamp, stamp)
+    s.push(0, 300, "old")                             # its partner is lost in the restart
+    s.push(0, 10, "c")                                # back in time: the old set may still finish
+    _, jumped = s.push(1, 10, "d")                    # a set of the new time line completes
+    assert [(d.stamp_ns, d.after_jump) for d in jumped] == [(300, True)]

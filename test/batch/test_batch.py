@@ -96,7 +96,8 @@ def _check_outputs(out: Path, folder: Path, truth: dict) -> list[dict]:
     rows = _table(out / "plants.csv")
     assert [r["source"] for r in rows] == sorted(truth)
     cols = list(rows[0])
-    assert cols[:5] == ["source", "plant_id", "plot", "treatment", "date"]
+    assert cols[:6] == ["source", "plant_index", "plant_id", "plot", "treatment", "date"]
+    assert all(r["plant_index"] == "1" for r in rows)  # one potted croton per bag: one row, plant 1
     for col in ("frames", "canopy_height_mm", "canopy_width_mm", "canopy_depth_mm", "hull_volume_cm3",
                 "voxel_volume_cm3", "leaf_count", "leaf_area_cm2", "canopy_stereo_version"):
         assert col in cols, col
@@ -243,6 +244,8 @@ def test_resume_after_an_interrupted_run_processes_only_what_is_missing(season, 
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 130, stderr
     assert "interrupted" in stdout
+    # one line says so, no traceback (Dask's workers ignore the interruption; the batch ends it)
+    assert "Traceback" not in stderr and stderr.count("interrupted") == 1, stderr
     before = {r["source"]: r for r in _table(out / "plants.csv")}
     done_before = set(before) | {e["source"] for e in _table(out / "errors.csv")}
     assert 2 <= len(before) < len(BAGS)
@@ -309,3 +312,30 @@ def test_progress_line_only_on_a_terminal(capsys):
     quiet.step()
     quiet.close()
     assert capsys.readouterr().err == ""
+
+
+def test_ctrl_c_at_a_terminal_ends_in_one_line_and_failures_print_as_they_happen(tmp_path):
+    """Ctrl-C reaches the whole process group (the batch and every Dask worker): one line,
+    no traceback, exit 130; a bad bag is printed as one line when it fails, not only at the end."""
+    folder = tmp_path / "bags"
+    folder.mkdir()
+    (folder / "a_broken.mcap").write_bytes(b"not a bag")
+    for k in range(3):  # the bundled croton carries its rig: no --rig
+        (folder / f"croton_{k}.mcap").write_bytes((REPO / "bags" / "croton.mcap").read_bytes())
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "canopy_stereo.cli", "batch", str(folder), "-o",
+                             str(tmp_path / "out"), "--workers", "1", "--no-plots"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        first = proc.stderr.readline()  # printed as it happens, the batch still running
+        assert first.startswith("failed: ") and "a_broken.mcap" in first and "not an MCAP file" in first
+        assert proc.poll() is None, "the batch finished before it could be interrupted"
+        os.killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C
+        stdout, rest = proc.communicate(timeout=180)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, rest
+    assert [ln for ln in rest.splitlines() if ln.strip()] == ["canopy-stereo batch: interrupted"], rest
+    assert "interrupted: rerun with --resume" in stdout

@@ -41,6 +41,39 @@ def test_calibrate_chessboard(cli, tmp_path, shared_data):
     assert rms <= 0.5
     rig = load_rig(tmp_path / "rig.yaml")
     assert rig.has_distortion and rig.image_size == (640, 480)
+    # the working distance it saw (the boards stand 0.34 to 0.47 m away), with margin
+    assert 0.1 < rig.extra["near_m"] < 0.3 and 0.6 < rig.extra["far_m"] < 1.5 and "working distance" in out
+
+
+@pytest.mark.slow
+def test_the_board_a_calibration_saw_is_reconstructed(cli, tmp_path, shared_data):
+    """Issue 23: with the old default range (beyond 8 baselines, 669 mm) the board 340-410 mm
+    away went missing without a word; the range calibrate writes covers it, and the old
+    range now warns, naming the range and how to widen it."""
+    from canopy_stereo.io.ply import read_ply
+
+    d = shared_data / "opencv_stereo_calib_chessboard"
+    code, out, err = cli("calibrate", "--chessboard", d / "left*.jpg", d / "right*.jpg", "--pattern", "9x6",
+                         "--square", "25", "-o", tmp_path / "rig.yaml")
+    assert code == 0, err
+    code, out, err = cli("reconstruct", d / "left01.jpg", d / "right01.jpg", "--rig", tmp_path / "rig.yaml",
+                         "-o", tmp_path / "c.ply")
+    assert code == 0, err
+    z = read_ply(tmp_path / "c.ply").points[:, 2]
+    # nothing nearer than the range (the room behind the board is farther: a warning may say so)
+    assert np.sum((z > 300) & (z < 450)) > 5000 and "largest disparity" not in err
+    rig = load_rig(tmp_path / "rig.yaml")
+    old = rig.with_extra(near_m=None, far_m=None)
+    old.extra.pop("near_m"), old.extra.pop("far_m")
+    from canopy_stereo.io.rig import save_rig
+
+    save_rig(old, tmp_path / "old.yaml")
+    code, out, err = cli("reconstruct", d / "left01.jpg", d / "right01.jpg", "--rig", tmp_path / "old.yaml",
+                         "-o", tmp_path / "o.ply")
+    assert code == 0, err
+    z = read_ply(tmp_path / "o.ply").points[:, 2]
+    assert np.sum((z > 300) & (z < 450)) < 500
+    assert "largest disparity searched" in err and "--near" in err and "near_m" in err
 
 
 

@@ -29,6 +29,7 @@ def test_cli_demo_writes_ply_disparity_png_and_summary(tmp_path, cli):
     assert (tmp_path / "plants_mask.png").is_file() and (tmp_path / "plants_depth.png").is_file()
     summary = (tmp_path / "plants_summary.txt").read_text()
     assert "frames in: 1, frames out: 1" in summary and "points" in summary
-    assert "canopy (plant mask): height" in summary and "leaves measured:" in summary
+    assert "measured: the automatic plant mask" in summary and "canopy: height" in summary
+    assert "leaves measured:" in summary and (tmp_path / "plants_overlay.png").is_file()
     assert "no figure after warm-up" in summary
     assert "scene plants" in stdout

@@ -1,5 +1,5 @@
 """``canopy-stereo measure``: the report, CSV and plot of an organized cloud, and bad input (the
-two-leaf scene with exact answers is test/measure/test_measure.py's)."""
+two-leaf scene with exact answers is test/support/scenes.py's)."""
 from __future__ import annotations
 
 import json
@@ -7,14 +7,14 @@ import json
 import numpy as np
 import pytest
 
-from test.measure.test_measure import _two_leaf_scene
+from test.support.scenes import two_leaf_scene
 
 
 @pytest.mark.slow
 def test_cli_measure_writes_report_csv_and_plot(paper_rig, tmp_path, cli):
     import cv2
 
-    org, lab, leaves = _two_leaf_scene(paper_rig)
+    org, lab, leaves = two_leaf_scene(paper_rig)
     np.save(tmp_path / "org.npy", org.astype(np.float32))
     cv2.imwrite(str(tmp_path / "ids.png"), np.where(lab <= 2, lab, 0).astype(np.uint8))
     code, out, err = cli("measure", tmp_path / "org.npy", "--leaf-ids", tmp_path / "ids.png",

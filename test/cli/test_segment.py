@@ -8,25 +8,24 @@ import pytest
 
 from canopy_stereo.segmentation import read_mask
 from canopy_stereo.sim import render_scene
-from test.segmentation.test_segmentation import _iou, _scene
-from test.segmentation.test_segmentation_sim import _depth, _truth
+from test.support.segmentation import blob_scene, iou, plant_truth, sim_depth
 
 
 def test_cli_segment(tmp_path, cli):
     from canopy_stereo.io.pfm import write_pfm
 
-    img, truth = _scene(leaf_bgr=(50, 60, 200))
+    img, truth = blob_scene(leaf_bgr=(50, 60, 200))
     cv2.imwrite(str(tmp_path / "img.png"), img)
     code, out, err = cli("segment", tmp_path / "img.png", "--rect", "30,40,270,160", "-o", tmp_path / "r.png")
     assert code == 0, err
-    assert _iou(read_mask(tmp_path / "r.png"), truth) > 0.85
+    assert iou(read_mask(tmp_path / "r.png"), truth) > 0.85
     disp = np.where(truth, 40.0, 12.0).astype(np.float32)
     disp[:3] = np.inf  # unknown
     write_pfm(tmp_path / "d.pfm", disp)
     code, out, err = cli("segment", tmp_path / "img.png", "--disparity", tmp_path / "d.pfm", "--index", "none",
                          "-o", tmp_path / "a.png")
     assert code == 0, err
-    assert _iou(read_mask(tmp_path / "a.png"), truth) > 0.95
+    assert iou(read_mask(tmp_path / "a.png"), truth) > 0.95
     assert "% plant" in out
     # bad input: one line, exit 2
     code, out, err = cli("segment", tmp_path / "img.png", "--rect", "1,2,3", "-o", tmp_path / "x.png")
@@ -42,14 +41,14 @@ def test_cli_segment_citrus_learned_colour(tmp_path, cli):
     import cv2
 
     sim = render_scene("citrus_branch", seed=0)
-    truth = _truth(sim)
+    truth = plant_truth(sim)
     cv2.imwrite(str(tmp_path / "left.png"), sim.left)
-    np.save(tmp_path / "dist.npy", _depth(sim, "elas", None))
+    np.save(tmp_path / "dist.npy", sim_depth(sim, "elas", None))
     ious = {}
     for extra in ((), ("--no-colour-model",)):
         code, out, err = cli("segment", tmp_path / "left.png", "--depth", tmp_path / "dist.npy",
                              "--index", "none", *extra, "-o", tmp_path / "m.png")
         assert code == 0, err
         assert ("learned colour" in out) == (not extra)
-        ious[extra] = _iou(cv2.imread(str(tmp_path / "m.png"), cv2.IMREAD_GRAYSCALE) > 0, truth)
+        ious[extra] = iou(cv2.imread(str(tmp_path / "m.png"), cv2.IMREAD_GRAYSCALE) > 0, truth)
     assert ious[()] >= 0.93 and ious[("--no-colour-model",)] < 0.9

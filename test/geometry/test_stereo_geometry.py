@@ -10,27 +10,10 @@ import cv2
 import numpy as np
 import pytest
 
-from canopy_stereo.geometry.camera import compose_projection, decompose_projection, point_depth, project
+from canopy_stereo.geometry.camera import decompose_projection, point_depth, project
 from canopy_stereo.geometry.rectification import StereoRectifier, fusiello_rectify
 from canopy_stereo.geometry.triangulation import apply_homography
-from canopy_stereo.io.rig import Rig
-
-
-def _rot_y(deg):
-    a = np.deg2rad(deg)
-    return np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
-
-
-def verged_rig() -> Rig:
-    """Two cameras 40 mm apart, each turned 2 degrees towards the other, with principal
-    points 55 px (x) and 20 px (y) apart and different focal lengths; world = mm."""
-    K1 = np.array([[640.0, 0, 345.0], [0, 642.0, 250.0], [0, 0, 1]])
-    K2 = np.array([[652.0, 0, 290.0], [0, 650.0, 230.0], [0, 0, 1]])
-    R1 = _rot_y(-2.0)   # rows = camera axes; the left camera turns towards +x
-    R2 = _rot_y(2.0)
-    return Rig(P_left=compose_projection(K1, R1, [0.0, 0.0, 0.0]),
-               P_right=compose_projection(K2, R2, [40.0, 0.0, 0.0]), image_size=(640, 480),
-               world_unit="mm")
+from test.support.rigs import unequal_verged_rig
 
 
 def image_geometry_Q(info_left, info_right) -> np.ndarray:
@@ -52,7 +35,7 @@ def image_geometry_Q(info_left, info_right) -> np.ndarray:
 
 
 def test_fusiello_shares_one_principal_point_and_keeps_images_in_view(paper_rig):
-    for rig in (paper_rig, verged_rig()):
+    for rig in (paper_rig, unequal_verged_rig()):
         rect = fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
         assert np.array_equal(rect.K_rect_left, rect.K_rect_right) and rect.doffs == 0.0
         w, h = rig.image_size
@@ -84,7 +67,7 @@ def test_q_matrix_depth_equals_f_t_over_d_and_the_truth_on_a_verged_rig():
     from canopy_stereo.sim import render_scene
 
     convert = pytest.importorskip("canopy_stereo.ros.convert")
-    rig = verged_rig()
+    rig = unequal_verged_rig()
     sim = render_scene("croton", rig, seed=3)
     rect = fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
     left_r, right_r = StereoRectifier(rig, rect).rectify(sim.left, sim.right)

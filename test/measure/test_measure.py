@@ -1,13 +1,14 @@
 """Leaf and canopy measurement on analytic scenes with exact answers."""
 from __future__ import annotations
 
+import csv
 import json
 
 import numpy as np
 import pytest
 
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.geometry.camera import camera_centre, pixel_rays
+from canopy_stereo.geometry.camera import camera_centre
 from canopy_stereo.measure import (
     canopy_dimensions,
     estimate_camera,
@@ -22,18 +23,12 @@ from canopy_stereo.measure import (
     voxel_volume,
     write_report,
 )
-from canopy_stereo.measure.analytic import EllipticLeaf, Plane, render
+from canopy_stereo.measure.analytic import Plane, render
 from canopy_stereo.measure.canopy import nice_voxel_size
 from canopy_stereo.measure.frame import MeasuringFrame, ransac_plane
 from canopy_stereo.measure.sections import outline_field
 from canopy_stereo.measure.surface import local_linear_fit
-
-
-def _leaf(P, pixel, dist, theta_deg, normal, a=80.0, b=48.5, **kw):
-    centre = camera_centre(P) + dist * pixel_rays(P, [pixel])[0]
-    th = np.radians(theta_deg)
-    return EllipticLeaf(centre=centre, length_dir=[np.cos(th), np.sin(th), 0.2], normal=normal,
-                        a=a, b=b, **kw)
+from test.support.scenes import leaf_in_view, two_leaf_scene
 
 
 def _errors(m, leaf):
@@ -55,7 +50,7 @@ def rig():
     ((340, 230), 360.0, -30.0, [0.3, 0.3, -1.0]),
 ])
 def test_flat_elliptic_leaf_within_half_percent(rig, pixel, dist, theta, normal):
-    leaf = _leaf(rig.P_left, pixel, dist, theta, normal)
+    leaf = leaf_in_view(rig.P_left, pixel, dist, theta, normal)
     org, lab = render(rig.P_left, rig.image_size, [leaf, Plane(camera_centre(rig.P_left) + [0, 0, 900],
                                                                 [0, 0, 1])])
     m = measure_leaf(org, lab == 1)
@@ -77,7 +72,7 @@ def test_flat_elliptic_leaf_within_half_percent(rig, pixel, dist, theta, normal)
                                               ("length", 200.0, 1.0)])
 @pytest.mark.slow
 def test_curved_leaf_lengths_follow_the_surface(rig, bend, radius, sign):
-    leaf = _leaf(rig.P_left, (320, 240), 380.0, 20.0, [0.1, -0.3, -1.0], radius=radius, bend=bend,
+    leaf = leaf_in_view(rig.P_left, (320, 240), 380.0, 20.0, [0.1, -0.3, -1.0], radius=radius, bend=bend,
                  bend_sign=sign)
     org, lab = render(rig.P_left, rig.image_size, [leaf])
     m = measure_leaf(org, lab == 1)
@@ -92,7 +87,7 @@ def test_noisy_leaf_rays_model_averages_matching_noise(rig):
     """1 mm depth noise per pixel along the rays (a stereo reconstruction's error)."""
     P = rig.P_left
     C = camera_centre(P)
-    leaf = _leaf(P, (300, 250), 400.0, 55.0, [-0.3, 0.2, -1.0])
+    leaf = leaf_in_view(P, (300, 250), 400.0, 55.0, [-0.3, 0.2, -1.0])
     org, lab = render(P, rig.image_size, [leaf, Plane(C + [0, 0, 900], [0, 0, 1])])
     dist = np.linalg.norm(org - C, axis=-1)
     noise = np.random.default_rng(3).normal(scale=1.0, size=dist.shape)
@@ -112,7 +107,7 @@ def test_rim_outliers_do_not_change_the_leaf(rig):
     """Background depths bled onto the rim (as block matchers do) are dropped."""
     P = rig.P_left
     C = camera_centre(P)
-    leaf = _leaf(P, (320, 240), 380.0, 10.0, [0.1, -0.2, -1.0])
+    leaf = leaf_in_view(P, (320, 240), 380.0, 10.0, [0.1, -0.2, -1.0])
     org, lab = render(P, rig.image_size, [leaf])
     import cv2
 
@@ -129,7 +124,7 @@ def test_rim_outliers_do_not_change_the_leaf(rig):
 def test_estimate_camera_recovers_left_camera(rig):
     P = rig.P_left
     C = camera_centre(P)
-    leaf = _leaf(P, (320, 240), 380.0, 10.0, [0.1, -0.2, -1.0])
+    leaf = leaf_in_view(P, (320, 240), 380.0, 10.0, [0.1, -0.2, -1.0])
     org, _ = render(P, rig.image_size, [leaf, Plane(C + [0, 0, 900], [0.1, 0, 1])])
     est = estimate_camera(org)
     assert est is not None
@@ -195,20 +190,8 @@ def test_canopy_dimensions_in_a_given_frame():
         canopy_dimensions(pts[:2], frame)
 
 
-def _two_leaf_scene(rig):
-    """Two leaves standing over a floor, seen by the paper's left camera."""
-    P = rig.P_left
-    C = camera_centre(P)
-    leaf_a = _leaf(P, (220, 200), 420.0, 15.0, [0.1, -0.3, -1.0], a=60.0, b=35.0)
-    leaf_b = _leaf(P, (430, 260), 470.0, -40.0, [-0.2, -0.2, -1.0], a=55.0, b=30.0)
-    floor = Plane(C + [0.0, 160.0, 0.0], [0.0, -1.0, 0.0])  # world +y is image-down
-    wall = Plane(C + [0.0, 0.0, 900.0], [0.0, 0.0, 1.0])
-    org, lab = render(P, rig.image_size, [leaf_a, leaf_b, floor, wall])
-    return org, lab, (leaf_a, leaf_b)
-
-
 def test_measure_organized_report_with_leaf_ids(rig, tmp_path):
-    org, lab, leaves = _two_leaf_scene(rig)
+    org, lab, leaves = two_leaf_scene(rig)
     ids = np.where(lab == 1, 7, np.where(lab == 2, 9, 0))
     report = measure_organized(org, leaf_ids=ids, ground="auto", unit="mm")
     assert report["unit"] == "mm" and report["units"]["volume"] == "mm^3"
@@ -242,13 +225,20 @@ def test_measure_organized_report_with_leaf_ids(rig, tmp_path):
     out = write_report(report, tmp_path / "r.json", csv=tmp_path / "leaves.csv")
     again = json.loads(out.read_text())
     assert again["leaves"][0]["id"] == 7
-    rows = (tmp_path / "leaves.csv").read_text().splitlines()
-    assert rows[0].startswith("id,length,width,area") and len(rows) == 3
+    # written in the one unit set: lengths mm, areas cm^2, volumes cm^3 (the cloud is in mm)
+    assert again["units"] == {"length": "mm", "area": "cm^2", "volume": "cm^3", "leaf_area_density": "1/cm"}
+    assert again["leaves"][0]["length"] == pytest.approx(report["leaves"][0]["length"])
+    assert again["leaves"][0]["area"] == pytest.approx(report["leaves"][0]["area"] / 100.0)
+    assert again["canopy"]["hull_volume"] == pytest.approx(canopy["hull_volume"] / 1000.0)
+    assert again["canopy"]["voxel_size"] == pytest.approx(vs)
+    rows = list(csv.reader(open(tmp_path / "leaves.csv", encoding="utf-8")))
+    assert rows[0][:5] == ["id", "length_mm", "width_mm", "area_cm2", "chord_mm"] and len(rows) == 3
+    assert float(rows[1][3]) == pytest.approx(report["leaves"][0]["area"] / 100.0, abs=1e-4)
 
 
 @pytest.mark.slow
 def test_measure_with_plant_mask_separates_leaves(rig, tmp_path):
-    org, lab, leaves = _two_leaf_scene(rig)
+    org, lab, leaves = two_leaf_scene(rig)
     res = measure_scene(org, mask=(lab == 1) | (lab == 2), ground="camera")
     assert len(res.report["leaves"]) == 2
     lengths = sorted(lf["length"] for lf in res.report["leaves"])
@@ -261,8 +251,8 @@ def test_measure_with_plant_mask_separates_leaves(rig, tmp_path):
 def test_separate_leaves_cuts_depth_jumps_and_creases(rig):
     P = rig.P_left
     # a leaf partly in front of another (depth jump) and a folded pair (crease)
-    front = _leaf(P, (250, 240), 380.0, 0.0, [0.0, 0.0, -1.0], a=60.0, b=40.0)
-    back = _leaf(P, (330, 240), 460.0, 0.0, [0.0, 0.0, -1.0], a=70.0, b=45.0)
+    front = leaf_in_view(P, (250, 240), 380.0, 0.0, [0.0, 0.0, -1.0], a=60.0, b=40.0)
+    back = leaf_in_view(P, (330, 240), 460.0, 0.0, [0.0, 0.0, -1.0], a=70.0, b=45.0)
     org, lab = render(P, rig.image_size, [front, back])
     ids = separate_leaves(org, lab > 0)
     assert ids.max() == 2
@@ -286,7 +276,7 @@ def test_separate_leaves_cuts_depth_jumps_and_creases(rig):
 def test_measure_points_from_ply(rig, tmp_path):
     from canopy_stereo.io.ply import write_ply
 
-    org, lab, _ = _two_leaf_scene(rig)
+    org, lab, _ = two_leaf_scene(rig)
     pts = org[(lab >= 1) & (lab <= 3)]  # the leaves and the floor they stand on
     write_ply(tmp_path / "c.ply", pts, unit="mm")
     cloud, unit = load_cloud(tmp_path / "c.ply")
@@ -303,7 +293,7 @@ def test_measure_points_from_ply(rig, tmp_path):
 
 
 def test_bad_inputs_give_clear_messages(rig, tmp_path):
-    org, lab, _ = _two_leaf_scene(rig)
+    org, lab, _ = two_leaf_scene(rig)
     with pytest.raises(CanopyStereoError, match="mask is empty"):
         measure_organized(org, mask=np.zeros(lab.shape, bool))
     with pytest.raises(CanopyStereoError, match=r"leaf 1: the mask is empty"):

@@ -15,7 +15,7 @@ from sensor_msgs.msg import Image  # noqa: E402
 
 from canopy_stereo.ros import convert  # noqa: E402
 from canopy_stereo.ros.context import private_domain_id, wait_for  # noqa: E402
-from test.ros.test_ros_nodes import TIMEOUT, node_kwargs  # noqa: E402
+from test.support.nodes import TIMEOUT, node_kwargs  # noqa: E402
 from test.support.ros_harness import killed_at_exit  # noqa: E402
 
 pytestmark = pytest.mark.ros

@@ -15,7 +15,7 @@ from canopy_stereo.io.image_codec import decode_compressed  # noqa: E402
 from canopy_stereo.ros import convert  # noqa: E402
 from canopy_stereo.ros.compressed import RecordingCompression  # noqa: E402
 from canopy_stereo.ros.context import wait_for  # noqa: E402
-from test.ros.test_ros_nodes import TIMEOUT  # noqa: E402
+from test.support.nodes import TIMEOUT  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 

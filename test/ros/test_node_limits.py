@@ -300,7 +300,7 @@ def _tails(logs) -> str:
 
 @pytest.mark.ros
 def test_fusion_node_drops_hostile_clouds_and_keeps_fusing(fusion_harness):
-    from test.ros.test_fusion_node import _latest_model, _send, patch_cloud_m
+    from test.support.fusion import latest_model, patch_cloud_m, send_cloud
 
     node, clouds, poses, reset, models = fusion_harness
     huge = convert.points_to_cloud2(np.zeros((4, 3), np.float32), None, stamp_ns=T0, frame_id="canopy_world")
@@ -314,15 +314,15 @@ def test_fusion_node_drops_hostile_clouds_and_keeps_fusing(fusion_harness):
     text = " | ".join(node.stats()["drops"])
     assert "20000000 points (5000x4000), over the limit" in text and "12 bytes, 1200 expected" in text
     pts, cols = patch_cloud_m()
-    _send(clouds, pts, cols, 5)
-    model, _ = _latest_model(models, 0)
+    send_cloud(clouds, pts, cols, 5)
+    model, _ = latest_model(models, 0)
     assert len(model) > 1000
 
 
 def test_drop_counters_stay_bounded_under_varying_hostile_sizes(harness):
     from canopy_stereo.ros.nodes import base
     from canopy_stereo.ros.nodes.segment import SegmentNode
-    from test.ros.test_ros_nodes import node_kwargs
+    from test.support.nodes import node_kwargs
 
     node = harness.add(SegmentNode(**node_kwargs(harness, image_width=64, image_height=48)))
     for k in range(base.MAX_DROP_REASONS + 50):

@@ -32,8 +32,7 @@ from canopy_stereo.geometry.transforms import invert_transform, transform_points
 from canopy_stereo.geometry.triangulation import apply_homography  # noqa: E402
 from canopy_stereo.ros import convert  # noqa: E402
 from canopy_stereo.ros.stereo_geometry import parse_stereo_geometry, stereo_geometry_msg  # noqa: E402
-from test.geometry.test_stereo_geometry import verged_rig  # noqa: E402
-from test.ros.test_ros_nodes import (  # noqa: E402
+from test.support.nodes import (  # noqa: E402
     T0,
     TIMEOUT,
     geometry_publisher,
@@ -41,6 +40,7 @@ from test.ros.test_ros_nodes import (  # noqa: E402
     publish_rect_infos,
     rect_info_publishers,
 )
+from test.support.rigs import unequal_verged_rig  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -60,7 +60,7 @@ def reprojection_case(rig):
     """point_cloud_node's inputs for a smooth disparity field on ``rig`` (Fusiello): the
     rectification, the disparities (px, NaN = invalid), the DisparityImage as the node reads
     it, T_world_optical from stereo_geometry and Q from the left rectified CameraInfo."""
-    from canopy_stereo.ros.nodes.point_cloud import reprojection_from_messages
+    from canopy_stereo.geometry.cloud_assembly import disparity_image_reprojection
 
     rect = fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
     t = rect.baseline * rig.metres_per_unit
@@ -70,7 +70,7 @@ def reprojection_case(rig):
                                          frame_id="left_camera_rect_optical_frame")
     geometry = parse_stereo_geometry(stereo_geometry_msg(rig, rect, FrameNames()))
     T = geometry.lookup("canopy_world", info.header.frame_id)
-    Q = reprojection_from_messages(msg.f, msg.t, info)
+    Q = disparity_image_reprojection(msg.f, msg.t, convert.camera_info_matrices(info)[3])
     return rect, disp, msg, T, Q
 
 
@@ -79,14 +79,15 @@ def test_camera_info_path_equals_back_mapping_and_dlt(paper_rig, rig_name):
     """point_cloud_node's path (Q from the DisparityImage and the left rectified CameraInfo,
     then T_world_optical from stereo_geometry) gives the points of the exact back-mapping +
     DLT path with the rig's P, to 1e-6 relative."""
+    from canopy_stereo.geometry.cloud_assembly import cloud_from_disparity
     from canopy_stereo.geometry.frames import reproject_disparity_points
-    from canopy_stereo.ros.nodes.point_cloud import cloud_from_disparity
 
-    rig = paper_rig if rig_name == "paper" else verged_rig()
+    rig = paper_rig if rig_name == "paper" else unequal_verged_rig()
     rect, disp, msg, T, Q = reprojection_case(rig)
     pts, index, depth = reproject_disparity_points(msg.disparity, Q, T=T)
     bgr = np.zeros((*disp.shape, 3), np.uint8)
-    ref, _ = cloud_from_disparity(np.where(np.isfinite(disp), disp, -1), bgr, rig, rect, organized=False)
+    ref, _ = cloud_from_disparity(np.where(np.isfinite(disp), disp, -1), bgr, rect, rig.P_left, rig.P_right,
+                                  scale=rig.metres_per_unit, organized=False)
     assert len(pts) == len(ref) == np.isfinite(disp).sum()
     scale = np.linalg.norm(ref.astype(np.float64), axis=1)
     err = np.linalg.norm(pts.astype(np.float64) - ref, axis=1) / scale
@@ -115,7 +116,7 @@ def test_cloud_records_path_gives_the_reference_cloud(paper_rig, organized, mask
     points_to_cloud2), dense or organized, with or without a mask."""
     from canopy_stereo.geometry.frames import reproject_disparity_points, reproject_disparity_records
 
-    rig = verged_rig()
+    rig = unequal_verged_rig()
     rect, disp, msg, T, Q = reprojection_case(rig)
     rng = np.random.default_rng(1)
     h, w = disp.shape
@@ -147,7 +148,7 @@ def test_raw_camera_info_rectifies_like_rectify_node(paper_rig, rig_name):
     """image_proc's maps from camera_node's CameraInfo (K, D, R, P) = rectify_node's maps.
     OpenCV's (and so image_proc's) camera model has no skew: the paper's P matrices have
     0.47-0.63 px of it, which image_proc ignores (at most |skew| * |y| ~ 0.25 px here)."""
-    base = verged_rig() if rig_name == "verged" else paper_rig
+    base = unequal_verged_rig() if rig_name == "verged" else paper_rig
     rig = replace(base, D_left=[-0.12, 0.05, 0.0008, -0.0005, 0.01],
                   D_right=[-0.10, 0.03, -0.0005, 0.0007, 0.0])
     rect = fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
@@ -485,7 +486,7 @@ def test_disparity_node_default_range_is_the_pipelines(paper_rig):
     from canopy_stereo.geometry.rectification import default_disparity_range
     from canopy_stereo.ros.nodes.disparity import resolve_disparity_range, stereo_parameters
 
-    for rig in (paper_rig, verged_rig()):
+    for rig in (paper_rig, unequal_verged_rig()):
         rect = fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
         t = rect.baseline * rig.metres_per_unit
         infos = [convert.rectified_camera_info(K, rect.size, t, side)

@@ -12,7 +12,7 @@ from sensor_msgs.msg import Image  # noqa: E402
 from canopy_stereo.ros import convert  # noqa: E402
 from canopy_stereo.ros.context import wait_for  # noqa: E402
 from canopy_stereo.ros.stamps import StampCheck  # noqa: E402
-from test.ros.test_ros_nodes import T0, TIMEOUT, node_kwargs, textured_pair  # noqa: E402
+from test.support.nodes import T0, TIMEOUT, node_kwargs, textured_pair  # noqa: E402
 
 PERIOD_NS = 100_000_000
 

@@ -18,7 +18,7 @@ from canopy_stereo.ros import convert  # noqa: E402
 from canopy_stereo.ros.camera_info import default_camera_frame  # noqa: E402
 from canopy_stereo.ros.context import private_domain_id, wait_for  # noqa: E402
 from test.conftest import REPO  # noqa: E402
-from test.ros.test_ros_nodes import TIMEOUT, node_kwargs  # noqa: E402
+from test.support.nodes import TIMEOUT, node_kwargs  # noqa: E402
 from test.support.ros_harness import Probe, ProcessGroup, croton_frames  # noqa: E402
 from test.support.ros_harness import wait_for as wait_alive  # noqa: E402
 
@@ -109,3 +109,34 @@ def test_a_side_by_side_webcam_drives_the_graph_to_clouds(side_by_side_video, tm
         if probe is not None:
             probe.close()
         group.stop_all()
+
+
+@pytest.mark.slow
+def test_canopy_graph_from_one_stereo_webcam_records_clouds_and_one_stamp_per_pair(side_by_side_video, tmp_path):
+    """``canopy_graph --stereo-camera sbs.avi --layout side_by_side --record OUT --compress-images``:
+    one camera_node feeds the graph in one process; the recording has clouds, and the left and
+    right JPEG frames carry the same stamps."""
+    from canopy_stereo.bag import BagReader
+    from canopy_stereo.ros.recorder import header_stamp_from_cdr
+
+    path, _ = side_by_side_video
+    out, fps = tmp_path / "rec.mcap", 4.0
+    group = ProcessGroup(private_domain_id(), tmp_path / "logs")
+    graph = group.start("canopy_graph", "--rig", RIG, "--stereo-camera", path, "--layout", "side_by_side",
+                        "--fps", fps, "--matcher", "sgbm", "--no-segment", "--record", out, "--compress-images")
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and graph.alive():
+            if "recording /stereo/points2" in graph.log() and out.is_file() and out.stat().st_size > 2_000_000:
+                break
+            time.sleep(0.25)
+    finally:
+        code = graph.stop(timeout_s=60)
+    assert code == 0, graph.log()[-3000:]
+    bag = BagReader(out)
+    stamps = {t: {header_stamp_from_cdr(m.data) for m in bag.messages([t])} for t in
+              ("/stereo/left/image_raw/compressed", "/stereo/right/image_raw/compressed", "/stereo/points2")}
+    assert stamps["/stereo/points2"], graph.log()[-3000:]
+    left, right = stamps["/stereo/left/image_raw/compressed"], stamps["/stereo/right/image_raw/compressed"]
+    assert len(left) >= 2 and len(left ^ right) <= 1  # the same stamps (the last may be cut by the stop)
+    assert stamps["/stereo/points2"] <= left

@@ -21,26 +21,7 @@ from canopy_stereo.segmentation import (
     write_mask,
 )
 from canopy_stereo.segmentation.grabcut import GC_BGD, GC_FGD, GC_PR_BGD, GC_PR_FGD
-
-
-def _iou(a, b):
-    a, b = np.asarray(a).astype(bool), np.asarray(b).astype(bool)
-    return (a & b).sum() / (a | b).sum()
-
-
-def _scene(leaf_bgr=(40, 150, 60), seed=0, size=(240, 320)):
-    """Textured soil-brown background with two leaf-shaped blobs; returns (image, truth)."""
-    rng = np.random.default_rng(seed)
-    h, w = size
-    img = np.empty((h, w, 3), np.float64)
-    img[:] = (60, 90, 130)  # brown soil (BGR)
-    img += cv2.GaussianBlur(rng.normal(0, 25, (h, w, 3)), (0, 0), 2)
-    truth = np.zeros((h, w), np.uint8)
-    cv2.ellipse(truth, (110, 120), (70, 35), 30, 0, 360, 1, -1)
-    cv2.ellipse(truth, (220, 110), (55, 30), -40, 0, 360, 1, -1)
-    leaf = np.asarray(leaf_bgr, np.float64) * (0.8 + 0.4 * rng.random((h, w, 1)))
-    img = np.where(truth[..., None] > 0, leaf, img)
-    return np.clip(img, 0, 255).astype(np.uint8), truth.astype(bool)
+from test.support.segmentation import blob_scene, iou
 
 
 def test_indices_on_pure_colours():
@@ -64,46 +45,46 @@ def test_otsu_threshold_splits_two_modes(rng):
 
 
 def test_grabcut_rect_finds_the_plant():
-    img, truth = _scene()
+    img, truth = blob_scene()
     mask = grabcut_rect(img, (30, 40, 270, 160))
     assert mask.dtype == np.uint8 and set(np.unique(mask)) <= {0, 255}
-    assert _iou(mask, truth) > 0.9
+    assert iou(mask, truth) > 0.9
 
 
 def test_grabcut_mask_refines_a_rough_mask():
-    img, truth = _scene()
+    img, truth = blob_scene()
     rough = cv2.dilate(truth.astype(np.uint8) * 255, np.ones((15, 15), np.uint8))
-    assert _iou(rough, truth) < 0.8
+    assert iou(rough, truth) < 0.8
     refined = grabcut_mask(img, rough, margin_px=10)
-    assert _iou(refined, truth) > 0.9
+    assert iou(refined, truth) > 0.9
     # explicit GrabCut labels
     labels = np.full(truth.shape, GC_BGD, np.uint8)
     labels[cv2.dilate(truth.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0] = GC_PR_FGD
     labels[cv2.erode(truth.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0] = GC_FGD
-    assert _iou(grabcut_mask(img, labels), truth) > 0.9
+    assert iou(grabcut_mask(img, labels), truth) > 0.9
 
 
 def test_auto_mask_green_plant_by_colour():
-    img, truth = _scene()
+    img, truth = blob_scene()
     mask = auto_plant_mask(img)
-    assert _iou(mask, truth) > 0.95
+    assert iou(mask, truth) > 0.95
 
 
 def test_auto_mask_red_plant_needs_the_depth_cue():
-    img, truth = _scene(leaf_bgr=(50, 60, 200))  # red leaves: ExG does not see them
-    assert _iou(auto_plant_mask(img), truth) < 0.5
+    img, truth = blob_scene(leaf_bgr=(50, 60, 200))  # red leaves: ExG does not see them
+    assert iou(auto_plant_mask(img), truth) < 0.5
     disparity = np.where(truth, 40.0, 12.0) + np.random.default_rng(1).normal(0, 0.5, truth.shape)
     disparity[:5] = -1.0  # unknown rows
     mask = auto_plant_mask(img, disparity=disparity, index="none")
-    assert _iou(mask, truth) > 0.95
+    assert iou(mask, truth) > 0.95
     depth = np.where(truth, 500.0, 1200.0)
-    assert _iou(auto_plant_mask(img, depth=depth, index="none"), truth) > 0.95
+    assert iou(auto_plant_mask(img, depth=depth, index="none"), truth) > 0.95
     # an explicit range instead of Otsu
-    assert _iou(auto_plant_mask(img, disparity=disparity, index="none", disparity_range=(30, 50)), truth) > 0.95
+    assert iou(auto_plant_mask(img, disparity=disparity, index="none", disparity_range=(30, 50)), truth) > 0.95
 
 
 def test_seed_labels_combine_colour_and_depth():
-    img, truth = _scene()
+    img, truth = blob_scene()
     depth = np.where(truth, 500.0, 1200.0)
     depth[:, :160] = 500.0  # a near, non-green thing on the left (a pot)
     seed = plant_seed(img, depth=depth)
@@ -113,11 +94,11 @@ def test_seed_labels_combine_colour_and_depth():
     assert np.all(seed[far_from_edges] == GC_BGD)  # far = sure background (edges: probable)
     near_not_green = (~truth) & (depth < 600)
     assert np.mean((seed[near_not_green] == GC_PR_BGD) | (seed[near_not_green] == GC_BGD)) > 0.95
-    assert _iou((seed == GC_FGD) | (seed == GC_PR_FGD), truth) > 0.9
+    assert iou((seed == GC_FGD) | (seed == GC_PR_FGD), truth) > 0.9
 
 
 def test_segmentation_bad_input():
-    img, truth = _scene()
+    img, truth = blob_scene()
     with pytest.raises(ImageError, match="covers the whole image"):
         grabcut_rect(img, (0, 0, img.shape[1], img.shape[0]))
     with pytest.raises(ImageError, match="outside"):
@@ -156,13 +137,13 @@ def test_seeder_presets_and_node_parameters_come_from_one_settings_object():
         assert encode_setting(f["field"], getattr(VIDEO_SEEDER, f["field"])) == f["default"]
     with pytest.raises(ValueError, match="scale"):
         SeederSettings(scale=0.0)
-    img, truth = _scene(leaf_bgr=(50, 60, 200))  # red leaves: excess green does not see them
+    img, truth = blob_scene(leaf_bgr=(50, 60, 200))  # red leaves: excess green does not see them
     disparity = np.where(truth, 40.0, 12.0) + np.random.default_rng(1).normal(0, 0.5, truth.shape)
     # the video preset with the depth cue separates what colour cannot
     no_depth = plant_mask(img, VIDEO_SEEDER.replace(colour_cue="exg")) > 0
     with_depth = plant_mask(img, VIDEO_SEEDER.replace(depth_cue=True, colour_cue="none"),
                             disparity=disparity) > 0
-    assert _iou(with_depth, truth) > 0.9 > _iou(no_depth, truth) + 0.3
+    assert iou(with_depth, truth) > 0.9 > iou(no_depth, truth) + 0.3
     with pytest.raises(ValueError, match="depth_cue is off"):
         plant_mask(img, VIDEO_SEEDER, disparity=disparity)
 

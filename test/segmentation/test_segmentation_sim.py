@@ -12,23 +12,7 @@ import pytest
 from canopy_stereo.geometry.camera import camera_centre
 from canopy_stereo.segmentation import auto_plant_mask
 from canopy_stereo.sim import render_scene
-
-SGBM = {"block_size": 7, "p1": 8, "p2": 32}
-
-
-def _iou(a, b):
-    return (a & b).sum() / (a | b).sum()
-
-
-def _truth(sim):
-    return np.isin(sim.labels_left, (1, 2, 6))
-
-
-def _depth(sim, matcher="sgbm", params=SGBM):
-    from canopy_stereo.pipeline.reconstruct import reconstruct_pair
-
-    rec = reconstruct_pair(sim.left, sim.right, sim.rig, matcher=matcher, matcher_params=params)
-    return np.linalg.norm(rec.organized - camera_centre(sim.rig.P_left), axis=-1)
+from test.support.segmentation import SGBM, iou, plant_truth, sim_depth
 
 
 @pytest.mark.slow
@@ -36,18 +20,18 @@ def test_croton_colour_and_depth():
     """Red/yellow/green croton: depth finds what is near, ExG among the near
     pixels drops the terracotta pot and the soil."""
     sim = render_scene("croton", seed=0)
-    truth = _truth(sim)
-    mask = auto_plant_mask(sim.left, depth=_depth(sim), index="exg") > 0
-    assert _iou(mask, truth) >= 0.9
+    truth = plant_truth(sim)
+    mask = auto_plant_mask(sim.left, depth=sim_depth(sim), index="exg") > 0
+    assert iou(mask, truth) >= 0.9
     # colour alone misses the orange and yellow parts
-    assert _iou(auto_plant_mask(sim.left, index="exg") > 0, truth) < _iou(mask, truth)
+    assert iou(auto_plant_mask(sim.left, index="exg") > 0, truth) < iou(mask, truth)
 
 
 @pytest.mark.slow
 def test_seedling_tray_colour_only():
     sim = render_scene("seedling_tray", seed=0)
     mask = auto_plant_mask(sim.left, index="exg") > 0
-    assert _iou(mask, _truth(sim)) >= 0.9
+    assert iou(mask, plant_truth(sim)) >= 0.9
 
 
 @pytest.mark.slow
@@ -58,11 +42,11 @@ def test_citrus_branch_depth_and_learned_colour(matcher):
     disparity. The colour models learned from the depth cue's sure pixels
     (default with index="none") remove those gaps."""
     sim = render_scene("citrus_branch", seed=1)
-    truth = _truth(sim)
+    truth = plant_truth(sim)
     params = None if matcher == "elas" else SGBM
-    depth = _depth(sim, matcher, params)
+    depth = sim_depth(sim, matcher, params)
     mask = auto_plant_mask(sim.left, depth=depth, index="none") > 0
-    assert _iou(mask, truth) >= 0.93
+    assert iou(mask, truth) >= 0.93
     # the depth votes alone keep the filled gaps (false plant)
     seed_only = auto_plant_mask(sim.left, depth=depth, index="none", refine=False, colour_model=False) > 0
     assert (seed_only & ~truth).sum() > 2 * (mask & ~truth).sum()
@@ -70,7 +54,7 @@ def test_citrus_branch_depth_and_learned_colour(matcher):
     true_depth = np.linalg.norm(sim.xyz_left - camera_centre(sim.rig.P_left), axis=-1)
     seed_only = auto_plant_mask(sim.left, depth=true_depth, index="none", refine=False, edge_px=0,
                                 colour_model=False) > 0
-    assert _iou(seed_only, truth) >= 0.99
+    assert iou(seed_only, truth) >= 0.99
 
 
 def test_colour_models_and_relabelling(rng):
@@ -114,7 +98,7 @@ def test_colour_model_needs_a_depth_cue_and_no_index():
     sim = render_scene("seedling_tray", seed=0)
     with pytest.raises(ImageError, match="learns from the depth cue"):
         auto_plant_mask(sim.left, index="none", colour_model=True)
-    depth = np.where(_truth(sim), 500.0, 900.0)
+    depth = np.where(plant_truth(sim), 500.0, 900.0)
     with pytest.raises(ImageError, match="use index='none'"):
         auto_plant_mask(sim.left, depth=depth, index="exg", colour_model=True)
     tiny = np.where(np.arange(depth.size).reshape(depth.shape) < 20, 500.0, 900.0)  # 20 near pixels

@@ -18,7 +18,7 @@ FIELDS = ("cam0", "cam1", "doffs", "baseline", "width", "height", "ndisp", "isin
 def import_middlebury(paths, *, unit: str | None = None):
     """``calib.txt`` -> rig in millimetres (the file's unit; ``unit`` must be ``mm`` if given)."""
     from canopy_stereo.errors import CanopyStereoError
-    from canopy_stereo.io.middlebury import read_middlebury_calib
+    from canopy_stereo.io.middlebury import middlebury_disparity_range, read_middlebury_calib
 
     if len(paths) != 1:
         raise CalibrationError(f"--from middlebury takes one calib.txt; got {len(paths)} files")
@@ -43,10 +43,6 @@ def import_middlebury(paths, *, unit: str | None = None):
     if not B > 0:
         raise CalibrationError(f"{source}: baseline must be positive (mm), got {B:g}")
     size = image_size(calib["width"], calib["height"], source)
-    extra = {}
-    if "ndisp" in calib:
-        doffs = float(calib["doffs"])
-        extra = {"disp_min": max(0, int(np.floor(doffs)) - 1),
-                 "disp_max": int(np.ceil(doffs + float(calib["ndisp"]))) + 1}
+    extra = middlebury_disparity_range(calib)
     cams = [CameraIntrinsics(K=K, D=np.zeros(5), model="plumb_bob", size=size) for K in (K0, K1)]
     return rig_from_cameras(cams[0], cams[1], np.eye(3), [-B, 0.0, 0.0], unit="mm", source=source, extra=extra)

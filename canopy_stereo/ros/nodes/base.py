@@ -352,6 +352,13 @@ class CanopyNode(Node):
             self.drop(verdict.drop_reason, what)
         return verdict.stamp_ns
 
+    def drop_unpaired(self, dropped, streams) -> None:
+        """Count and log what a synchronizer of :mod:`canopy_stereo.bag.pairing` dropped
+        (``streams[d.stream]`` names each input); drops of a time jump are counted only
+        (the jump itself is logged once, by :meth:`time_jump_handler`'s callback)."""
+        for d in dropped:
+            self.drop(d.reason, streams[d.stream], log=not d.after_jump)
+
     def guarded(self, fn):
         """Wrap a callback: user-fixable errors drop the message, anything else is
         logged with its traceback; the node keeps running either way."""

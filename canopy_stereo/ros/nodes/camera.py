@@ -14,10 +14,10 @@ as JPEG ``sensor_msgs/CompressedImage`` on ``<camera_name>/image_raw/compressed`
 * ``layout``: ``mono`` (default), ``side_by_side`` or ``top_bottom``: one capture holding
   both views of a synchronized stereo webcam (left view left / on top) is split into
   ``left/image_raw`` and ``right/image_raw`` (and their compressed topics and
-  ``left|right/camera_info``, in the pair's one frame as for two cameras; calibration
-  parameters ``left.camera_info_url``, ``right.camera_info_url``, services
-  ``left/set_camera_info``, ``right/set_camera_info``), both with one stamp;
-  ``camera_name`` and ``frame_id`` then do not apply;
+  ``left|right/camera_info``; calibration parameters ``left.camera_info_url``,
+  ``right.camera_info_url``, services ``left/set_camera_info``, ``right/set_camera_info``),
+  both with one stamp, both in ``frame_id`` (default the left camera's optical frame: one
+  frame for a stereo pair, as image_geometry needs); ``camera_name`` then does not apply;
 * stamps: the driver's capture time where the backend gives one (V4L2 buffer timestamps,
   ``CAP_PROP_POS_MSEC`` of OpenCV's V4L2 backend, on ``CLOCK_MONOTONIC``), mapped onto
   the ROS clock; else the reception time minus ``stamp_latency`` (s, default 0)
@@ -272,8 +272,9 @@ class CameraNode(CanopyNode):
         self.clock = CaptureClock(latency_s=float(self.get_parameter("stamp_latency").value))
         self.settings["device_jpeg"] = self.transport == "compressed" and self.layout == "mono"
         sides = [self.camera_name] if self.layout == "mono" else ["left", "right"]
-        self.frame_ids = ([self.frame_id] if self.layout == "mono"
-                          else [default_camera_frame(side) for side in sides])
+        # a stereo pair's images and infos share one frame (image_geometry; i.e. the left camera's)
+        pair_frame = str(self.get_parameter("frame_id").value) or default_camera_frame("left")
+        self.frame_ids = [self.frame_id] if self.layout == "mono" else [pair_frame, pair_frame]
         self.pubs = [self.make_publisher(Image, f"{side}/image_raw") if self.transport != "compressed" else None
                      for side in sides]
         self.pubs_compressed = [self.make_publisher(CompressedImage, compressed_topic(f"{side}/image_raw"))

@@ -23,8 +23,11 @@ Parameters (changeable at run time unless marked read-only):
   (:class:`~canopy_stereo.elas.params.ElasParams`), unset = the preset's value;
   ``sgbm.<name>`` the SGBM matcher's;
 * ``disp_min``, ``disp_max``: search range in pixels (a rig file's ``disp_min``/``disp_max``
-  set them); -1 = from the cameras: 0 to the disparity of a point 8 baselines away
-  (``f / 8``), or 0 to 128 for an uncalibrated pair;
+  set them); -1 = from the cameras: the working distance ``near_m``..``far_m``, else 0 to
+  the disparity of a point 8 baselines away (``f / 8``), or 0 to 128 for an uncalibrated pair;
+* ``near_m``, ``far_m``: working distance in metres along the optical axis (a rig file's
+  ``near_m``/``far_m`` set them; 0 = 8 baselines / infinity), the range when ``disp_min``/
+  ``disp_max`` are -1 (as ``reconstruct``'s, :func:`~canopy_stereo.pipeline.reconstruct.disparity_range_for`);
 * ``threads``: threads of the ELAS kernels (numba; 0 = numba's default, every core),
   the node's share of the cores when other nodes run beside it (1 on a 2-core machine
   running the whole graph keeps the matcher from competing with itself);
@@ -130,6 +133,13 @@ class DisparityNode(CanopyNode):
                             "-1 = from the rectified cameras", minimum=-1, maximum=4096)
         self.declare_number("disp_max", -1, "largest disparity searched (pixels); "
                             "-1 = from the rectified cameras", minimum=-1, maximum=4096)
+        for name, text in (("near_m", "working distance: nearest depth searched (metres along the optical "
+                                      "axis; 0 = 8 baselines); disp_max wins when set"),
+                           ("far_m", "working distance: farthest depth searched (metres; 0 = infinity); "
+                                     "disp_min wins when set")):
+            # dynamic: a rig file's 'near_m: 1' (an integer) is as good as 1.0
+            self.declare_parameter(name, 0.0, number_descriptor(text, minimum=0.0, maximum=1e6, integer=False,
+                                                                dynamic=True))
         for matcher in available_matchers():
             spec = matcher_spec(matcher)
             for parameter in spec.parameters:
@@ -190,7 +200,11 @@ class DisparityNode(CanopyNode):
         # validate with the given range, or a typical one where it comes from the cameras
         lo = 0 if dmin is None else dmin
         params = spec.check(params, lo, disp_max=dmax if dmax is not None else lo + TYPICAL_RANGE)
-        return {"matcher": matcher, "disp_min": dmin, "disp_max": dmax, "params": params,
+        near, far = float(value("near_m")) or None, float(value("far_m")) or None
+        if near is not None and far is not None and far <= near:
+            raise CanopyStereoError(f"far_m ({far:g} m) must be greater than near_m ({near:g} m)")
+        return {"matcher": matcher, "disp_min": dmin, "disp_max": dmax, "near_m": near, "far_m": far,
+                "params": params,
                 "delta_d": spec.resolution_for(params), "threads": int(value("threads"))}
 
     def _on_set_parameters(self, parameters) -> SetParametersResult:
@@ -225,8 +239,7 @@ class DisparityNode(CanopyNode):
     def _push(self, stream: int, msg, item) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
         items, dropped = self.sync.push(stream, stamp, item)
-        for d in dropped:
-            self.drop(d.reason, _STREAMS[d.stream], log=not d.reason.startswith("time jumped back"))
+        self.drop_unpaired(dropped, _STREAMS)
         if items is not None:
             (left, frame_id), (right, _), info_l, info_r = items
             self.matching.submit(stamp, frame_id, left, right, info_l, info_r)
@@ -260,7 +273,8 @@ class DisparityNode(CanopyNode):
             self.camera = (f, t, doffs)
             self.get_logger().info(f"rectified cameras: f {f:.2f} px, t {t:.5f} m, "
                                    f"cx_left - cx_right {doffs:.2f} px")
-        dmin, dmax = resolve_disparity_range(c["disp_min"], c["disp_max"], f, t=t, doffs=doffs)
+        dmin, dmax = resolve_disparity_range(c["disp_min"], c["disp_max"], f, t=t, doffs=doffs,
+                                             near_m=c["near_m"], far_m=c["far_m"])
         apply_thread_budget(c["threads"])
         disp = compute_disparity(left, right, matcher=c["matcher"], disp_min=dmin,
                                  disp_max=dmax, **c["params"])
@@ -305,14 +319,16 @@ def stereo_parameters(info_left, info_right) -> tuple[float, float, float]:
     return f, t, float(Pl[0, 2] - Pr[0, 2])
 
 
-def resolve_disparity_range(disp_min, disp_max, f: float, *, t: float = 0.0,
-                            doffs: float = 0.0) -> tuple[int, int]:
+def resolve_disparity_range(disp_min, disp_max, f: float, *, t: float = 0.0, doffs: float = 0.0,
+                            near_m: float | None = None, far_m: float | None = None) -> tuple[int, int]:
     """Search range (rectified pixels): the given values, else from the cameras
-    (:func:`~canopy_stereo.geometry.rectification.metric_disparity_range`: infinity to
-    8 baselines away, ``f / 8`` for ``doffs = 0``); 0 to 128 for an uncalibrated pair."""
+    (:func:`~canopy_stereo.geometry.rectification.metric_disparity_range`: the working
+    distance ``near_m``..``far_m`` metres, default infinity to 8 baselines away, ``f / 8``
+    for ``doffs = 0``); 0 to 128 for an uncalibrated pair."""
     from canopy_stereo.geometry.rectification import metric_disparity_range
 
-    lo, hi = metric_disparity_range(f, t, doffs=doffs) if f > 0 and t > 0 else (0, 128)
+    lo, hi = (metric_disparity_range(f, t, doffs=doffs, near_depth=near_m, far_depth=far_m)
+              if f > 0 and t > 0 else (0, 128))
     lo = lo if disp_min is None else int(disp_min)
     hi = hi if disp_max is None else int(disp_max)
     if hi <= lo:

@@ -41,9 +41,13 @@ from stereo_msgs.msg import DisparityImage
 
 from canopy_stereo.bag.pairing import ExactTimeSynchronizer
 from canopy_stereo.errors import CanopyStereoError, ImageError
-from canopy_stereo.geometry.frames import reproject_disparity, reproject_disparity_records
+from canopy_stereo.geometry.cloud_assembly import (
+    check_cloud_inputs,
+    cloud_from_disparity,
+    disparity_image_reprojection,
+)
+from canopy_stereo.geometry.frames import reproject_disparity_records
 from canopy_stereo.geometry.transforms import transform_points
-from canopy_stereo.geometry.triangulation import triangulate_disparity_points
 from canopy_stereo.ros.convert import (
     COLOUR_ENCODINGS,
     camera_info_matrices,
@@ -67,76 +71,6 @@ from canopy_stereo.ros.tf import latched_qos
 CLOUD_FRAMES = ("world", "world_z_up", "optical")
 
 
-def cloud_from_disparity(disp: np.ndarray, left_bgr: np.ndarray, rig, rect, *, mask=None,
-                         organized: bool = True):
-    """World points (metres) and packed colours of the valid rectified left pixels, by
-    back-mapping + DLT with the rig's ``P`` (the reference path; any rectification).
-
-    Args:
-        disp: float32 (Hr, Wr) rectified disparity ``u_left - u_right``, invalid < 0.
-        left_bgr: uint8 (Hr, Wr, 3) rectified left image.
-        rig, rect: the rig and its rectification.
-        mask: optional (Hr, Wr) mask, 0 = drop the pixel.
-        organized: return the rectified grid (NaN where no point) rather than
-            only the valid points.
-
-    Returns ``(points, rgb)``: float32 metres and the packed float32 ``rgb`` of
-    PointCloud2 (:func:`~canopy_stereo.ros.convert.pack_rgb`), (Hr, Wr, 3) and
-    (Hr, Wr) when ``organized``, else (N, 3) and (N,).
-    """
-    return _cloud_by_triangulation(disp, left_bgr, rect, rig.P_left, rig.P_right, rig.metres_per_unit,
-                                   mask, organized)
-
-
-def _check_shapes(disp, left_bgr, mask, size=None):
-    h, w = disp.shape
-    if size is not None and (w, h) != tuple(size):
-        raise ImageError(f"disparity is {w}x{h} but the rectified images are {size[0]}x{size[1]}")
-    if left_bgr.shape[:2] != disp.shape:
-        raise ImageError(f"colour image is {left_bgr.shape[1]}x{left_bgr.shape[0]}, disparity {w}x{h}")
-    if mask is not None and mask.shape != disp.shape:
-        raise ImageError(f"mask is {mask.shape[1]}x{mask.shape[0]}, disparity {w}x{h}")
-
-
-def _cloud_by_triangulation(disp, left_bgr, rect, P_left, P_right, scale, mask, organized):
-    _check_shapes(disp, left_bgr, mask, rect.size)
-    h, w = disp.shape
-    points, index = triangulate_disparity_points(disp, rect, P_left, P_right, scale=scale, mask=mask,
-                                                 organized=organized)
-    rgb = pack_bgr_image(left_bgr).reshape(-1)
-    if organized:
-        return points.reshape(h, w, 3), rgb.reshape(h, w)
-    return points, rgb[index]
-
-
-def reprojection_from_messages(disparity_f: float, disparity_t: float, info_left: CameraInfo) -> np.ndarray:
-    """image_geometry's ``Q`` (4x4) from a ``DisparityImage``'s ``f``, ``t`` and the left
-    rectified ``CameraInfo`` (``cx``, ``cy``, ``fy`` of its ``P``). The disparities are
-    already reduced by ``cx_left - cx_right``, so ``Q[3, 3] = 0``."""
-    P = camera_info_matrices(info_left)[3]
-    fx, fy, cx, cy = P[0, 0], P[1, 1], P[0, 2], P[1, 2]
-    if not (disparity_f > 0 and disparity_t > 0 and fx > 0 and fy > 0):
-        raise CanopyStereoError("the disparity or camera_info has no focal length/baseline")
-    Tx = -float(disparity_t)
-    Q = np.zeros((4, 4))
-    Q[0, 0], Q[0, 3] = fy * Tx, -fy * cx * Tx
-    Q[1, 1], Q[1, 3] = fx * Tx, -fx * cy * Tx
-    Q[2, 3] = fx * fy * Tx
-    Q[3, 2] = -fy
-    return Q
-
-
-def optical_cloud_from_messages(disparity: np.ndarray, f: float, t: float, info_left: CameraInfo,
-                                *, mask=None) -> np.ndarray:
-    """Organized points (H, W, 3), float64 metres, in the rectified left optical frame, from
-    message-convention disparities (NaN = invalid) and the left rectified ``CameraInfo``."""
-    Q = reprojection_from_messages(f, t, info_left)
-    pts = reproject_disparity(disparity, Q)
-    if mask is not None:
-        pts[np.asarray(mask) == 0] = np.nan
-    return pts
-
-
 class PointCloudNode(CanopyNode):
     """Exact-time pairing of disparity, colour, camera_info (and mask) + reprojection."""
 
@@ -156,9 +90,10 @@ class PointCloudNode(CanopyNode):
                             minimum=1, maximum=100, read_only=True)
         self.declare_frame_size()
         self.use_mask = bool(self.get_parameter("use_mask").value)
-        if self.get_parameter("cloud_frame").value not in CLOUD_FRAMES:
-            raise CanopyStereoError(f"cloud_frame must be one of {', '.join(CLOUD_FRAMES)}, got "
-                                    f"{self.get_parameter('cloud_frame').value!r}")
+        problem = _cloud_frame_problem(self.get_parameter("cloud_frame").value)
+        if problem:
+            raise CanopyStereoError(problem)
+        # (checked here and on every change, so the frame code below can trust the value)
         self.add_on_set_parameters_callback(self._check_parameters)
         self.geometry = None
         # synced frames that arrived before rectify_node's latched stereo_geometry (a race at start:
@@ -188,9 +123,9 @@ class PointCloudNode(CanopyNode):
     @staticmethod
     def _check_parameters(parameters) -> SetParametersResult:
         for p in parameters:
-            if p.name == "cloud_frame" and p.value not in CLOUD_FRAMES:
-                return SetParametersResult(successful=False, reason=f"cloud_frame must be one of "
-                                           f"{', '.join(CLOUD_FRAMES)}, got {p.value!r}")
+            problem = _cloud_frame_problem(p.value) if p.name == "cloud_frame" else None
+            if problem:
+                return SetParametersResult(successful=False, reason=problem)
         return SetParametersResult(successful=True)
 
     def _warm_up(self) -> None:
@@ -242,8 +177,7 @@ class PointCloudNode(CanopyNode):
             return
         stamp = stamp_to_ns(msg.header.stamp)
         items, dropped = self.sync.push(stream, stamp, item)
-        for d in dropped:
-            self.drop(d.reason, _STREAMS[d.stream], log=not d.reason.startswith("time jumped back"))
+        self.drop_unpaired(dropped, _STREAMS)
         if items is None:
             return
         if self.geometry is None and self._needs_geometry(items[2]):
@@ -272,20 +206,17 @@ class PointCloudNode(CanopyNode):
     def _publish(self, stamp_ns: int, frame, bgr, info: CameraInfo, mask=None) -> None:
         organized = bool(self.get_parameter("organized").value)
         cloud_frame = self.get_parameter("cloud_frame").value
-        if cloud_frame not in CLOUD_FRAMES:
-            raise CanopyStereoError(f"cloud_frame must be one of {', '.join(CLOUD_FRAMES)}, "
-                                    f"got {cloud_frame!r}")
         if self._needs_geometry(info):
             if self.geometry is None:
                 raise CanopyStereoError(f"no {STEREO_GEOMETRY_TOPIC} from rectify_node yet (needed for "
                                         f"the {cloud_frame} frame)")
         h, w = frame.disparity.shape
-        _check_shapes(frame.disparity, bgr, mask)
+        check_cloud_inputs(frame.disparity, bgr, mask=mask)
         if (info.width, info.height) != (w, h):
             raise ImageError(f"camera_info is {info.width}x{info.height}, disparity {w}x{h}")
         optical = info.header.frame_id
         if is_calibrated(info):
-            Q = reprojection_from_messages(frame.f, frame.t, info)
+            Q = disparity_image_reprojection(frame.f, frame.t, camera_info_matrices(info)[3])
             if cloud_frame == "optical":
                 T, frame_id = None, optical
             else:
@@ -304,8 +235,9 @@ class PointCloudNode(CanopyNode):
         else:  # projective rectification: back-mapping + DLT with the world-frame P
             g = self.geometry
             disp = np.where(np.isfinite(frame.disparity), frame.disparity, np.float32(-1))
-            points, colours = _cloud_by_triangulation(disp, bgr, g.rectification(), g.P_left, g.P_right,
-                                                      g.metres_per_unit, mask, organized)
+            points, colours = cloud_from_disparity(disp, pack_bgr_image(bgr), g.rectification(), g.P_left,
+                                                   g.P_right, scale=g.metres_per_unit, mask=mask,
+                                                   organized=organized)
             if cloud_frame == "world":
                 frame_id = self._world_frame()
             else:
@@ -329,6 +261,14 @@ class PointCloudNode(CanopyNode):
 
 
 _STREAMS = ("disparity", "colour image", "camera_info", "mask")
+
+
+def _cloud_frame_problem(value) -> str | None:
+    """Why ``value`` is not a ``cloud_frame`` (None when it is one): the one check, at start
+    and on every parameter change."""
+    if value not in CLOUD_FRAMES:
+        return f"cloud_frame must be one of {', '.join(CLOUD_FRAMES)}, got {value!r}"
+    return None
 
 
 def main(args=None) -> int:

@@ -260,9 +260,7 @@ class RectifyNode(CanopyNode):
         if self.period_estimator is not None:
             self._follow_frame_rate(self.period_estimator.observe(side, stamp))
         pair, dropped = self.pairer.push(side, stamp, bgr)
-        for d in dropped:
-            self.drop(d.reason, f"{('left', 'right')[d.stream]} frame",
-                      log=not d.reason.startswith("time jumped back"))
+        self.drop_unpaired(dropped, ("left frame", "right frame"))
         if pair is not None:
             self.diagnostics.sample("pair offset ms", pair.skew_ns / 1e6)
             self._publish(pair.stamps_ns[0], *pair.items)

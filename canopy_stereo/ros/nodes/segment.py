@@ -185,8 +185,7 @@ class SegmentNode(CanopyNode):
             self._segment(msg.header, item, None)
             return
         items, dropped = self.sync.push(stream, stamp_to_ns(msg.header.stamp), (msg.header, item))
-        for d in dropped:
-            self.drop(d.reason, _STREAMS[d.stream], log=not d.reason.startswith("time jumped back"))
+        self.drop_unpaired(dropped, _STREAMS)
         if items is not None:
             (header, bgr), (_, disparity) = items
             self._segment(header, bgr, disparity)
