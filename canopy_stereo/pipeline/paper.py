@@ -168,18 +168,19 @@ def _run_world_rig(world_rig, sim_calibration, out: Path, quick: bool, seed: int
                    progress: Progress) -> dict:
     from dataclasses import replace
 
+    from canopy_stereo.geometry.board_placements import Placements, paper_layout_placements
     from canopy_stereo.geometry.camera import camera_centre
     from canopy_stereo.sim import resolve_rig
 
     rig = resolve_rig(None)
-    placements = world_rig.paper_layout_placements(pattern=(7, 5), square=50.0)
+    placements = paper_layout_placements(pattern=(7, 5), square=50.0)
     total = len(placements)
     if quick:
         keep = np.unique(np.linspace(0, total - 1, QUICK_PLACEMENTS).round().astype(int))
         chosen = [placements[int(i)] for i in keep]
         # pairs are numbered by image order: renumber the kept placements 0..n-1
-        placements = world_rig.Placements(placements.pattern, placements.square, placements.unit,
-                                          tuple(replace(p, pair=k) for k, p in enumerate(chosen)))
+        placements = Placements(placements.pattern, placements.square, placements.unit,
+                                tuple(replace(p, pair=k) for k, p in enumerate(chosen)))
     progress.detail(f"rendering {len(placements)} of the paper's {total} chessboard placements "
                     "through the paper's rig (0.7 px blur, noise sigma 2)")
     pairs = sim_calibration.render_calibration_scene(rig, placements, blur_px=0.7, noise_sigma=2.0,
