@@ -7,8 +7,8 @@ import pytest
 
 from canopy_stereo.cli import main
 from canopy_stereo.geometry.board_corners import detect_board_corners
+from canopy_stereo.geometry.board_placements import board_world_points, paper_layout_placements
 from canopy_stereo.geometry.camera import project
-from canopy_stereo.geometry.world_rig import board_world_points, paper_layout_placements
 from canopy_stereo.io.placements import load_placements, write_placements
 from canopy_stereo.io.rig import load_rig, save_rig
 from canopy_stereo.sim import default_rig_path, rig_at_resolution

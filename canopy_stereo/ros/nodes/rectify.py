@@ -312,6 +312,10 @@ class RectifyNode(CanopyNode):
         left_r, right_r = self.rectifier.rectify(bgr, bgr)
         image_to_msg(left_r, "bgr8", stamp_ns=1, frame_id="")
         image_to_msg(to_gray(right_r), "mono8", stamp_ns=1, frame_id="")
+        if self.skew.enabled:  # the optical flow's first call (its own compensator: no state kept)
+            warm = SkewCompensator(flow_scale=self.skew.flow_scale, flow_preset=self.skew.flow_preset)
+            for k in (1, 2):
+                warm.compensate(bgr, bgr, stamp_left_ns=k * 66_000_000, stamp_right_ns=k * 66_000_000 + 8_000_000)
 
     def _count_missed(self, stamp_ns: int) -> None:
         """Count the left frames missing between the previous left stamp and ``stamp_ns``."""
