@@ -23,6 +23,7 @@ ROS_EXECUTABLES = {
     "bag_play": "canopy_stereo.ros.player:main",
     "canopy_graph": "canopy_stereo.ros.canopy_graph:main",
     "fusion_node": "canopy_stereo.ros.fusion_node:main",
+    "traits_node": "canopy_stereo.ros.nodes.traits:main",
 }
 
 CONSOLE_SCRIPTS = ["canopy-stereo = canopy_stereo.cli:main"] + [

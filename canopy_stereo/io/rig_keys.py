@@ -49,6 +49,8 @@ NODE_KEYS = frozenset({
     # fusion_node
     "voxel_size", "publish_period", "pose_slop", "pose_wait", "max_views", "min_views", "min_overlap",
     "free_space", "register_without_pose",
+    # traits_node
+    "max_rate", "whole_scene", "voxel_size_mm",
     # every node
     "reliability", "diagnostic_period",
     # rclpy

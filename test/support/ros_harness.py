@@ -42,6 +42,7 @@ MODULES = {
     "segment_node": "canopy_stereo.ros.nodes.segment",
     "point_cloud_node": "canopy_stereo.ros.nodes.point_cloud",
     "fusion_node": "canopy_stereo.ros.fusion_node",
+    "traits_node": "canopy_stereo.ros.nodes.traits",
     "bag_play": "canopy_stereo.ros.player",
     "bag_record": "canopy_stereo.ros.recorder",
     "canopy_graph": "canopy_stereo.ros.canopy_graph",
