@@ -36,12 +36,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 
 from canopy_stereo.geometry.board_corners import detect_board_corners  # noqa: E402
+from canopy_stereo.geometry.board_placements import board_world_points  # noqa: E402
 from canopy_stereo.geometry.camera import camera_centre, project  # noqa: E402
 from canopy_stereo.geometry.triangulation import triangulate_dlt  # noqa: E402
-from canopy_stereo.geometry.world_rig import (  # noqa: E402
-    board_world_points,
-    calibrate_world_rig,
-)
+from canopy_stereo.geometry.world_rig import calibrate_world_rig  # noqa: E402
 from canopy_stereo.sim import resolve_rig  # noqa: E402
 
 

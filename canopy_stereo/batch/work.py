@@ -1,7 +1,9 @@
 """One bag -> one row of traits: the unit of work of ``canopy-stereo batch``.
 
-Each stereo pair of the bag goes through the package's one measuring pipeline,
-:func:`~canopy_stereo.pipeline.plant.measure_stereo_pair` (as ``reconstruct --measure``,
+Each stereo pair of the bag has its right image brought to the left image's
+instant first (:class:`~canopy_stereo.skew.SkewCompensator`, as ``rectify_node``
+does; ``BatchOptions.skew_compensation``), then goes through the package's one measuring
+pipeline, :func:`~canopy_stereo.pipeline.plant.measure_stereo_pair` (as ``reconstruct --measure``,
 ``demo`` and ``view``: reconstruction, the automatic plant mask, leaves and canopy
 measured with the same defaults). The frames' traits are aggregated by their median;
 ``frames`` counts the frames measured.
@@ -58,6 +60,8 @@ class BatchOptions:
         max_frames: measure at most this many pairs, evenly spread (0 = all).
         left_topic, right_topic: raw image topics.
         sync_slop_s: largest left/right stamp difference of a pair (s).
+        skew_compensation: bring each right image to its left image's instant
+            (:class:`~canopy_stereo.skew.SkewCompensator`, as ``rectify_node``).
         voxel_size_mm: voxel edge of the voxel volume (mm).
         name_pattern: metadata from the file name, e.g. ``"{plant_id}_{date}"``
             (:func:`~canopy_stereo.batch.naming.fields_from_name`); "" = none.
@@ -77,6 +81,7 @@ class BatchOptions:
     left_topic: str = "/stereo/left/image_raw"
     right_topic: str = "/stereo/right/image_raw"
     sync_slop_s: float = 0.015
+    skew_compensation: bool = True
 
 
 class Skipped(Exception):
@@ -216,6 +221,7 @@ def process_bag(path, options: BatchOptions | None = None) -> list[dict]:
     from canopy_stereo.bag import BagReader
     from canopy_stereo.bag.metadata import canopy_metadata, matches_selection
     from canopy_stereo.batch.frames import image_to_bgr, raw_stereo_pairs, stereo_topics
+    from canopy_stereo.skew import SkewCompensator
 
     options = options or BatchOptions()
     bag = BagReader(path)
@@ -233,15 +239,22 @@ def process_bag(path, options: BatchOptions | None = None) -> list[dict]:
     last = max(keep, default=0)
     per_plant: dict[int, list[dict]] = {}
     n_frames, failures, first_stamp = 0, [], None
+    skew = SkewCompensator(enabled=options.skew_compensation)
     for k, (stamp, left, right) in enumerate(raw_stereo_pairs(bag, left_topic, right_topic=right_topic,
                                                               slop_s=options.sync_slop_s)):
         if k > last:
             break  # the frames to measure are done: read no further
-        if k not in keep:
+        if k + 1 not in keep and k not in keep:
+            skew.reset()  # neither this pair nor the next is measured: no need to decode it
             continue
+        if k not in keep:  # the previous frame of a measured pair
+            skew.observe(image_to_bgr(right), stamp_right_ns=right.stamp_ns)
+            continue
+        left_bgr, right_bgr, _ = skew.compensate(image_to_bgr(left), image_to_bgr(right),
+                                                 stamp_left_ns=left.stamp_ns, stamp_right_ns=right.stamp_ns)
         first_stamp = stamp if first_stamp is None else first_stamp
         try:
-            plants = measure_frame_plants(image_to_bgr(left), image_to_bgr(right), rig, index=options.index,
+            plants = measure_frame_plants(left_bgr, right_bgr, rig, index=options.index,
                                           matcher=options.matcher, voxel_size_mm=options.voxel_size_mm)
         except CanopyStereoError as exc:
             failures.append(f"frame {k}: {exc}")

@@ -61,6 +61,9 @@ def add_arguments(p):
     p.add_argument("--sync-slop", type=float, default=0.015, metavar="S",
                    help="largest left/right stamp difference of a stereo pair, seconds (default 0.015, "
                         "as rectify_node; free-running webcams: half a frame period)")
+    p.add_argument("--no-skew-compensation", action="store_true",
+                   help="pair the images as they came; by default each right image is brought to its left "
+                        "image's instant along the right camera's motion, as rectify_node does")
     p.add_argument("--no-plots", action="store_true", help="do not draw the per-plant plots")
     p.add_argument("--no-progress", action="store_true", help="no progress line even on a terminal")
 
@@ -96,7 +99,7 @@ def run(args) -> int:
                            index=args.index, matcher=args.matcher, max_frames=args.max_frames,
                            voxel_size_mm=args.voxel_size,
                            left_topic=args.left_topic, right_topic=args.right_topic,
-                           sync_slop_s=args.sync_slop)
+                           sync_slop_s=args.sync_slop, skew_compensation=not args.no_skew_compensation)
     _sigterm_interrupts()
     summary = run_batch(args.inputs, args.output, options=options, workers=args.workers,
                         scheduler=args.scheduler, resume=args.resume,

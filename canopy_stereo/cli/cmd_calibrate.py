@@ -160,7 +160,7 @@ def run(args) -> int:
 
 def _run_paper_layout(args) -> int:
     """``--paper-layout -o placements.yaml``: the paper's layout as a placements file."""
-    from canopy_stereo.geometry.world_rig import PAPER_LAYOUT, paper_layout_placements
+    from canopy_stereo.geometry.board_placements import PAPER_LAYOUT, paper_layout_placements
     from canopy_stereo.io.placements import write_placements
 
     layout = {}
@@ -201,7 +201,8 @@ def _run_paper_layout(args) -> int:
 
 def _run_world_rig(args) -> int:
     """``--world-rig PLACEMENTS.yaml LEFT_GLOB RIGHT_GLOB``: the paper's world-rig calibration."""
-    from canopy_stereo.geometry.world_rig import calibrate_world_rig, parse_pattern, plot_world_rig_errors
+    from canopy_stereo.geometry.board_placements import parse_pattern
+    from canopy_stereo.geometry.world_rig import calibrate_world_rig, plot_world_rig_errors
     from canopy_stereo.io.placements import load_placements
 
     placements_path, left_glob, right_glob = args.world_rig

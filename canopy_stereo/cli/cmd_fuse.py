@@ -23,7 +23,12 @@ matches between the views' left images lifted to 3-D, robust point-to-plane ICP 
 consecutive views and a pose-graph loop closure when the views go all the way round (the world
 frame is then the first view's rig frame). The views are merged on a voxel grid that averages
 overlapping points, keeps colours and per-point view counts (PLY property 'views') and drops
-single-view points that another view sees through. Prints the registration residuals."""
+single-view points that another view sees through. Prints the registration residuals.
+
+A robot's recording instead (--bag REC.mcap --fixed-frame base_link): its clouds (the one
+.../points2 topic, or --cloud-topic) are placed by the recording's own /tf and /tf_static,
+each at its stamp, interpolated, as fusion_node does live; a cloud without a transform is
+skipped with tf's reason."""
 
 
 def parse_length(text: str, unit: str, *, name: str = "length") -> float:
@@ -40,7 +45,12 @@ def parse_length(text: str, unit: str, *, name: str = "length") -> float:
 
 
 def add_arguments(p):
-    p.add_argument("views", nargs="+", metavar="VIEW_DIR", help="view folders, in capture order")
+    p.add_argument("views", nargs="*", metavar="VIEW_DIR", help="view folders, in capture order")
+    p.add_argument("--bag", metavar="REC.mcap",
+                   help="fuse a recording's clouds placed by its /tf + /tf_static (with --fixed-frame)")
+    p.add_argument("--fixed-frame", metavar="FRAME", help="with --bag: the frame to fuse in, e.g. base_link")
+    p.add_argument("--cloud-topic", metavar="TOPIC", help="with --bag: the PointCloud2 topic (default: the "
+                   "recording's one .../points2)")
     p.add_argument("-o", "--output", required=True, metavar="fused.ply")
     p.add_argument("--poses", metavar="poses.yaml", help="rig poses of the views (see above)")
     p.add_argument("--voxel", default="2mm", help="fusion voxel, e.g. 2mm (default 2mm)")
@@ -84,7 +94,44 @@ def _resolve_poses(views, args, unit):
     return poses if have else None
 
 
+def run_bag(args) -> int:
+    """``fuse --bag``: the recording's clouds placed by its TF, fused on the voxel grid."""
+    from canopy_stereo.fusion.incremental import IncrementalFusion
+    from canopy_stereo.fusion.plyout import write_fused_ply
+    from canopy_stereo.fusion.poses import write_poses
+    from canopy_stereo.ros.bag_fusion import posed_clouds
+
+    if args.views or args.poses:
+        raise CanopyStereoError("--bag fuses a recording by its TF: give no view folders nor --poses")
+    if not args.fixed_frame:
+        raise CanopyStereoError("--bag needs --fixed-frame (the frame to fuse in, e.g. base_link)")
+    t0 = time.perf_counter()
+    got = posed_clouds(args.bag, fixed_frame=args.fixed_frame.lstrip("/"), cloud_topic=args.cloud_topic)
+    print(f"{args.bag}: {len(got.clouds) + len(got.skipped)} clouds on {got.topic} "
+          f"(frame {', '.join(sorted(got.frames)) or '-'}), {len(got.clouds)} placed by TF in {args.fixed_frame}")
+    for line in got.skipped:
+        print(f"  skipped {line}")
+    if not got.clouds:
+        raise CanopyStereoError(f"no cloud of {args.bag} has a transform to {args.fixed_frame}")
+    voxel = parse_length(args.voxel, "m", name="--voxel")
+    fusion = IncrementalFusion(voxel, unit="m", free_space=not args.no_free_space, min_views=args.min_views)
+    for _, points, colours, T in got.clouds:
+        fusion.add(points, colours, pose=T)
+    fused = fusion.fused()
+    write_fused_ply(args.output, fused, comments=[f"canopy-stereo fuse --bag {args.bag} in {args.fixed_frame}"])
+    if args.poses_out:
+        write_poses(args.poses_out, {f"cloud_{stamp}": T for stamp, _, _, T in got.clouds}, "m",
+                    comment=f"cloud poses ({got.topic} frame -> {args.fixed_frame}) looked up in the bag's TF")
+    print(f"fused: {len(fused)} points (voxel {voxel * 1000:g} mm) in {time.perf_counter() - t0:.1f} s; "
+          f"wrote {args.output}" + (f" and {args.poses_out}" if args.poses_out else ""))
+    return 0
+
+
 def run(args) -> int:
+    if args.bag:
+        return run_bag(args)
+    if not args.views:
+        raise CanopyStereoError("give view folders (or --bag REC.mcap --fixed-frame FRAME)")
     from canopy_stereo.fusion.fuse import fuse_views
     from canopy_stereo.fusion.plyout import write_fused_ply
     from canopy_stereo.fusion.poses import write_poses

@@ -33,6 +33,9 @@ def add_arguments(p):
     p.add_argument("--no-segment", action="store_true", help="do not run segment_node (no masks)")
     p.add_argument("--use-mask", action="store_true", help="keep only plant pixels in the clouds")
     p.add_argument("--organized", action="store_true", help="publish organized clouds (NaN = none)")
+    p.add_argument("--no-skew-compensation", action="store_true",
+                   help="pair the images as they came (rectify_node's skew_compensation false); by default "
+                        "each right image is brought to its left image's instant along the right camera's motion")
     p.add_argument("--max-in-flight", type=int, default=2, metavar="N",
                    help="frames inside the graph at once with --rate 0 (default 2)")
     p.add_argument("--remap", nargs="*", default=[], metavar="FROM:=TO",
@@ -82,7 +85,8 @@ def run(args) -> int:
         raise CanopyStereoError(f"rig {args.rig or args.bag}: {exc}") from None
     options = GraphOptions(matcher=args.matcher, segment=not args.no_segment or args.use_mask,
                            use_mask=args.use_mask, organized=args.organized,
-                           parameter_services=False)
+                           parameter_services=False,
+                           node_parameters={"rectify_node": {"skew_compensation": not args.no_skew_compensation}})
     # a bag the graph cannot play fails before the kernels are prepared (one line, no wait)
     open_input_bag(args.bag, namespace=options.namespace, remap=parse_remaps(args.remap))
     if matcher_spec(args.matcher or default_matcher()).compiled:

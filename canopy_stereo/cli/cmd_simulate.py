@@ -12,6 +12,18 @@ Writes into ``DIR`` (one frame), or into ``DIR/frame_0000``, ``DIR/frame_0001``,
 
 and ``DIR/rig.yaml``, a copy of the rig file used (default ``config/paper_rig.yaml``).
 
+A field sequence (any of ``--motion``, ``--turn``, ``--skew``, ``--jitter``, ``--wind``,
+``--fps``, ``--jpeg-quality``, ``--bag``, the gains or white balances): the rig moves past
+the plants (``--motion along|across|toward --speed M/S``: along the baseline, across it
+(up), toward the plants; ``--turn DEG/S``), leaves sway in wind of ``--wind`` strength (0
+still, 1 the gentle breeze of plain ``--frames``, default), each camera captures at its own
+times (``--fps``, right camera ``--skew MS`` later, ``--jitter MS``), with its own gain and
+white balance, through MJPEG at ``--jpeg-quality``. Each frame folder's truth is the left
+camera's at its capture instant (plus ``t_left``, ``t_right``, ``skew_ms``, ``rig_pose``,
+``leaf_speed_mm_s``). ``--bag OUT.mcap`` also writes the frames as a rosbag2 bag stamped with
+the capture times: raw ``/stereo/{left,right}/image_raw`` or, with ``--compressed``, JPEG
+``.../image_raw/compressed``, plus ``/truth/left/depth`` (16UC1 mm) and the rig (needs rclpy).
+
 ``canopy-stereo simulate calibration -o DIR`` renders the paper's world-rig
 calibration instead (the chessboard at each of the 45 places of the paper's
 layout, on the floor sheet, 0.7 px blur, noise sigma 2 grey levels; or the
@@ -68,6 +80,31 @@ def add_arguments(parser) -> None:
                       help="with --views: the rig circles the plant, looking down on it")
     parser.add_argument("--elevation", type=float, default=None, metavar="DEG",
                         help="with --orbit: how far the rig looks down (default 20 degrees)")
+    seq = parser.add_argument_group("field sequence (a moving rig, wind, each camera's clock, MJPEG)")
+    seq.add_argument("--motion", choices=("still", "along", "across", "toward"), default=None,
+                     help="rig motion: along the baseline, across it (up) or toward the plants (needs --speed)")
+    seq.add_argument("--speed", type=float, default=0.0, metavar="M/S", help="rig speed (default 0)")
+    seq.add_argument("--turn", type=float, default=0.0, metavar="DEG/S",
+                     help="rig turning rate about its vertical axis (default 0)")
+    seq.add_argument("--fps", type=float, default=None, metavar="HZ", help="frame rate of both cameras (default 15)")
+    seq.add_argument("--skew", type=float, default=None, metavar="MS",
+                     help="the right camera captures MS later than the left (negative: earlier; default 0)")
+    seq.add_argument("--jitter", type=float, default=None, metavar="MS",
+                     help="capture-time jitter (standard deviation) of each camera (default 0)")
+    seq.add_argument("--wind", type=float, default=None, metavar="STRENGTH",
+                     help="wind strength: 0 still, 1 gentle breeze (default), 3 strong; leaf speed ~ STRENGTH^2")
+    seq.add_argument("--gain-left", type=float, default=None, metavar="G", help="left camera gain (default 1)")
+    seq.add_argument("--gain-right", type=float, default=None, metavar="G", help="right camera gain (default 0.93)")
+    seq.add_argument("--white-balance-left", default=None, metavar="R,G,B",
+                     help="left camera white balance gains (default 1,1,1)")
+    seq.add_argument("--white-balance-right", default=None, metavar="R,G,B",
+                     help="right camera white balance gains (default 1,1,1)")
+    seq.add_argument("--jpeg-quality", type=int, default=None, metavar="Q",
+                     help="MJPEG quality 1-100 of both cameras (default: lossless; 90 with --compressed)")
+    seq.add_argument("--bag", metavar="OUT.mcap", default=None,
+                     help="also write the sequence as a bag stamped with the capture times (needs rclpy)")
+    seq.add_argument("--compressed", action="store_true",
+                     help="with --bag: JPEG sensor_msgs/CompressedImage on <topic>/compressed")
     cal = parser.add_argument_group("calibration scene")
     cal.add_argument("--placements", metavar="PLACEMENTS.yaml", default=None,
                      help="board placements to render (default: the paper's layout in front of the rig)")
@@ -88,7 +125,8 @@ def _json_default(obj):
 
 
 def write_frame(sim, folder: Path) -> None:
-    """Write one rendered frame's files into ``folder``."""
+    """Write one rendered frame's files into ``folder`` (a :class:`~canopy_stereo.sim.SimResult`
+    or a :class:`~canopy_stereo.sim.sequence.SequenceFrame`)."""
     folder.mkdir(parents=True, exist_ok=True)
     write_image(folder / "left.png", sim.left)
     write_image(folder / "right.png", sim.right)
@@ -126,6 +164,8 @@ def run(args) -> int:
     effects = CLEAN if args.clean else None
     if args.views > 1 or args.mode is not None:
         return _run_views(args, rig, out, effects)
+    if _is_sequence(args):
+        return _run_sequence(args, rig, out, effects)
     for frame in range(args.frames):
         scene = scene_for_rig(args.scene, rig, seed=args.seed, frame=frame)
         sim = render_pair(scene, rig, supersample=args.supersample, effects=effects)
@@ -136,6 +176,87 @@ def run(args) -> int:
         render_s = sim.timings.get("left", 0.0) + sim.timings.get("right", 0.0)
         print(f"{folder}: {args.scene} seed {args.seed} frame {frame}: {len(leaves)} leaves "
               f"({seen} visible in the left view), rendered in {render_s:.2f} s")
+    return 0
+
+
+_SEQUENCE_OPTIONS = ("motion", "fps", "skew", "jitter", "wind", "gain_left", "gain_right", "white_balance_left",
+                     "white_balance_right", "jpeg_quality", "bag")
+
+
+def _is_sequence(args) -> bool:
+    return any(getattr(args, name) is not None for name in _SEQUENCE_OPTIONS) or args.compressed \
+        or args.speed != 0 or args.turn != 0
+
+
+def _gains(text: str | None, name: str):
+    if text is None:
+        return (1.0, 1.0, 1.0)
+    try:
+        gains = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        gains = ()
+    if len(gains) != 3 or not all(g > 0 and np.isfinite(g) for g in gains):
+        raise CanopyStereoError(f"{name} must be three positive numbers R,G,B, got {text!r}")
+    return gains
+
+
+def _sequence_spec(args, effects):
+    """The :class:`~canopy_stereo.sim.sequence.SequenceSpec` of the command line."""
+    from dataclasses import replace
+
+    from canopy_stereo.sim import CameraEffects
+    from canopy_stereo.sim.sequence import CaptureTiming, RigMotion, SequenceSpec
+
+    motion = args.motion or ("along" if args.speed else "still")
+    if motion != "still" and not args.speed > 0:
+        raise CanopyStereoError(f"--motion {motion} needs --speed M/S > 0")
+    if motion == "still" and args.speed:
+        raise CanopyStereoError("--speed needs --motion along, across or toward")
+    jpeg = args.jpeg_quality if args.jpeg_quality is not None else (90 if args.compressed else None)
+    if args.compressed and args.bag is None:
+        raise CanopyStereoError("--compressed needs --bag OUT.mcap")
+    effects = effects or CameraEffects()
+    effects = replace(effects, **{k: v for k, v in (("gain_left", args.gain_left), ("gain_right", args.gain_right))
+                                  if v is not None},
+                      white_balance_left=_gains(args.white_balance_left, "--white-balance-left"),
+                      white_balance_right=_gains(args.white_balance_right, "--white-balance-right"))
+    return SequenceSpec(scene=args.scene, seed=args.seed, frames=args.frames,
+                        motion=RigMotion(motion, float(args.speed), float(args.turn)),
+                        timing=CaptureTiming(fps=15.0 if args.fps is None else float(args.fps),
+                                             skew=(args.skew or 0.0) / 1e3, jitter=(args.jitter or 0.0) / 1e3),
+                        wind=1.0 if args.wind is None else float(args.wind), effects=effects,
+                        jpeg_quality=jpeg, supersample=args.supersample)
+
+
+def _run_sequence(args, rig, out: Path, effects) -> int:
+    """A field sequence (moving rig, wind, capture times, MJPEG): frame folders and an optional bag."""
+    from canopy_stereo.sim.sequence import render_sequence
+
+    spec = _sequence_spec(args, effects)
+    if args.bag is not None:
+        from canopy_stereo.ros import require_ros
+
+        require_ros("canopy-stereo simulate --bag")
+    frames, jpegs, depths = [], [], []
+    epoch_ns = 1_704_067_200_000_000_000  # 2024-01-01T00:00:00Z, as the bundled bags
+    for f in render_sequence(spec, rig):
+        folder = out / f"frame_{f.index:04d}"
+        write_frame(f, folder)
+        print(f"{folder}: {args.scene} seed {args.seed} frame {f.index}: left at {f.t_left * 1e3:.1f} ms, "
+              f"right at {f.t_right * 1e3:.1f} ms (skew {f.truth['skew_ms']:.1f} ms), "
+              f"leaves up to {f.truth['leaf_speed_mm_s']['max']:.0f} mm/s", flush=True)
+        if args.bag is not None:
+            frames.append((f.left, f.right, epoch_ns + round(f.t_left * 1e9), epoch_ns + round(f.t_right * 1e9)))
+            jpegs.append((f.jpeg_left, f.jpeg_right))
+            depths.append(f.depth_left(rig) * rig.metres_per_unit)
+    if args.bag is not None:
+        from canopy_stereo.ros.bundled import write_stereo_bag
+
+        bag = write_stereo_bag(args.bag, frames, truth_depths=depths, rig=rig,
+                               metadata={"simulated": spec.scene, "motion": spec.motion.direction},
+                               jpegs=jpegs if args.compressed else None)
+        kind = "compressed (JPEG)" if args.compressed else "raw"
+        print(f"{bag}: {len(frames)} {kind} stereo frames stamped with their capture times + /truth/left/depth")
     return 0
 
 

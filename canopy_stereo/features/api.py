@@ -37,7 +37,7 @@ _MODULE_METHODS = {
     "asift": "canopy_stereo.features.asift:asift_match",
     "harris-affine": "canopy_stereo.features.affine_regions:harris_affine_match",
     "hessian-affine": "canopy_stereo.features.affine_regions:hessian_affine_match",
-    "qdmatch": "canopy_stereo.features.quasi_dense:qdmatch",
+    "qdmatch": "canopy_stereo.features.quasi_dense.matching:qdmatch",
 }
 
 
@@ -86,7 +86,8 @@ def match_pair(left: np.ndarray, right: np.ndarray, *, method: str = "sift", rat
         min_matches: raise :class:`MatchingError` when fewer verified matches
             remain (0: never raise; the study uses this to print empty rows).
         **params: method parameters (OpenCV detector arguments for the OpenCV
-            methods; see :func:`canopy_stereo.features.quasi_dense.qdmatch`,
+            methods; see :func:`canopy_stereo.features.quasi_dense.matching.qdmatch` (settings:
+            :class:`~canopy_stereo.features.quasi_dense.params.QuasiDenseParams`),
             :func:`~canopy_stereo.features.asift.asift_match`, ...).
 
     Returns:

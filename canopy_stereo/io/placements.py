@@ -1,8 +1,8 @@
 """Placements files (YAML): where the chessboard stood in each image pair of a world-rig calibration.
 
 The format is described in :mod:`canopy_stereo.geometry.world_rig`, which holds
-the :class:`~canopy_stereo.geometry.world_rig.Placements` and checks their
-content (:func:`~canopy_stereo.geometry.world_rig.placements_from_dict`); this
+the :class:`~canopy_stereo.geometry.board_placements.Placements` and checks their
+content (:func:`~canopy_stereo.geometry.board_placements.placements_from_dict`); this
 module reads and writes the files.
 """
 from __future__ import annotations
@@ -12,7 +12,7 @@ from pathlib import Path
 import yaml
 
 from canopy_stereo.errors import CalibrationError
-from canopy_stereo.geometry.world_rig import Placements, placements_from_dict
+from canopy_stereo.geometry.board_placements import Placements, placements_from_dict
 from canopy_stereo.io.yaml_files import read_yaml_file
 
 

@@ -81,7 +81,7 @@ def bundled_rig(scene: str) -> Path:
 
 def write_stereo_bag(path, frames, *, truth_depths=None, compression: str = "zstd",
                      metadata: dict | None = None, rig: Rig | None = None, image_format: str = "raw",
-                     jpeg_quality: int = 95) -> Path:
+                     jpeg_quality: int = 95, jpegs=None) -> Path:
     """Write stereo frames (and optional truth depth maps) as a bag.
 
     Args:
@@ -98,30 +98,44 @@ def write_stereo_bag(path, frames, *, truth_depths=None, compression: str = "zst
             ``<topic>/compressed`` only, as robot bags usually hold them
             (:mod:`canopy_stereo.io.compressed_image`).
         jpeg_quality: JPEG quality (1-100) of ``image_format="jpeg"``.
+        jpegs: optional list of ``(left JPEG bytes, right JPEG bytes)``, one per frame (a
+            camera's MJPEG frames, e.g. the simulator's): stored as they are, as
+            ``CompressedImage`` on ``<topic>/compressed`` (format ``bgr8; jpeg compressed bgr8``),
+            whatever ``image_format``.
     """
     from canopy_stereo.bag import BagWriter
     from canopy_stereo.bag.metadata import recording_metadata
-    from canopy_stereo.io.compressed_image import COMPRESSED_IMAGE_TYPE, compressed_topic, encode_frame_cdr
+    from canopy_stereo.io.compressed_image import (
+        COMPRESSED_IMAGE_TYPE,
+        compressed_image_cdr,
+        compressed_topic,
+        encode_frame_cdr,
+    )
+    from canopy_stereo.io.image_codec import DEVICE_JPEG_FORMAT
     from canopy_stereo.ros.convert import image_to_msg
 
     if image_format not in ("raw", "jpeg", "png"):
         raise CanopyStereoError(f"image_format must be raw, jpeg or png, got {image_format!r}")
     frame = RAW_FRAME
 
-    def write_image(bag, topic, image, stamp_ns, log_ns):
-        if image_format == "raw":
+    def write_image(bag, topic, image, stamp_ns, log_ns, jpeg=None):
+        if jpeg is not None:  # a camera's own JPEG bytes, stored as they are
+            cdr = compressed_image_cdr(stamp_ns=stamp_ns, frame_id=frame, fmt=DEVICE_JPEG_FORMAT, data=jpeg)
+        elif image_format == "raw":
             bag.write(topic, image_to_msg(image, "bgr8", stamp_ns=stamp_ns, frame_id=frame), log_ns)
+            return
         else:
-            bag.write(compressed_topic(topic), encode_frame_cdr(image, stamp_ns=stamp_ns, frame_id=frame,
-                                                                codec=image_format, quality=jpeg_quality),
-                      log_ns, publish_time_ns=stamp_ns, msg_type=COMPRESSED_IMAGE_TYPE)
+            cdr = encode_frame_cdr(image, stamp_ns=stamp_ns, frame_id=frame, codec=image_format,
+                                   quality=jpeg_quality)
+        bag.write(compressed_topic(topic), cdr, log_ns, publish_time_ns=stamp_ns, msg_type=COMPRESSED_IMAGE_TYPE)
 
     transport_ns = 2_000_000  # reception 2 ms after capture
     with BagWriter(path, compression=compression,
                    metadata=recording_metadata(metadata, rig)) as bag:
         for k, (left, right, t_left, t_right) in enumerate(frames):
-            write_image(bag, LEFT_TOPIC, left, t_left, t_left + transport_ns)
-            write_image(bag, RIGHT_TOPIC, right, t_right, t_right + transport_ns)
+            jpeg = jpegs[k] if jpegs is not None else (None, None)
+            write_image(bag, LEFT_TOPIC, left, t_left, t_left + transport_ns, jpeg[0])
+            write_image(bag, RIGHT_TOPIC, right, t_right, t_right + transport_ns, jpeg[1])
             if truth_depths is not None:
                 depth_mm = np.rint(np.nan_to_num(np.asarray(truth_depths[k], np.float64) * 1000.0,
                                                  nan=0.0)).clip(0, 65535).astype(np.uint16)

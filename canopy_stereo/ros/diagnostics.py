@@ -75,6 +75,7 @@ class NodeDiagnostics:
         self._warnings = Counter()
         self._latencies: list[float] = []
         self._samples: dict[str, list[float]] = {}
+        self._notes = Counter()
         self._busy_s = 0.0
         self._errors = 0
         self._jumps = 0
@@ -129,6 +130,12 @@ class NodeDiagnostics:
         with self._lock:
             self._samples.setdefault(key, []).append(float(value))
 
+    def note(self, key: str) -> None:
+        """Count one occurrence of an event that is not a drop (reported per window as
+        ``key`` with its count), e.g. why a pair went on uncompensated."""
+        with self._lock:
+            self._notes[key] += 1
+
     def busy(self, seconds: float) -> None:
         """Time spent in a callback."""
         with self._lock:
@@ -175,6 +182,8 @@ class NodeDiagnostics:
                 if v.size:
                     values.append((f"{key} mean", _fmt(float(v.mean()))))
                     values.append((f"{key} max", _fmt(float(v.max()))))
+            for key, n in sorted(self._notes.items()):
+                values.append((key, str(n)))
             values.append(("busy %", _fmt(100.0 * self._busy_s / elapsed)))
             values.append(("time jumps", str(self._jumps)))
             silent_s = None if self._last_input is None else now - self._last_input
@@ -200,6 +209,7 @@ class NodeDiagnostics:
                 self._warnings.clear()
                 self._latencies.clear()
                 self._samples.clear()
+                self._notes.clear()
                 self._busy_s = 0.0
                 self._errors = 0
         return DiagnosticStatus(level=level, name=self.name, message=message, hardware_id=self.hardware_id,

@@ -15,7 +15,7 @@ a Gaussian of ``blur_px`` pixels before the sensor adds its noise.
     pairs = render_calibration_scene(rig, placements)      # [(left, right)] uint8 BGR
 
 For the paper's rig (``config/paper_rig.yaml``) the placements are exactly
-:func:`~canopy_stereo.geometry.world_rig.paper_layout_placements` in the
+:func:`~canopy_stereo.geometry.board_placements.paper_layout_placements` in the
 paper's world frame; for any other rig the same layout is moved in front of
 it (the paper rig's anchor frame onto this rig's, :func:`~canopy_stereo.sim.scene.rig_anchor`)
 and expressed in the rig's world frame and unit.
@@ -27,12 +27,7 @@ import math
 import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.geometry.world_rig import (
-    PAPER_LAYOUT,
-    BoardPlacement,
-    Placements,
-    paper_layout_placements,
-)
+from canopy_stereo.geometry.board_placements import PAPER_LAYOUT, BoardPlacement, Placements, paper_layout_placements
 from canopy_stereo.io.rig import unit_to_metres
 from canopy_stereo.sim.primitives import LABEL_BACKGROUND, Material, Rectangle
 from canopy_stereo.sim.render import render_view
@@ -76,8 +71,8 @@ def boards_in_view(rig, placements: Placements, *, margin_px: float = 2.0) -> np
     """(N,) bool: the whole board of each placement (its squares, one square beyond the
     outer inner corners) lies in front of both cameras and at least ``margin_px`` inside
     both images."""
+    from canopy_stereo.geometry.board_placements import board_world_points
     from canopy_stereo.geometry.camera import project
-    from canopy_stereo.geometry.world_rig import board_world_points
 
     cols, rows = placements.pattern
     w, h = rig.image_size
@@ -101,7 +96,7 @@ def boards_in_view(rig, placements: Placements, *, margin_px: float = 2.0) -> np
 
 
 def calibration_placements(rig=None, *, fit_to_view: bool = True, **layout) -> Placements:
-    """The paper's layout (:func:`~canopy_stereo.geometry.world_rig.paper_layout_placements`,
+    """The paper's layout (:func:`~canopy_stereo.geometry.board_placements.paper_layout_placements`,
     keyword options ``layout`` in millimetres) placed in front of ``rig``.
 
     The layout is moved from the paper rig's anchor frame to ``rig``'s
@@ -116,7 +111,7 @@ def calibration_placements(rig=None, *, fit_to_view: bool = True, **layout) -> P
         rig: a :class:`~canopy_stereo.io.rig.Rig`, a rig path, or None (the paper's rig).
 
     Returns:
-        :class:`~canopy_stereo.geometry.world_rig.Placements` in ``rig``'s world frame and unit.
+        :class:`~canopy_stereo.geometry.board_placements.Placements` in ``rig``'s world frame and unit.
 
     Raises:
         CanopyStereoError: no first mark up to 50 m puts every board in both views.
@@ -210,7 +205,7 @@ def render_calibration_scene(rig, placements: Placements, *, blur_px: float = 0.
 
     Args:
         rig: :class:`~canopy_stereo.io.rig.Rig`, rig path, or None (the paper's rig).
-        placements: :class:`~canopy_stereo.geometry.world_rig.Placements` in the rig's
+        placements: :class:`~canopy_stereo.geometry.board_placements.Placements` in the rig's
             world frame and unit (e.g. :func:`calibration_placements`).
         blur_px: standard deviation (pixels) of the Gaussian optical blur applied to
             the scene radiance before the sensor (0 = none).

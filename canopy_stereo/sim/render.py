@@ -156,7 +156,7 @@ class SimResult:
 
 
 def render_pair(scene: Scene, rig, *, supersample: int = 2, effects: CameraEffects | None = None,
-                tile_size: int = TILE_SIZE) -> SimResult:
+                tile_size: int = TILE_SIZE, right_scene: Scene | None = None) -> SimResult:
     """Render ``scene`` (already placed in ``rig``'s world frame) through both cameras.
 
     Args:
@@ -165,18 +165,23 @@ def render_pair(scene: Scene, rig, *, supersample: int = 2, effects: CameraEffec
         supersample: anti-aliasing (see :func:`~canopy_stereo.sim.sensor.sample_pattern`).
         effects: sensor response (default :class:`CameraEffects`()); the noise is
             drawn from ``(scene.seed, scene.frame)`` so output is deterministic.
+        right_scene: what the right camera sees, when not ``scene``: the same scene at the
+            right camera's own capture instant (:mod:`canopy_stereo.sim.sequence`). The
+            truth dict is the left scene's (its leaves' ``pixels_right`` count the right view).
     """
-    if scene.world_unit != rig.world_unit:
-        raise CanopyStereoError(f"scene is in {scene.world_unit} but the rig in {rig.world_unit}: "
-                                "place the scene in front of the rig first")
+    scenes = {"left": scene, "right": scene if right_scene is None else right_scene}
+    for sc in scenes.values():
+        if sc.world_unit != rig.world_unit:
+            raise CanopyStereoError(f"scene is in {sc.world_unit} but the rig in {rig.world_unit}: "
+                                    "place the scene in front of the rig first")
+        _ = sc.packed  # pack once (a cached property), before the threads share it
     effects = CameraEffects() if effects is None else effects
     timings = {}
-    _ = scene.packed  # pack once (a cached property), before the threads share it
 
     def view(camera):
         P, D = (rig.P_left, rig.D_left) if camera == "left" else (rig.P_right, rig.D_right)
         t0 = time.perf_counter()
-        out = render_view(scene, P, D, rig.image_size, supersample=supersample, tile_size=tile_size,
+        out = render_view(scenes[camera], P, D, rig.image_size, supersample=supersample, tile_size=tile_size,
                           model=rig.distortion_model)
         timings[camera] = time.perf_counter() - t0
         return out
@@ -186,15 +191,13 @@ def render_pair(scene: Scene, rig, *, supersample: int = 2, effects: CameraEffec
     t0 = time.perf_counter()
     rng = np.random.default_rng([int(scene.seed) & 0x7FFFFFFF, int(scene.frame), 0x5E25])
     images = [effects.expose(v.radiance, cam, rng) for cam, v in enumerate(views)]
-    packed = scene.packed
-    lookup_ids = np.append(packed.leaf_ids, 0).astype(np.uint16)
-    lookup_labels = np.append(packed.labels, 0).astype(np.uint8)
-    leaf_ids = [lookup_ids[v.prim_index] for v in views]  # index -1 -> the appended 0
-    labels = [lookup_labels[v.prim_index] for v in views]
-    lookup_plants = np.append(scene.plant_of_primitive(), 0).astype(np.uint16)
-    plants = [lookup_plants[v.prim_index] for v in views]
+    cams = (scenes["left"], scenes["right"])  # index -1 (no hit) -> the appended 0
+    leaf_ids = [np.append(sc.packed.leaf_ids, 0).astype(np.uint16)[v.prim_index] for sc, v in zip(cams, views)]
+    labels = [np.append(sc.packed.labels, 0).astype(np.uint8)[v.prim_index] for sc, v in zip(cams, views)]
+    plants = [np.append(sc.plant_of_primitive(), 0).astype(np.uint16)[v.prim_index] for sc, v in zip(cams, views)]
     truth = scene.truth()
-    counts = [np.bincount(ids.ravel(), minlength=int(lookup_ids.max()) + 1) for ids in leaf_ids]
+    n_ids = max(int(sc.packed.leaf_ids.max(initial=0)) for sc in cams) + 1
+    counts = [np.bincount(ids.ravel(), minlength=n_ids) for ids in leaf_ids]
     for lf in truth["leaves"]:
         lf["pixels_left"] = int(counts[0][lf["id"]])
         lf["pixels_right"] = int(counts[1][lf["id"]])

@@ -134,6 +134,8 @@ class CameraEffects:
         gamma: encoding gamma (``value = signal^(1/gamma)``).
         noise_sigma: standard deviation of additive Gaussian noise in 8-bit
             levels (DN), drawn per pixel and channel from the seed.
+        white_balance_left, white_balance_right: per-camera (red, green, blue) gains on the
+            linear signal (each webcam's own automatic white balance).
     """
 
     exposure: float = 1.3
@@ -142,10 +144,17 @@ class CameraEffects:
     vignetting: float = 0.2
     gamma: float = 2.2
     noise_sigma: float = 1.0
+    white_balance_left: tuple = (1.0, 1.0, 1.0)
+    white_balance_right: tuple = (1.0, 1.0, 1.0)
 
     def __post_init__(self):
         if self.exposure <= 0 or self.gain_left <= 0 or self.gain_right <= 0 or self.gamma <= 0:
             raise CanopyStereoError("exposure, gains and gamma must be positive")
+        for name in ("white_balance_left", "white_balance_right"):
+            wb = tuple(float(g) for g in getattr(self, name))
+            if len(wb) != 3 or not all(np.isfinite(g) and g > 0 for g in wb):
+                raise CanopyStereoError(f"{name} must be three positive (red, green, blue) gains, got {wb}")
+            object.__setattr__(self, name, wb)
         if not 0 <= self.vignetting < 1:
             raise CanopyStereoError(f"vignetting must be in [0, 1), got {self.vignetting}")
         if self.noise_sigma < 0:
@@ -164,6 +173,9 @@ class CameraEffects:
         h, w = radiance.shape[:2]
         gain = self.exposure * (self.gain_left if camera == 0 else self.gain_right)
         signal = radiance.astype(np.float64) * gain
+        balance = self.white_balance_left if camera == 0 else self.white_balance_right
+        if balance != (1.0, 1.0, 1.0):
+            signal *= np.asarray(balance)
         if self.vignetting > 0:
             vv, uu = np.mgrid[0:h, 0:w].astype(np.float64)
             r2 = (uu - (w - 1) / 2.0) ** 2 + (vv - (h - 1) / 2.0) ** 2

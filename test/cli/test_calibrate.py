@@ -3,8 +3,8 @@ from rendered images: test/geometry/test_world_rig.py, beside its rendering)."""
 import numpy as np
 import pytest
 
+from canopy_stereo.geometry.board_placements import paper_layout_placements
 from canopy_stereo.geometry.camera import camera_centre, project
-from canopy_stereo.geometry.world_rig import paper_layout_placements
 from canopy_stereo.io.placements import load_placements
 from canopy_stereo.io.rig import load_rig
 from test.conftest import run_cli_subprocess

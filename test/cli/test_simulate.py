@@ -7,8 +7,8 @@ import pytest
 
 from canopy_stereo.cli import main
 from canopy_stereo.geometry.board_corners import detect_board_corners
+from canopy_stereo.geometry.board_placements import board_world_points, paper_layout_placements
 from canopy_stereo.geometry.camera import project
-from canopy_stereo.geometry.world_rig import board_world_points, paper_layout_placements
 from canopy_stereo.io.placements import load_placements, write_placements
 from canopy_stereo.io.rig import load_rig, save_rig
 from canopy_stereo.sim import default_rig_path, rig_at_resolution
@@ -107,3 +107,53 @@ def test_cli_simulate_calibration_writes_images_and_placements(tmp_path, cli, pa
     rms = min(np.sqrt(np.mean(np.sum((c - x) ** 2, 1))) for c in (corners, corners[::-1]))
     assert rms < 0.1, rms
     assert "calibrate with: canopy-stereo calibrate --world-rig" in out
+
+
+@pytest.mark.slow
+@pytest.mark.ros
+def test_simulate_field_sequence_writes_a_compressed_bag_stamped_at_capture(tmp_path, small_rig_file):
+    """``--motion/--skew/--jpeg-quality --bag --compressed``: frame folders with the capture
+    instants in their truth, and a bag of JPEG CompressedImages stamped 8 ms apart + truth depth."""
+    pytest.importorskip("rclpy")
+    from canopy_stereo.bag import BagReader
+    from canopy_stereo.bag.metadata import canopy_metadata
+    from canopy_stereo.ros.bundled import read_truth_depths
+
+    out, bag_path = tmp_path / "field", tmp_path / "field.mcap"
+    assert main(["simulate", "croton", "-o", str(out), "--rig", str(small_rig_file), "--frames", "2",
+                 "--supersample", "1", "--motion", "along", "--speed", "0.25", "--skew", "8", "--wind", "2",
+                 "--white-balance-right", "1.1,1,0.9", "--jpeg-quality", "85", "--bag", str(bag_path),
+                 "--compressed"]) == 0
+    truths = [json.loads((out / f"frame_{k:04d}" / "truth.json").read_text()) for k in range(2)]
+    assert [t["skew_ms"] for t in truths] == pytest.approx([8.0, 8.0])
+    assert truths[1]["t_left"] == pytest.approx(1 / 15)
+    assert truths[0]["sequence"]["motion"] == {"direction": "along", "speed_m_s": 0.25, "turn_rate_deg_s": 0.0}
+    assert truths[0]["jpeg_quality"] == 85 and truths[1]["leaf_speed_mm_s"]["max"] > 0
+    bag = BagReader(bag_path)
+    assert set(bag.topics) == {"/stereo/left/image_raw/compressed", "/stereo/right/image_raw/compressed",
+                               "/truth/left/depth"}
+    stamps = {}
+    for topic in ("/stereo/left/image_raw/compressed", "/stereo/right/image_raw/compressed"):
+        msgs = [m for _, m in bag.read(topic)]
+        assert [m.format for m in msgs] == ["bgr8; jpeg compressed bgr8"] * 2
+        img = cv2.imdecode(np.frombuffer(bytes(msgs[0].data), np.uint8), cv2.IMREAD_COLOR)
+        assert img.shape == (120, 160, 3)
+        stamps[topic] = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in msgs]
+    skews = np.subtract(stamps["/stereo/right/image_raw/compressed"], stamps["/stereo/left/image_raw/compressed"])
+    assert list(skews) == [8_000_000, 8_000_000]
+    depths = read_truth_depths(bag_path)
+    assert sorted(depths) == stamps["/stereo/left/image_raw/compressed"]
+    _, rig = canopy_metadata(bag.metadata(), source=str(bag_path))
+    assert rig is not None and rig.image_size == (160, 120)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--motion", "along"], "--motion along needs --speed"),
+    (["--speed", "0.2", "--motion", "still"], "--speed needs --motion"),
+    (["--compressed"], "--compressed needs --bag"),
+    (["--skew", "80"], "shorter than a frame period"),
+    (["--white-balance-right", "1,0"], "--white-balance-right must be three positive numbers"),
+])
+def test_simulate_field_sequence_bad_options_are_one_line(tmp_path, small_rig_file, cli, argv, message):
+    code, _, err = cli("simulate", "croton", "-o", str(tmp_path / "x"), "--rig", str(small_rig_file), *argv)
+    assert code == 2 and message in err and "Traceback" not in err

@@ -442,3 +442,26 @@ def test_interior_check_keeps_matches_off_the_band_smeared_past_a_depth_edge():
         resample(prop, interior_px=3, interior_shape="circle")
     with pytest.raises(CanopyStereoError, match="anchor_mask"):
         resample(prop, anchor_mask=np.ones((4, 4), bool))
+
+
+def test_qdmatch_settings_are_one_frozen_dataclass(slanted_pair):
+    """``QuasiDenseParams`` holds every qdmatch setting: frozen, replaced by name (an unknown
+    name is one clear error), and ``params=`` gives the matches the same keywords give."""
+    import dataclasses
+
+    from canopy_stereo.features.quasi_dense import QuasiDenseParams, qdmatch
+    from canopy_stereo.io.images import to_gray
+
+    left, right = slanted_pair[:2]
+    gl, gr = to_gray(left, "left"), to_gray(right, "right")
+    base = QuasiDenseParams()
+    assert len(dataclasses.fields(base)) == 32 and base.ratio == 0.8 and base.replace() is base
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        base.ratio = 0.5  # type: ignore[misc]
+    with pytest.raises(CanopyStereoError, match="unknown qdmatch parameter 'window'; known: anchor"):
+        qdmatch(gl, gr, window=3)
+    by_params = qdmatch(gl, gr, params=base.replace(cell_px=16, zncc_min=0.85))
+    by_keywords = qdmatch(gl, gr, cell_px=16, zncc_min=0.85)
+    np.testing.assert_array_equal(by_params.x_left, by_keywords.x_left)
+    np.testing.assert_array_equal(by_params.x_right, by_keywords.x_right)
+    assert by_params.num > 0

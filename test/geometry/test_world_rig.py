@@ -9,17 +9,16 @@ import yaml
 
 from canopy_stereo.errors import CalibrationError, ImageError
 from canopy_stereo.geometry.board_corners import detect_board_corners  # noqa: E402
-from canopy_stereo.geometry.camera import camera_centre, project
-from canopy_stereo.geometry.triangulation import triangulate_dlt
-from canopy_stereo.geometry.world_rig import (
+from canopy_stereo.geometry.board_placements import (
     BoardPlacement,
     Placements,
-    board_symmetries,
     board_world_points,
-    calibrate_world_rig,
     paper_layout_placements,
-    resolve_corner_order,
 )
+from canopy_stereo.geometry.camera import camera_centre, project
+from canopy_stereo.geometry.corner_order import board_symmetries, resolve_corner_order
+from canopy_stereo.geometry.triangulation import triangulate_dlt
+from canopy_stereo.geometry.world_rig import calibrate_world_rig
 from canopy_stereo.io.images import ImageFiles
 from canopy_stereo.io.placements import load_placements, write_placements
 

@@ -14,7 +14,7 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("stereo_msgs.msg")
 
-from sensor_msgs.msg import PointCloud2  # noqa: E402
+from sensor_msgs.msg import Image, PointCloud2  # noqa: E402
 
 from canopy_stereo.ros.context import private_domain_id  # noqa: E402
 from test.conftest import REPO  # noqa: E402
@@ -36,6 +36,7 @@ def test_a_driver_on_fast_dds_defaults_gets_95_percent_of_its_pairs_as_clouds(tm
         group.start_graph(RIG, nodes=NODES)
         probe = Probe(group.domain_id)
         clouds = probe.subscribe(PointCloud2, "points2")
+        rectified = probe.subscribe(Image, "left/image_rect_color")  # delivery, apart from the matcher's speed
         need = Counter(f"/stereo/{t}" for t in INPUTS)
         assert wait_for(lambda: all(probe.node.count_subscribers(t) >= n for t, n in need.items())
                         and clouds.subscription.get_publisher_count() >= 1, 180.0, group=group), group.logs()
@@ -49,6 +50,9 @@ def test_a_driver_on_fast_dds_defaults_gets_95_percent_of_its_pairs_as_clouds(tm
         with clouds.lock:
             arrivals = {s: t for t, s, _ in clouds.items if s in sent}
         latency_ms = np.array([arrivals[s] - sent[s] for s in arrivals]) * 1e3
+        # every pair reached rectify_node and was rectified (no loss in transport); then >= 95 %
+        # become clouds (on a loaded machine the matcher may skip pairs as "superseded": CPU)
+        assert len(set(rectified.stamps()) & set(sent)) >= 0.99 * len(sent), group.logs()
         assert len(arrivals) >= 0.95 * len(sent), (len(arrivals), len(sent), group.logs())
         assert np.percentile(latency_ms, 95) < 1000, np.percentile(latency_ms, [50, 95])
     finally:

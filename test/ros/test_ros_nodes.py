@@ -108,7 +108,8 @@ def test_rectify_node_counts_frames_it_never_received(harness, paper_rig):
     node's counters and on /diagnostics; the pairs that came are all published."""
     from canopy_stereo.ros.nodes.rectify import MISSED_REASON, RectifyNode
 
-    node = harness.add(RectifyNode(**node_kwargs(harness, paper_rig)))
+    # diagnostic_period 0: one statistics window for the whole test (no timer resetting it midway)
+    node = harness.add(RectifyNode(**node_kwargs(harness, paper_rig, diagnostic_period=0.0)))
     out = harness.collect(Image, "left/image_rect_color")
     pl, pr = harness.publisher(Image, "left/image_raw"), harness.publisher(Image, "right/image_raw")
     harness.connect(pl, pr)

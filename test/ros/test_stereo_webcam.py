@@ -140,3 +140,53 @@ def test_canopy_graph_from_one_stereo_webcam_records_clouds_and_one_stamp_per_pa
     left, right = stamps["/stereo/left/image_raw/compressed"], stamps["/stereo/right/image_raw/compressed"]
     assert len(left) >= 2 and len(left ^ right) <= 1  # the same stamps (the last may be cut by the stop)
     assert stamps["/stereo/points2"] <= left
+
+
+class _MjpegDevice:
+    """A V4L2 device delivering MJPEG with RGB conversion off: ``read`` hands over the JPEG
+    bytes as a (1, N) row, as OpenCV does, and the buffer timestamp on CLOCK_MONOTONIC."""
+
+    def __init__(self, jpegs):
+        self.jpegs, self.k = jpegs, 0
+        self.captured_ns = 0
+
+    def read(self):
+        time.sleep(0.02)
+        self.captured_ns = time.monotonic_ns() - 15_000_000  # exposure started 15 ms ago
+        data = self.jpegs[self.k % len(self.jpegs)]
+        self.k += 1
+        return True, np.frombuffer(data, np.uint8).reshape(1, -1)
+
+    def get(self, prop):
+        return self.captured_ns / 1e6 if prop == cv2.CAP_PROP_POS_MSEC else 0.0
+
+    def release(self):
+        pass
+
+
+def test_a_devices_mjpeg_is_published_as_it_came_with_its_capture_stamps(harness, monkeypatch):
+    """transport compressed from an MJPEG device: the device's own bytes on image_raw/compressed
+    (no decode, no re-encode), stamped with the driver's capture time (15 ms before reception)."""
+    from canopy_stereo.io.image_codec import encode_compressed
+    from canopy_stereo.ros.nodes import camera
+
+    jpegs = [encode_compressed(np.full((48, 64, 3), v, np.uint8), quality=70)[1] for v in (40, 120)]
+    opened = []
+
+    def fake_open(source, **settings):
+        opened.append(settings)
+        return _MjpegDevice(jpegs)
+
+    monkeypatch.setattr(camera, "open_capture", fake_open)
+    node = harness.add(camera.CameraNode(**node_kwargs(harness, device="/dev/video7", camera_name="left",
+                                                       fourcc="MJPG", transport="compressed", fps=30.0,
+                                                       diagnostic_period=0.0)))
+    out = harness.collect(CompressedImage, "left/image_raw/compressed")
+    raw = harness.collect(Image, "left/image_raw")
+    assert wait_for(lambda: len(out) >= 4, TIMEOUT)
+    harness.remove(node)
+    node.destroy_node()
+    assert opened[0]["device_jpeg"] is True  # asked OpenCV for the undecoded stream
+    assert {bytes(m.data) for m in out[:4]} == set(jpegs) and not raw  # the device's bytes, nothing else
+    values = {kv.key: kv.value for kv in node.diagnostics.status().values}
+    assert 14.0 <= float(values["stamp latency ms mean"]) < 200.0  # capture -> reception, measured

@@ -450,6 +450,7 @@ class LatestOnly:
         self._fn = node.guarded(fn)
         self._cond = threading.Condition()
         self._jobs: deque = deque()
+        self._calls: deque = deque()  # functions to run on the worker thread first (see call)
         self._stop = False
         self._thread = threading.Thread(target=self._run, name=f"{node.get_name()}:latest", daemon=True)
         self._thread.start()
@@ -466,12 +467,41 @@ class LatestOnly:
         for _ in range(superseded):
             self.node.drop("superseded by newer ones while the node was busy", self.what)
 
+    def call(self, fn) -> None:
+        """Run ``fn()`` on the worker thread, before any waiting job, and return when it is done
+        (re-raising what it raised): a warm-up whose per-thread state (numba's thread pool of
+        the calling thread) the jobs then find ready."""
+        done, raised = threading.Event(), []
+
+        def run() -> None:
+            try:
+                fn()
+            except BaseException as exc:  # noqa: BLE001 - re-raised in the caller
+                raised.append(exc)
+            finally:
+                done.set()
+
+        with self._cond:
+            self._calls.append(run)
+            self._cond.notify()
+        done.wait()
+        if raised:
+            raise raised[0]
+
     def _run(self) -> None:
         while True:
             with self._cond:
-                self._cond.wait_for(lambda: self._jobs or self._stop)
+                self._cond.wait_for(lambda: self._jobs or self._calls or self._stop)
                 if self._stop:
                     return
+                if self._calls:
+                    call = self._calls.popleft()
+                    self._cond.release()
+                    try:
+                        call()
+                    finally:
+                        self._cond.acquire()
+                    continue
                 job = self._jobs.popleft()
                 # busy from here on, so that the node never looks idle with a job taken
                 with self.node._idle:

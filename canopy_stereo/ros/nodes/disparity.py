@@ -157,7 +157,7 @@ class DisparityNode(CanopyNode):
         self.matching = self.latest_only(self._match, "rectified pair",
                                          depth=int(self.get_parameter("waiting_pairs").value))
         w, h = self.warm_up_size()
-        self.warm_up(f"{self.config['matcher']} on {w}x{h} pairs", self._warm_up)
+        self.warm_up(f"{self.config['matcher']} on {w}x{h} pairs", lambda: self.matching.call(self._warm_up))
         self.sub_left = self.make_subscription(Image, "left/image_rect", lambda m: self._on_image(0, m))
         self.sub_right = self.make_subscription(Image, "right/image_rect", lambda m: self._on_image(1, m))
         self.sub_info_left = self.make_subscription(CameraInfo, RECT_INFO_TOPICS[0],

@@ -26,7 +26,8 @@ This node holds no rig: the geometry comes from the messages, as in image_pipeli
 
 Parameters: ``cloud_frame`` (``world``, the default: the rig's world frame, the paper's
 metric frame; ``world_z_up``: the same turned so that z points up, for RViz; ``optical``:
-the rectified left optical frame, needs no ``stereo_geometry``), ``frame_id`` (the name
+the rectified left optical frame, needs no ``stereo_geometry``; ``parent``: the robot frame
+``rectify_node`` is mounted on, through its mount), ``frame_id`` (the name
 written for the world frame; default "": rectify_node's ``world_frame``,
 ``canopy_world``), ``organized`` (true: one point per rectified pixel, NaN where
 invalid; false: valid points only), ``use_mask``, ``queue_size``, ``reliability``.
@@ -68,7 +69,7 @@ from canopy_stereo.ros.stereo_geometry import STEREO_GEOMETRY_TOPIC, parse_stere
 from canopy_stereo.ros.tf import latched_qos
 
 #: Values of the ``cloud_frame`` parameter.
-CLOUD_FRAMES = ("world", "world_z_up", "optical")
+CLOUD_FRAMES = ("world", "world_z_up", "optical", "parent")
 
 
 class PointCloudNode(CanopyNode):
@@ -79,7 +80,8 @@ class PointCloudNode(CanopyNode):
         self.declare_text("frame_id", "", "name written for the world frame ('' = rectify_node's "
                           "world_frame)")
         self.declare_text("cloud_frame", "world", "frame of points2: world (the rig's metric frame), "
-                          "world_z_up (z up, for RViz) or optical (the rectified left optical frame)",
+                          "world_z_up (z up, for RViz), optical (the rectified left optical frame) or parent "
+                          "(the robot frame rectify_node is mounted on, by its mount)",
                           choices=CLOUD_FRAMES)
         self.declare_flag("organized", False, "true: organized cloud on the rectified grid, NaN where "
                           "invalid; false: valid points only")
@@ -241,7 +243,7 @@ class PointCloudNode(CanopyNode):
             if cloud_frame == "world":
                 frame_id = self._world_frame()
             else:
-                target = (self._target_frame(cloud_frame) if cloud_frame == "world_z_up"
+                target = (self._target_frame(cloud_frame) if cloud_frame in ("world_z_up", "parent")
                           else g.frames.get("raw_left", ""))
                 points = transform_points(g.lookup(target, g.world_frame), points).astype(np.float32)
                 frame_id = target
@@ -253,6 +255,11 @@ class PointCloudNode(CanopyNode):
         g = self.geometry
         if cloud_frame == "world":
             return g.world_frame
+        if cloud_frame == "parent":
+            if not g.frames.get("parent"):
+                raise CanopyStereoError("cloud_frame parent: rectify_node is mounted on no frame (its "
+                                        "parent_frame is empty)")
+            return g.frames["parent"]
         z_up = g.frames.get("world_z_up", "")
         if not z_up:
             raise CanopyStereoError("cloud_frame world_z_up: rectify_node publishes no z-up frame "

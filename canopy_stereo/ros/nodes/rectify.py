@@ -49,8 +49,17 @@ period at ``fps``), ``queue_size``,
 messages, ``right_camera_rect_optical_frame`` in the transforms), ``world_frame``,
 ``world_z_up_frame`` ("" = none), ``image_transport`` (``raw``/``compressed``),
 ``left_camera_frame``/``right_camera_frame`` (raw optical frames in the transforms),
-``zero_stamps``, ``max_stamp_gap``, the mounting parameters above, ``reliability``,
-``diagnostic_period``.
+``zero_stamps``, ``max_stamp_gap``, the mounting parameters above, ``skew_compensation``,
+``reliability``, ``diagnostic_period``.
+
+Skew compensation (``skew_compensation``, default true): free-running webcams capture
+up to half a frame apart; each pair's right image is brought to the left image's
+instant (the pair's stamp) along the right camera's own motion between its previous
+and current frame (:class:`~canopy_stereo.skew.SkewCompensator`, before
+rectification). ``/diagnostics`` reports ``skew ms`` (right minus left stamp),
+``skew compensated %`` (share of the pairs), ``skew shift px`` and ``skew compensation ms``
+(the time it adds), and ``skew not compensated: <reason>`` (first frame, a cut, too
+little texture, ...; those pairs go on as they came, logged once per reason).
 
 Stamps that go back further than the pairing tolerance (a looping bag, a
 restarted driver) reset the pairing with one log line; pairing goes on.
@@ -100,6 +109,7 @@ from canopy_stereo.ros.nodes.base import CanopyNode, run_node
 from canopy_stereo.ros.params import declare_rig_parameters, rectification_from_node, rig_from_node
 from canopy_stereo.ros.stereo_geometry import STEREO_GEOMETRY_TOPIC, stereo_geometry_msg
 from canopy_stereo.ros.tf import StaticTransformPublisher, latched_qos
+from canopy_stereo.skew import SkewCompensator
 
 #: Rectified CameraInfo topics (beside their images; ``<side>/camera_info`` is the raw camera's).
 RECT_INFO_TOPICS = ("left/image_rect/camera_info", "right/image_rect/camera_info")
@@ -146,6 +156,11 @@ class RectifyNode(CanopyNode):
                           "compressed (<side>/image_raw/compressed, CompressedImage: JPEG/PNG)",
                           choices=TRANSPORTS, read_only=True)
         self.transport = str(self.get_parameter("image_transport").value)
+        self.declare_flag("skew_compensation", True, "bring each pair's right image to the left image's "
+                          "instant along the right camera's motion (free-running cameras on a moving rig "
+                          "or in wind)", read_only=True)
+        self.skew = SkewCompensator(enabled=bool(self.get_parameter("skew_compensation").value))
+        self._skew_reasons_logged: set[str] = set()
         self.declare_flag("use_camera_info", False, "take the rig from the drivers' left/camera_info and "
                           "right/camera_info (REP 104, as image_pipeline does) instead of a rig file",
                           read_only=True)
@@ -263,7 +278,31 @@ class RectifyNode(CanopyNode):
         self.drop_unpaired(dropped, ("left frame", "right frame"))
         if pair is not None:
             self.diagnostics.sample("pair offset ms", pair.skew_ns / 1e6)
-            self._publish(pair.stamps_ns[0], *pair.items)
+            self._publish(pair.stamps_ns[0], *self._compensate_skew(pair))
+
+    def _compensate_skew(self, pair) -> tuple:
+        """The pair's raw images with the right one at the left image's instant (or as they
+        came, saying why), reported on ``/diagnostics``."""
+        left, right, rep = self.skew.compensate(*pair.items, stamp_left_ns=pair.stamps_ns[0],
+                                                stamp_right_ns=pair.stamps_ns[1])
+        d = self.diagnostics
+        d.sample("skew ms", rep.skew_ms)
+        if rep.reason in ("off", "in step"):
+            return left, right
+        d.sample("skew compensated %", 100.0 if rep.applied else 0.0)
+        if rep.applied:
+            d.sample("skew shift px", rep.shift_px)
+            d.sample("skew compensation ms", rep.cost_ms)
+            self.count("pairs_skew_compensated")
+            return left, right
+        kind = rep.reason.split(":")[0].split(" (")[0]
+        kind = "gap" if kind.startswith("gap of") else "skew longer than a frame" if "longer than" in kind else kind
+        d.note(f"skew not compensated: {kind}")
+        if kind not in self._skew_reasons_logged:  # once per kind: a first frame per stream is normal
+            self._skew_reasons_logged.add(kind)
+            self.get_logger().info(f"pair with {rep.skew_ms:.1f} ms skew not compensated: {rep.reason} "
+                                   "(paired as it came)")
+        return left, right
 
     def _warm_up(self) -> None:
         """One pair of the rig's size through conversion and rectification, nothing published."""
@@ -273,6 +312,10 @@ class RectifyNode(CanopyNode):
         left_r, right_r = self.rectifier.rectify(bgr, bgr)
         image_to_msg(left_r, "bgr8", stamp_ns=1, frame_id="")
         image_to_msg(to_gray(right_r), "mono8", stamp_ns=1, frame_id="")
+        if self.skew.enabled:  # the optical flow's first call (its own compensator: no state kept)
+            warm = SkewCompensator(flow_scale=self.skew.flow_scale, flow_preset=self.skew.flow_preset)
+            for k in (1, 2):
+                warm.compensate(bgr, bgr, stamp_left_ns=k * 66_000_000, stamp_right_ns=k * 66_000_000 + 8_000_000)
 
     def _count_missed(self, stamp_ns: int) -> None:
         """Count the left frames missing between the previous left stamp and ``stamp_ns``."""

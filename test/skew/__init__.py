@@ -1,0 +1,1 @@
+"""Tests of canopy_stereo.skew (capture-skew compensation) on simulated moving rigs."""
