@@ -55,7 +55,7 @@ class BatchOptions:
         rig_source: how ``rig`` was given (for the ``rig`` column), e.g. its path.
         select: ``{key: {values}}`` metadata filter (see
             :func:`~canopy_stereo.bag.metadata.parse_selection`).
-        index: colour cue of the plant mask (``"exg"``, ``"exgr"``, ``"none"``).
+        index: kept for old callers; the measuring pipeline's plant mask does not use it.
         matcher: dense matcher (``"elas"``, ``"sgbm"``).
         max_frames: measure at most this many pairs, evenly spread (0 = all).
         left_topic, right_topic: raw image topics.

@@ -46,7 +46,8 @@ def add_arguments(p):
     p.add_argument("--select", nargs="+", action="extend", default=[], metavar="KEY=VALUE",
                    help="only bags whose metadata KEY is VALUE (values of one key: any; keys: all)")
     p.add_argument("--index", choices=("exg", "exgr", "none"), default="exg",
-                   help="colour cue of the automatic plant mask (default exg; none: depth and learned colour)")
+                   help="kept for old scripts and ignored: the automatic plant mask finds plants of any colour "
+                        "by their shape (segment_plants), the same in every command")
     p.add_argument("--voxel-size", type=float, default=10.0, metavar="MM",
                    help="voxel edge of voxel_volume_cm3, millimetres (default 10; a column of the table)")
     p.add_argument("--matcher", choices=matcher_names(), default=DEFAULT_MATCHER,

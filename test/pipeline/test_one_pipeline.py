@@ -42,7 +42,7 @@ def _measurement_block(text: str) -> list[str]:
     start = next(i for i, ln in enumerate(lines) if ln.startswith("measured: "))
     block = []
     for ln in lines[start:]:
-        if not ln.startswith(("measured:", "canopy:", "volumes:", "leaf ", "...")):
+        if not ln.startswith(("measured:", "canopy:", "volumes:", "plant ", "leaf ", "...")):
             break
         block.append(ln)
     return block
@@ -77,6 +77,7 @@ def test_every_entry_point_reports_the_same_measurements(scene, tmp_path):
     demo = _measurement_block((tmp_path / "demo" / f"{scene}_summary.txt").read_text())
     # the same lines, leaf by leaf, from each entry point that prints them
     assert len(demo) >= 4 and demo[0].startswith("measured: the automatic plant mask")
+    assert not any(ln.startswith(("plant mask", "plant cloud")) for ln in demo)
     assert _measurement_block(out["view"]) == demo
     assert _measurement_block(out["reconstruct"])[:len(demo) - 1] == demo[:-1]  # it lists every leaf
     # the batch table, one row per plant: the report's numbers (rounded as the table writes them)
