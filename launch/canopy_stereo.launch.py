@@ -80,6 +80,8 @@ def generate_launch_description():
                               description="prepended to every frame the rig names, e.g. rig_a/"),
         DeclareLaunchArgument("publish_tf", default_value="true",
                               description="publish the rig's frames on /tf_static (false: the URDF owns them)"),
+        DeclareLaunchArgument("traits", default_value="false",
+                              description="run traits_node: live traits on traits (JSON) and traits/markers"),
     ]
     prefix = LaunchConfiguration("frame_prefix")
 
@@ -122,6 +124,8 @@ def generate_launch_description():
              parameters=[{"queue_size": PythonExpression(
                  ["5 if '", LaunchConfiguration("use_mask"), "'.lower() == 'true' else 1"]),
                  "depth_cue": LaunchConfiguration("segment_depth_cue")}]),
+        Node(package=PACKAGE, executable="traits_node", namespace=ns,
+             condition=IfCondition(LaunchConfiguration("traits")), parameters=[rig]),
         Node(package=PACKAGE, executable="point_cloud_node", namespace=ns,
              parameters=[rig, {"use_mask": LaunchConfiguration("use_mask")}]),
     ]

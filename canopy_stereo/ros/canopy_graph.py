@@ -60,6 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"disparity matcher (default: {DEFAULT_MATCHER})")
     p.add_argument("--use-mask", action="store_true", help="keep only plant pixels in the clouds")
     p.add_argument("--no-segment", action="store_true", help="do not run segment_node")
+    p.add_argument("--traits", action="store_true",
+                   help="run traits_node: live traits (JSON on traits, boxes and labels on traits/markers)")
     p.add_argument("--segment-depth-cue", action="store_true",
                    help="segment_node seeds GrabCut with the disparity too (near = plant)")
     p.add_argument("--organized", action="store_true", help="organized clouds")
@@ -155,6 +157,7 @@ def main(args=None) -> int:
                            segment_depth_cue=opts.segment_depth_cue, organized=opts.organized,
                            threads=opts.threads, executor=opts.executor, recut_every=opts.recut_every,
                            disparity_threads=opts.disparity_threads, intra_process=not opts.no_intra_process,
+                           traits=opts.traits,
                            parent_frame=opts.parent_frame, mount=opts.mount, camera_mount=opts.camera_mount,
                            publish_tf=not opts.no_tf, frame_prefix=opts.frame_prefix)
     if (opts.mount or opts.camera_mount) and not opts.parent_frame:

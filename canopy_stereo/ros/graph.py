@@ -68,6 +68,7 @@ class GraphOptions:
         intra_process: messages between the graph's nodes travel over an
             :class:`~canopy_stereo.ros.intra_process.IntraProcessBus` (the message object,
             no DDS; outputs still go to DDS for everyone else); False: through DDS only.
+        traits: run ``traits_node`` too (live traits on ``traits`` and ``traits/markers``).
         parent_frame, mount, camera_mount, publish_tf, frame_prefix: ``rectify_node``'s
             mounting parameters (:mod:`canopy_stereo.ros.mounting`; ``mount``/``camera_mount``
             seven numbers or None); the cameras' frame ids get ``frame_prefix`` too.
@@ -88,6 +89,7 @@ class GraphOptions:
     propagate_scale: float | None = None
     disparity_threads: int | None = None
     intra_process: bool = True
+    traits: bool = False
     parent_frame: str = ""
     mount: list | None = None
     camera_mount: list | None = None
@@ -158,6 +160,11 @@ class CanopyGraph:
                 per_node["rectify_node"]["fps"] = min(rates)
         classes = {"rectify_node": RectifyNode, "disparity_node": DisparityNode,
                    "segment_node": SegmentNode, "point_cloud_node": PointCloudNode}
+        if o.traits:
+            from canopy_stereo.ros.nodes.traits import TraitsNode
+
+            classes["traits_node"] = TraitsNode
+            per_node["traits_node"] = {}
         try:
             if cameras is not None and len(cameras) == 1:  # one device with both views (``layout``)
                 values = {**common, **cameras[0]}

@@ -61,7 +61,8 @@ def test_two_rigs_side_by_side_on_one_robot(ros_processes, tmp_path):
         graphs = {
             ns: group.start("canopy_graph", "--rig", rig, "--bag", bag, "--rate", "0", "--namespace", ns,
                             "--frame-prefix", f"{ns}/", "--parent-frame", "base_link",
-                            "--mount", *pose_values(T), "--record", tmp_path / f"{ns}.mcap")
+                            "--mount", *pose_values(T), "--record", tmp_path / f"{ns}.mcap",
+                            ros_args=["-p", "diagnostic_period:=0.2"])  # reports during a short run
             for ns, T in MOUNTS.items()}
         assert wait_for(lambda: not any(g.alive() for g in graphs.values()), 240.0), group.logs()
         codes = {ns: g.stop() for ns, g in graphs.items()}
