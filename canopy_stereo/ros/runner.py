@@ -29,6 +29,7 @@ import numpy as np
 
 from canopy_stereo.bag import BagError, BagReader, BagWriter
 from canopy_stereo.bag.messages import qos_profiles_yaml
+from canopy_stereo.bag.metadata import recording_metadata
 from canopy_stereo.bag.msgdefs import type_name
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.compressed_image import COMPRESSED_SUFFIX, IMAGE_TYPE, compressed_topic
@@ -324,8 +325,11 @@ def run_bag(bag_path, rig: Rig, *, rate: float = 1.0, record=None, options: Grap
                        outputs={k: [] for k in keep})
     book = _FrameBook()
     own_writer = record is not None and not isinstance(record, BagWriter)
+    # the recording carries its rig (the one rig record every recorder writes), so that `view`,
+    # `batch` and `run` measure and place it without --rig
     writer = (BagWriter(record, compression=compression, split_size=split_size,
-                        split_duration_s=split_duration_s) if own_writer else record)
+                        split_duration_s=split_duration_s, metadata=recording_metadata(rig=rig))
+              if own_writer else record)
     try:
         _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, remap, startup_timeout_s,
              progress, context, play_topics, left_topics, ns, outputs, result, book, writer, loop, stop,

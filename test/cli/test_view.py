@@ -38,6 +38,19 @@ def test_view_bad_options_one_line_exit_2(tmp_path):
         assert len(res.stderr.strip().splitlines()) == 1 and "error:" in res.stderr, res.stderr
 
 
+def _bag_without_rig(tmp_path):
+    """The bundled croton bag's messages without its metadata records (a bag with no rig)."""
+    from canopy_stereo.bag import BagReader, BagWriter
+    from canopy_stereo.bag.metadata import rig_from_bag
+
+    bare = tmp_path / "bare.mcap"
+    with BagWriter(bare) as w:
+        for m in BagReader(CROTON_BAG).messages(log_time_order=True):
+            w.write(m.topic, m.data, m.log_time_ns, publish_time_ns=m.publish_time_ns, msg_type=m.type_name)
+    assert rig_from_bag(CROTON_BAG) is not None and rig_from_bag(bare) is None
+    return bare
+
+
 def _rrd_entities(path):
     """entity path -> list of (stamp_ns or None, {column: value}) rows, from Rerun's own reader."""
     from rerun.chunk import RrdReader
@@ -138,7 +151,7 @@ def test_view_reopens_saved_recording(croton_recording, tmp_path):
 def test_view_raw_bag_without_rig_asks_for_rig(tmp_path):
     pytest.importorskip("rerun")
     pytest.importorskip("rclpy")
-    bare = CROTON_BAG  # (the bundled bag has no rig record)
+    bare = _bag_without_rig(tmp_path)  # (the bundled bag carries its rig: a copy without it)
     res = run_cli_subprocess("view", bare, "--save", tmp_path / "x.rrd", timeout=120)
     assert res.returncode == 2
     assert "--rig" in res.stderr and len(res.stderr.strip().splitlines()) == 1, res.stderr
@@ -177,8 +190,8 @@ def test_view_takes_the_rig_from_the_bag_metadata(tmp_path):
     from test.support.ros_harness import record_with_bag_record
 
     # recorded the way a user does: bag_record --rig (its own process) of the raw frames
-    bag, bare = tmp_path / "with_rig.mcap", CROTON_BAG
-    frames = [(m.topic, m.type_name, m.data) for m in BagReader(CROTON_BAG).messages(log_time_order=True)
+    bag, bare = tmp_path / "with_rig.mcap", _bag_without_rig(tmp_path)
+    frames = [(m.topic, m.type_name, m.data) for m in BagReader(bare).messages(log_time_order=True)
               if m.topic.endswith("image_raw")]
     record_with_bag_record(bag, frames, args=["--rig", CROTON_RIG])
     assert rig_from_bag(bare) is None
