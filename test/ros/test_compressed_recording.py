@@ -83,9 +83,14 @@ def test_canopy_graph_records_the_cameras_jpeg_and_batch_measures_it(tmp_path):
                         tmp_path / "right_%03d.png", "--fps", fps, "--matcher", "sgbm", "--record", out,
                         "--compress-images", "--metadata", "plant_id=C2")
     try:
-        deadline = time.monotonic() + 120
+        deadline, flushed_at = time.monotonic() + 120, None
         while time.monotonic() < deadline and graph.alive():
-            if out.is_file() and out.stat().st_size > 1_500_000:  # a few JPEG pairs and masks flushed
+            # a few JPEG pairs flushed and the mask topic recorded for a few frames (the first masks
+            # come after the segmentation's first cut)
+            if (flushed_at is None and "recording /stereo/left/mask" in graph.log() and out.is_file()
+                    and out.stat().st_size > 1_500_000):
+                flushed_at = time.monotonic()
+            if flushed_at is not None and time.monotonic() - flushed_at > 4.0 / fps:
                 break
             time.sleep(0.25)
     finally:
@@ -96,6 +101,7 @@ def test_canopy_graph_records_the_cameras_jpeg_and_batch_measures_it(tmp_path):
         assert topics[f"/stereo/{side}/image_raw/compressed"].type_name == COMPRESSED_IMAGE_TYPE
         assert f"/stereo/{side}/image_raw" not in topics
     assert topics["/stereo/left/mask/compressed"].type_name == COMPRESSED_IMAGE_TYPE
-    row = process_bag(out, BatchOptions(max_frames=1, sync_slop_s=0.5 / fps, matcher="sgbm"))
+    rows = process_bag(out, BatchOptions(max_frames=1, sync_slop_s=0.5 / fps, matcher="sgbm"))
+    row = max(rows, key=lambda r: r["hull_volume_cm3"] or 0)  # the croton: the largest plant row
     assert row["metadata"]["plant_id"] == "C2" and row["frames"] == 1
     assert 300 < row["canopy_height_mm"] < 600  # the croton stands about 45 cm tall
