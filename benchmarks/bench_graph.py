@@ -394,7 +394,8 @@ class DiagnosticsTotals:
 
     def _on(self, msg) -> None:
         for status in msg.status:
-            node = status.name.split(":", 1)[0]
+            # "<namespace>/<node>: pipeline" (the namespace keeps two rigs apart): keyed by node name
+            node = status.name.split(":", 1)[0].rsplit("/", 1)[-1]
             values = {kv.key: kv.value for kv in status.values}
             outs = [int(v) for k, v in values.items() if k.startswith("out ") and k.endswith(" total")]
             with self.lock:

@@ -125,9 +125,12 @@ def test_canopy_graph_from_one_stereo_webcam_records_clouds_and_one_stamp_per_pa
     graph = group.start("canopy_graph", "--rig", RIG, "--stereo-camera", path, "--layout", "side_by_side",
                         "--fps", fps, "--matcher", "sgbm", "--no-segment", "--record", out, "--compress-images")
     try:
-        deadline = time.monotonic() + 120
+        deadline, recording_at = time.monotonic() + 120, None
         while time.monotonic() < deadline and graph.alive():
-            if "recording /stereo/points2" in graph.log() and out.is_file() and out.stat().st_size > 2_000_000:
+            if (recording_at is None and "recording /stereo/points2" in graph.log() and out.is_file()
+                    and out.stat().st_size > 2_000_000):
+                recording_at = time.monotonic()
+            if recording_at is not None and time.monotonic() - recording_at > 4.0 / fps:  # a few more frames
                 break
             time.sleep(0.25)
     finally:
