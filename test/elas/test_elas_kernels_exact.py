@@ -238,21 +238,49 @@ def test_support_candidates_are_exact_on_random_images(rng):
 
 
 # ------------------------------------------------------------------- the whole run
-def test_elas_run_is_deterministic_across_thread_counts(plants):
+def _runs_with_one_and_two_threads(left, right, p):
     import numba
 
-    p = make_params("middlebury", disp_min=0, disp_max=120, subpixel=True)
     before = numba.get_num_threads()
     try:
         runs = []
         for threads in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
             numba.set_num_threads(threads)
-            runs.append(elas_run(plants["left"], plants["right"], p, want_right=True))
+            runs.append(elas_run(left, right, p, want_right=True))
     finally:
         numba.set_num_threads(before)
+    return runs
+
+
+def _assert_same_runs(runs):
     for other in runs[1:]:
         for name in ("disp_left", "disp_right", "support", "triangles_left", "triangles_right"):
-            assert same_bits(getattr(other, name), getattr(runs[0], name))
+            assert same_bits(getattr(other, name), getattr(runs[0], name)), name
+
+
+@pytest.mark.parametrize("preset,extra", [
+    ("middlebury", {"subpixel": True}),
+    # every filter of both maps, each map's post-processing a pool task (its row bands
+    # then run inside the task)
+    ("robotics", {"postprocess_only_left": False, "filter_median": True}),
+])
+def test_elas_run_is_deterministic_across_thread_counts(plants, preset, extra):
+    p = make_params(preset, disp_min=0, disp_max=120, **extra)
+    _assert_same_runs(_runs_with_one_and_two_threads(plants["left"], plants["right"], p))
+
+
+@pytest.mark.slow
+def test_elas_run_at_1280x720_is_the_same_with_two_threads():
+    """HD (the bundled Plants pair resized to 1280x720, disparities to about 140 px): the
+    two-thread run (row bands, left/right tasks) gives the one-thread maps bit for bit."""
+    import cv2
+
+    size = (1280, 720)
+    left = cv2.resize(read_image(REPO / "examples" / "plants" / "left.png", color=False), size)
+    right = cv2.resize(read_image(REPO / "examples" / "plants" / "right.png", color=False), size)
+    runs = _runs_with_one_and_two_threads(left, right, make_params("robotics", disp_max=255))
+    _assert_same_runs(runs)
+    assert (runs[0].disp_left >= 0).mean() > 0.5
 
 
 # --------------------------------------------------------------- SIMD intrinsics
@@ -640,3 +668,25 @@ def test_stable_argsort_equals_numpys_stable_sort(rng):
         assert np.array_equal(stable_argsort(keys), np.argsort(keys, kind="stable"))
     keys = rng.normal(size=777)
     assert np.array_equal(stable_argsort(keys), np.argsort(keys, kind="stable"))
+
+
+def test_support_search_by_eight_disparities_equals_one_at_a_time(rng):
+    """The AVX-512 lowest-two search (8 disparities per vector, lanes merged) gives the
+    one-at-a-time search's lowest, second lowest and first best disparity, ties included."""
+    from canopy_stereo.elas.simd import PSADBW_WIDTH
+
+    if PSADBW_WIDTH != 64:
+        pytest.skip("the eight-disparity search is compiled only with AVX-512BW")
+    width = 300
+    for levels in (2, 4, 256):       # few levels: many equal costs
+        own = rng.integers(0, levels, width * support.SUPPORT_BYTES, dtype=np.uint8)
+        other = rng.integers(0, levels, width * support.SUPPORT_BYTES, dtype=np.uint8)
+        for _ in range(60):
+            sign = int(rng.choice([-1, 1]))
+            u = int(rng.integers(120, 180))
+            dmin = int(rng.integers(0, 20))
+            dmax = dmin + int(rng.integers(10, 100))
+            a = u * support.SUPPORT_BYTES
+            ref = support._lowest_two_scalar(own, other, a, sign, dmin, dmax)
+            got = support._lowest_two_vector(own, other, a, sign, dmin, dmax)
+            assert tuple(int(x) for x in got) == tuple(int(x) for x in ref)
