@@ -28,9 +28,21 @@ Parameters (changeable at run time unless marked read-only):
 * ``near_m``, ``far_m``: working distance in metres along the optical axis (a rig file's
   ``near_m``/``far_m`` set them; 0 = 8 baselines / infinity), the range when ``disp_min``/
   ``disp_max`` are -1 (as ``reconstruct``'s, :func:`~canopy_stereo.pipeline.reconstruct.disparity_range_for`);
-* ``threads``: threads of the ELAS kernels (numba; 0 = numba's default, every core),
-  the node's share of the cores when other nodes run beside it (1 on a 2-core machine
-  running the whole graph keeps the matcher from competing with itself);
+* ``threads``: thread budget of the ELAS kernels (numba), the node's share of the cores
+  when other nodes run beside it: -1 (default) = automatic, one thread for frames up to
+  0.5 Mpixel (640x480-class: the graph's other nodes keep the second core busy) and every
+  core above (1280x720) (:func:`~canopy_stereo.elas.parallel.budget_threads`); 0 = every
+  core; N = N threads;
+* ``roi`` (read-only, default false; the launch file and ``canopy_graph`` set it when the cloud
+  is masked): subscribe ``left/mask`` (segment_node's) and match only in the plant region of
+  the previous frames' masks (:class:`~canopy_stereo.disparity.roi.RoiPlanner`), dilated by
+  ``roi_margin`` pixels, with the columns the search needs; the full frame on the first frame,
+  when the masks stop, on a cut (an empty mask, the plant area jumping, the plant reaching the
+  border of the window its frame was matched in: a new plant or fast motion), every
+  ``roi_full_every`` frames, and when the window would cover more than ``roi_max_share`` of
+  the frame. The ``DisparityImage`` stays full size, invalid outside the window (its
+  ``valid_window`` says where); ``/diagnostics`` reports the ``matched share`` of the frame
+  and the reason of each full frame;
 * read-only: ``queue_size``, ``waiting_pairs``, ``reliability``, ``diagnostic_period``.
 
 This is the slowest stage: the matcher runs in a worker thread on the complete pairs
@@ -58,12 +70,21 @@ from canopy_stereo.disparity import (  # noqa: F401
     matcher_spec,
     preset_names,
 )
+from canopy_stereo.disparity.roi import (
+    DEFAULT_FULL_EVERY,
+    DEFAULT_MARGIN,
+    DEFAULT_MAX_SHARE,
+    RoiPlanner,
+    disparity_in_window,
+)
+from canopy_stereo.elas.parallel import AUTO_THREADS, budget_threads
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.ros.convert import (
     COLOUR_ENCODINGS,
     camera_info_matrices,
     disparity_to_msg,
     is_calibrated,
+    msg_to_image,
     msg_to_mono,
     stamp_to_ns,
 )
@@ -125,8 +146,9 @@ class DisparityNode(CanopyNode):
                             "when more arrive the oldest is dropped (the newest win, latency stays bounded)",
                             minimum=1, maximum=100, read_only=True)
         self.declare_text("matcher", default_matcher(), "disparity matcher", choices=tuple(matcher_names()))
-        self.declare_number("threads", 0, "threads of the ELAS kernels (0 = numba's default: every core)",
-                            minimum=0, maximum=1024)
+        self.declare_number("threads", AUTO_THREADS, "thread budget of the ELAS kernels: -1 = automatic (1 thread "
+                            "up to 0.5 Mpixel frames, e.g. 640x480; every core above, e.g. 1280x720), "
+                            "0 = every core, N = N threads", minimum=-1, maximum=1024)
         self.declare_text("preset", _default_preset(), "preset of the matchers that have presets (ELAS: "
                           "defaults of the elas.* parameters)", choices=tuple(preset_names()))
         self.declare_number("disp_min", -1, "smallest disparity searched (pixels); "
@@ -145,6 +167,16 @@ class DisparityNode(CanopyNode):
             for parameter in spec.parameters:
                 self.declare_parameter(f"{matcher}.{parameter.name}", None,
                                        matcher_parameter_descriptor(spec, parameter))
+        self.declare_flag("roi", False, "match only in the plant region of the previous masks (left/mask), "
+                          "dilated by roi_margin; the full frame on a cut, a new plant and every roi_full_every "
+                          "frames", read_only=True)
+        self.declare_number("roi_margin", DEFAULT_MARGIN, "pixels added around the plant of the previous masks "
+                            "(its motion between frames and the matcher's neighbourhood)", minimum=0, maximum=4096)
+        self.declare_number("roi_full_every", DEFAULT_FULL_EVERY, "with roi: a full frame at least every this "
+                            "many frames (plants appearing anywhere are found); 1 = always the full frame",
+                            minimum=1, maximum=100000)
+        self.declare_number("roi_max_share", DEFAULT_MAX_SHARE, "with roi: a window covering more than this "
+                            "share of the frame is matched as the full frame", minimum=0.01, maximum=1.0)
         self.declare_frame_size()
         self.image_width_seen = 0  # width of the latest rectified camera_info (0: none yet)
         self._config_lock = threading.Lock()
@@ -164,6 +196,11 @@ class DisparityNode(CanopyNode):
                                                     lambda m: self._on_info(2, m))
         self.sub_info_right = self.make_subscription(CameraInfo, RECT_INFO_TOPICS[1],
                                                      lambda m: self._on_info(3, m))
+        self.roi = bool(self.get_parameter("roi").value)
+        self._roi_lock = threading.Lock()
+        self.roi_planner = self._make_planner({})
+        if self.roi:
+            self.sub_mask = self.make_subscription(Image, "left/mask", self._on_mask)
         self.camera = None  # (f, t, doffs) of the latest camera_info pair, for the log
         self.expected_size = None  # (width, height) of the latest rectified camera_info
         c = self.config
@@ -213,9 +250,36 @@ class DisparityNode(CanopyNode):
             config = self._build_config(changes)
         except CanopyStereoError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
+        if any(name.startswith("roi_") for name in changes):
+            try:
+                planner = self._make_planner(changes)
+            except CanopyStereoError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+            with self._roi_lock:
+                self.roi_planner = planner
         with self._config_lock:
             self.config = config
         return SetParametersResult(successful=True)
+
+    def _make_planner(self, changes: dict) -> RoiPlanner:
+        """A fresh :class:`RoiPlanner` of the ``roi_*`` parameters with ``changes`` applied."""
+        def value(name):
+            return changes[name] if name in changes else self.get_parameter(name).value
+
+        return RoiPlanner(margin=int(value("roi_margin")), full_every=int(value("roi_full_every")),
+                          max_share=float(value("roi_max_share")))
+
+    def _on_mask(self, msg: Image) -> None:
+        """A plant mask of segment_node: the window of the next pairs follows it."""
+        self.count("masks_received")
+        try:
+            check_image_msg(msg, expected_size=self.expected_size, encodings=("mono8", "8UC1"))
+            mask = msg_to_image(msg, ("mono8", "8UC1"))
+        except CanopyStereoError as exc:
+            self.drop(str(exc), "mask")
+            return
+        with self._roi_lock:
+            self.roi_planner.observe(stamp_to_ns(msg.header.stamp), mask)
 
     # ------------------------------------------------------------------ frames
     def _on_image(self, side: int, msg: Image) -> None:
@@ -254,7 +318,7 @@ class DisparityNode(CanopyNode):
         lo = 0 if c["disp_min"] is None else c["disp_min"]
         hi = lo + TYPICAL_RANGE if c["disp_max"] is None else c["disp_max"]
         left, right, _ = synthetic_pair(w, h, plane=(0.0, 0.0, float((lo + hi) // 2)), texture="blocks")
-        apply_thread_budget(c["threads"])
+        apply_thread_budget(c["threads"], pixels=w * h)
         disp = compute_disparity(left, right, matcher=c["matcher"], disp_min=lo, disp_max=hi, **c["params"])
         disparity_to_msg(disp, 500.0, 0.1, lo, hi, delta_d=c["delta_d"], stamp_ns=1, frame_id="")
 
@@ -275,9 +339,22 @@ class DisparityNode(CanopyNode):
                                    f"cx_left - cx_right {doffs:.2f} px")
         dmin, dmax = resolve_disparity_range(c["disp_min"], c["disp_max"], f, t=t, doffs=doffs,
                                              near_m=c["near_m"], far_m=c["far_m"])
-        apply_thread_budget(c["threads"])
-        disp = compute_disparity(left, right, matcher=c["matcher"], disp_min=dmin,
-                                 disp_max=dmax, **c["params"])
+        window = None
+        if self.roi:
+            with self._roi_lock:
+                window, reason = self.roi_planner.plan(stamp_ns, image_size=left.shape[1::-1], disp_min=dmin,
+                                                       disp_max=dmax)
+            self.diagnostics.sample("matched share", 1.0 if window is None else window.matched_share)
+            if window is None:
+                self.diagnostics.note(f"full frame: {reason}")
+        if window is None:
+            apply_thread_budget(c["threads"], pixels=left.shape[0] * left.shape[1])
+            disp = compute_disparity(left, right, matcher=c["matcher"], disp_min=dmin,
+                                     disp_max=dmax, **c["params"])
+        else:  # the automatic budget follows the pixels matched
+            apply_thread_budget(c["threads"], pixels=(window.xb - window.xa) * (window.yb - window.ya))
+            disp = disparity_in_window(left, right, window, matcher=c["matcher"], disp_min=dmin,
+                                       disp_max=dmax, **c["params"])
         msg = disparity_to_msg(disp, f, t, dmin, dmax, delta_d=c["delta_d"], stamp_ns=stamp_ns,
                                frame_id=frame_id, doffs=doffs)
         self.count("disparities_published")
@@ -287,16 +364,15 @@ class DisparityNode(CanopyNode):
 _STREAMS = ("left rectified image", "right rectified image", "left camera_info", "right camera_info")
 
 
-def apply_thread_budget(threads: int) -> int:
-    """Let the ELAS kernels called from this thread use ``threads`` threads (numba's setting is
-    per thread; 0 = numba's default, every core; capped at ``NUMBA_NUM_THREADS``); returns the
-    count in force. Without numba (SGBM only) nothing is set and 0 is returned."""
-    try:
-        import numba
-    except ImportError:  # pragma: no cover - SGBM only
-        return 0
+def apply_thread_budget(threads: int, *, pixels: int = 0) -> int:
+    """Let the ELAS kernels called from this thread use the ``threads`` budget for a frame of
+    ``pixels`` (numba's setting is per thread; -1 = automatic by frame size, 0 = every core,
+    N = N threads, capped at ``NUMBA_NUM_THREADS``: :func:`~canopy_stereo.elas.parallel.budget_threads`);
+    returns the count in force."""
+    import numba
+
     limit = int(numba.config.NUMBA_NUM_THREADS)
-    n = limit if int(threads) <= 0 else min(int(threads), limit)
+    n = budget_threads(threads, pixels=pixels, limit=limit)
     if numba.get_num_threads() != n:
         numba.set_num_threads(n)
     return n
