@@ -15,6 +15,13 @@ Usage:
                                     [--preset robotics] [--disp-min 84 --disp-max 167]
                                     [--scale 2] [--threads 1,2] [--right-map] [--reps 20]
 
+    python benchmarks/bench_elas.py --target [--reps 5] [--pyelas /path/to/python]
+
+``--target`` prints issue 28's ELAS figures: per MiddEval3 training scene (quarter size) and
+preset, CPU ms of one-thread ELAS against libelas's (``time.process_time``, the same load),
+the ratio and bad>2 / density against libelas's; then 1280x720 CPU and wall ms per frame
+on one and two threads.
+
 ``--stages`` times ELAS alone, stage by stage, on one pair (``--left``/``--right``
 images, any size and colour, or the first of ``--pairs``; ``--scale`` resizes it):
 per stage the median wall ms of ``--reps`` calls after a warm-up, then the median
@@ -129,12 +136,15 @@ for item in job["pairs"]:
         e = elas.Elas()
         e.set_preset(getattr(elas, "PRESET_" + preset.upper()))
         dl, _ = e.process(left, right)
-        times = []
+        times, cpu = [], []
         for _ in range(job["reps"]):
-            t = time.perf_counter(); e.process(left, right); times.append(time.perf_counter() - t)
+            c, t = time.process_time(), time.perf_counter()
+            e.process(left, right)
+            times.append(time.perf_counter() - t); cpu.append(time.process_time() - c)
         path = item["npz"].replace(".npz", "_" + preset + ".npy")
         np.save(path, np.asarray(dl, np.float32))
-        out[item["name"] + "/" + preset] = {"disp": path, "ms": 1000 * float(np.median(times))}
+        out[item["name"] + "/" + preset] = {"disp": path, "ms": 1000 * float(np.median(times)),
+                                            "cpu_ms": 1000 * float(np.median(cpu))}
 json.dump(out, open(sys.argv[2], "w"))
 '''
 
@@ -151,7 +161,8 @@ def find_pyelas(explicit: str | None) -> str | None:
     return None
 
 
-def run_libelas(python: str, loaded: dict, reps: int, workdir: Path) -> dict:
+def run_libelas(python: str, loaded: dict, reps: int, workdir: Path, *, cpu: bool = False) -> dict:
+    """libelas's left maps and median ms (wall; CPU with ``cpu``) per ``pair/preset``."""
     items = []
     for name, (left, right, _) in loaded.items():
         npz = workdir / f"{name}.npz"
@@ -166,7 +177,7 @@ def run_libelas(python: str, loaded: dict, reps: int, workdir: Path) -> dict:
     for key, val in json.loads(result.read_text()).items():
         d = np.load(val["disp"])
         d[d < 0] = -1.0
-        out[key] = (d, val["ms"])
+        out[key] = (d, val["cpu_ms"] if cpu else val["ms"])
     return out
 
 
@@ -267,6 +278,85 @@ def stages_main(args) -> int:
     return 0
 
 
+def cpu_ms(fn, reps: int) -> tuple[float, float]:
+    """Median CPU ms (``time.process_time``: every thread of this process) and median wall
+    ms of ``reps`` calls of ``fn`` after a warm-up call."""
+    fn()
+    cpu, wall = [], []
+    for _ in range(reps):
+        c, t = time.process_time(), time.perf_counter()
+        fn()
+        cpu.append(time.process_time() - c)
+        wall.append(time.perf_counter() - t)
+    return 1000 * float(np.median(cpu)), 1000 * float(np.median(wall))
+
+
+def target_main(args) -> int:
+    """``--target``: issue 28's ELAS targets. Per Middlebury 2014 training scene (quarter
+    size, 640x480-class) and preset: this ELAS's CPU ms on one thread against libelas's
+    (both ``time.process_time``, the same load), their ratio (target <= 0.3), and bad>2 and
+    density against libelas's (target: within 0.2 points); then 1280x720 ms per frame on
+    one and two threads (the first scene resized)."""
+    import numba
+
+    from canopy_stereo.elas import elas_disparity
+
+    pairs = [p for p in selected_pairs(Path(args.data), args.pairs) if p["name"].endswith("Q")]
+    pyelas = find_pyelas(args.pyelas)
+    if not pairs or not pyelas:
+        print("--target needs the MiddEval3 training scenes under --data and a Python with pyelas "
+              "(--pyelas or $PYELAS_PYTHON; see elas.md)")
+        return 1
+    loaded = {p["name"]: load_pair(p) for p in pairs}
+    presets = ("robotics", "middlebury")
+    print(f"ELAS vs libelas ({pyelas}): median CPU ms of {args.reps} calls after a warm-up, "
+          f"one thread, {os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.1f}")
+    with tempfile.TemporaryDirectory() as tmp:
+        libelas = run_libelas(pyelas, loaded, args.reps, Path(tmp), cpu=True)
+    before = numba.get_num_threads()
+    numba.set_num_threads(1)
+    header = (f"{'pair':<13}{'size':>9} {'preset':<11}{'cpu ms':>8}{'libelas':>9}{'ratio':>7}"
+              f"{'bad>2':>7}{'(lib)':>7}{'d bad2':>8}{'density':>8}{'(lib)':>7}{'d dens':>8}")
+    print(header)
+    print("-" * len(header))
+    summary: dict[str, list] = {preset: [] for preset in presets}
+    try:
+        for name, (left, right, gt) in loaded.items():
+            for preset in presets:
+                ours, _ = cpu_ms(lambda left=left, right=right, preset=preset: elas_disparity(
+                    left, right, preset=preset, right_map=False), args.reps)
+                disp = elas_disparity(left, right, preset=preset, right_map=False)[0]
+                ref_disp, ref_ms = libelas[f"{name}/{preset}"]
+                s, r = evaluate_disparity(disp, gt), evaluate_disparity(ref_disp, gt)
+                d_bad, d_den = s.bad[2.0] - r.bad[2.0], s.density - r.density
+                summary[preset].append((ours / ref_ms, d_bad, d_den))
+                print(f"{name:<13}{left.shape[1]:>5}x{left.shape[0]:<4}{preset:<11}{ours:8.1f}"
+                      f"{ref_ms:9.1f}{ours / ref_ms:7.3f}{s.bad[2.0]:7.2f}{r.bad[2.0]:7.2f}"
+                      f"{d_bad:+8.2f}{s.density:8.1f}{r.density:7.1f}{d_den:+8.2f}")
+    finally:
+        numba.set_num_threads(before)
+    print()
+    for preset, rows in summary.items():
+        ratio = np.array([r[0] for r in rows])
+        within = sum(r[1] <= 0.2 and r[2] >= -0.2 for r in rows)
+        print(f"{preset:<11} ratio median {np.median(ratio):.3f}, max {ratio.max():.3f}, "
+              f"<= 0.3 on {int((ratio <= 0.3).sum())}/{len(rows)}; bad>2 and density within 0.2 "
+              f"points of libelas (or better) on {within}/{len(rows)}; mean d bad2 "
+              f"{np.mean([r[1] for r in rows]):+.2f}, mean d density {np.mean([r[2] for r in rows]):+.2f}")
+    left, right, _ = next(iter(loaded.values()))
+    left, right = cv2.resize(left, (1280, 720)), cv2.resize(right, (1280, 720))
+    print(f"\n1280x720 ({next(iter(loaded))} resized), robotics, 0..255, left map only "
+          "(as disparity_node), ms per frame (wall: loaded machine):")
+    for threads in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
+        numba.set_num_threads(threads)
+        try:
+            cpu, wall = cpu_ms(lambda: elas_disparity(left, right, right_map=False), args.reps)
+        finally:
+            numba.set_num_threads(before)
+        print(f"  {threads} thread(s): CPU {cpu:6.1f} ms, wall {wall:6.1f} ms")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default=str(REPO.parent / "shared" / "data"))
@@ -286,7 +376,12 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", default="1,2", help="--stages: numba thread counts to time")
     ap.add_argument("--right-map", action="store_true",
                     help="--stages: also post-process the right map (want_right)")
+    ap.add_argument("--target", action="store_true",
+                    help="issue 28's targets: CPU ms against libelas on the MiddEval3 training "
+                         "scenes (ratio, bad>2, density), 1280x720 on one and two threads")
     args = ap.parse_args(argv)
+    if args.target:
+        return target_main(args)
     if args.stages:
         return stages_main(args)
 

@@ -17,7 +17,7 @@ from canopy_stereo.elas.delaunay import rasterize_triangles_into, triangle_plane
 from canopy_stereo.elas.descriptor import compute_descriptors
 from canopy_stereo.elas.grid import disparity_grid
 from canopy_stereo.elas.matching import match_job, plane_radius, prior_table
-from canopy_stereo.elas.parallel import run_row_bands, run_tasks
+from canopy_stereo.elas.parallel import run_row_bands, run_tasks, thread_count
 from canopy_stereo.elas.params import ElasParams, make_params
 from canopy_stereo.elas.postprocess import (
     adaptive_mean,
@@ -116,6 +116,26 @@ def _postprocess(disp: np.ndarray, offsets: np.ndarray, p: ElasParams, step: int
     return disp
 
 
+def _image_priors(support: np.ndarray, p: ElasParams, size: tuple[int, int], right_image: bool,
+                  workspace: Workspace):
+    """One image's prior maps: Delaunay triangles, their planes and prior flags, the
+    disparity grid and the triangle map (None for the grid and map when there are no
+    triangles), and the seconds of the three stages (GIL-free: the left and right image
+    run as two tasks)."""
+    w, h = size
+    t0 = time.perf_counter()
+    vertices, triangles, planes, valid = triangle_planes(support, right_image=right_image)
+    t1 = time.perf_counter()
+    if len(triangles) == 0:
+        return triangles, planes, valid, None, None, (t1 - t0, 0.0, 0.0)
+    grid = disparity_grid(support, (w, h), p.grid_size, p.disp_min, p.disp_max,
+                          right_image=right_image, workspace=workspace)
+    t2 = time.perf_counter()
+    tri_map = workspace.array("triangle_map", (h, w), np.int32)
+    rasterize_triangles_into(vertices, triangles, tri_map)
+    return triangles, planes, valid, grid, tri_map, (t1 - t0, t2 - t1, time.perf_counter() - t2)
+
+
 def elas_run(left: np.ndarray, right: np.ndarray, params: ElasParams,
              *, want_right: bool = True) -> ElasResult:
     """Run ELAS with fully specified ``params`` (see :func:`elas_disparity`).
@@ -150,31 +170,19 @@ def elas_run(left: np.ndarray, right: np.ndarray, params: ElasParams,
     timings["support"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    vert_l, tri_l, planes_l, valid_l = triangle_planes(support, right_image=False)
-    vert_r, tri_r, planes_r, valid_r = triangle_planes(support, right_image=True)
-    timings["delaunay"] = time.perf_counter() - t
-
-    if len(tri_l) == 0 or len(tri_r) == 0:
+    (tri_l, planes_l, valid_l, grid_l, map_l, t_l), (tri_r, planes_r, valid_r, grid_r, map_r, t_r) = \
+        run_tasks(lambda: _image_priors(support, p, (w, h), False, ws_l),
+                  lambda: _image_priors(support, p, (w, h), True, ws_r))
+    for name, t_left, t_right in zip(("delaunay", "grid", "raster"), t_l, t_r):
+        # with two threads the sides overlap: each stage's time is the slower side's
+        timings[name] = t_left + t_right if thread_count() == 1 else max(t_left, t_right)
+    if grid_l is None or grid_r is None:
         warnings.warn(f"ELAS found {len(support)} support point(s), too few to triangulate "
                       "(untextured images or a wrong disparity range?): "
                       "the disparity map is all invalid", ElasWarning, stacklevel=3)
         empty = np.full(out_shape, -1.0, np.float32)
         return ElasResult(empty, empty.copy() if want_right else None, support,
                           tri_l, tri_r, params, timings)
-
-    t = time.perf_counter()
-    grid_l = disparity_grid(support, (w, h), p.grid_size, p.disp_min, p.disp_max,
-                            right_image=False, workspace=ws_l)
-    grid_r = disparity_grid(support, (w, h), p.grid_size, p.disp_min, p.disp_max,
-                            right_image=True, workspace=ws_r)
-    timings["grid"] = time.perf_counter() - t
-
-    t = time.perf_counter()
-    map_l = ws_l.array("triangle_map", (h, w), np.int32)
-    map_r = ws_r.array("triangle_map", (h, w), np.int32)
-    rasterize_triangles_into(vert_l, tri_l, map_l)
-    rasterize_triangles_into(vert_r, tri_r, map_r)
-    timings["raster"] = time.perf_counter() - t
 
     radius = plane_radius(p.sigma, p.sradius)
     prior = prior_table(p.beta, p.gamma, p.sigma, radius + 1)

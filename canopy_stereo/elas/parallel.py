@@ -12,6 +12,15 @@ instead of ``prange`` because an OpenMP team that spin-waits collapses when the
 cores are shared with other processes (measured on a loaded 2-core machine: the
 2-thread ``prange`` version ran 4x slower than 1 thread), and because ``parallel=True``
 multiplies the compile time of a cold cache.
+
+:func:`budget_threads` turns a thread *budget* into a thread count for one frame: the
+automatic budget (:data:`AUTO_THREADS`, ``disparity_node``'s default) runs frames up to
+:data:`ONE_THREAD_MAX_PIXELS` (640x480-class) on one thread and larger ones (1280x720)
+on every core. Measured on this 2-vCPU machine (loaded): a second thread makes a frame's
+CPU time 13 % (640x480) to 30-50 % (1280x720) larger (the two vCPUs share a core), so at
+640x480, where the 4-process graph keeps both cores busy, it only takes CPU from the other
+nodes; at 1280x720 the graph leaves the second core partly idle and a second thread cuts
+ELAS's wall time by 25-35 %.
 """
 from __future__ import annotations
 
@@ -24,7 +33,27 @@ import numba
 BANDS_PER_THREAD = 2
 
 _pools: dict[int, ThreadPoolExecutor] = {}
+_local = threading.local()
 _pools_lock = threading.Lock()
+
+
+#: The automatic thread budget (see :func:`budget_threads`).
+AUTO_THREADS = -1
+#: Largest frame (pixels) the automatic budget matches on one thread: 640x480 (0.31 MP)
+#: and the Middlebury 2014 quarter-size scenes (up to 741x497) are below, 1280x720
+#: (0.92 MP) above.
+ONE_THREAD_MAX_PIXELS = 500_000
+
+
+def budget_threads(budget: int, *, pixels: int, limit: int) -> int:
+    """Threads to match a frame of ``pixels`` with, under a thread ``budget``:
+    :data:`AUTO_THREADS` (-1): 1 up to :data:`ONE_THREAD_MAX_PIXELS`, else ``limit``;
+    0: ``limit`` (every core numba may use); N > 0: ``min(N, limit)``. At least 1."""
+    limit = max(1, int(limit))
+    budget = int(budget)
+    if budget < 0:
+        return 1 if int(pixels) <= ONE_THREAD_MAX_PIXELS else limit
+    return limit if budget == 0 else min(budget, limit)
 
 
 def thread_count() -> int:
@@ -57,7 +86,9 @@ def run_row_bands(*jobs) -> None:
     share the threads); with one thread they run in order in the caller.
     """
     threads = thread_count()
-    if threads == 1:
+    if threads == 1 or getattr(_local, "in_pool", False):
+        # (inside a task of the pool, e.g. one side's post-processing: its bands run here,
+        # waiting for the pool from one of its own threads could deadlock)
         for kernel, n_rows, args in jobs:
             kernel(*args, 0, n_rows)
         return
@@ -70,11 +101,21 @@ def run_row_bands(*jobs) -> None:
         f.result()
 
 
+def _as_pool_task(task):
+    """Run ``task()`` in a pool thread, marked as such for :func:`run_row_bands`."""
+    _local.in_pool = True
+    try:
+        return task()
+    finally:
+        _local.in_pool = False
+
+
 def run_tasks(*tasks):
     """Run zero-argument callables concurrently (in order when single-threaded);
-    returns their results in order. The tasks must not use the pool themselves."""
+    returns their results in order. Row bands started inside a task run in that task's
+    thread (:func:`run_row_bands`)."""
     if thread_count() == 1 or len(tasks) < 2:
         return [t() for t in tasks]
     pool = _executor(thread_count())
-    futures = [pool.submit(t) for t in tasks]
+    futures = [pool.submit(_as_pool_task, t) for t in tasks]
     return [f.result() for f in futures]

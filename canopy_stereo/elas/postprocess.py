@@ -9,6 +9,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from canopy_stereo.elas.parallel import run_row_bands
+
 INVALID = np.float32(-1.0)
 #: Gap interpolation: ends closer than this are averaged, else the smaller one is used.
 DISCONTINUITY_THRESHOLD = 3.0
@@ -292,17 +294,16 @@ def _mean_weight(d, c, linear):
 
 
 @njit(cache=True, nogil=True)
-def _adaptive_mean(disp, linear, before, after, rows):
-    """Rows pass (taps along u) then columns pass (taps along v, whole rows at a time);
-    invalid taps and taps outside the image weigh nothing. The tap counts are
-    arguments, not constants, so that LLVM does not unroll the tap loops (which
-    multiplied the compile time by ten)."""
-    h, w = disp.shape
-    # rows: a padded copy of each row; tap k of pixel u is line[u + k]
+def _adaptive_mean_rows(disp, linear, before, after, rows, row_start, row_stop):
+    """Rows pass (taps along u) of rows ``[row_start, row_stop)`` into ``rows``; invalid taps
+    and taps outside the image weigh nothing. The tap counts are arguments, not constants,
+    so that LLVM does not unroll the tap loops (which multiplied the compile time by ten)."""
+    w = disp.shape[1]
+    # a padded copy of each row; tap k of pixel u is line[u + k]
     line = np.full(w + before + after, -1.0, dtype=np.float32)
     s = np.empty(w, dtype=np.float32)
     sw = np.empty(w, dtype=np.float32)
-    for v in range(h):
+    for v in range(row_start, row_stop):
         centre = disp[v]
         for u in range(w):
             line[before + u] = centre[u]
@@ -317,9 +318,16 @@ def _adaptive_mean(disp, linear, before, after, rows):
         dst = rows[v]
         for u in range(w):
             dst[u] = s[u] / sw[u] if centre[u] >= 0 else centre[u]
-    # columns: accumulate whole rows v-4 .. v+3 (contiguous, vectorises over u)
-    out = np.empty_like(disp)
-    for v in range(h):
+
+
+@njit(cache=True, nogil=True)
+def _adaptive_mean_columns(rows, linear, before, after, out, row_start, row_stop):
+    """Columns pass (taps along v) of output rows ``[row_start, row_stop)``, accumulating
+    whole rows ``v-before .. v+after`` of the rows pass (contiguous, vectorises over u)."""
+    h, w = rows.shape
+    s = np.empty(w, dtype=np.float32)
+    sw = np.empty(w, dtype=np.float32)
+    for v in range(row_start, row_stop):
         centre = rows[v]
         for u in range(w):
             s[u] = 0.0
@@ -333,7 +341,6 @@ def _adaptive_mean(disp, linear, before, after, rows):
         dst = out[v]
         for u in range(w):
             dst[u] = s[u] / sw[u] if centre[u] >= 0 else centre[u]
-    return out
 
 
 def adaptive_mean(disp: np.ndarray, linear: bool = False, *, workspace=None) -> np.ndarray:
@@ -342,12 +349,21 @@ def adaptive_mean(disp: np.ndarray, linear: bool = False, *, workspace=None) -> 
     Each valid tap is weighted by its difference ``dd`` to the centre: 4 if
     ``|dd| < 2``, 2 if ``2 <= |dd| < 8``, else 0 (the original as compiled), or
     ``max(0, 4 - |dd|)`` with ``linear``. Invalid pixels stay invalid. Returns a new
-    map; the rows pass's scratch comes from ``workspace`` when given.
+    map; the rows pass's scratch comes from ``workspace`` when given. Each pass runs in
+    row bands (:func:`~canopy_stereo.elas.parallel.run_row_bands`): every row is
+    computed by the same code whatever the thread count.
     """
     disp = np.ascontiguousarray(disp, np.float32)
     rows = np.empty_like(disp) if workspace is None else \
         workspace.array("adaptive_mean_rows", disp.shape, np.float32)
-    return _adaptive_mean(disp, bool(linear), MEAN_TAPS_BEFORE, MEAN_TAPS_AFTER, rows)
+    out = np.empty_like(disp)
+    h = disp.shape[0]
+    linear = bool(linear)
+    run_row_bands((_adaptive_mean_rows, h,
+                   (disp, linear, MEAN_TAPS_BEFORE, MEAN_TAPS_AFTER, rows)))
+    run_row_bands((_adaptive_mean_columns, h,
+                   (rows, linear, MEAN_TAPS_BEFORE, MEAN_TAPS_AFTER, out)))
+    return out
 
 
 #: An optimal 16-comparator sorting network for 7 values (checked exhaustively on

@@ -238,21 +238,49 @@ def test_support_candidates_are_exact_on_random_images(rng):
 
 
 # ------------------------------------------------------------------- the whole run
-def test_elas_run_is_deterministic_across_thread_counts(plants):
+def _runs_with_one_and_two_threads(left, right, p):
     import numba
 
-    p = make_params("middlebury", disp_min=0, disp_max=120, subpixel=True)
     before = numba.get_num_threads()
     try:
         runs = []
         for threads in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
             numba.set_num_threads(threads)
-            runs.append(elas_run(plants["left"], plants["right"], p, want_right=True))
+            runs.append(elas_run(left, right, p, want_right=True))
     finally:
         numba.set_num_threads(before)
+    return runs
+
+
+def _assert_same_runs(runs):
     for other in runs[1:]:
         for name in ("disp_left", "disp_right", "support", "triangles_left", "triangles_right"):
-            assert same_bits(getattr(other, name), getattr(runs[0], name))
+            assert same_bits(getattr(other, name), getattr(runs[0], name)), name
+
+
+@pytest.mark.parametrize("preset,extra", [
+    ("middlebury", {"subpixel": True}),
+    # every filter of both maps, each map's post-processing a pool task (its row bands
+    # then run inside the task)
+    ("robotics", {"postprocess_only_left": False, "filter_median": True}),
+])
+def test_elas_run_is_deterministic_across_thread_counts(plants, preset, extra):
+    p = make_params(preset, disp_min=0, disp_max=120, **extra)
+    _assert_same_runs(_runs_with_one_and_two_threads(plants["left"], plants["right"], p))
+
+
+@pytest.mark.slow
+def test_elas_run_at_1280x720_is_the_same_with_two_threads():
+    """HD (the bundled Plants pair resized to 1280x720, disparities to about 140 px): the
+    two-thread run (row bands, left/right tasks) gives the one-thread maps bit for bit."""
+    import cv2
+
+    size = (1280, 720)
+    left = cv2.resize(read_image(REPO / "examples" / "plants" / "left.png", color=False), size)
+    right = cv2.resize(read_image(REPO / "examples" / "plants" / "right.png", color=False), size)
+    runs = _runs_with_one_and_two_threads(left, right, make_params("robotics", disp_max=255))
+    _assert_same_runs(runs)
+    assert (runs[0].disp_left >= 0).mean() > 0.5
 
 
 # --------------------------------------------------------------- SIMD intrinsics

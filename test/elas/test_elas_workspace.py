@@ -133,3 +133,17 @@ def test_concurrent_runs_in_two_threads_match_sequential_runs(pairs):
     assert not errors
     for k in (0, 1):
         assert len(got[k]) == 3 and all(same(r, expect[k]) for r in got[k])
+
+
+def test_thread_budget_is_one_thread_at_640x480_and_every_core_at_hd():
+    """The automatic budget (disparity_node's default ``threads: -1``): one thread for
+    640x480-class frames, every core for 1280x720; 0 = every core; N capped at the limit."""
+    from canopy_stereo.elas.parallel import AUTO_THREADS, budget_threads
+
+    assert budget_threads(AUTO_THREADS, pixels=640 * 480, limit=2) == 1
+    assert budget_threads(AUTO_THREADS, pixels=741 * 497, limit=2) == 1
+    assert budget_threads(AUTO_THREADS, pixels=1280 * 720, limit=2) == 2
+    assert budget_threads(0, pixels=640 * 480, limit=2) == 2
+    assert budget_threads(3, pixels=1280 * 720, limit=2) == 2
+    assert budget_threads(1, pixels=1280 * 720, limit=8) == 1
+    assert budget_threads(AUTO_THREADS, pixels=1280 * 720, limit=0) == 1

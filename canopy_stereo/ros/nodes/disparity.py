@@ -28,9 +28,11 @@ Parameters (changeable at run time unless marked read-only):
 * ``near_m``, ``far_m``: working distance in metres along the optical axis (a rig file's
   ``near_m``/``far_m`` set them; 0 = 8 baselines / infinity), the range when ``disp_min``/
   ``disp_max`` are -1 (as ``reconstruct``'s, :func:`~canopy_stereo.pipeline.reconstruct.disparity_range_for`);
-* ``threads``: threads of the ELAS kernels (numba; 0 = numba's default, every core),
-  the node's share of the cores when other nodes run beside it (1 on a 2-core machine
-  running the whole graph keeps the matcher from competing with itself);
+* ``threads``: thread budget of the ELAS kernels (numba), the node's share of the cores
+  when other nodes run beside it: -1 (default) = automatic, one thread for frames up to
+  0.5 Mpixel (640x480-class: the graph's other nodes keep the second core busy) and every
+  core above (1280x720) (:func:`~canopy_stereo.elas.parallel.budget_threads`); 0 = every
+  core; N = N threads;
 * read-only: ``queue_size``, ``waiting_pairs``, ``reliability``, ``diagnostic_period``.
 
 This is the slowest stage: the matcher runs in a worker thread on the complete pairs
@@ -58,6 +60,7 @@ from canopy_stereo.disparity import (  # noqa: F401
     matcher_spec,
     preset_names,
 )
+from canopy_stereo.elas.parallel import AUTO_THREADS, budget_threads
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.ros.convert import (
     COLOUR_ENCODINGS,
@@ -125,8 +128,9 @@ class DisparityNode(CanopyNode):
                             "when more arrive the oldest is dropped (the newest win, latency stays bounded)",
                             minimum=1, maximum=100, read_only=True)
         self.declare_text("matcher", default_matcher(), "disparity matcher", choices=tuple(matcher_names()))
-        self.declare_number("threads", 0, "threads of the ELAS kernels (0 = numba's default: every core)",
-                            minimum=0, maximum=1024)
+        self.declare_number("threads", AUTO_THREADS, "thread budget of the ELAS kernels: -1 = automatic (1 thread "
+                            "up to 0.5 Mpixel frames, e.g. 640x480; every core above, e.g. 1280x720), "
+                            "0 = every core, N = N threads", minimum=-1, maximum=1024)
         self.declare_text("preset", _default_preset(), "preset of the matchers that have presets (ELAS: "
                           "defaults of the elas.* parameters)", choices=tuple(preset_names()))
         self.declare_number("disp_min", -1, "smallest disparity searched (pixels); "
@@ -254,7 +258,7 @@ class DisparityNode(CanopyNode):
         lo = 0 if c["disp_min"] is None else c["disp_min"]
         hi = lo + TYPICAL_RANGE if c["disp_max"] is None else c["disp_max"]
         left, right, _ = synthetic_pair(w, h, plane=(0.0, 0.0, float((lo + hi) // 2)), texture="blocks")
-        apply_thread_budget(c["threads"])
+        apply_thread_budget(c["threads"], pixels=w * h)
         disp = compute_disparity(left, right, matcher=c["matcher"], disp_min=lo, disp_max=hi, **c["params"])
         disparity_to_msg(disp, 500.0, 0.1, lo, hi, delta_d=c["delta_d"], stamp_ns=1, frame_id="")
 
@@ -275,7 +279,7 @@ class DisparityNode(CanopyNode):
                                    f"cx_left - cx_right {doffs:.2f} px")
         dmin, dmax = resolve_disparity_range(c["disp_min"], c["disp_max"], f, t=t, doffs=doffs,
                                              near_m=c["near_m"], far_m=c["far_m"])
-        apply_thread_budget(c["threads"])
+        apply_thread_budget(c["threads"], pixels=left.shape[0] * left.shape[1])
         disp = compute_disparity(left, right, matcher=c["matcher"], disp_min=dmin,
                                  disp_max=dmax, **c["params"])
         msg = disparity_to_msg(disp, f, t, dmin, dmax, delta_d=c["delta_d"], stamp_ns=stamp_ns,
@@ -287,16 +291,15 @@ class DisparityNode(CanopyNode):
 _STREAMS = ("left rectified image", "right rectified image", "left camera_info", "right camera_info")
 
 
-def apply_thread_budget(threads: int) -> int:
-    """Let the ELAS kernels called from this thread use ``threads`` threads (numba's setting is
-    per thread; 0 = numba's default, every core; capped at ``NUMBA_NUM_THREADS``); returns the
-    count in force. Without numba (SGBM only) nothing is set and 0 is returned."""
-    try:
-        import numba
-    except ImportError:  # pragma: no cover - SGBM only
-        return 0
+def apply_thread_budget(threads: int, *, pixels: int = 0) -> int:
+    """Let the ELAS kernels called from this thread use the ``threads`` budget for a frame of
+    ``pixels`` (numba's setting is per thread; -1 = automatic by frame size, 0 = every core,
+    N = N threads, capped at ``NUMBA_NUM_THREADS``: :func:`~canopy_stereo.elas.parallel.budget_threads`);
+    returns the count in force."""
+    import numba
+
     limit = int(numba.config.NUMBA_NUM_THREADS)
-    n = limit if int(threads) <= 0 else min(int(threads), limit)
+    n = budget_threads(threads, pixels=pixels, limit=limit)
     if numba.get_num_threads() != n:
         numba.set_num_threads(n)
     return n
