@@ -23,8 +23,9 @@ Configuration ``MODE:MATCHER:MASK:SIZE[:TRANSPORT]``: MODE ``processes`` (rectif
 [segment,] point_cloud, one process each, as ``ros2 run``/the launch file start them) or
 ``inprocess`` (the same nodes in one process, as ``canopy_graph``/``canopy-stereo run``);
 MATCHER ``elas``/``sgbm``; MASK ``mask`` (segment_node runs and point_cloud_node keeps only
-plant pixels, ``use_mask``) or ``nomask`` (no segment_node); SIZE ``320x240``, ``640x480``, ``1280x720`` (the middle 640x360 of
-the 640x480 window, scaled twice: an HD webcam mode) or ``1280x960``; TRANSPORT ``raw`` (default: bgr8 ``Image`` on ``<side>/image_raw``) or
+plant pixels, ``use_mask``) or ``nomask`` (no segment_node); SIZE ``320x240``, ``640x480``,
+``1280x720`` (the middle 640x360 of the 640x480 window, scaled twice: an HD webcam mode) or
+``1280x960``; TRANSPORT ``raw`` (default: bgr8 ``Image`` on ``<side>/image_raw``) or
 ``compressed`` (the cameras send JPEG, quality ``--jpeg-quality`` 95, as ``CompressedImage`` on
 ``<side>/image_raw/compressed``, encoded beforehand as a webcam's MJPEG is; rectify_node runs
 with ``image_transport: compressed`` and decodes each frame; ``--compressed`` = the two

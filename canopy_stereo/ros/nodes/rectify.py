@@ -55,8 +55,9 @@ messages, ``right_camera_rect_optical_frame`` in the transforms), ``world_frame`
 Skew compensation (``skew_compensation``, default true): free-running webcams capture
 up to half a frame apart; each pair's right image is brought to the left image's
 instant (the pair's stamp) along the right camera's own motion between its previous
-and current frame (:class:`~canopy_stereo.skew.SkewCompensator`, before
-rectification). ``/diagnostics`` reports ``skew ms`` (right minus left stamp),
+and current frame (:class:`~canopy_stereo.skew.SkewCompensator`); the shift is composed
+into the right camera's rectification map, so the right image (grey from the start: its
+only output is mono) is resampled once. ``/diagnostics`` reports ``skew ms`` (right minus left stamp),
 ``skew compensated %`` (share of the pairs), ``skew shift px`` and ``skew compensation ms``
 (the time it adds), and ``skew not compensated: <reason>`` (first frame, a cut, too
 little texture, ...; those pairs go on as they came, logged once per reason).
