@@ -118,7 +118,9 @@ def generate_launch_description():
                                "publish_tf": LaunchConfiguration("publish_tf")}]),
         Node(package=PACKAGE, executable="disparity_node", namespace=ns,
              parameters=[rig, {"matcher": LaunchConfiguration("matcher"),
-                               "elas.subsampling": LaunchConfiguration("elas_subsampling")}]),
+                               "elas.subsampling": LaunchConfiguration("elas_subsampling"),
+                               # masked clouds: match only in the plant region of the previous masks
+                               "roi": LaunchConfiguration("use_mask")}]),
         # nothing waits for every mask unless use_mask: GrabCut segments the newest image
         Node(package=PACKAGE, executable="segment_node", namespace=ns,
              parameters=[{"queue_size": PythonExpression(

@@ -12,7 +12,13 @@ Measured with ``benchmarks/bench_elas.py`` (16 Middlebury pairs, 0..255 disparit
 
 * Against libelas (pyelas), per pair and preset: bad>2 within +0.5 points and density
   within -1 point on 30 of 32 pair-presets (misses: PlaytableQ middlebury bad>2 +1.7,
-  VintageQ robotics density -4.4 with bad>2 4.2 points *better*); 2-3x faster.
+  VintageQ robotics density -4.4 with bad>2 4.2 points *better*).
+* Time (``--target``: CPU time of one thread against libelas's, the same load, on the
+  Middlebury 2014 training scenes; loaded machine): robotics 0.35-0.40x on the
+  640x480-class scenes, middlebury 0.29-0.34x; bad>2 and density within 0.2 points of
+  libelas's (or better) on 8 of 9 scenes per preset (VintageQ and PlaytableQ as above).
+* Threads: :mod:`.parallel` runs the row kernels in bands and the left/right stages as
+  two tasks; the maps are the same bit for bit with any thread count.
 * ``subpixel=True`` (parabola through the SAD at d-1, d, d+1, where d is also a local
   minimum of the SAD): on synthetic slanted planes the end-point error drops 2-4x
   (0.25 -> 0.07 px with the middlebury preset); on the Middlebury pairs it lowers the

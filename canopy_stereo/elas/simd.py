@@ -310,3 +310,88 @@ def sad_reference(a, offset_a, b, offset_b, nbytes):
     for k in range(nbytes):
         s += abs(np.int32(a[offset_a + k]) - np.int32(b[offset_b + k]))
     return s
+
+
+#: Disparities per group of :func:`sad64x8_first_two_min` (one AVX-512 ``psadbw`` each).
+SUPPORT_LANES = 8
+#: Lane ``k`` of :func:`sad64x8_first_two_min` holds disparity index ``8 g + LANE_ORDER[k]``
+#: of group ``g`` (the order its transposing reduction leaves them in).
+LANE_ORDER = (0, 4, 2, 6, 1, 5, 3, 7)
+
+
+def _transpose_sums(builder, parts):
+    """``<8 x i64>``: lane ``k`` is the sum of the 8 lanes of ``parts[LANE_ORDER[k]]`` (eight
+    ``<8 x i64>``), in three levels of shuffle-and-add (14 shuffles, 7 adds)."""
+    i32 = ir.IntType(32)
+
+    def fold(x, y, first, second):
+        m1 = ir.Constant(ir.VectorType(i32, 8), [i32(k) for k in first])
+        m2 = ir.Constant(ir.VectorType(i32, 8), [i32(k) for k in second])
+        return builder.add(builder.shuffle_vector(x, y, m1), builder.shuffle_vector(x, y, m2))
+
+    level1 = [fold(parts[k], parts[k + 1], (0, 1, 2, 3, 8, 9, 10, 11), (4, 5, 6, 7, 12, 13, 14, 15))
+              for k in range(0, 8, 2)]           # [P0 x4, P1 x4], [P2, P3], [P4, P5], [P6, P7]
+    level2 = [fold(level1[k], level1[k + 1], (0, 1, 8, 9, 4, 5, 12, 13), (2, 3, 10, 11, 6, 7, 14, 15))
+              for k in (0, 2)]                   # [P0 P0 P2 P2 P1 P1 P3 P3], [P4 .. P7 likewise]
+    return fold(level2[0], level2[1], (0, 8, 2, 10, 4, 12, 6, 14), (1, 9, 3, 11, 5, 13, 7, 15))
+
+
+@intrinsic
+def sad64x8_first_two_min(typingctx, a, offset_a, b, offset_b, stride, groups):
+    """The two lowest SADs per lane over ``groups`` groups of 8 disparities (AVX-512BW only).
+
+    Disparity index ``j = 8 g + LANE_ORDER[k]`` (lane ``k`` of group ``g``) costs
+    ``sad64(a, offset_a, b, offset_b + j * stride)``. Per lane, in increasing ``j``: the
+    lowest cost, the second lowest (of the lane's multiset of costs) and the first ``j``
+    with the lowest cost, as a tuple of 24 int64 (``best[0..7], second[0..7],
+    index[0..7]``; INT32_MAX / -1 when ``groups`` is 0). No bounds checking. Only compiled
+    where :data:`PSADBW_WIDTH` is 64 (one ``vpsadbw zmm`` per cost; the eight costs of a
+    group summed by one transposing reduction instead of eight horizontal ones).
+    """
+    if _sad_signature(a, offset_a, b, offset_b) is None or PSADBW_WIDTH != 64:
+        return None
+    if not (isinstance(stride, types.Integer) and isinstance(groups, types.Integer)):
+        return None
+    sig = types.UniTuple(types.int64, 24)(a, offset_a, b, offset_b, stride, groups)
+
+    def codegen(context, builder, signature, args):
+        i8, i32, i64 = ir.IntType(8), ir.IntType(32), ir.IntType(64)
+        v64i8, v8i64, v8i32 = ir.VectorType(i8, 64), ir.VectorType(i64, 8), ir.VectorType(i32, 8)
+        psad = _llvm_function(builder.module, "llvm.x86.avx512.psad.bw.512", v8i64, [v64i8, v64i8])
+        pa = _element_pointer(context, builder, signature.args[0], args[0], args[1],
+                              signature.args[1], v64i8)
+        va = builder.load(pa, align=1)
+        arr_b = context.make_array(signature.args[2])(context, builder, args[2])
+        base = context.cast(builder, args[3], signature.args[3], types.intp)
+        step = context.cast(builder, args[4], signature.args[4], types.intp)
+        n = context.cast(builder, args[5], signature.args[5], types.intp)
+        big = ir.Constant(v8i32, [i32(2147483647)] * 8)
+        best = cgutils.alloca_once_value(builder, big)
+        second = cgutils.alloca_once_value(builder, big)
+        index = cgutils.alloca_once_value(builder, ir.Constant(v8i32, [i32(-1)] * 8))
+        lanes = cgutils.alloca_once_value(builder, ir.Constant(v8i32, [i32(k) for k in LANE_ORDER]))
+        eight = ir.Constant(v8i32, [i32(SUPPORT_LANES)] * 8)
+        with cgutils.for_range(builder, n) as loop:
+            group_base = builder.add(base, builder.mul(loop.index, builder.mul(step, step.type(8))))
+            parts = []
+            for k in range(SUPPORT_LANES):
+                off = builder.add(group_base, builder.mul(step, step.type(k)))
+                pb = builder.bitcast(builder.gep(arr_b.data, [off]), v64i8.as_pointer())
+                parts.append(builder.call(psad, [va, builder.load(pb, align=1)]))
+            cost = builder.trunc(_transpose_sums(builder, parts), v8i32)
+            old_best, old_second = builder.load(best), builder.load(second)
+            lower = builder.icmp_signed("<", cost, old_best)
+            smaller = builder.select(builder.icmp_signed("<", cost, old_second), cost, old_second)
+            builder.store(builder.select(lower, old_best, smaller), second)
+            here = builder.load(lanes)
+            builder.store(builder.select(lower, here, builder.load(index)), index)
+            builder.store(builder.select(lower, cost, old_best), best)
+            builder.store(builder.add(here, eight), lanes)
+        items = []
+        for vec in (best, second, index):
+            value = builder.load(vec)
+            items += [builder.sext(builder.extract_element(value, i32(k)), i64)
+                      for k in range(SUPPORT_LANES)]
+        return context.make_tuple(builder, signature.return_type, items)
+
+    return sig, codegen

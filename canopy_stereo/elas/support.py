@@ -27,7 +27,13 @@ from numba import njit
 from canopy_stereo.elas.descriptor import BORDER
 from canopy_stereo.elas.parallel import run_row_bands
 from canopy_stereo.elas.params import MIN_SUPPORT_DISPARITIES
-from canopy_stereo.elas.simd import DESC_BYTES, sad64
+from canopy_stereo.elas.simd import (
+    DESC_BYTES,
+    PSADBW_WIDTH,
+    SUPPORT_LANES,
+    sad64,
+    sad64x8_first_two_min,
+)
 
 #: Offset (pixels) of the four descriptor samples from the candidate, both axes.
 SUPPORT_SAMPLE_OFFSET = 2
@@ -67,6 +73,59 @@ def _sample_row(words, v, dst):
 
 
 @njit(cache=True, inline="always")
+def _lowest_two_scalar(flat_own, flat_other, a, sign, dmin, dmax):
+    """``(best, second, best_d)`` of the costs at ``d = dmin..dmax``: the lowest cost, the
+    second lowest (of the multiset of costs) and the first ``d`` with the lowest cost, one
+    64-byte SAD at a time (branch-free: a new best pushes the old one to second)."""
+    best_e = np.int64(2147483647)
+    second_e = np.int64(2147483647)
+    best_d = -1
+    for d in range(dmin, dmax + 1):
+        e = np.int64(sad64(flat_own, a, flat_other, a - sign * d * SUPPORT_BYTES))
+        lower = e < best_e
+        second_e = best_e if lower else min(e, second_e)
+        best_d = d if lower else best_d
+        best_e = e if lower else best_e
+    return best_e, second_e, best_d
+
+
+@njit(cache=True, inline="always")
+def _lowest_two_vector(flat_own, flat_other, a, sign, dmin, dmax):
+    """:func:`_lowest_two_scalar` with groups of 8 disparities in one AVX-512 vector
+    (:func:`~canopy_stereo.elas.simd.sad64x8_first_two_min`), the lanes merged exactly
+    (lowest, then the multiset's second lowest, ties to the first ``d``), the last
+    ``< 8`` disparities one at a time."""
+    groups = (dmax - dmin + 1) // SUPPORT_LANES
+    r = sad64x8_first_two_min(flat_own, a, flat_other, a - sign * dmin * SUPPORT_BYTES,
+                              -sign * SUPPORT_BYTES, groups)
+    best_e = np.int64(2147483647)
+    second_e = np.int64(2147483647)
+    best_j = -1
+    for k in range(SUPPORT_LANES):
+        e = r[k]
+        j = r[2 * SUPPORT_LANES + k]
+        lower = e < best_e
+        second_e = best_e if lower else min(e, second_e)
+        if lower or (e == best_e and j < best_j):
+            best_j = j
+        best_e = e if lower else best_e
+    for k in range(SUPPORT_LANES):
+        second_e = min(second_e, r[SUPPORT_LANES + k])
+    best_d = dmin + best_j if best_j >= 0 else -1
+    for d in range(dmin + groups * SUPPORT_LANES, dmax + 1):
+        e = np.int64(sad64(flat_own, a, flat_other, a - sign * d * SUPPORT_BYTES))
+        lower = e < best_e
+        second_e = best_e if lower else min(e, second_e)
+        best_d = d if lower else best_d
+        best_e = e if lower else best_e
+    return best_e, second_e, best_d
+
+
+#: The lowest-two search compiled here: eight disparities per vector with AVX-512BW.
+_lowest_two = _lowest_two_vector if PSADBW_WIDTH == 64 else _lowest_two_scalar
+
+
+@njit(cache=True, inline="always")
 def _candidate_disparity(flat_own, flat_other, texture_own, row_base, width, u, v, sign,
                          disp_min, disp_max, support_texture, support_threshold):
     """Best disparity of candidate (u, v) of the *own* image, or -1.
@@ -87,19 +146,9 @@ def _candidate_disparity(flat_own, flat_other, texture_own, row_base, width, u, 
     dmin = max(disp_min, 0)
     if dmax - dmin + 1 < MIN_SUPPORT_DISPARITIES:
         return -1
-    a = row_base + u * SUPPORT_BYTES
-    # best and second-best cost, branch-free (a new best pushes the old one to second;
-    # ties keep the first best). At least MIN_SUPPORT_DISPARITIES (> 1) costs are
-    # seen, so both exist.
-    best_e = np.int32(2147483647)
-    second_e = np.int32(2147483647)
-    best_d = -1
-    for d in range(dmin, dmax + 1):
-        e = sad64(flat_own, a, flat_other, a - sign * d * SUPPORT_BYTES)
-        lower = e < best_e
-        second_e = best_e if lower else min(e, second_e)
-        best_d = d if lower else best_d
-        best_e = e if lower else best_e
+    # at least MIN_SUPPORT_DISPARITIES (> 1) costs are seen, so both lowest exist
+    best_e, second_e, best_d = _lowest_two(flat_own, flat_other, row_base + u * SUPPORT_BYTES,
+                                           sign, dmin, dmax)
     if np.float32(best_e) < support_threshold * np.float32(second_e):
         return best_d
     return -1

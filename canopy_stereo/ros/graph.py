@@ -50,7 +50,8 @@ class GraphOptions:
         namespace: namespace of every node (topics ``<namespace>/left/image_raw``, ...).
         matcher: disparity matcher (None: the node's default, ELAS when available).
         segment: run ``segment_node``.
-        use_mask: ``point_cloud_node`` keeps only masked pixels (implies ``segment``).
+        use_mask: ``point_cloud_node`` keeps only masked pixels (implies ``segment``), and
+            ``disparity_node`` matches only in the plant region of the previous masks (its ``roi``).
         segment_depth_cue: ``segment_node`` seeds GrabCut with the disparity too (its
             ``depth_cue`` parameter: near = plant, as ``canopy-stereo segment`` does).
         organized: organized clouds (NaN for invalid) instead of dense ones.
@@ -145,7 +146,9 @@ class CanopyGraph:
         per_node = {
             "rectify_node": o.mounting_parameters(),
             "disparity_node": ({} if o.matcher is None else {"matcher": o.matcher})
-            | ({} if o.disparity_threads is None else {"threads": int(o.disparity_threads)}),
+            | ({} if o.disparity_threads is None else {"threads": int(o.disparity_threads)})
+            # the cloud keeps plant pixels only: match only where the previous masks had plant
+            | ({"roi": True} if o.use_mask else {}),
             # nothing waits for every mask unless use_mask: let GrabCut skip frames under load
             "segment_node": ({} if o.use_mask else {"queue_size": 1})
             | ({"depth_cue": True} if o.segment_depth_cue else {})

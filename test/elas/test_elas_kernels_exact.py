@@ -668,3 +668,25 @@ def test_stable_argsort_equals_numpys_stable_sort(rng):
         assert np.array_equal(stable_argsort(keys), np.argsort(keys, kind="stable"))
     keys = rng.normal(size=777)
     assert np.array_equal(stable_argsort(keys), np.argsort(keys, kind="stable"))
+
+
+def test_support_search_by_eight_disparities_equals_one_at_a_time(rng):
+    """The AVX-512 lowest-two search (8 disparities per vector, lanes merged) gives the
+    one-at-a-time search's lowest, second lowest and first best disparity, ties included."""
+    from canopy_stereo.elas.simd import PSADBW_WIDTH
+
+    if PSADBW_WIDTH != 64:
+        pytest.skip("the eight-disparity search is compiled only with AVX-512BW")
+    width = 300
+    for levels in (2, 4, 256):       # few levels: many equal costs
+        own = rng.integers(0, levels, width * support.SUPPORT_BYTES, dtype=np.uint8)
+        other = rng.integers(0, levels, width * support.SUPPORT_BYTES, dtype=np.uint8)
+        for _ in range(60):
+            sign = int(rng.choice([-1, 1]))
+            u = int(rng.integers(120, 180))
+            dmin = int(rng.integers(0, 20))
+            dmax = dmin + int(rng.integers(10, 100))
+            a = u * support.SUPPORT_BYTES
+            ref = support._lowest_two_scalar(own, other, a, sign, dmin, dmax)
+            got = support._lowest_two_vector(own, other, a, sign, dmin, dmax)
+            assert tuple(int(x) for x in got) == tuple(int(x) for x in ref)

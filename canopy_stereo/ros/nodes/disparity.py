@@ -33,6 +33,16 @@ Parameters (changeable at run time unless marked read-only):
   0.5 Mpixel (640x480-class: the graph's other nodes keep the second core busy) and every
   core above (1280x720) (:func:`~canopy_stereo.elas.parallel.budget_threads`); 0 = every
   core; N = N threads;
+* ``roi`` (read-only, default false; the launch file and ``canopy_graph`` set it when the cloud
+  is masked): subscribe ``left/mask`` (segment_node's) and match only in the plant region of
+  the previous frames' masks (:class:`~canopy_stereo.disparity.roi.RoiPlanner`), dilated by
+  ``roi_margin`` pixels, with the columns the search needs; the full frame on the first frame,
+  when the masks stop, on a cut (an empty mask, the plant area jumping, the plant reaching the
+  border of the window its frame was matched in: a new plant or fast motion), every
+  ``roi_full_every`` frames, and when the window would cover more than ``roi_max_share`` of
+  the frame. The ``DisparityImage`` stays full size, invalid outside the window (its
+  ``valid_window`` says where); ``/diagnostics`` reports the ``matched share`` of the frame
+  and the reason of each full frame;
 * read-only: ``queue_size``, ``waiting_pairs``, ``reliability``, ``diagnostic_period``.
 
 This is the slowest stage: the matcher runs in a worker thread on the complete pairs
@@ -60,6 +70,13 @@ from canopy_stereo.disparity import (  # noqa: F401
     matcher_spec,
     preset_names,
 )
+from canopy_stereo.disparity.roi import (
+    DEFAULT_FULL_EVERY,
+    DEFAULT_MARGIN,
+    DEFAULT_MAX_SHARE,
+    RoiPlanner,
+    disparity_in_window,
+)
 from canopy_stereo.elas.parallel import AUTO_THREADS, budget_threads
 from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.ros.convert import (
@@ -67,6 +84,7 @@ from canopy_stereo.ros.convert import (
     camera_info_matrices,
     disparity_to_msg,
     is_calibrated,
+    msg_to_image,
     msg_to_mono,
     stamp_to_ns,
 )
@@ -149,6 +167,16 @@ class DisparityNode(CanopyNode):
             for parameter in spec.parameters:
                 self.declare_parameter(f"{matcher}.{parameter.name}", None,
                                        matcher_parameter_descriptor(spec, parameter))
+        self.declare_flag("roi", False, "match only in the plant region of the previous masks (left/mask), "
+                          "dilated by roi_margin; the full frame on a cut, a new plant and every roi_full_every "
+                          "frames", read_only=True)
+        self.declare_number("roi_margin", DEFAULT_MARGIN, "pixels added around the plant of the previous masks "
+                            "(its motion between frames and the matcher's neighbourhood)", minimum=0, maximum=4096)
+        self.declare_number("roi_full_every", DEFAULT_FULL_EVERY, "with roi: a full frame at least every this "
+                            "many frames (plants appearing anywhere are found); 1 = always the full frame",
+                            minimum=1, maximum=100000)
+        self.declare_number("roi_max_share", DEFAULT_MAX_SHARE, "with roi: a window covering more than this "
+                            "share of the frame is matched as the full frame", minimum=0.01, maximum=1.0)
         self.declare_frame_size()
         self.image_width_seen = 0  # width of the latest rectified camera_info (0: none yet)
         self._config_lock = threading.Lock()
@@ -168,6 +196,11 @@ class DisparityNode(CanopyNode):
                                                     lambda m: self._on_info(2, m))
         self.sub_info_right = self.make_subscription(CameraInfo, RECT_INFO_TOPICS[1],
                                                      lambda m: self._on_info(3, m))
+        self.roi = bool(self.get_parameter("roi").value)
+        self._roi_lock = threading.Lock()
+        self.roi_planner = self._make_planner({})
+        if self.roi:
+            self.sub_mask = self.make_subscription(Image, "left/mask", self._on_mask)
         self.camera = None  # (f, t, doffs) of the latest camera_info pair, for the log
         self.expected_size = None  # (width, height) of the latest rectified camera_info
         c = self.config
@@ -217,9 +250,36 @@ class DisparityNode(CanopyNode):
             config = self._build_config(changes)
         except CanopyStereoError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
+        if any(name.startswith("roi_") for name in changes):
+            try:
+                planner = self._make_planner(changes)
+            except CanopyStereoError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+            with self._roi_lock:
+                self.roi_planner = planner
         with self._config_lock:
             self.config = config
         return SetParametersResult(successful=True)
+
+    def _make_planner(self, changes: dict) -> RoiPlanner:
+        """A fresh :class:`RoiPlanner` of the ``roi_*`` parameters with ``changes`` applied."""
+        def value(name):
+            return changes[name] if name in changes else self.get_parameter(name).value
+
+        return RoiPlanner(margin=int(value("roi_margin")), full_every=int(value("roi_full_every")),
+                          max_share=float(value("roi_max_share")))
+
+    def _on_mask(self, msg: Image) -> None:
+        """A plant mask of segment_node: the window of the next pairs follows it."""
+        self.count("masks_received")
+        try:
+            check_image_msg(msg, expected_size=self.expected_size, encodings=("mono8", "8UC1"))
+            mask = msg_to_image(msg, ("mono8", "8UC1"))
+        except CanopyStereoError as exc:
+            self.drop(str(exc), "mask")
+            return
+        with self._roi_lock:
+            self.roi_planner.observe(stamp_to_ns(msg.header.stamp), mask)
 
     # ------------------------------------------------------------------ frames
     def _on_image(self, side: int, msg: Image) -> None:
@@ -279,9 +339,22 @@ class DisparityNode(CanopyNode):
                                    f"cx_left - cx_right {doffs:.2f} px")
         dmin, dmax = resolve_disparity_range(c["disp_min"], c["disp_max"], f, t=t, doffs=doffs,
                                              near_m=c["near_m"], far_m=c["far_m"])
-        apply_thread_budget(c["threads"], pixels=left.shape[0] * left.shape[1])
-        disp = compute_disparity(left, right, matcher=c["matcher"], disp_min=dmin,
-                                 disp_max=dmax, **c["params"])
+        window = None
+        if self.roi:
+            with self._roi_lock:
+                window, reason = self.roi_planner.plan(stamp_ns, image_size=left.shape[1::-1], disp_min=dmin,
+                                                       disp_max=dmax)
+            self.diagnostics.sample("matched share", 1.0 if window is None else window.matched_share)
+            if window is None:
+                self.diagnostics.note(f"full frame: {reason}")
+        if window is None:
+            apply_thread_budget(c["threads"], pixels=left.shape[0] * left.shape[1])
+            disp = compute_disparity(left, right, matcher=c["matcher"], disp_min=dmin,
+                                     disp_max=dmax, **c["params"])
+        else:  # the automatic budget follows the pixels matched
+            apply_thread_budget(c["threads"], pixels=(window.xb - window.xa) * (window.yb - window.ya))
+            disp = disparity_in_window(left, right, window, matcher=c["matcher"], disp_min=dmin,
+                                       disp_max=dmax, **c["params"])
         msg = disparity_to_msg(disp, f, t, dmin, dmax, delta_d=c["delta_d"], stamp_ns=stamp_ns,
                                frame_id=frame_id, doffs=doffs)
         self.count("disparities_published")
