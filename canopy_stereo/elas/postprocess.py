@@ -34,13 +34,12 @@ def _lr_keep(d, c2, row_other, threshold):
 
 
 @njit(cache=True, nogil=True)
-def _lr_check(d_left, d_right, threshold, step, want_right, out_l):
-    """The checked maps (H, W) float32, the left one written to ``out_l``; the right one
-    is not computed (returned as the unchanged ``d_right``) unless ``want_right``."""
-    h, w = d_left.shape
-    out_r = np.empty_like(d_right) if want_right else d_right
+def _lr_check(d_left, d_right, threshold, step, want_right, out_l, out_r, row_start, row_stop):
+    """Rows ``[row_start, row_stop)`` of the checked maps (H, W) float32, written to
+    ``out_l`` and, with ``want_right``, ``out_r``."""
+    w = d_left.shape[1]
     inv_step = 1.0 / step
-    for v in range(h):
+    for v in range(row_start, row_stop):
         row_l = d_left[v]
         row_r = d_right[v]
         dst_l = out_l[v]
@@ -57,7 +56,6 @@ def _lr_check(d_left, d_right, threshold, step, want_right, out_l):
                 x = (c * step + d) * inv_step + 0.5
                 c1 = int(x) if x >= 0 else -1
                 dst_r[c] = _lr_keep(d, c1, row_l, threshold)
-    return out_l, out_r
 
 
 def left_right_check(d_left: np.ndarray, d_right: np.ndarray, threshold: float,
@@ -75,8 +73,10 @@ def left_right_check(d_left: np.ndarray, d_right: np.ndarray, threshold: float,
     d_left = np.ascontiguousarray(d_left, np.float32)
     out_l = np.empty_like(d_left) if workspace is None else \
         workspace.array("lr_left", d_left.shape, np.float32)
-    out_l, out_r = _lr_check(d_left, np.ascontiguousarray(d_right, np.float32),
-                             float(threshold), int(step), bool(want_right), out_l)
+    d_right = np.ascontiguousarray(d_right, np.float32)
+    out_r = np.empty_like(d_right) if want_right else d_right
+    run_row_bands((_lr_check, d_left.shape[0], (d_left, d_right, float(threshold), int(step),
+                                                bool(want_right), out_l, out_r)))
     return out_l, (out_r if want_right else None)
 
 

@@ -35,6 +35,26 @@ def disparity_image_reprojection(f: float, t: float, P_left) -> np.ndarray:
     return reprojection_matrix(Pl, Pr)
 
 
+def window_slices(valid_window, shape) -> tuple[slice, slice]:
+    """``(rows, cols)`` slices of a ``DisparityImage``'s ``valid_window`` ``(x, y, width,
+    height)`` (pixels; outside it no disparity is valid) clipped to ``shape`` ``(H, W)``;
+    the whole image when the window is empty or unset (width or height 0)."""
+    h, w = (int(v) for v in shape)
+    x, y, ww, hh = (int(v) for v in valid_window)
+    if ww <= 0 or hh <= 0:
+        return slice(0, h), slice(0, w)
+    x0, y0 = min(max(x, 0), w), min(max(y, 0), h)
+    return slice(y0, min(max(y + hh, y0), h)), slice(x0, min(max(x + ww, x0), w))
+
+
+def offset_reprojection(Q, x0: int, y0: int) -> np.ndarray:
+    """``Q`` (4x4) for the pixels of a crop starting at column ``x0``, row ``y0``: crop pixel
+    ``(u, v)`` reprojects as full-image pixel ``(u + x0, v + y0)``."""
+    Qc = np.array(Q, np.float64)
+    Qc[:, 3] += Qc[:, 0] * float(x0) + Qc[:, 1] * float(y0)
+    return Qc
+
+
 def check_cloud_inputs(disp: np.ndarray, colours: np.ndarray, *, mask=None, size=None) -> None:
     """:class:`~canopy_stereo.errors.ImageError` unless the colour image, the optional mask
     and the rectified ``size`` ``(w, h)`` (if given) have the disparity's grid."""

@@ -32,6 +32,11 @@ to about 6 ms on propagated
 frames, 8-9 ms on average with ``recut_every`` 10 (a full cut and a model fit cost about
 27 ms).
 
+At HD the same ``scale`` would cut 4 to 9 times as many pixels; ``max_pixels`` caps the
+processing resolution instead (:func:`capped_scale`): the node's default, :data:`DEFAULT_MAX_PIXELS`,
+is a 640x480 frame at the video preset's quarter scale, so a 1280x720 frame is segmented at
+about 184x104 pixels and its mask upsampled, at the CPU cost of a 640x480 frame.
+
 Masks are uint8 (H, W), 255 = plant, in the pixels of the images given.
 """
 from __future__ import annotations
@@ -50,9 +55,21 @@ DEFAULT_RECUT_EVERY = 10
 MODEL_SAMPLES = 2000
 #: EM iterations of those fits.
 MODEL_ITERATIONS = 3
+#: Pixels GrabCut works on at most in the nodes (``max_pixels``): a 640x480 frame at the video
+#: preset's quarter scale; larger frames are segmented at a lower scale.
+DEFAULT_MAX_PIXELS = 160 * 120
 #: Relative change of the plant's area since the last full cut beyond which the frame is cut
 #: in full again (the plant left, a hand came in, the light changed).
 MAX_AREA_CHANGE = 0.3
+
+
+def capped_scale(scale: float, image_size, *, max_pixels: int) -> float:
+    """``scale`` lowered so that an image of ``image_size`` ``(width, height)`` is processed at
+    no more than ``max_pixels`` pixels (``max_pixels <= 0``: ``scale`` unchanged)."""
+    w, h = (int(v) for v in image_size)
+    if int(max_pixels) <= 0 or w * h * scale * scale <= int(max_pixels):
+        return float(scale)
+    return float(np.sqrt(int(max_pixels) / float(w * h)))
 
 
 def frame_seed(small_bgr: np.ndarray, rect_small, auto_init: str) -> np.ndarray:
@@ -71,6 +88,8 @@ class MaskPropagator:
             ``depth_cue``); overrides ``iterations``, ``auto_init`` and ``scale``.
         recut_every: frames between two full cuts (>= 1; 1 = every frame in full).
         propagate_scale: processing scale of the propagated frames in (0, 1] (default: ``scale``).
+        max_pixels: both scales are lowered for images larger than this many processed pixels
+            (:func:`capped_scale`; 0 = no cap, the default).
 
     Attributes:
         full_cuts, propagated: frames segmented each way so far.
@@ -78,7 +97,7 @@ class MaskPropagator:
 
     def __init__(self, *, rect=None, iterations: int = 3, auto_init: str = "saturation", scale: float = 0.25,
                  recut_every: int = DEFAULT_RECUT_EVERY, propagate_scale: float | None = None,
-                 settings: SeederSettings | None = None):
+                 settings: SeederSettings | None = None, max_pixels: int = 0):
         if settings is None:
             if auto_init not in AUTO_INITS:
                 raise CanopyStereoError(f"auto_init must be one of {', '.join(AUTO_INITS)}, got {auto_init!r}")
@@ -90,6 +109,9 @@ class MaskPropagator:
             raise CanopyStereoError(f"recut_every must be >= 1, got {recut_every}")
         if not 0 < propagate_scale <= 1:
             raise CanopyStereoError(f"propagate_scale must be in (0, 1], got {propagate_scale}")
+        self.max_pixels = int(max_pixels)
+        self._base = (settings, float(propagate_scale))  # the scales before any cap
+        self._size: tuple[int, int] | None = None
         self.rect = None if rect is None else tuple(int(v) for v in rect)
         self.iterations, self.auto_init, self.scale = int(iterations), auto_init, float(scale)
         self.recut_every = int(recut_every)
@@ -112,6 +134,8 @@ class MaskPropagator:
         if bgr.ndim != 3 or bgr.shape[2] != 3 or bgr.dtype != np.uint8:
             raise ImageError(f"segmentation needs a uint8 BGR image, got {bgr.dtype} {bgr.shape}")
         h, w = bgr.shape[:2]
+        if self.max_pixels > 0 and self._size != (w, h):
+            self._cap((w, h))
         small = bgr if self.propagate_scale == 1 else cv2.resize(
             bgr, (max(8, round(w * self.propagate_scale)), max(8, round(h * self.propagate_scale))),
             interpolation=cv2.INTER_AREA)
@@ -131,6 +155,17 @@ class MaskPropagator:
         return plant
 
     __call__ = segment
+
+    def _cap(self, size: tuple[int, int]) -> None:
+        """The scales for images of ``size``: the given ones, capped to ``max_pixels``; a new
+        size starts again with a full cut."""
+        settings, propagate_scale = self._base
+        self.settings = settings.replace(scale=capped_scale(settings.scale, size, max_pixels=self.max_pixels))
+        self.scale = self.settings.scale
+        self.propagate_scale = capped_scale(propagate_scale, size, max_pixels=self.max_pixels)
+        self._seed_settings = self.settings.replace(scale=self.propagate_scale, colour_model=False)
+        self._size = size
+        self.reset()
 
     def _full(self, bgr: np.ndarray, small: np.ndarray, disparity) -> np.ndarray:
         mask = plant_mask(bgr, self.settings, disparity=disparity, rect=self.rect)

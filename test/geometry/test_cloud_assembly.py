@@ -39,3 +39,25 @@ def test_cloud_from_disparity_is_the_triangulation_with_its_colours(paper_rig):
     assert grid.shape == (h, w, 3) and same is colours and np.isnan(grid[~valid]).all()
     with pytest.raises(CanopyStereoError, match="colour image is"):
         cloud_from_disparity(disp, colours[:-1], rect, paper_rig.P_left, paper_rig.P_right)
+
+
+def test_a_window_of_the_disparity_gives_the_points_of_the_full_image():
+    """point_cloud_node reprojects only the DisparityImage's valid_window: the crop with the
+    offset Q gives the full image's points (same order: rows of the window), to float rounding."""
+    from canopy_stereo.geometry.cloud_assembly import offset_reprojection, window_slices
+    from canopy_stereo.geometry.frames import reproject_disparity_points
+
+    rng = np.random.default_rng(3)
+    disp = np.full((48, 64), np.nan, np.float32)
+    disp[10:30, 20:50] = rng.uniform(5.0, 20.0, (20, 30)).astype(np.float32)
+    K = np.array([[640.3, 0, 31.7], [0, 641.1, 23.2], [0, 0, 1]])
+    Q = disparity_image_reprojection(640.3, 0.06, rectified_projection(K, 0.06, "left"))
+    rows, cols = window_slices((20, 10, 30, 20), disp.shape)
+    assert (rows, cols) == (slice(10, 30), slice(20, 50))
+    full, _, depth_full = reproject_disparity_points(disp, Q)
+    kept, _, depth = reproject_disparity_points(disp[rows, cols], offset_reprojection(Q, cols.start, rows.start))
+    assert full.shape == kept.shape and len(full) == 600
+    np.testing.assert_allclose(kept, full, rtol=1e-6)
+    np.testing.assert_allclose(depth, depth_full[rows, cols], rtol=1e-6)
+    assert window_slices((0, 0, 0, 0), disp.shape) == (slice(0, 48), slice(0, 64))  # unset: everything
+    assert window_slices((60, 40, 30, 30), disp.shape) == (slice(40, 48), slice(60, 64))  # clipped

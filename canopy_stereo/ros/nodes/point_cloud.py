@@ -8,7 +8,11 @@ packed float32 ``rgb`` from the rectified left colour image) and, for a calibrat
 rectification, the REP 118 depth image ``left/depth`` (32FC1, metres along the
 rectified left optical axis, NaN = no depth; the same pixels as ``points2``) with its
 camera ``left/depth/camera_info`` (the rectified left camera), so depth_image_proc and
-RGB-D consumers work.
+RGB-D consumers work; both are built and sent only while someone subscribes to either.
+
+Only the pixels that can hold a point are visited: a dense cloud (``organized`` false) is built
+from the ``DisparityImage``'s ``valid_window`` (no disparity is valid outside it:
+``disparity_node``'s ``roi`` window, or its valid pixels' box), the colours packed there only.
 
 This node holds no rig: the geometry comes from the messages, as in image_pipeline.
 
@@ -46,6 +50,8 @@ from canopy_stereo.geometry.cloud_assembly import (
     check_cloud_inputs,
     cloud_from_disparity,
     disparity_image_reprojection,
+    offset_reprojection,
+    window_slices,
 )
 from canopy_stereo.geometry.frames import reproject_disparity_records
 from canopy_stereo.geometry.transforms import transform_points
@@ -225,11 +231,21 @@ class PointCloudNode(CanopyNode):
                 target = self._target_frame(cloud_frame)
                 T = self.geometry.lookup(target, optical)
                 frame_id = self._world_frame() if cloud_frame == "world" else target
+            # only the pixels that can hold a point: the DisparityImage's valid_window (a dense cloud;
+            # disparity_node's roi window, or its valid pixels' box), colours packed there only
+            rows, cols = (slice(0, h), slice(0, w)) if organized else window_slices(frame.valid_window, (h, w))
+            Qc = offset_reprojection(Q, cols.start, rows.start)
             # x, y, z and rgb written by the kernel into the cloud's rows (one copy into the message)
-            records, depth = reproject_disparity_records(frame.disparity, Q, T=T, rgb=pack_bgr_image(bgr),
-                                                         mask=mask, organized=organized)
-            self.pub_depth_info.publish(info)
-            self.pub_depth.publish(depth_to_msg(depth, stamp_ns, frame_id=optical))
+            records, depth_kept = reproject_disparity_records(
+                frame.disparity[rows, cols], Qc, T=T, rgb=pack_bgr_image(bgr[rows, cols]),
+                mask=None if mask is None else mask[rows, cols], organized=organized)
+            if self._depth_wanted():  # REP 118 depth of the same pixels, when someone reads it
+                depth = depth_kept
+                if depth.shape != (h, w):
+                    depth = np.full((h, w), np.nan, np.float32)
+                    depth[rows, cols] = depth_kept
+                self.pub_depth_info.publish(info)
+                self.pub_depth.publish(depth_to_msg(depth, stamp_ns, frame_id=optical))
             self.pub.publish(records_to_cloud2(records, stamp_ns, frame_id=frame_id,
                                                organized_shape=(h, w) if organized else None))
             self.count("clouds_published")
@@ -250,6 +266,14 @@ class PointCloudNode(CanopyNode):
         self.pub.publish(points_to_cloud2(points, None, stamp_ns=stamp_ns, frame_id=frame_id,
                                           organized=organized, rgb=colours))
         self.count("clouds_published")
+
+    def _depth_wanted(self) -> bool:
+        """Whether ``left/depth`` has a reader (over DDS or this process's intra-process bus): the
+        depth image (a full frame of float32) is built and sent only then."""
+        if self.pub_depth.get_subscription_count() > 0 or self.pub_depth_info.get_subscription_count() > 0:
+            return True
+        bus = self.intra_process
+        return bus is not None and bus.subscription_count(self.pub_depth.topic_name) > 0
 
     def _target_frame(self, cloud_frame: str) -> str:
         g = self.geometry

@@ -34,6 +34,10 @@ node's parameters, with their ranges (changeable at run time unless noted):
   (:class:`canopy_stereo.segmentation.propagate.MaskPropagator`: about a third of the
   CPU, within IoU 0.95 of full cuts on the bundled scenes); 1 = a full cut every frame;
 * ``propagate_scale`` (default 0 = ``scale``): processing scale of the propagated frames;
+* ``max_pixels`` (default 19200, a 640x480 frame at scale 0.25): both scales are lowered for
+  larger images so that GrabCut works on at most this many pixels (a 1280x720 frame at about
+  184x104), the mask upsampled to the image (:func:`~canopy_stereo.segmentation.propagate.capped_scale`);
+  0 = no cap;
 * ``queue_size`` (read-only): input queue depth; 1 makes the node segment the
   newest image and skip those that arrived while it was busy (used when no
   point cloud waits for the masks);
@@ -42,7 +46,7 @@ node's parameters, with their ranges (changeable at run time unless noted):
   dropped before decoding. Without them only the hard limits of
   :mod:`canopy_stereo.ros.limits` apply.
 
-A change of any seeder parameter, ``rect`` or the propagation parameters starts again
+A change of any seeder parameter, ``rect``, ``max_pixels`` or the propagation parameters starts again
 with a full cut.
 """
 from __future__ import annotations
@@ -59,7 +63,7 @@ from canopy_stereo.ros.limits import SEGMENT_MIN_SIZE, check_disparity_msg, chec
 from canopy_stereo.ros.nodes.base import WARM_UP_SIZE, CanopyNode, run_node
 from canopy_stereo.segmentation.auto import VIDEO_SEEDER, decode_setting, seeder_fields
 from canopy_stereo.segmentation.grabcut import clip_rect
-from canopy_stereo.segmentation.propagate import DEFAULT_RECUT_EVERY, MaskPropagator
+from canopy_stereo.segmentation.propagate import DEFAULT_MAX_PIXELS, DEFAULT_RECUT_EVERY, MaskPropagator
 
 #: Streams of the exact-time pairing with ``depth_cue``.
 _STREAMS = ("left/image_rect_color", "disparity")
@@ -88,6 +92,9 @@ class SegmentNode(CanopyNode):
                             minimum=1, maximum=10000)
         self.declare_number("propagate_scale", 0.0, "processing scale of the frames between full cuts "
                             "(0 = scale)", minimum=0.0, maximum=1.0)
+        self.declare_number("max_pixels", DEFAULT_MAX_PIXELS, "GrabCut works on at most this many pixels: "
+                            "scale and propagate_scale are lowered for larger images (0 = no cap)",
+                            minimum=0, maximum=100_000_000)
         self.declare_number("queue_size", 5, "input queue depth; 1 = always segment the latest image "
                             "and skip the ones that arrived meanwhile (when nothing waits for every mask)",
                             minimum=1, maximum=100, read_only=True)
@@ -148,7 +155,8 @@ class SegmentNode(CanopyNode):
         recut_every, propagate_scale = int(value("recut_every")), float(value("propagate_scale"))
         return {"rect": rect, "seeder": seeder, "recut_every": recut_every, "propagate_scale": propagate_scale,
                 "propagator": MaskPropagator(settings=seeder, rect=rect, recut_every=recut_every,
-                                             propagate_scale=propagate_scale or seeder.scale),
+                                             propagate_scale=propagate_scale or seeder.scale,
+                                             max_pixels=int(value("max_pixels"))),
                 # the settings as they were named before SeederSettings, for readers of the node
                 "iterations": seeder.iterations, "auto_init": seeder.colour_cue, "scale": seeder.scale}
 
