@@ -1,7 +1,7 @@
 """Benchmark: the ROS 2 node graph at camera rate (issues 5, 12, 15).
 
-Per configuration (``--configs``; ``--quick`` for the two headline ones, no option for all
-24), the graph is fed by two camera publishers at ``--rate`` (30) frames/s with
+Per configuration (``--configs``; ``--quick`` for the two headline ones, ``--hd`` for the four
+1280x720 ones, no option for all 32), the graph is fed by two camera publishers at ``--rate`` (30) frames/s with
 bgr8 pairs of **real plant images** (Middlebury 2014 "Plants", the pair in the bundled
 ``bags/plants.mcap``, cropped to 640x480 and resized to the configuration's size; the
 crop window drifts by a few pixels and sensor noise changes every frame, as a hand-held
@@ -23,7 +23,8 @@ Configuration ``MODE:MATCHER:MASK:SIZE[:TRANSPORT]``: MODE ``processes`` (rectif
 [segment,] point_cloud, one process each, as ``ros2 run``/the launch file start them) or
 ``inprocess`` (the same nodes in one process, as ``canopy_graph``/``canopy-stereo run``);
 MATCHER ``elas``/``sgbm``; MASK ``mask`` (segment_node runs and point_cloud_node keeps only
-plant pixels, ``use_mask``) or ``nomask`` (no segment_node); SIZE ``320x240``, ``640x480`` or
+plant pixels, ``use_mask``) or ``nomask`` (no segment_node); SIZE ``320x240``, ``640x480``,
+``1280x720`` (the middle 640x360 of the 640x480 window, scaled twice: an HD webcam mode) or
 ``1280x960``; TRANSPORT ``raw`` (default: bgr8 ``Image`` on ``<side>/image_raw``) or
 ``compressed`` (the cameras send JPEG, quality ``--jpeg-quality`` 95, as ``CompressedImage`` on
 ``<side>/image_raw/compressed``, encoded beforehand as a webcam's MJPEG is; rectify_node runs
@@ -37,7 +38,8 @@ below 2 cores x 33 ms = 66 ms in total.
     .venv/bin/python benchmarks/bench_graph.py --quick
     .venv/bin/python benchmarks/bench_graph.py --compressed   # JPEG camera streams
     .venv/bin/python benchmarks/bench_graph.py --configs processes:elas:mask:640x480 --frames 150
-    .venv/bin/python benchmarks/bench_graph.py            # all 24 configurations (~15 min)
+    .venv/bin/python benchmarks/bench_graph.py --hd --frames 60   # 1280x720, raw and JPEG, masked or not
+    .venv/bin/python benchmarks/bench_graph.py            # all 32 configurations (~20 min)
 
 ``--foreign-driver`` (issue 29): the node processes (rectify, ELAS, point_cloud) fed by a driver that
 is not ours (``test/support/foreign_driver.py``, Fast DDS's defaults, no package profile) at
@@ -199,8 +201,9 @@ def legacy_main(args) -> int:
 
 # --------------------------------------------------------------------------- issue 15: per configuration
 
-#: Configuration sizes -> scale of the 640x480 frames.
-SIZES = {"320x240": 0.5, "640x480": 1.0, "1280x960": 2.0}
+#: Configuration sizes -> scale of the source frames (a 640x480 window; 640x360 for 1280x720:
+#: the middle rows of the window, as a 16:9 webcam mode sees the 4:3 sensor).
+SIZES = {"320x240": 0.5, "640x480": 1.0, "1280x720": 2.0, "1280x960": 2.0}
 MODES = ("processes", "inprocess")
 MATCHERS = ("elas", "sgbm")
 MASKS = ("mask", "nomask")
@@ -210,6 +213,8 @@ QUICK_CONFIGS = ("processes:elas:mask:640x480", "inprocess:elas:mask:640x480")
 TRANSPORTS = ("raw", "compressed")
 #: The headline configurations with JPEG camera streams (``--compressed``).
 COMPRESSED_CONFIGS = tuple(f"{c}:compressed" for c in QUICK_CONFIGS)
+#: ``--hd``: issue 28's HD webcam graph, four processes at 1280x720, masked and not, raw and JPEG inputs.
+HD_CONFIGS = tuple(f"processes:elas:{mask}:1280x720{transport}" for mask in MASKS for transport in ("", ":compressed"))
 #: Crop of the 710x496 Plants pair to 640x480 (centre of the drift), pixels.
 PLANTS_CROP = (35, 8)
 #: Drift of the crop window (pixels, each way) and its period (frames).
@@ -256,7 +261,7 @@ class Config:
 
 def all_configs() -> list[str]:
     """Every configuration, processes before in-process, 640x480 first."""
-    sizes = ["640x480", "320x240", "1280x960"]
+    sizes = ["640x480", "320x240", "1280x720", "1280x960"]
     return [f"{m}:{a}:{k}:{s}" for s in sizes for a in MATCHERS for k in MASKS for m in MODES]
 
 
@@ -285,7 +290,8 @@ def bench_frames(scene: str, size: str, n_frames: int = DRIFT_PERIOD, seed: int 
     """``(rig, frames)``: the rig of ``size`` and ``n_frames`` (left, right) uint8 BGR pairs of
     the bundled ``scene`` (``plants``: the real Middlebury pair, a 640x480 crop drifting by
     :data:`DRIFT_PX`; ``croton``: the four synthetic frames, cycled), resized to ``size``, with
-    fresh sensor noise (sigma :data:`NOISE_SIGMA`) in every frame."""
+    fresh sensor noise (sigma :data:`NOISE_SIGMA`) in every frame. A 16:9 size (1280x720) sees
+    the middle 640x360 rows of the 640x480 window, scaled (the rig follows: :func:`scaled_rig`)."""
     import cv2
     import numpy as np
 
@@ -294,21 +300,26 @@ def bench_frames(scene: str, size: str, n_frames: int = DRIFT_PERIOD, seed: int 
     rights = [msg_to_image(m).copy() for _, m in bag.read("/stereo/right/image_raw")]
     rig = load_rig(bundled_rig(scene))
     scale = SIZES[size]
+    width, height = (int(v) for v in size.split("x"))
+    ww, wh = round(width / scale), round(height / scale)  # the source window: 640x480 or 640x360
     rng = np.random.default_rng(seed)
     frames = []
     if scene == "plants":
-        rig = scaled_rig(rig, scale, PLANTS_CROP, (640, 480))
         (cx, cy), (dx, dy) = PLANTS_CROP, DRIFT_PX
-        cx, cy = min(cx, lefts[0].shape[1] - 640 - dx), min(cy, lefts[0].shape[0] - 480 - dy)
+        cy += (480 - wh) // 2
+        rig = scaled_rig(rig, scale, (cx, cy), (ww, wh))
+        cx, cy = min(cx, lefts[0].shape[1] - ww - dx), min(cy, lefts[0].shape[0] - wh - dy)
     else:
-        rig = scaled_rig(rig, scale)
+        y0 = (rig.image_size[1] - wh) // 2
+        rig = scaled_rig(rig, scale, (0, y0), (ww, wh)) if y0 else scaled_rig(rig, scale)
+        lefts, rights = [im[y0:y0 + wh] for im in lefts], [im[y0:y0 + wh] for im in rights]
     for k in range(n_frames):
         left, right = lefts[k % len(lefts)], rights[k % len(rights)]
         if scene == "plants":
             phase = 2 * np.pi * k / DRIFT_PERIOD
             x = cx + int(round(dx * np.sin(phase)))
             y = cy + int(round(dy * np.sin(2 * phase)))
-            left, right = left[y:y + 480, x:x + 640], right[y:y + 480, x:x + 640]
+            left, right = left[y:y + wh, x:x + ww], right[y:y + wh, x:x + ww]
         pair = []
         for img in (left, right):
             if scale != 1:
@@ -717,10 +728,12 @@ def main(argv=None) -> int:
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--configs", nargs="+", metavar="MODE:MATCHER:MASK:SIZE",
-                   help="configurations to run (default: all 24; see the module docstring)")
+                   help="configurations to run (default: all 32; see the module docstring)")
     p.add_argument("--quick", action="store_true", help=f"only {' and '.join(QUICK_CONFIGS)}")
     p.add_argument("--compressed", action="store_true",
                    help=f"only {' and '.join(COMPRESSED_CONFIGS)} (JPEG camera streams)")
+    p.add_argument("--hd", action="store_true",
+                   help=f"only the 1280x720 graph: {', '.join(HD_CONFIGS)} (issue 28)")
     p.add_argument("--jpeg-quality", type=int, default=95, help="JPEG quality of compressed inputs (default 95)")
     p.add_argument("--scene", choices=("plants", "croton"), default="plants",
                    help="frames: the real Middlebury Plants pair (default) or the synthetic croton")
@@ -759,7 +772,7 @@ def main(argv=None) -> int:
     n_frames = args.frames or 90
     try:
         named = args.configs or (QUICK_CONFIGS if args.quick else COMPRESSED_CONFIGS if args.compressed
-                                 else all_configs())
+                                 else HD_CONFIGS if args.hd else all_configs())
         configs = [Config.parse(c) for c in named]
         if args.one:
             configs = [Config.parse(args.one)]

@@ -291,7 +291,9 @@ class StereoRectifier:
     """Precomputed resampling maps that undistort and rectify image pairs.
 
     Build once per rig and rectification, then call :meth:`rectify` per frame
-    (one ``cv2.remap`` per image).
+    (one ``cv2.remap`` per image). The maps are fixed point (``cv2.convertMaps`` to
+    ``CV_16SC2`` + ``CV_16UC1``: 1/32 pixel, half the memory of float maps and faster to
+    apply to colour images; within 0.1 grey level of float maps on average).
     """
 
     def __init__(self, rig, rect: Rectification, interpolation: int = cv2.INTER_LINEAR):
@@ -302,6 +304,7 @@ class StereoRectifier:
             _rectify_map(rig.P_left, rig.D_left, rect.H_left_inv, rect.size, rig.distortion_model),
             _rectify_map(rig.P_right, rig.D_right, rect.H_right_inv, rect.size, rig.distortion_model),
         ]
+        self._coordinates: list[np.ndarray | None] = [None, None]
 
     def rectify(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rectified ``(left, right)`` images of size ``rect.size`` (same dtype/channels)."""
@@ -311,6 +314,20 @@ class StereoRectifier:
         """Rectify one image; ``side`` is ``"left"`` or ``"right"``."""
         m1, m2 = self._maps[0 if side == "left" else 1]
         return cv2.remap(image, m1, m2, self.interpolation, borderMode=cv2.BORDER_CONSTANT)
+
+    def coordinates(self, side: str) -> np.ndarray:
+        """float32 (H, W, 2) of the rectified image's size: column and row in the raw
+        ``side`` image (pixels) that each rectified pixel samples -- the fixed-point map's
+        exact positions, for composing another warp into the rectification (the skew shift,
+        :meth:`~canopy_stereo.skew.SkewShift.apply`). Built on first use, read-only."""
+        i = 0 if side == "left" else 1
+        coords = self._coordinates[i]
+        if coords is None:
+            m1, m2 = self._maps[i]
+            coords = cv2.convertMaps(m1, m2, cv2.CV_32FC2)[0]
+            coords.flags.writeable = False
+            self._coordinates[i] = coords
+        return coords
 
 
 #: Rectifiers kept by :func:`cached_rectifier` (each holds about 2.5 MB of maps per megapixel).

@@ -23,6 +23,7 @@ from canopy_stereo.io.compressed_image import add_compression_arguments
 from canopy_stereo.ros.compressed import compression_from_args
 from canopy_stereo.ros.context import tune_node_process
 from canopy_stereo.ros.graph import DEFAULT_THREADS, EXECUTOR_CHOICES, CanopyGraph, GraphOptions
+from canopy_stereo.ros.player import add_playback_arguments
 from canopy_stereo.ros.runner import run_bag
 
 
@@ -38,10 +39,8 @@ def build_parser() -> argparse.ArgumentParser:
                           "--layout)")
     src.add_argument("--cameras", nargs=2, metavar=("LEFT", "RIGHT"),
                      help="camera devices (V4L2 index, /dev path, video file or image pattern)")
-    p.add_argument("--rate", type=float, default=1.0, help="bag playback speed (0 = as fast as possible)")
-    p.add_argument("--loop", action="store_true",
-                   help="replay the bag until Ctrl-C (the nodes are built once and follow the stamps "
-                        "jumping back at every pass)")
+    add_playback_arguments(p, loop_help="replay the bag until Ctrl-C (the nodes are built once and follow "
+                                        "the stamps jumping back at every pass)")
     p.add_argument("--fps", type=float, default=15.0, help="camera frame rate")
     p.add_argument("--width", type=int, default=0, help="camera width (default: the rig's)")
     p.add_argument("--height", type=int, default=0, help="camera height (default: the rig's)")
@@ -139,14 +138,12 @@ def main(args=None) -> int:
     from rclpy.executors import ExternalShutdownException
 
     from canopy_stereo.io.rig import load_rig
-    from canopy_stereo.ros.context import init_ros, strip_ros_args
+    from canopy_stereo.ros.context import init_executable_ros, parse_executable_args
     from canopy_stereo.ros.nodes.base import install_stop_signals
 
     argv = sys.argv if args is None else args
-    try:
-        opts = build_parser().parse_args(strip_ros_args(argv)[1:])
-    except CanopyStereoError as exc:
-        print(f"canopy_graph: error: {exc}", file=sys.stderr)
+    opts = parse_executable_args("canopy_graph", build_parser(), argv)
+    if opts is None:
         return 2
     if opts.metadata and not ((opts.cameras or opts.stereo_camera) and opts.record):
         print("canopy_graph: error: --metadata describes a recording from cameras: use it with "
@@ -170,10 +167,7 @@ def main(args=None) -> int:
             return 2
         # (CanopyGraph gives rectify_node the cameras' fps: pairing within half a frame period)
     tune_node_process()
-    try:
-        init_ros(argv)  # a bad --params-file or --ros-args: one line, exit 2
-    except CanopyStereoError as exc:
-        print(f"canopy_graph: error: {exc}", file=sys.stderr)
+    if not init_executable_ros("canopy_graph", argv):  # a bad --params-file or --ros-args: one line
         return 2
     install_stop_signals()
     context = rclpy.get_default_context()
@@ -207,10 +201,8 @@ def main(args=None) -> int:
             from canopy_stereo.ros.recorder import BagRecorder
 
             ns = "/" + options.namespace.strip("/")
-            topics = [f"{ns}/{t}" for t in ("points2", "disparity", "left/mask", "left/depth",
-                                             "left/depth/camera_info", "left/image_rect/camera_info",
-                                             "right/image_rect/camera_info", "left/camera_info",
-                                             "right/camera_info", "left/image_raw", "right/image_raw")]
+            topics = [f"{ns}/{t}" for t in (*options.output_topics(), "left/camera_info", "right/camera_info",
+                                             "left/image_raw", "right/image_raw")]
             if compression is not None:
                 topics = [t + "/compressed" if t.endswith("/image_raw") else t for t in topics]
             from canopy_stereo.bag.metadata import parse_key_values, recording_metadata

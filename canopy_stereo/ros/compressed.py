@@ -48,13 +48,15 @@ def image_to_compressed_msg(image: np.ndarray, *, codec: str = "jpeg", quality: 
     return compressed_msg(data, fmt, stamp_ns=stamp_ns, frame_id=frame_id)
 
 
-def compressed_msg_to_bgr(msg: CompressedImage, expected_size=None) -> np.ndarray:
+def compressed_msg_to_bgr(msg: CompressedImage, expected_size=None, *, grey: bool = False) -> np.ndarray:
     """Decode a ``CompressedImage`` (any format of :mod:`canopy_stereo.io.image_codec`) to
-    uint8 BGR (H, W, 3); :class:`ImageError` with the reason for damaged data or a wrong size."""
+    uint8 BGR (H, W, 3), or with ``grey`` to uint8 grey (H, W) (a JPEG's luma straight from the
+    decoder, without the colour conversion); :class:`ImageError` with the reason for damaged data
+    or a wrong size."""
     n = len(msg.data)
     if n > MAX_IMAGE_BYTES:
         raise ImageError(f"compressed image of {n} bytes is larger than {MAX_IMAGE_BYTES} bytes")
-    return decode_compressed(msg.data, msg.format, expected_size=expected_size)
+    return decode_compressed(msg.data, msg.format, expected_size=expected_size, grey=grey)
 
 
 def recording_codec(topic: str) -> str:

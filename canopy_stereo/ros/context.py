@@ -388,6 +388,29 @@ def strip_ros_args(argv) -> list[str]:
         raise CanopyStereoError(rcl_error_reason(str(exc))) from None
 
 
+def parse_executable_args(prog: str, parser, argv):
+    """``parser``'s options of the executable ``prog``'s command line ``argv`` (``argv[0]`` the
+    program; the ``--ros-args`` sections left out by :func:`strip_ros_args`), or None after
+    printing ``<prog>: error: <reason>`` for a bad ``--params-file`` or ``--ros-args`` (the
+    executable then exits with status 2). argparse's own usage errors exit with 2 as always."""
+    try:
+        return parser.parse_args(strip_ros_args(argv)[1:])
+    except CanopyStereoError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return None
+
+
+def init_executable_ros(prog: str, argv) -> bool:
+    """:func:`init_ros` for the executable ``prog``: False after printing ``<prog>: error: <reason>``
+    for a bad ``--params-file`` or ``--ros-args`` (the executable then exits with status 2)."""
+    try:
+        init_ros(argv)
+    except CanopyStereoError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return False
+    return True
+
+
 def rcl_error_reason(text: str) -> str:
     """rcl's error text as one readable line: source locations (``, at /x/y.c:12``) removed,
     a parameter file's problem as ``parameter file PATH: reason``."""

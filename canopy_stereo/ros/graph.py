@@ -106,6 +106,25 @@ class GraphOptions:
                 out[name] = [float(v) for v in getattr(self, name)]
         return out
 
+    def output_topics(self) -> dict:
+        """The graph's outputs a recording holds (``canopy_graph --record``, ``run --record``):
+        topic relative to :attr:`namespace` -> message class. The mask with ``segment`` or
+        ``use_mask``, the live traits (``traits`` JSON and ``traits/markers``) with ``traits``."""
+        from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+        from stereo_msgs.msg import DisparityImage
+
+        out = {"points2": PointCloud2, "disparity": DisparityImage, "left/depth": Image,
+               "left/depth/camera_info": CameraInfo, "left/image_rect/camera_info": CameraInfo,
+               "right/image_rect/camera_info": CameraInfo}
+        if self.segment or self.use_mask:
+            out["left/mask"] = Image
+        if self.traits:
+            from std_msgs.msg import String
+            from visualization_msgs.msg import MarkerArray
+
+            out.update({"traits": String, "traits/markers": MarkerArray})
+        return out
+
 
 class CanopyGraph:
     """The processing nodes (and optional cameras) of one rig, spun in one process.

@@ -175,11 +175,17 @@ class BagPlayer:
         return stats
 
 
+def add_playback_arguments(p: argparse.ArgumentParser, *, loop_help: str) -> None:
+    """The playback options every bag-playing executable shares (``bag_play``, ``canopy_graph``):
+    ``--rate`` (speed factor, 0 = as fast as possible) and ``--loop`` (described by ``loop_help``)."""
+    p.add_argument("--rate", type=float, default=1.0, help="bag playback speed factor (0 = as fast as possible)")
+    p.add_argument("--loop", action="store_true", help=loop_help)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="bag_play", description="Play a rosbag2 MCAP file.")
     p.add_argument("bag", help="bag file (.mcap)")
-    p.add_argument("--rate", type=float, default=1.0, help="speed factor (0 = as fast as possible)")
-    p.add_argument("--loop", action="store_true", help="play again from the start at the end")
+    add_playback_arguments(p, loop_help="play again from the start at the end")
     p.add_argument("--start-offset", type=float, default=0.0, metavar="S", help="skip the first S seconds")
     p.add_argument("--remap", nargs="*", default=[], metavar="FROM:=TO", help="rename topics")
     p.add_argument("--topics", nargs="*", default=None, metavar="TOPIC", help="play only these topics")
@@ -194,22 +200,16 @@ def main(args=None) -> int:
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
-    from canopy_stereo.ros.context import init_ros, strip_ros_args
+    from canopy_stereo.ros.context import init_executable_ros, parse_executable_args
     from canopy_stereo.ros.nodes.base import install_stop_signals
 
     argv = sys.argv if args is None else args
-    try:
-        opts = build_parser().parse_args(strip_ros_args(argv)[1:])
-    except CanopyStereoError as exc:
-        print(f"bag_play: error: {exc}", file=sys.stderr)
-        return 2
-    try:
-        init_ros(argv)  # a bad --params-file or --ros-args: one line, exit 2
-    except CanopyStereoError as exc:
-        print(f"bag_play: error: {exc}", file=sys.stderr)
+    opts = parse_executable_args("bag_play", build_parser(), argv)
+    if opts is None or not init_executable_ros("bag_play", argv):  # bad --ros-args: one line
         return 2
     install_stop_signals()
     node = None
+
     def damaged(d) -> None:  # each damaged place once, as it is found; the rest still plays
         print(f"bag_play: warning: {d.describe(opts.bag)}; skipped", file=sys.stderr, flush=True)
 

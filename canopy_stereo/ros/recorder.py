@@ -60,6 +60,13 @@ def header_stamp_from_cdr(data: bytes) -> int | None:
     return sec * 1_000_000_000 + nsec
 
 
+def has_header(msg_class) -> bool:
+    """True when messages of ``msg_class`` start with a ``std_msgs/Header`` (a ``std_msgs/String`` or a
+    ``MarkerArray`` does not: their publish time is the log time, not bytes read as a stamp)."""
+    fields = msg_class.get_fields_and_field_types()
+    return next(iter(fields.items()), ("", ""))[1] == "std_msgs/Header"
+
+
 class BagRecorder(Node):
     """Record topics into ``writer`` (see module docstring).
 
@@ -172,14 +179,15 @@ class BagRecorder(Node):
             if self.compression is None or tname != IMAGE_TYPE:  # images: declared as they are stored
                 self.writer.add_topic(topic, tname, qos_yaml=self._qos_yaml[topic])
             self.received[topic] = 0
+            stamped = has_header(msg_class)
             self.subscriptions_by_topic[topic] = self.create_subscription(
-                msg_class, topic, lambda data, t=topic, n=tname: self._on_message(t, n, data),
+                msg_class, topic, lambda data, t=topic, n=tname, h=stamped: self._on_message(t, n, data, h),
                 recording_qos(self.depth, reliability), raw=True)
         self.get_logger().info(f"recording {topic} ({tname}, {reliability})")
 
-    def _on_message(self, topic: str, tname: str, data: bytes) -> None:
+    def _on_message(self, topic: str, tname: str, data: bytes, stamped: bool = True) -> None:
         now = time.time_ns()
-        stamp = header_stamp_from_cdr(data)
+        stamp = header_stamp_from_cdr(data) if stamped else None
         if self.compression is not None:
             out_topic, out_type, out = self.compression.convert(topic, tname, data)
             if out_topic not in self.writer.topics:
@@ -224,22 +232,17 @@ def main(args=None) -> int:
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
-    from canopy_stereo.ros.context import init_ros, strip_ros_args
+    from canopy_stereo.ros.context import init_executable_ros, parse_executable_args
 
     argv = sys.argv if args is None else args
-    try:
-        opts = build_parser().parse_args(strip_ros_args(argv)[1:])
-    except CanopyStereoError as exc:
-        print(f"bag_record: error: {exc}", file=sys.stderr)
+    opts = parse_executable_args("bag_record", build_parser(), argv)
+    if opts is None:
         return 2
     if not opts.topics and not opts.all:
         print("bag_record: error: name topics to record or use --all", file=sys.stderr)
         return 2
     stop = threading.Event()
-    try:
-        init_ros(argv)  # a bad --params-file or --ros-args: one line, exit 2
-    except CanopyStereoError as exc:
-        print(f"bag_record: error: {exc}", file=sys.stderr)
+    if not init_executable_ros("bag_record", argv):  # a bad --params-file or --ros-args: one line
         return 2
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # finish the file, then exit
         signal.signal(sig, lambda *_: stop.set())

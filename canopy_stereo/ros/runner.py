@@ -39,7 +39,7 @@ from canopy_stereo.ros.graph import CanopyGraph, GraphOptions
 from canopy_stereo.ros.nodes.base import CanopyNode
 from canopy_stereo.ros.player import BagPlayer
 from canopy_stereo.ros.qos import recording_qos
-from canopy_stereo.ros.recorder import header_stamp_from_cdr
+from canopy_stereo.ros.recorder import has_header, header_stamp_from_cdr
 
 
 @dataclass
@@ -302,9 +302,6 @@ def run_bag(bag_path, rig: Rig, *, rate: float = 1.0, record=None, options: Grap
             record the image outputs compressed (``<topic>/compressed``; masks as PNG, depth
             raw), or None.
     """
-    from sensor_msgs.msg import CameraInfo, Image, PointCloud2
-    from stereo_msgs.msg import DisparityImage
-
     options = options or GraphOptions()
     if rate < 0:
         raise CanopyStereoError(f"rate must be >= 0, got {rate}")
@@ -315,12 +312,7 @@ def run_bag(bag_path, rig: Rig, *, rate: float = 1.0, record=None, options: Grap
     options = _with_transport(options, input_transport(in_left))
     ns = "/" + options.namespace.strip("/") if options.namespace.strip("/") else ""
     left_topics = {t for t in play_topics if remap.get(t, t) == in_left}
-    outputs = {"points2": PointCloud2, "disparity": DisparityImage, "left/depth": Image,
-               "left/depth/camera_info": CameraInfo,
-               "left/image_rect/camera_info": CameraInfo, "right/image_rect/camera_info": CameraInfo}
-    if options.segment or options.use_mask:
-        outputs["left/mask"] = Image
-    outputs.update(extra_outputs or {})
+    outputs = {**options.output_topics(), **(extra_outputs or {})}
     result = RunResult(truncated=bag.truncated, problem=bag.problem,
                        outputs={k: [] for k in keep})
     book = _FrameBook()
@@ -390,7 +382,7 @@ def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, r
         try:
             def on_output(rel: str, data: bytes) -> None:
                 now = time.monotonic()
-                stamp = header_stamp_from_cdr(bytes(data))
+                stamp = header_stamp_from_cdr(bytes(data)) if rel in stamped else None
                 if writer is not None:
                     topic, tname, stored = f"{ns}/{rel}", type_name(outputs[rel]), bytes(data)
                     if compression is not None:
@@ -407,6 +399,7 @@ def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, r
                     if progress is not None:
                         progress(book.frames_out)
 
+            stamped = {rel for rel, cls in outputs.items() if has_header(cls)}  # traits: no header
             for rel, cls in outputs.items():
                 if writer is not None and (compression is None or type_name(cls) != IMAGE_TYPE):
                     writer.add_topic(f"{ns}/{rel}", type_name(cls), qos_yaml=qos_profiles_yaml(reliability))

@@ -23,12 +23,19 @@ and :attr:`SkewReport.reason` says why.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.skew.motion import image_motion, move_in_time
+from canopy_stereo.skew.motion import (
+    ImageMotion,
+    check_frames,
+    move_in_time,
+    reduced_grey,
+    reduced_motion,
+    sample_moved,
+)
 
 #: Skews shorter than this (s) need no compensation.
 MIN_SKEW_S = 2e-4
@@ -51,7 +58,8 @@ class SkewReport:
             (negative: back towards its previous frame); 0 when not applied.
         shift_px: median image displacement applied (pixels); 0 when not applied.
         reason: why it was not applied (empty when applied).
-        cost_ms: wall time the compensation took (motion, checks and warp), ms.
+        cost_ms: wall time the compensation took (motion, checks and warp), ms
+            (:meth:`SkewCompensator.measure`: motion and checks).
     """
 
     skew_ms: float
@@ -60,6 +68,25 @@ class SkewReport:
     shift_px: float = 0.0
     reason: str = ""
     cost_ms: float = 0.0
+
+
+@dataclass(frozen=True)
+class SkewShift:
+    """How to bring a right image to its left image's instant: ``frames`` right frame
+    intervals in time (negative: back towards the previous frame) along ``motion``, the right
+    camera's own image motion (:class:`~canopy_stereo.skew.motion.ImageMotion`)."""
+
+    motion: ImageMotion
+    frames: float
+
+    def apply(self, image: np.ndarray, *, coords: np.ndarray | None = None) -> np.ndarray:
+        """``image`` (the right image the shift was measured on, or its grey) at the left
+        image's instant: (H, W[, C]) like ``image`` (edges replicated, :func:`move_in_time`);
+        with ``coords`` (H', W', 2) float32, a rectification map of the right camera, the moved
+        image already rectified, in one interpolation (:func:`sample_moved`)."""
+        if coords is None:
+            return move_in_time(image, self.motion, self.frames)
+        return sample_moved(image, self.motion, self.frames, coords=coords)
 
 
 class SkewCompensator:
@@ -72,7 +99,7 @@ class SkewCompensator:
         max_interval_s: longest gap between two right frames still followed (s).
     """
 
-    def __init__(self, *, enabled: bool = True, flow_scale: float = 0.5, flow_preset: str = "fast",
+    def __init__(self, *, enabled: bool = True, flow_scale: float = 0.5, flow_preset: str = "ultrafast",
                  max_interval_s: float = MAX_INTERVAL_S):
         if not max_interval_s > 0:
             raise CanopyStereoError(f"max_interval_s must be > 0, got {max_interval_s}")
@@ -80,7 +107,8 @@ class SkewCompensator:
         self.flow_scale = float(flow_scale)
         self.flow_preset = flow_preset
         self.max_interval_s = float(max_interval_s)
-        self._previous: tuple[int, np.ndarray] | None = None
+        #: (stamp ns, the previous right image, its reduced grey once computed)
+        self._previous: tuple[int, np.ndarray, np.ndarray | None] | None = None
 
     def reset(self) -> None:
         """Forget the previous frame (a new stream: the next pair is a first frame)."""
@@ -89,7 +117,7 @@ class SkewCompensator:
     def observe(self, right: np.ndarray, *, stamp_right_ns: int) -> None:
         """Keep ``right`` as the previous right frame without compensating anything (a pair
         that is not measured but precedes one that is)."""
-        self._previous = (int(stamp_right_ns), right)
+        self._previous = (int(stamp_right_ns), right, None)
 
     def compensate(self, left: np.ndarray, right: np.ndarray, *, stamp_left_ns: int,
                    stamp_right_ns: int) -> tuple[np.ndarray, np.ndarray, SkewReport]:
@@ -100,13 +128,29 @@ class SkewCompensator:
         not modified; ``right`` is kept as the next pair's previous frame.
         """
         t0 = time.perf_counter()
+        shift, report = self.measure(right, stamp_left_ns=stamp_left_ns, stamp_right_ns=stamp_right_ns)
+        if shift is None:
+            return left, right, report
+        moved = shift.apply(right)
+        return left, moved, replace(report, cost_ms=1e3 * (time.perf_counter() - t0))
+
+    def measure(self, right: np.ndarray, *, stamp_left_ns: int,
+                stamp_right_ns: int) -> tuple[SkewShift | None, SkewReport]:
+        """``(shift, report)`` of one raw pair without moving anything: the
+        :class:`SkewShift` that brings ``right`` to the left image's instant, or None (and
+        :attr:`SkewReport.reason`) when the pair goes on as it came. ``right``: uint8 (H, W)
+        grey or (H, W, 3) BGR (give it the same way every pair); kept as the next pair's
+        previous frame. ``rectify_node`` applies the shift inside its rectification map
+        (:meth:`SkewShift.apply` with ``coords``); :meth:`compensate` applies it to the raw image.
+        :attr:`SkewReport.cost_ms` is the time of the motion and the checks.
+        """
+        t0 = time.perf_counter()
         skew_ns = int(stamp_right_ns) - int(stamp_left_ns)
         skew_ms = skew_ns / 1e6
-        previous, self._previous = self._previous, (int(stamp_right_ns), right)
+        previous, self._previous = self._previous, (int(stamp_right_ns), right, None)
 
         def unchanged(reason: str):
-            return left, right, SkewReport(skew_ms, False, reason=reason,
-                                           cost_ms=1e3 * (time.perf_counter() - t0))
+            return None, SkewReport(skew_ms, False, reason=reason, cost_ms=1e3 * (time.perf_counter() - t0))
 
         if not self.enabled:
             return unchanged("off")
@@ -114,7 +158,7 @@ class SkewCompensator:
             return unchanged("in step")
         if previous is None:
             return unchanged("first frame")
-        prev_stamp, prev_right = previous
+        prev_stamp, prev_right, prev_small = previous
         interval_s = (int(stamp_right_ns) - prev_stamp) / 1e9
         if interval_s <= 0:
             return unchanged("right stamps went back (a new stream)")
@@ -126,13 +170,18 @@ class SkewCompensator:
         if abs(frames) > 1.0:
             return unchanged(f"skew {skew_ms:.1f} ms is longer than the right frame interval "
                              f"({interval_s * 1e3:.1f} ms)")
-        motion = image_motion(prev_right, right, scale=self.flow_scale, preset=self.flow_preset)
+        check_frames(prev_right, right, scale=self.flow_scale)
+        if prev_small is None:
+            prev_small = reduced_grey(prev_right, scale=self.flow_scale)
+        small = reduced_grey(right, scale=self.flow_scale)
+        self._previous = (int(stamp_right_ns), right, small)  # the next pair's previous: reduced once
+        h, w = right.shape[:2]
+        motion = reduced_motion(prev_small, small, size=(w, h), preset=self.flow_preset)
         if motion.textured < MIN_TEXTURED:
             return unchanged(f"too little texture ({100 * motion.textured:.1f} % of the pixels)")
         if motion.explained < MIN_EXPLAINED:
             return unchanged(f"a cut: the previous right frame explains {100 * motion.explained:.0f} % "
                              "of this one")
-        moved = move_in_time(right, motion, frames)
-        return left, moved, SkewReport(skew_ms, True, shift_frames=frames,
-                                       shift_px=abs(frames) * motion.median_px,
-                                       cost_ms=1e3 * (time.perf_counter() - t0))
+        return SkewShift(motion, frames), SkewReport(skew_ms, True, shift_frames=frames,
+                                                     shift_px=abs(frames) * motion.median_px,
+                                                     cost_ms=1e3 * (time.perf_counter() - t0))

@@ -16,6 +16,7 @@ rather than at the point's origin is second order in ``s u``.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -61,7 +62,9 @@ class ImageMotion:
         return cv2.resize(scaled, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
-def _grey(image: np.ndarray, scale: float) -> np.ndarray:
+def reduced_grey(image: np.ndarray, *, scale: float) -> np.ndarray:
+    """uint8 (h, w) grey of a uint8 grey or BGR ``image`` at ``scale`` (area-averaged): what
+    :func:`reduced_motion` takes (compute it once per frame and keep it for the next pair)."""
     grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
     if scale != 1.0:
         grey = cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
@@ -72,6 +75,7 @@ _DIS_PRESETS = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.D
                 "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
 _dis_cache: dict = {}
 _grid_cache: dict = {}
+_points_cache: dict = {}
 
 
 def _pixel_grid(width: int, height: int) -> np.ndarray:
@@ -97,40 +101,65 @@ def _dis(preset: str):
 
 
 def image_motion(previous: np.ndarray, current: np.ndarray, *, scale: float = 0.5,
-                 preset: str = "fast") -> ImageMotion:
+                 preset: str = "ultrafast") -> ImageMotion:
     """Dense motion from ``current`` back to ``previous`` (two frames of one camera).
 
     Args:
         previous, current: uint8 images (H, W) grey or (H, W, 3) BGR of one size.
         scale: resolution of the flow computation (0.5: half size; the flow is scaled
             back to full resolution).
-        preset: DIS preset, ``ultrafast``, ``fast`` (default: a few ms per VGA pair, within
-            1 % depth on the croton at 0.5 m/s with 16 ms skew) or ``medium`` (finer, several
-            times slower); see ``benchmarks/bench_capture.py``.
+        preset: DIS preset, ``ultrafast`` (default: under 1 ms per VGA pair at half size,
+            within 1 % depth on the croton at 0.5 m/s with 16 ms skew), ``fast`` (about twice
+            the time, no more accurate there) or ``medium`` (finer, several times slower); see
+            ``benchmarks/bench_capture.py``.
 
     Returns an :class:`ImageMotion`.
     """
-    if previous.shape != current.shape:
+    check_frames(previous, current, scale=scale)
+    h, w = current.shape[:2]
+    return reduced_motion(reduced_grey(previous, scale=scale), reduced_grey(current, scale=scale), size=(w, h),
+                          preset=preset)
+
+
+def check_frames(previous: np.ndarray, current: np.ndarray, *, scale: float) -> None:
+    """:class:`CanopyStereoError` naming the problem unless ``previous`` and ``current`` are
+    uint8 frames of one size and ``scale`` is in (0, 1]."""
+    if previous.shape[:2] != current.shape[:2]:
         raise CanopyStereoError(f"previous frame is {previous.shape[1]}x{previous.shape[0]} but the current "
                                 f"one {current.shape[1]}x{current.shape[0]}")
     if not 0 < scale <= 1:
         raise CanopyStereoError(f"flow scale must be in (0, 1], got {scale}")
-    h, w = current.shape[:2]
     if current.dtype != np.uint8 or previous.dtype != np.uint8:
         raise CanopyStereoError(f"frames must be uint8, got {previous.dtype} and {current.dtype}")
-    prev_g, cur_g = _grey(previous, scale), _grey(current, scale)
+
+
+def reduced_motion(previous: np.ndarray, current: np.ndarray, *, size: tuple[int, int],
+                   preset: str = "ultrafast") -> ImageMotion:
+    """:func:`image_motion` of two frames already reduced by :func:`reduced_grey` (uint8 (h, w)
+    each, one scale); ``size``: ``(W, H)`` of the full-resolution frames."""
+    w, h = size
+    prev_g, cur_g = previous, current
+    if prev_g.shape != cur_g.shape:
+        raise CanopyStereoError(f"reduced frames of {prev_g.shape} and {cur_g.shape}: reduce both at one scale")
     small = _dis(preset).calc(cur_g, prev_g, None)  # cur(x) ~ prev(x + small(x))
     # how well the motion explains the current frame, on the textured pixels
     sh, sw = cur_g.shape
     gx = cv2.Sobel(cur_g, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
     gy = cv2.Sobel(cur_g, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
-    textured_px = cv2.magnitude(gx, gy) >= TEXTURE_GRADIENT_DN
-    textured = float(textured_px.mean())
+    textured_px = cv2.compare(cv2.magnitude(gx, gy), TEXTURE_GRADIENT_DN, cv2.CMP_GE)  # 255 where textured
+    n_textured = cv2.countNonZero(textured_px)
+    textured = n_textured / textured_px.size
     predicted = _remap(prev_g, cv2.add(_pixel_grid(sw, sh), small))
-    residual = cv2.absdiff(predicted, cur_g).astype(np.float32)
-    offset = abs(float(predicted.mean()) - float(cur_g.mean()))  # a brightness change is not a cut
-    explained = float((residual[textured_px] < EXPLAINED_RESIDUAL_DN + offset).mean()) if textured_px.any() else 0.0
-    median_px = float(np.median(np.hypot(small[::2, ::2, 0], small[::2, ::2, 1]))) * (w / sw)
+    residual = cv2.absdiff(predicted, cur_g)
+    offset = abs(cv2.mean(predicted)[0] - cv2.mean(cur_g)[0])  # a brightness change is not a cut
+    # residual < limit on whole grey levels: residual < ceil(limit)
+    limit = math.ceil(EXPLAINED_RESIDUAL_DN + offset)
+    explained = 0.0
+    if n_textured:
+        below = cv2.compare(residual, limit, cv2.CMP_LT) if limit <= 255 else np.full_like(residual, 255)
+        explained = cv2.countNonZero(cv2.bitwise_and(below, textured_px)) / n_textured
+    flow_x, flow_y = cv2.split(small)
+    median_px = float(np.median(cv2.magnitude(flow_x, flow_y)[::2, ::2])) * (w / sw)
     return ImageMotion(flow_reduced=small, size=(w, h), textured=textured, explained=explained,
                        median_px=median_px)
 
@@ -152,3 +181,53 @@ def move_in_time(current: np.ndarray, motion: ImageMotion, frames: float) -> np.
                                 f"is {w}x{h}")
     # the pixel x of the moved image is the current frame's x + frames * flow(x)
     return _remap(current, cv2.add(_pixel_grid(w, h), motion.flow(frames)))
+
+
+
+def sample_moved(image: np.ndarray, motion: ImageMotion, frames: float, *, coords: np.ndarray) -> np.ndarray:
+    """``image`` moved ``frames`` frame intervals in time along ``motion`` (as
+    :func:`move_in_time`) and sampled at ``coords``, in one interpolation:
+    ``out(p) = image(c + frames * flow(c))`` with ``c = coords(p)``.
+
+    ``coords``: (H', W', 2) float32 column and row in ``image`` (full-resolution pixels) of each
+    output pixel, e.g. a rectification map (:meth:`~canopy_stereo.geometry.rectification.StereoRectifier.coordinates`):
+    the skew shift is composed into it instead of warping the image first. Returns an image of
+    ``image``'s dtype and channels, (H', W'); bilinear; pixels sampled outside the image are 0
+    (as rectification's). The flow at ``c`` is evaluated on the output grid at the flow's
+    resolution and upsampled bilinearly (the flow has no finer detail).
+    """
+    w, h = motion.size
+    if image.shape[:2] != (h, w):
+        raise CanopyStereoError(f"the motion is of {w}x{h} images but the image is "
+                                f"{image.shape[1]}x{image.shape[0]}")
+    if coords.ndim != 3 or coords.shape[2] != 2 or coords.dtype != np.float32:
+        raise CanopyStereoError(f"coords must be float32 (H, W, 2), got {coords.dtype} {coords.shape}")
+    sh, sw = motion.flow_reduced.shape[:2]
+    k = sw / w  # reduced pixels per full pixel (square pixels: one ratio)
+    oh, ow = coords.shape[:2]
+    flow_at = cv2.remap(motion.flow_reduced, _reduced_points(coords, k=k, size=(w, h), reduced=(sw, sh)), None,
+                        cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    flow_at = cv2.resize(flow_at, (ow, oh), interpolation=cv2.INTER_LINEAR)
+    moved = cv2.scaleAdd(flow_at, float(frames) / k, coords)  # flow in full pixels, times frames
+    # float maps as they are: converting them to fixed point per frame costs what it saves
+    return cv2.remap(image, moved, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+
+
+def _reduced_points(coords: np.ndarray, *, k: float, size: tuple[int, int], reduced: tuple[int, int]) -> np.ndarray:
+    """float32 (h', w', 2): ``coords`` (H', W', 2) on the output grid at the flow's resolution,
+    in reduced pixels (centres: ``u_reduced = (u + 0.5) k - 0.5``); kept per coordinate map (a
+    rectifier's, read-only: the same every frame)."""
+    key = (id(coords), coords.shape, k, size, reduced)
+    hit = _points_cache.get(key)
+    if hit is not None and hit[0] is coords and not coords.flags.writeable:
+        return hit[1]
+    w, h = size
+    sw, sh = reduced
+    oh, ow = coords.shape[:2]
+    at = cv2.resize(coords, (max(1, round(ow * sw / w)), max(1, round(oh * sh / h))), interpolation=cv2.INTER_LINEAR)
+    at = at * np.float32(k) + np.float32(0.5 * k - 0.5)
+    if not coords.flags.writeable:  # a fixed map: keep it (and the map, so that its id stays its own)
+        if len(_points_cache) > 4:
+            _points_cache.clear()
+        _points_cache[key] = (coords, at)
+    return at

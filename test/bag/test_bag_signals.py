@@ -2,6 +2,7 @@
 the last flush period; looped recording appends or splits, never overwrites."""
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -91,6 +92,21 @@ def _wait_for_file(path: Path, proc, timeout: float = 60.0) -> None:
         assert proc.poll() is None, proc.communicate()[1]
         assert time.monotonic() < deadline, f"{path} never appeared"
         time.sleep(0.05)
+
+
+def _wait_for_recorded(path: Path, proc, topics, timeout: float = 120.0) -> None:
+    """Wait until a recording being written (flushed every second) holds a message on each topic."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            bag = BagReader(path)
+            if set(topics) <= set(bag.topics) and all(any(True for _ in bag.messages([t])) for t in topics):
+                return
+        except BagError:  # not flushed yet
+            pass
+        assert proc.poll() is None, proc.communicate()[1]
+        assert time.monotonic() < deadline, f"{path}: no message on {topics} within {timeout:g} s"
+        time.sleep(0.5)
 
 
 def _recorded_so_far(path: Path) -> int:
@@ -274,8 +290,8 @@ def test_split_size_names_files_like_rosbag2(tmp_path):
 
 @pytest.mark.slow
 def test_graph_cameras_record_closes_on_sigterm(tmp_path):
-    """`canopy_graph --cameras ... --record` (live capture, image sequences standing in for
-    webcams): SIGTERM leaves a complete bag that rosbags reads whole."""
+    """`canopy_graph --cameras ... --record --traits` (live capture, image sequences standing in for
+    webcams): SIGTERM leaves a complete bag that rosbags reads whole, the live traits in it."""
     import cv2
 
     reader = BagReader(bundled_bag("croton"))
@@ -285,18 +301,13 @@ def test_graph_cameras_record_closes_on_sigterm(tmp_path):
         for k, (_, m) in enumerate(reader.read(f"/stereo/{side}/image_raw")):
             cv2.imwrite(str(tmp_path / f"{side}_{k:03d}.png"), msg_to_image(m))
     out = tmp_path / "live.mcap"
+    traits = ("/stereo/traits", "/stereo/traits/markers")
     proc = _graph(["--cameras", tmp_path / "left_%03d.png", tmp_path / "right_%03d.png", "--fps", "5",
-                   "--record", out], private_domain_id())
+                   "--record", out, "--traits"], private_domain_id())
     with killed_at_exit(proc):
         _wait_for_file(out, proc)
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and proc.poll() is None:
-            time.sleep(0.5)
-            try:  # the periodic flush makes the recording readable while it runs
-                if "/stereo/points2" in BagReader(out).topics:
-                    break
-            except BagError:  # the reader's only error type, e.g. for a file not yet flushed
-                pass
+        # the periodic flush makes the recording readable while it runs
+        _wait_for_recorded(out, proc, ("/stereo/points2", *traits))
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err
@@ -306,6 +317,12 @@ def test_graph_cameras_record_closes_on_sigterm(tmp_path):
     recorded = [msg_to_image(m) for _, m in bag.read("/stereo/left/image_raw")]
     assert len(recorded) == bag.topics["/stereo/left/image_raw"].message_count >= 1
     assert all(any(np.array_equal(r, f) for f in frames) for r in recorded)
+    # --traits: the live traits are recorded too (JSON and markers, read by rosbags below)
+    assert {t: bag.topics[t].type_name for t in traits} == {
+        "/stereo/traits": "std_msgs/msg/String", "/stereo/traits/markers": "visualization_msgs/msg/MarkerArray"}
+    assert all(bag.topics[t].message_count >= 1 for t in traits), bag.summary_text()
+    report = json.loads(next(m for _, m in bag.read("/stereo/traits")).data)["report"]
+    assert 300 < report["canopy"]["height"] < 600  # mm: the croton stands about 45 cm tall
     assert _rosbags_reads_whole(out) == bag.message_count
 
 

@@ -7,26 +7,13 @@ import pytest
 from canopy_stereo.fusion import read_poses, transform_error, transform_points, write_pose, write_poses
 from canopy_stereo.geometry.transforms import invert_transform, make_transform, rotation_about_axis
 from canopy_stereo.io.ply import read_ply, write_ply
+from test.support.fusion import patch_points
 
 
 def patch_cloud(seed=0, n=10):
     """Curved coloured patches (mm) roughly 600 mm in front of a rig."""
-    rng = np.random.default_rng(seed)
-    pts = []
-    for _ in range(n):
-        c = rng.uniform(-80, 80, 3) + [0, 0, 650]
-        nrm = rng.normal(size=3)
-        nrm /= np.linalg.norm(nrm)
-        a = np.cross(nrm, [1.0, 0, 0])
-        a /= np.linalg.norm(a)
-        b = np.cross(nrm, a)
-        g = np.arange(-25.0, 25.0, 1.0)
-        u, v = [x.ravel() for x in np.meshgrid(g, g)]
-        k = u * u + v * v < 625
-        pts.append(c + u[k, None] * a + v[k, None] * b + 0.01 * (u[k] ** 2 + v[k] ** 2)[:, None] * nrm)
-    pts = np.concatenate(pts)
-    cols = np.clip(128 + pts[:, :3] % 100, 0, 255).astype(np.uint8)
-    return pts, cols
+    pts = patch_points(seed, n, unit="mm")
+    return pts, np.clip(128 + pts[:, :3] % 100, 0, 255).astype(np.uint8)
 
 
 STEP = make_transform(rotation_about_axis([0, 1, 0], np.radians(3.0)), [2.0, 0.0, 1.0])

@@ -123,3 +123,37 @@ def test_cached_rectifier_is_reused_only_for_the_same_geometry(paper_rig):
         want = StereoRectifier(rig, rect).rectify(img, img)
         got = rectifier.rectify(img, img)
         assert all(np.array_equal(g, w) for g, w in zip(got, want))
+
+
+@pytest.mark.parametrize("distortion", [(0.0, 0.0, 0.0, 0.0, 0.0), (-0.28, 0.09, 0.001, -0.0005, 0.0)])
+def test_fixed_point_maps_resample_as_float_maps(paper_rig, rng, distortion):
+    """Issue 28: the rectifier's fixed-point maps (``cv2.convertMaps`` to CV_16SC2, 1/32 pixel)
+    give the images float maps give, within a grey level on average (a textured colour image,
+    with and without lens distortion); :meth:`StereoRectifier.coordinates` are the fixed maps'
+    positions."""
+    import cv2
+
+    from canopy_stereo.io.rig import Rig
+
+    D = np.array(distortion)
+    rig = Rig(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size, paper_rig.world_unit, D, D,
+              dict(paper_rig.extra))
+    rect = fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
+    rectifier = StereoRectifier(rig, rect)
+    texture = cv2.GaussianBlur(rng.uniform(0, 255, (480, 640, 3)).astype(np.float32), (0, 0), 1.5)
+    img = np.clip(np.rint((texture - texture.mean()) * 4 + 128), 0, 255).astype(np.uint8)
+    w, h = rect.size
+    vv, uu = np.mgrid[0:h, 0:w]
+    raw = distort_pixels(rig.P_right, rig.D_right,
+                         apply_homography(rect.H_right_inv, np.column_stack([uu.ravel(), vv.ravel()]).astype(float)))
+    map_x, map_y = (raw[:, i].reshape(h, w).astype(np.float32) for i in (0, 1))
+    coords = rectifier.coordinates("right")
+    inside = (map_x > 1) & (map_x < 638) & (map_y > 1) & (map_y < 478)
+    assert inside.mean() > 0.8
+    assert np.abs(coords[..., 0] - map_x)[inside].max() <= 1 / 64 + 1e-3
+    assert np.abs(coords[..., 1] - map_y)[inside].max() <= 1 / 64 + 1e-3
+    for image in (img, cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)):
+        fixed = rectifier.rectify_one(image, "right").astype(float)
+        exact = cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT).astype(float)
+        assert np.abs(fixed - exact)[inside].mean() <= 1.0
+        assert np.abs(fixed - exact)[inside].max() <= 3

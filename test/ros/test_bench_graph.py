@@ -26,7 +26,10 @@ def test_configs_parse_and_cover_the_matrix():
     assert bench_graph.Config.parse("inprocess:elas:mask:640x480:raw") == bench_graph.Config.parse(
         "inprocess:elas:mask:640x480")
     every = bench_graph.all_configs()
-    assert len(every) == len(set(every)) == 24
+    assert len(every) == len(set(every)) == 32
+    assert set(bench_graph.HD_CONFIGS) == {"processes:elas:mask:1280x720", "processes:elas:nomask:1280x720",
+                                           "processes:elas:mask:1280x720:compressed",
+                                           "processes:elas:nomask:1280x720:compressed"}
     for bad, word in (("processes:elas:mask", "MODE:MATCHER:MASK:SIZE"), ("threads:elas:mask:640x480", "mode"),
                       ("processes:bm:mask:640x480", "matcher"), ("processes:elas:on:640x480", "mask"),
                       ("processes:elas:mask:800x600", "size"), ("processes:elas:mask:640x480:png", "transport")):
@@ -43,7 +46,7 @@ def test_node_parameters_from_the_command_line():
             bench_graph.parse_node_parameter(bad)
 
 
-@pytest.mark.parametrize("size", ["320x240", "640x480", "1280x960"])
+@pytest.mark.parametrize("size", ["320x240", "640x480", "1280x720", "1280x960"])
 def test_bench_frames_and_scaled_rig_agree(size):
     """The scaled, cropped rig projects a world point where the crop + resize puts its pixel."""
     from canopy_stereo.geometry.camera import project
@@ -58,6 +61,7 @@ def test_bench_frames_and_scaled_rig_agree(size):
     base = load_rig(bundled_rig("plants"))
     s = bench_graph.SIZES[size]
     x0, y0 = bench_graph.PLANTS_CROP
+    y0 += (480 - round(h / s)) // 2  # 1280x720: the middle 640x360 rows of the 640x480 window
     X = np.array([[30.0, -20.0, 900.0], [-50.0, 40.0, 1200.0]])  # millimetres, in front of the rig
     for P_base, P in ((base.P_left, rig.P_left), (base.P_right, rig.P_right)):
         uv = project(P_base, X) - [x0, y0]

@@ -49,13 +49,23 @@ def test_rectify_node_brings_each_right_image_to_the_left_instant(harness, paper
         pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=tr, frame_id="right_camera"))
         n = len(rect_r)
         assert wait_for(lambda n=n: len(rect_r) > n, 20.0)  # in order: one pair at a time
-    # the very function batch and the core tests call, with the same defaults
+    # the very shift batch and the core tests use, with the same defaults, composed into the
+    # rectification of the grey right image; within a grey level of moving the raw image first
     core = SkewCompensator(enabled=enabled)
     rectifier = StereoRectifier(paper_rig, fusiello_rectify(paper_rig.P_left, paper_rig.P_right,
                                                             paper_rig.image_size))
+    two_step = SkewCompensator(enabled=enabled)
     for msg, (left, right, tl, tr) in zip(rect_r, pairs):
-        want_left, want_right, _ = core.compensate(left, right, stamp_left_ns=tl, stamp_right_ns=tr)
-        np.testing.assert_array_equal(convert.msg_to_image(msg), to_gray(rectifier.rectify(want_left, want_right)[1]))
+        grey = to_gray(right)
+        shift, _ = core.measure(grey, stamp_left_ns=tl, stamp_right_ns=tr)
+        want = (rectifier.rectify_one(grey, "right") if shift is None
+                else shift.apply(grey, coords=rectifier.coordinates("right")))
+        got = convert.msg_to_image(msg)
+        np.testing.assert_array_equal(got, want)
+        moved_first = to_gray(rectifier.rectify(*two_step.compensate(left, right, stamp_left_ns=tl,
+                                                                       stamp_right_ns=tr)[:2])[1])
+        inner = (slice(40, -40), slice(60, -60))  # away from the borders the two-step warp replicates
+        assert np.abs(got[inner].astype(float) - moved_first[inner]).mean() <= 1.0
         assert convert.stamp_to_ns(msg.header.stamp) == tl  # the pair's instant: the left image's
     values = status_values(node.diagnostics.status(reset=False))
     assert float(values["skew ms mean"]) == pytest.approx(10.0)

@@ -55,8 +55,9 @@ messages, ``right_camera_rect_optical_frame`` in the transforms), ``world_frame`
 Skew compensation (``skew_compensation``, default true): free-running webcams capture
 up to half a frame apart; each pair's right image is brought to the left image's
 instant (the pair's stamp) along the right camera's own motion between its previous
-and current frame (:class:`~canopy_stereo.skew.SkewCompensator`, before
-rectification). ``/diagnostics`` reports ``skew ms`` (right minus left stamp),
+and current frame (:class:`~canopy_stereo.skew.SkewCompensator`); the shift is composed
+into the right camera's rectification map, so the right image (grey from the start: its
+only output is mono) is resampled once. ``/diagnostics`` reports ``skew ms`` (right minus left stamp),
 ``skew compensated %`` (share of the pairs), ``skew shift px`` and ``skew compensation ms``
 (the time it adds), and ``skew not compensated: <reason>`` (first frame, a cut, too
 little texture, ...; those pairs go on as they came, logged once per reason).
@@ -77,6 +78,9 @@ measured from the stamps, median of recent intervals) is ``k - 1`` missed frames
 longer than 2 s are pauses, not losses.
 """
 from __future__ import annotations
+
+import time
+from dataclasses import replace
 
 import numpy as np
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
@@ -99,6 +103,7 @@ from canopy_stereo.ros.convert import (
     COLOUR_ENCODINGS,
     image_to_msg,
     msg_to_bgr,
+    msg_to_mono,
     rectified_camera_info,
     stamp_to_ns,
     uncalibrated_camera_info,
@@ -248,12 +253,15 @@ class RectifyNode(CanopyNode):
                                f"sync slop {self.pairer.slop_ns / 1e9:g} s"
                                + (" until the frame period is measured" if self.period_estimator else ""))
 
-    def _to_bgr(self, msg):
-        """uint8 BGR of an input frame (raw or compressed), checked against the rig's size."""
+    def _to_image(self, side: int, msg) -> np.ndarray:
+        """An input frame (raw or compressed, decoded once), checked against the rig's size:
+        uint8 BGR (H, W, 3) for the left camera (``left/image_rect_color``), uint8 grey (H, W)
+        for the right one, whose only output is mono (a JPEG decoded straight to grey)."""
+        size = self.rig.image_size
         if isinstance(msg, CompressedImage):
-            return compressed_msg_to_bgr(msg, expected_size=self.rig.image_size)
-        check_image_msg(msg, expected_size=self.rig.image_size, encodings=COLOUR_ENCODINGS)
-        return msg_to_bgr(msg, expected_size=self.rig.image_size)
+            return compressed_msg_to_bgr(msg, expected_size=size, grey=side == 1)
+        check_image_msg(msg, expected_size=size, encodings=COLOUR_ENCODINGS)
+        return msg_to_bgr(msg, expected_size=size) if side == 0 else msg_to_mono(msg, expected_size=size)
 
     def _on_image(self, side: int, msg, info: dict | None = None) -> None:
         name = ("left", "right")[side]
@@ -262,7 +270,7 @@ class RectifyNode(CanopyNode):
             self.drop("no rig yet (waiting for left/camera_info and right/camera_info)", f"{name} frame")
             return
         try:
-            bgr = self._to_bgr(msg)
+            image = self._to_image(side, msg)
         except Exception as exc:
             self.drop(str(exc), f"{name} frame")
             return
@@ -274,27 +282,40 @@ class RectifyNode(CanopyNode):
             self._count_missed(stamp)
         if self.period_estimator is not None:
             self._follow_frame_rate(self.period_estimator.observe(side, stamp))
-        pair, dropped = self.pairer.push(side, stamp, bgr)
+        pair, dropped = self.pairer.push(side, stamp, image)
         self.drop_unpaired(dropped, ("left frame", "right frame"))
         if pair is not None:
             self.diagnostics.sample("pair offset ms", pair.skew_ns / 1e6)
-            self._publish(pair.stamps_ns[0], *self._compensate_skew(pair))
+            self._publish(pair.stamps_ns[0], self.rectifier.rectify_one(pair.items[0], "left"),
+                          self._rectified_right(pair))
 
-    def _compensate_skew(self, pair) -> tuple:
-        """The pair's raw images with the right one at the left image's instant (or as they
-        came, saying why), reported on ``/diagnostics``."""
-        left, right, rep = self.skew.compensate(*pair.items, stamp_left_ns=pair.stamps_ns[0],
-                                                stamp_right_ns=pair.stamps_ns[1])
+    def _rectified_right(self, pair) -> np.ndarray:
+        """The pair's right image (grey), rectified: at the left image's instant when the skew
+        compensation can (its shift composed into the rectification map: one interpolation),
+        else as it came, saying why; reported on ``/diagnostics``."""
+        t0 = time.perf_counter()
+        right = pair.items[1]
+        shift, rep = self.skew.measure(right, stamp_left_ns=pair.stamps_ns[0], stamp_right_ns=pair.stamps_ns[1])
+        if shift is None:
+            self._report_skew(rep)
+            return self.rectifier.rectify_one(right, "right")
+        rectified = shift.apply(right, coords=self.rectifier.coordinates("right"))
+        self._report_skew(replace(rep, cost_ms=1e3 * (time.perf_counter() - t0)))
+        return rectified
+
+    def _report_skew(self, rep) -> None:
+        """One pair's :class:`~canopy_stereo.skew.SkewReport` on ``/diagnostics`` (and a log
+        line once per reason it was not compensated)."""
         d = self.diagnostics
         d.sample("skew ms", rep.skew_ms)
         if rep.reason in ("off", "in step"):
-            return left, right
+            return
         d.sample("skew compensated %", 100.0 if rep.applied else 0.0)
         if rep.applied:
             d.sample("skew shift px", rep.shift_px)
             d.sample("skew compensation ms", rep.cost_ms)
             self.count("pairs_skew_compensated")
-            return left, right
+            return
         kind = rep.reason.split(":")[0].split(" (")[0]
         kind = "gap" if kind.startswith("gap of") else "skew longer than a frame" if "longer than" in kind else kind
         d.note(f"skew not compensated: {kind}")
@@ -302,20 +323,23 @@ class RectifyNode(CanopyNode):
             self._skew_reasons_logged.add(kind)
             self.get_logger().info(f"pair with {rep.skew_ms:.1f} ms skew not compensated: {rep.reason} "
                                    "(paired as it came)")
-        return left, right
 
     def _warm_up(self) -> None:
         """One pair of the rig's size through conversion and rectification, nothing published."""
         w, h = self.rig.image_size
         frame = np.random.default_rng(0).integers(0, 256, (h, w, 3), dtype=np.uint8)
-        bgr = msg_to_bgr(image_to_msg(frame, "bgr8", stamp_ns=1, frame_id=""), expected_size=(w, h))
-        left_r, right_r = self.rectifier.rectify(bgr, bgr)
+        msg = image_to_msg(frame, "bgr8", stamp_ns=1, frame_id="")
+        left_r = self.rectifier.rectify_one(self._to_image(0, msg), "left")
+        grey = self._to_image(1, msg)
         image_to_msg(left_r, "bgr8", stamp_ns=1, frame_id="")
-        image_to_msg(to_gray(right_r), "mono8", stamp_ns=1, frame_id="")
+        image_to_msg(to_gray(left_r), "mono8", stamp_ns=1, frame_id="")
+        image_to_msg(self.rectifier.rectify_one(grey, "right"), "mono8", stamp_ns=1, frame_id="")
         if self.skew.enabled:  # the optical flow's first call (its own compensator: no state kept)
             warm = SkewCompensator(flow_scale=self.skew.flow_scale, flow_preset=self.skew.flow_preset)
             for k in (1, 2):
-                warm.compensate(bgr, bgr, stamp_left_ns=k * 66_000_000, stamp_right_ns=k * 66_000_000 + 8_000_000)
+                shift, _ = warm.measure(grey, stamp_left_ns=k * 66_000_000, stamp_right_ns=k * 66_000_000 + 8_000_000)
+            if shift is not None:
+                shift.apply(grey, coords=self.rectifier.coordinates("right"))
 
     def _count_missed(self, stamp_ns: int) -> None:
         """Count the left frames missing between the previous left stamp and ``stamp_ns``."""
@@ -353,15 +377,15 @@ class RectifyNode(CanopyNode):
             self.get_logger().info(f"frame period {period_s * 1e3:.1f} ms measured from the stamps: "
                                    f"pairing tolerance {slop * 1e3:.1f} ms")
 
-    def _publish(self, stamp_ns: int, left_bgr, right_bgr) -> None:
-        left_r, right_r = self.rectifier.rectify(left_bgr, right_bgr)
+    def _publish(self, stamp_ns: int, left_r: np.ndarray, right_r: np.ndarray) -> None:
+        """Publish a rectified pair: ``left_r`` uint8 BGR, ``right_r`` uint8 grey (H, W)."""
         info_l, info_r = self.camera_infos(stamp_ns)
         self.pub_info_left.publish(info_l)
         self.pub_info_right.publish(info_r)
         fl, fr = self.message_frames
         self.pub_color.publish(image_to_msg(left_r, "bgr8", stamp_ns=stamp_ns, frame_id=fl))
         self.pub_left.publish(image_to_msg(to_gray(left_r), "mono8", stamp_ns=stamp_ns, frame_id=fl))
-        self.pub_right.publish(image_to_msg(to_gray(right_r), "mono8", stamp_ns=stamp_ns, frame_id=fr))
+        self.pub_right.publish(image_to_msg(right_r, "mono8", stamp_ns=stamp_ns, frame_id=fr))
         self.count("pairs_published")
 
 
