@@ -17,10 +17,10 @@ multiplies the compile time of a cold cache.
 automatic budget (:data:`AUTO_THREADS`, ``disparity_node``'s default) runs frames up to
 :data:`ONE_THREAD_MAX_PIXELS` (640x480-class) on one thread and larger ones (1280x720)
 on every core. Measured on this 2-vCPU machine (loaded): a second thread makes a frame's
-CPU time 13 % (640x480) to 30-50 % (1280x720) larger (the two vCPUs share a core), so at
+CPU time 5-13 % (640x480) to 20-50 % (1280x720) larger (the two vCPUs share a core), so at
 640x480, where the 4-process graph keeps both cores busy, it only takes CPU from the other
-nodes; at 1280x720 the graph leaves the second core partly idle and a second thread cuts
-ELAS's wall time by 25-35 %.
+nodes; at 1280x720, where the graph leaves the second core partly idle, it cut ELAS's wall
+time from 128 to 102 ms (fastest of 10 frames, load 2.5; nothing under a load of 10-15).
 """
 from __future__ import annotations
 

@@ -32,12 +32,14 @@ class Rectification:
         size: ``(width, height)`` of the rectified images (pixels).
         method: ``"fusiello"`` or ``"hartley"``.
         K_rect_left, K_rect_right: (3, 3) intrinsics of the rectified cameras
-            (Fusiello only; equal: one focal length and one principal point).
+            (Fusiello only; one focal length and, but for a pair that was rectified
+            already, one principal point).
         R_rect: (3, 3) world-to-rectified-camera rotation shared by both cameras.
         P_rect_left, P_rect_right: (3, 4) world -> rectified pixel (Fusiello only).
         baseline: distance between the camera centres (world units; Fusiello only).
         doffs: ``cx_left - cx_right`` of the rectified cameras (pixels): the
-            disparity of a point at infinity (0 for :func:`fusiello_rectify`).
+            disparity of a point at infinity (0 for :func:`fusiello_rectify`, but for a
+            pair that was rectified already).
         disparity_range: suggested ``(disp_min, disp_max)`` search range in pixels
             (Hartley: from the matches; Fusiello: None, see :func:`default_disparity_range`).
         F: fundamental matrix used (Hartley), ``x_right^T F x_left = 0``.
@@ -95,8 +97,13 @@ def fusiello_rectify(P_left, P_right, image_size) -> Rectification:
     right camera's centring point lies left of the left's, ``cx_l >= cx_r``) no
     match is lost by this: what leaves the right image at its far side could never
     be matched by a left pixel. If the right camera's point lies further right
-    (diverging principal points, e.g. Middlebury's pre-rectified pairs) both
-    take the mean, so the two images share the loss of view.
+    (diverging principal points) both take the mean, so the two images share
+    the loss of view; except for a pair that is already rectified (one
+    orientation, the baseline along its x axis, the same ``fx``, ``fy``, ``cy``
+    and no skew: Middlebury's pairs, whose ``calib.txt`` gives ``doffs``): it
+    keeps its images and both principal points (identity homographies,
+    ``doffs = cx_left - cx_right``, negative), as image_geometry reads such a
+    ``CameraInfo`` pair, so nothing of either image is cut or resampled.
 
     Args:
         P_left, P_right: (3, 4) world-frame projection matrices.
@@ -128,6 +135,8 @@ def fusiello_rectify(P_left, P_right, image_size) -> Rectification:
             raise RigError("a camera looks away from the rectified viewing direction")
         cx.append(centre[0] - f * ray[0] / ray[2])
         cy.append(centre[1] - f * ray[1] / ray[2])
+    if cx[0] < cx[1] and _already_rectified(cam1, cam2, x_axis):
+        return _kept_pair(cam1, cam2, B, (w, h), (float(cx[0]), float(cx[1])))
     cx_common = float(cx[0]) if cx[0] >= cx[1] else float(np.mean(cx))
     cy_common = float(np.mean(cy))
     K_new = np.array([[f, 0, cx_common], [0, f, cy_common], [0, 0, 1.0]])
@@ -138,6 +147,29 @@ def fusiello_rectify(P_left, P_right, image_size) -> Rectification:
         K_rect_left=K_new, K_rect_right=K_new.copy(), R_rect=R,
         P_rect_left=compose_projection(K_new, R, cam1.C), P_rect_right=compose_projection(K_new, R, cam2.C),
         baseline=B, doffs=0.0, extra={"centring_cx": (float(cx[0]), float(cx[1]))})
+
+
+def _already_rectified(cam1, cam2, x_axis, *, tol: float = 1e-9) -> bool:
+    """Whether two decomposed cameras form a rectified pair already: one orientation, the
+    baseline along its x axis, equal ``fx``, ``fy``, ``cy`` (within ``tol`` relative) and no
+    skew; only ``cx`` may differ."""
+    K1, K2 = cam1.K, cam2.K
+    f = max(abs(K1[0, 0]), 1.0)
+    return bool(np.allclose(cam1.R, cam2.R, atol=tol) and np.allclose(x_axis, cam1.R[0], atol=1e-6)
+                and abs(K1[0, 1]) <= tol * f and abs(K2[0, 1]) <= tol * f
+                and all(abs(K1[i, j] - K2[i, j]) <= tol * f for i, j in ((0, 0), (1, 1), (1, 2))))
+
+
+def _kept_pair(cam1, cam2, baseline: float, size, centring_cx) -> Rectification:
+    """The :class:`Rectification` of a pair that is rectified already: identity homographies,
+    each camera its own ``K`` (``doffs = cx_left - cx_right``)."""
+    K1, K2 = cam1.K / cam1.K[2, 2], cam2.K / cam2.K[2, 2]
+    eye = np.eye(3)
+    return Rectification(
+        H_left=eye, H_right=eye.copy(), size=size, method="fusiello", K_rect_left=K1, K_rect_right=K2,
+        R_rect=cam1.R, P_rect_left=compose_projection(K1, cam1.R, cam1.C),
+        P_rect_right=compose_projection(K2, cam1.R, cam2.C), baseline=baseline,
+        doffs=float(K1[0, 2] - K2[0, 2]), extra={"centring_cx": centring_cx, "already_rectified": True})
 
 
 def default_disparity_range(rect: Rectification, near_depth: float | None = None,

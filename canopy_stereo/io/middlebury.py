@@ -59,8 +59,7 @@ def rig_from_middlebury(calib: dict | str | Path) -> Rig:
 
     ``P_left = K0 [I | 0]`` and ``P_right = K1 [I | (-baseline, 0, 0)]``. When
     ``calib`` has ``ndisp``, the rig carries the search range ``disp_min``/
-    ``disp_max`` for the Fusiello-rectified pair, where disparities are
-    ``f B / Z = d + doffs`` (the rectified cameras share ``cx``).
+    ``disp_max`` for the Fusiello-rectified pair (:func:`middlebury_disparity_range`).
     """
     if not isinstance(calib, dict):
         calib = read_middlebury_calib(calib)
@@ -74,12 +73,21 @@ def rig_from_middlebury(calib: dict | str | Path) -> Rig:
 
 def middlebury_disparity_range(calib: dict) -> dict:
     """``{"disp_min", "disp_max"}`` (pixels) of the Fusiello-rectified pair for a parsed
-    ``calib.txt`` with ``ndisp`` (disparities ``f B / Z = d + doffs``), else ``{}``."""
+    ``calib.txt`` with ``ndisp``, else ``{}``. A Middlebury pair is rectified already: when its
+    principal points diverge (``doffs = cx1 - cx0 > 0``, as in every 2014 scene) the
+    rectification keeps it and the disparities are Middlebury's ``d`` in ``[0, ndisp)``;
+    otherwise they are ``d + doffs`` (one principal point)."""
     if "ndisp" not in calib:
         return {}
-    doffs = float(calib["doffs"])
-    return {"disp_min": max(0, int(np.floor(doffs)) - 1),
-            "disp_max": int(np.ceil(doffs + float(calib["ndisp"]))) + 1}
+    from canopy_stereo.geometry.rectification import fusiello_rectify
+
+    K0, K1, B = calib["cam0"], calib["cam1"], float(calib["baseline"])
+    P0 = K0 @ np.hstack([np.eye(3), np.zeros((3, 1))])
+    P1 = K1 @ np.hstack([np.eye(3), np.array([[-B], [0.0], [0.0]])])
+    rect = fusiello_rectify(P0, P1, (int(calib["width"]), int(calib["height"])))
+    shift = float(K1[0, 2] - K0[0, 2]) + rect.doffs
+    return {"disp_min": max(0, int(np.floor(shift)) - 1),
+            "disp_max": int(np.ceil(shift + float(calib["ndisp"]))) + 1}
 
 
 def read_disparity(path, scale: float | None = None) -> np.ndarray:

@@ -197,9 +197,9 @@ def make_plants(bag_path, rig_path, scene_folder) -> tuple[Path, Path]:
     calib = read_middlebury_calib(folder / "calib.txt")
     rig = rig_from_middlebury(calib)
     rect = fusiello_rectify(rig.P_left, rig.P_right, rig.image_size)
-    # The images are already rectified; our rectification only moves the principal
-    # points, so Middlebury disparities d_mb in [0, ndisp) become
-    # d_mb + (cx1 - cx0) + (cx0' - cx1') with ' the rectified cameras.
+    # The images are already rectified, with diverging principal points: the rectification
+    # keeps them (identity homographies, doffs = cx0 - cx1), so Middlebury disparities
+    # d_mb in [0, ndisp) stay d_mb + (cx1 - cx0) + (cx0' - cx1') = d_mb (' rectified).
     shift = float(calib["cam1"][0, 2] - calib["cam0"][0, 2]) + rect.doffs
     ndisp = int(calib.get("ndisp", 128))
     dmin, dmax = max(0, int(np.floor(shift)) - 1), int(np.ceil(shift + ndisp)) + 1
@@ -210,7 +210,8 @@ def make_plants(bag_path, rig_path, scene_folder) -> tuple[Path, Path]:
         'Middlebury 2014 "Plants" (MiddEval3 test, quarter size; Scharstein et al., GCPR 2014).\n'
         f"World frame = left camera (cam0), millimetres; from calib.txt (baseline {calib['baseline']:g} mm, "
         f"doffs {calib.get('doffs', 0.0):g} px, ndisp {ndisp}).\n"
-        "disp_min/disp_max: search range for the Fusiello-rectified pair (d + doffs)."))
+        "The pair is rectified already and kept as it is (doffs = cx_left - cx_right); "
+        "disp_min/disp_max: Middlebury's d range."))
     return Path(bag_path), Path(rig_path)
 
 

@@ -13,12 +13,14 @@ import numpy as np
 from canopy_stereo.measure.plant import PlantMeasurement, measure_plant
 
 
-def rectified_disparity(frame) -> np.ndarray:
+def rectified_disparity(frame, *, doffs: float = 0.0) -> np.ndarray:
     """``u_left - u_right`` (float32 pixels, -1 = none) of a
-    :class:`~canopy_stereo.ros.convert.DisparityFrame` from the package's graph: its
-    rectifications give both rectified cameras one principal point, so the message's
-    values need no offset."""
-    return np.where(np.isfinite(frame.disparity), frame.disparity, np.float32(-1)).astype(np.float32)
+    :class:`~canopy_stereo.ros.convert.DisparityFrame`: the message's values (``f t / Z``,
+    reduced by the rectified cameras' ``doffs = cx_left - cx_right``, as ``disparity_node``
+    publishes them) plus ``doffs`` (0 but for a pair that was rectified already, e.g.
+    Middlebury's, whose rectification keeps both principal points)."""
+    d = frame.disparity + np.float32(doffs)
+    return np.where(np.isfinite(d), d, np.float32(-1)).astype(np.float32)
 
 
 def measure_graph_frame(left_bgr, frame, rig, *, mask_rect=None, **options) -> PlantMeasurement:
@@ -34,7 +36,7 @@ def measure_graph_frame(left_bgr, frame, rig, *, mask_rect=None, **options) -> P
     from canopy_stereo.measure.plant import mask_on_original
 
     rect = rectification_for_rig(rig)
-    disparity = rectified_disparity(frame)
+    disparity = rectified_disparity(frame, doffs=rect.doffs)
     if left_bgr is None and mask_rect is not None and "mask" not in options:
         options["mask"] = mask_on_original(mask_rect, disparity, rig, rect)
     return measure_plant(left_bgr, disparity, rig, rectification=rect, **options)

@@ -60,7 +60,9 @@ class PlantSegmenterSettings:
 
     Attributes:
         scale: processing scale in (0, 1] (the image and the depth cue are resampled to
-            it; the mask is resized back).
+            it; the mask is resized back); None: :func:`processing_scale` of the image
+            (half size from 640 pixels wide up, full size at 320: the cues' windows and
+            sizes are meant for about 320 pixels across).
         noise: depth-cue noise in inverse-depth units (disparity pixels; for clouds and
             depth maps the median point reads as 50): planes take pixels within 2.5 x,
             rough means a local plane misses by more than 1.5 x.
@@ -78,10 +80,12 @@ class PlantSegmenterSettings:
             stand on the ground plane (for scenes whose table has no depth).
         colour_space: ``"lab"`` or ``"bgr"``: the colours the learned models see.
         cap_fraction: height of the band above a solid (its soil), as a fraction of its width.
+        rim_fraction: height of the band just above a solid (its rim) that is background unless
+            the shape cue is sure a plant stands out there, as a fraction of its width.
         use_colour: learn colour models from the shape cue and cut with them.
     """
 
-    scale: float = 0.5
+    scale: float | None = None
     noise: float = 0.5
     window: int = 4
     max_missing: float = 0.25
@@ -92,6 +96,7 @@ class PlantSegmenterSettings:
     ungrounded_solids: bool = False
     colour_space: str = "lab"
     cap_fraction: float = 0.15
+    rim_fraction: float = 0.06
     use_colour: bool = True
 
     def replace(self, **changes) -> PlantSegmenterSettings:
@@ -125,6 +130,12 @@ class PlantSegmentation:
         return len(self.plants)
 
 
+def processing_scale(width: int) -> float:
+    """The default processing scale of an image ``width`` pixels wide: about 320 pixels
+    across, at least half size, at most full size (0.5 from 640 pixels up, 1.0 at 320)."""
+    return float(min(1.0, max(0.5, 320.0 / max(1, int(width)))))
+
+
 def _resize_map(arr: np.ndarray, size) -> np.ndarray:
     if (arr.shape[1], arr.shape[0]) == tuple(size):
         return arr
@@ -140,7 +151,8 @@ def shape_seed(q: np.ndarray, image_bgr: np.ndarray, *,
     smooth in depth and plain in texture that stand on the ground) with the parts
     attached to them without a depth jump (handles, spouts, rims); probable background:
     the rest of the planes, pixels without depth and the band above each solid (the soil
-    in a pot); sure plant: textured pixels off the planes away from solids; probable
+    in a pot), whose lowest part (the rim) is sure background where the shape cue is not
+    sure a plant stands out; sure plant: textured pixels off the planes away from solids; probable
     plant: other pixels off the planes.
     """
     h, w = q.shape
@@ -192,6 +204,9 @@ def shape_seed(q: np.ndarray, image_bgr: np.ndarray, *,
     labels[evidence & textured & ~edges] = GC_FGD
     labels[on_plane & ~rough & ~cv2.dilate(objects.astype(np.uint8), k).astype(bool)] = GC_BGD
     labels[solids] = GC_BGD
+    # the band just above a solid is its rim (the part of a pot the smooth region misses):
+    # background, unless the shape cue is sure something stands out there (a stem)
+    labels[caps(solids, fraction=settings.rim_fraction) & ~solids_grown & ~evidence] = GC_BGD
     cues = {"planes": on_plane, "ground": ground, "solids": solids_grown, "rough": rough,
             "textured": textured, "plain": plain & ~solids_grown, "caps": cap, "evidence": evidence, "q": q}
     return labels, cues
@@ -221,10 +236,11 @@ def segment_plants(image_bgr, *, disparity=None, points=None, depth=None, camera
             a = np.asarray(arr)
             raise ImageError(f"the {name} is {a.shape[1] if a.ndim > 1 else '?'}x{a.shape[0]} but the "
                              f"image is {w}x{h}; it must be registered to the image")
-    if not 0 < settings.scale <= 1:
+    scale = processing_scale(w) if settings.scale is None else float(settings.scale)
+    if not 0 < scale <= 1:
         raise CanopyStereoError(f"scale must be in (0, 1], got {settings.scale}")
     q_full = inverse_depth(disparity=disparity, points=points, depth=depth, camera=camera)
-    size = (max(16, round(w * settings.scale)), max(16, round(h * settings.scale)))
+    size = (max(16, round(w * scale)), max(16, round(h * scale)))
     small = img if size == (w, h) else cv2.resize(img, size, interpolation=cv2.INTER_AREA)
     q = _resize_map(q_full, size)
     if disparity is not None:
@@ -312,6 +328,25 @@ def _drop_small_and_sticks(mask: np.ndarray, settings: PlantSegmenterSettings) -
     return keep[lab]
 
 
+def _region_medians(lab: np.ndarray, n: int, q: np.ndarray | None) -> np.ndarray:
+    """(n,) median of the finite ``q`` of each label 1..n-1 of ``lab`` (NaN: none or no ``q``)."""
+    qs = np.full(n, np.nan)
+    if q is None:
+        return qs
+    ok = (lab > 0) & np.isfinite(q)
+    labels, values = lab[ok], np.asarray(q, np.float64)[ok]
+    order = np.lexsort((values, labels))
+    labels, values = labels[order], values[order]
+    starts = np.searchsorted(labels, np.arange(n))
+    stops = np.searchsorted(labels, np.arange(n), side="right")
+    for i in range(1, n):
+        a, b = starts[i], stops[i]
+        if b > a:
+            mid = (a + b - 1) / 2.0
+            qs[i] = 0.5 * (values[int(np.floor(mid))] + values[int(np.ceil(mid))])
+    return qs
+
+
 def plant_instances(mask: np.ndarray, q: np.ndarray | None = None, *, join_px: int | None = None):
     """Plants of a mask: ``(instances (H, W) int32, plants list)``.
 
@@ -324,7 +359,7 @@ def plant_instances(mask: np.ndarray, q: np.ndarray | None = None, *, join_px: i
     h, w = m.shape
     if join_px is None:
         join_px = max(2, int(0.02 * np.hypot(h, w)))
-    n, lab = cv2.connectedComponents(m.astype(np.uint8), connectivity=8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(m.astype(np.uint8), connectivity=8)
     parent = list(range(n))
 
     def find(i):
@@ -334,15 +369,17 @@ def plant_instances(mask: np.ndarray, q: np.ndarray | None = None, *, join_px: i
         return i
 
     if n > 2:
-        qs = np.full(n, np.nan)
-        if q is not None:
-            for i in range(1, n):
-                vals = q[(lab == i) & np.isfinite(q)]
-                qs[i] = np.median(vals) if len(vals) else np.nan
+        qs = _region_medians(lab, n, q)
         k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * join_px + 1, 2 * join_px + 1))
         for i in range(1, n):
-            grown = cv2.dilate((lab == i).astype(np.uint8), k).astype(bool)
-            for j in np.unique(lab[grown & m]):
+            # the region grown by join_px, within its box widened by join_px (the same pixels
+            # as growing it on the whole image)
+            x, y, bw, bh = (int(v) for v in stats[i, :4])
+            x0, y0 = max(0, x - join_px), max(0, y - join_px)
+            x1, y1 = min(w, x + bw + join_px), min(h, y + bh + join_px)
+            crop = lab[y0:y1, x0:x1]
+            grown = cv2.dilate((crop == i).astype(np.uint8), k).astype(bool)
+            for j in np.unique(crop[grown & m[y0:y1, x0:x1]]):
                 if j <= i:
                     continue
                 same_depth = (not np.isfinite(qs[i]) or not np.isfinite(qs[j])
@@ -350,19 +387,28 @@ def plant_instances(mask: np.ndarray, q: np.ndarray | None = None, *, join_px: i
                 if same_depth:
                     parent[find(j)] = find(i)
     roots = np.array([find(i) for i in range(n)])
-    groups = [g for g in np.unique(roots[1:])] if n > 1 else []
-    plants = []
+    groups = np.unique(roots[1:]) if n > 1 else np.zeros(0, np.int64)
+    plants: list[dict] = []
     inst = np.zeros((h, w), np.int32)
-    info = []
-    for g in groups:
-        sel = np.isin(lab, np.flatnonzero(roots == g)) & m
-        vs, us = np.nonzero(sel)
-        info.append((float(us.mean()), float(vs.mean()), sel, us, vs))
-    info.sort(key=lambda t: (t[0], t[1]))
-    for k_, (cu, cv, sel, us, vs) in enumerate(info, start=1):
-        inst[sel] = k_
-        plants.append({"plant_index": k_, "pixels": int(sel.sum()),
-                       "bbox": [int(us.min()), int(vs.min()), int(us.max() - us.min() + 1),
-                                int(vs.max() - vs.min() + 1)],
-                       "centroid_px": [cu, cv]})
+    if not len(groups):
+        return inst, plants
+    compact = np.zeros(n, np.int64)
+    compact[groups] = np.arange(1, len(groups) + 1)
+    g = compact[roots][lab]  # 0 = not plant, 1..G in the order of ``groups``
+    vs, us = np.mgrid[0:h, 0:w]
+    counts = np.bincount(g.ravel(), minlength=len(groups) + 1)
+    cus = np.bincount(g.ravel(), weights=us.ravel(), minlength=len(groups) + 1) / np.maximum(counts, 1)
+    cvs = np.bincount(g.ravel(), weights=vs.ravel(), minlength=len(groups) + 1) / np.maximum(counts, 1)
+    order = sorted(range(1, len(groups) + 1), key=lambda t: (cus[t], cvs[t]))
+    renumber = np.zeros(len(groups) + 1, np.int32)
+    renumber[order] = np.arange(1, len(order) + 1)
+    inst = renumber[g]
+    from scipy import ndimage
+
+    boxes = ndimage.find_objects(g)
+    for k_, t in enumerate(order, start=1):
+        sv, su = boxes[t - 1]
+        plants.append({"plant_index": k_, "pixels": int(counts[t]),
+                       "bbox": [int(su.start), int(sv.start), int(su.stop - su.start), int(sv.stop - sv.start)],
+                       "centroid_px": [float(cus[t]), float(cvs[t])]})
     return inst, plants

@@ -111,7 +111,9 @@ def fit_planes(q: np.ndarray, *, tolerance: float, min_fraction: float = 0.06, m
     image (a plane through scattered leaves is not a surface), and little of the scene
     may lie behind it (at most 10 % of its inliers' count more than 3 tolerances
     behind): backdrops, walls, floors and tables bound the scene, a plane through
-    the objects in front of them does not.
+    the objects in front of them does not. Hypotheses with more of the scene behind
+    them are not scored (so a plane through the objects cannot win the draw and take
+    the pixels of the wall behind them with it).
 
     Args:
         q: (H, W) inverse depth (NaN = unknown).
@@ -147,8 +149,9 @@ def fit_planes(q: np.ndarray, *, tolerance: float, min_fraction: float = 0.06, m
                 coeffs = np.linalg.solve(A[pick], b[pick])
             except np.linalg.LinAlgError:
                 continue
-            count = int(np.sum(np.abs(A @ coeffs - b) < tolerance))
-            if count > best_count:
+            off = b - A @ coeffs
+            count = int(np.sum(np.abs(off) < tolerance))
+            if count > best_count and np.sum(off < -3 * tolerance) <= 0.1 * count:
                 best, best_count = coeffs, count
         if best is None:
             break
@@ -177,8 +180,10 @@ def fit_ground(q: np.ndarray, free: np.ndarray, *, tolerance: float, iterations:
     ``free`` pixels of the lower 40 % of the image, when :func:`fit_planes` found none.
 
     Hypotheses are drawn from three pixels anywhere in that band (a table seen in pieces
-    between pots holds together), only planes seen from above are scored, and the
-    inliers must cover at least 2 % of the valid pixels in regions of 0.5 % of the image.
+    between pots holds together), only planes seen from above with little of the band
+    behind them (at most 10 % of their inliers' count more than 3 tolerances behind: the
+    objects stand on the ground, a slanted plane through their fronts has the table
+    behind it) are scored, and the inliers must cover at least 2 % of the valid pixels in regions of 0.5 % of the image.
     """
     h, w = q.shape
     v, u = np.mgrid[0:h, 0:w]
@@ -201,8 +206,9 @@ def fit_ground(q: np.ndarray, free: np.ndarray, *, tolerance: float, iterations:
             continue
         if not coeffs[1] * h > 0.3 * qmed:
             continue
-        count = int(np.sum(np.abs(A @ coeffs - b) < tolerance))
-        if count > best_count:
+        off = b - A @ coeffs
+        count = int(np.sum(np.abs(off) < tolerance))
+        if count > best_count and np.sum(off < -3 * tolerance) <= 0.1 * count:
             best, best_count = coeffs, count
     if best is None:
         return None
