@@ -23,7 +23,7 @@ more). Rows are cropped alike in both images (rectified: matches lie on the same
 the crop extends :data:`BORDER` pixels beyond the kept box, where ELAS leaves its border.
 ELAS on a crop is not bit-identical to ELAS on the frame (support points near the crop's edge,
 the Delaunay mesh over them and the gap interpolation see less of the image): with every
-corner and the shift on :data:`ALIGN`, 80-97 % of the plant pixels get the same disparity and
+corner and the shift on :data:`ALIGN`, 72-97 % of the plant pixels get the same disparity and
 more than 99.9 % agree within 1 px (``test/disparity/test_roi.py``, ``benchmarks/bench_roi.py``).
 
 All coordinates are rectified pixels; boxes are half-open ``(x0, y0, x1, y1)``.

@@ -117,6 +117,7 @@ class MaskPropagator:
         self.recut_every = int(recut_every)
         self.propagate_scale = float(propagate_scale)
         self._seed_settings = settings.replace(scale=self.propagate_scale, colour_model=False)
+        self._small_seed_settings = self._seed_settings.replace(scale=1.0)
         self.full_cuts = 0
         self.propagated = 0
         self.reset()
@@ -142,7 +143,10 @@ class MaskPropagator:
         if self._models is None or self._since_full >= self.recut_every:
             return self._full(bgr, small, disparity)
         # the frame's own seed at propagate_scale (the models are the propagated ones: none learned)
-        seed = seed_labels(bgr, self._seed_settings, disparity=disparity, rect=self.rect)
+        if disparity is None and self.rect is None:  # the same seed from the frame already downscaled
+            seed = seed_labels(small, self._small_seed_settings)
+        else:
+            seed = seed_labels(bgr, self._seed_settings, disparity=disparity, rect=self.rect)
         plant = labels_to_mask(grabcut_with_models(small, seed, *self._models))
         share = float(np.count_nonzero(plant)) / plant.size
         if share == 0 or abs(share - self._full_area) > MAX_AREA_CHANGE * self._full_area:
@@ -164,6 +168,7 @@ class MaskPropagator:
         self.scale = self.settings.scale
         self.propagate_scale = capped_scale(propagate_scale, size, max_pixels=self.max_pixels)
         self._seed_settings = self.settings.replace(scale=self.propagate_scale, colour_model=False)
+        self._small_seed_settings = self._seed_settings.replace(scale=1.0)
         self._size = size
         self.reset()
 

@@ -160,7 +160,11 @@ def test_run_keeps_recorded_timing(croton, tmp_path):
         for m in BagReader(src).messages():
             w.write(m.topic.replace("/stereo/", "/cam/"), m.data, m.log_time_ns,
                     publish_time_ns=m.publish_time_ns, msg_type=m.type_name)
-    options = GraphOptions(matcher="sgbm", segment=False, parameter_services=False)
+    # pairs 100 ms apart: on a loaded machine SGBM may still be busy when the next one comes, and the
+    # camera default (one waiting pair, newest wins) would drop one as superseded; this test is about
+    # the player's timing and remapping, so disparity_node keeps every pair waiting
+    options = GraphOptions(matcher="sgbm", segment=False, parameter_services=False,
+                           node_parameters={"disparity_node": {"waiting_pairs": 4}})
     result = run_bag(remapped, rig, rate=2.0, options=options, remap={
         "/cam/left/image_raw": "/stereo/left/image_raw", "/cam/right/image_raw": "/stereo/right/image_raw"})
     assert result.frames_out == 4
