@@ -231,7 +231,11 @@ def reconstruct_pair(left_bgr, right_bgr, rig, *, method: str | None = None, mat
     timings["rectification"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    left_r, right_r = cached_rectifier(rig, rect).rectify(left, right)
+    rectifier = cached_rectifier(rig, rect)
+    left_r, right_r = rectifier.rectify(left, right)
+    # the matcher's right image as rectify_node makes it: grey first, then one remap (the grey of
+    # the rectified colour image differs by rounding, and ELAS would see a different pair)
+    right_grey_r = rectifier.rectify_one(to_gray(right), "right")
     timings["warp"] = time.perf_counter() - t
 
     dmin, dmax = disparity_range_for(rig, rect, disp_min=disp_min, disp_max=disp_max, near_m=near_m, far_m=far_m)
@@ -246,7 +250,7 @@ def reconstruct_pair(left_bgr, right_bgr, rig, *, method: str | None = None, mat
         timings["order check"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    disp = compute_disparity(to_gray(left_r), to_gray(right_r), matcher=matcher, disp_min=dmin,
+    disp = compute_disparity(to_gray(left_r), right_grey_r, matcher=matcher, disp_min=dmin,
                              disp_max=dmax, **rig_matcher_params(rig, matcher, given=matcher_params))
     timings["disparity"] = time.perf_counter() - t
     from canopy_stereo.disparity.checks import range_limit_warning

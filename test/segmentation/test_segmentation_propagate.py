@@ -2,6 +2,7 @@
 full GrabCut of every frame (segment_plant), on the bundled scenes."""
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -89,6 +90,9 @@ def test_a_lost_plant_is_cut_in_full_again():
 def test_rectangle_seed_and_bad_settings():
     left = bundled_lefts("croton")[0]
     rect = (150, 60, 340, 380)
+    # GrabCut's k-means++ start draws from OpenCV's per-thread generator: fix its state, or the
+    # result depends on what ran before in this process (IoU 0.89-0.95 here, 0.76 in one full run)
+    cv2.setRNGSeed(0)
     prop = MaskPropagator(rect=rect, recut_every=5)
     first, second = prop(left), prop(left)
     # a rectangle says nothing about colours: the propagated cut rests on the models alone and
