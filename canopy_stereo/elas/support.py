@@ -77,9 +77,14 @@ def _lowest_two_scalar(flat_own, flat_other, a, sign, dmin, dmax):
     """``(best, second, best_d)`` of the costs at ``d = dmin..dmax``: the lowest cost, the
     second lowest (of the multiset of costs) and the first ``d`` with the lowest cost, one
     64-byte SAD at a time (branch-free: a new best pushes the old one to second)."""
-    best_e = np.int64(2147483647)
-    second_e = np.int64(2147483647)
-    best_d = -1
+    return _fold_lowest_two(flat_own, flat_other, a, sign, dmin, dmax, np.int64(2147483647),
+                            np.int64(2147483647), -1)
+
+
+@njit(cache=True, inline="always")
+def _fold_lowest_two(flat_own, flat_other, a, sign, dmin, dmax, best_e, second_e, best_d):
+    """``(best, second, best_d)`` carried on over ``d = dmin..dmax``, one 64-byte SAD at a
+    time (branch-free: a new best pushes the old one to second)."""
     for d in range(dmin, dmax + 1):
         e = np.int64(sad64(flat_own, a, flat_other, a - sign * d * SUPPORT_BYTES))
         lower = e < best_e
@@ -112,13 +117,8 @@ def _lowest_two_vector(flat_own, flat_other, a, sign, dmin, dmax):
     for k in range(SUPPORT_LANES):
         second_e = min(second_e, r[SUPPORT_LANES + k])
     best_d = dmin + best_j if best_j >= 0 else -1
-    for d in range(dmin + groups * SUPPORT_LANES, dmax + 1):
-        e = np.int64(sad64(flat_own, a, flat_other, a - sign * d * SUPPORT_BYTES))
-        lower = e < best_e
-        second_e = best_e if lower else min(e, second_e)
-        best_d = d if lower else best_d
-        best_e = e if lower else best_e
-    return best_e, second_e, best_d
+    return _fold_lowest_two(flat_own, flat_other, a, sign, dmin + groups * SUPPORT_LANES, dmax,
+                            best_e, second_e, best_d)
 
 
 #: The lowest-two search compiled here: eight disparities per vector with AVX-512BW.
