@@ -237,6 +237,36 @@ def test_support_candidates_are_exact_on_random_images(rng):
     assert (ref == 7).sum() > 10
 
 
+def reference_remove_inconsistent(grid, window, threshold, min_support):
+    grid = grid.copy()
+    rows, cols = grid.shape
+    for j in range(cols):
+        for i in range(rows):
+            d = grid[i, j]
+            if d < 0:
+                continue
+            near = grid[max(i - window, 0):i + window + 1, max(j - window, 0):j + window + 1]
+            if ((near >= 0) & (np.abs(near - d) <= threshold)).sum() < min_support:
+                grid[i, j] = -1
+    return grid
+
+
+def test_inconsistent_support_removal_is_exact(rng, plants):
+    """The filter updates in place (columns outer, rows inner): later points see the
+    earlier removals; the count may stop early, the result may not change."""
+    p = plants["params"]
+    real = support.candidate_grid(*plants["desc"], *plants["tex"], p.candidate_stepsize,
+                                  p.disp_min, p.disp_max, p.support_texture,
+                                  p.support_threshold, p.lr_threshold)
+    noisy = rng.integers(0, 30, (40, 50)).astype(np.int32)
+    noisy[rng.random(noisy.shape) < 0.4] = -1
+    for grid, args in ((real, (5, 5, 5)), (noisy, (5, 5, 5)), (noisy, (2, 3, 4))):
+        ref = reference_remove_inconsistent(grid, *args)
+        got = support.remove_inconsistent(grid.copy(), *args)
+        assert same_bits(got, ref)
+        assert (ref < 0).sum() > (grid < 0).sum() and (ref >= 0).any()
+
+
 # ------------------------------------------------------------------- the whole run
 def _runs_with_one_and_two_threads(left, right, p):
     import numba
