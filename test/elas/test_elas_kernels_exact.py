@@ -260,11 +260,11 @@ def test_inconsistent_support_removal_is_exact(rng, plants):
                                   p.support_threshold, p.lr_threshold)
     noisy = rng.integers(0, 30, (40, 50)).astype(np.int32)
     noisy[rng.random(noisy.shape) < 0.4] = -1
-    for grid, args in ((real, (5, 5, 5)), (noisy, (5, 5, 5)), (noisy, (2, 3, 4))):
-        ref = reference_remove_inconsistent(grid, *args)
-        got = support.remove_inconsistent(grid.copy(), *args)
+    for cells, args in ((real, (5, 5, 5)), (noisy, (5, 5, 5)), (noisy, (2, 3, 4))):
+        ref = reference_remove_inconsistent(cells, *args)
+        got = support.remove_inconsistent(cells.copy(), *args)
         assert same_bits(got, ref)
-        assert (ref < 0).sum() > (grid < 0).sum() and (ref >= 0).any()
+        assert (ref < 0).sum() > (cells < 0).sum() and (ref >= 0).any()
 
 
 # ------------------------------------------------------------------- the whole run
