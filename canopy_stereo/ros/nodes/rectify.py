@@ -58,8 +58,8 @@ instant (the pair's stamp) along the right camera's own motion between its previ
 and current frame (:class:`~canopy_stereo.skew.SkewCompensator`); the shift is composed
 into the right camera's rectification map, so the right image (grey from the start: its
 only output is mono) is resampled once. ``/diagnostics`` reports ``skew ms`` (right minus left stamp),
-``skew compensated %`` (share of the pairs that needed it: a still scene needs none), ``skew shift px`` and ``skew compensation ms``
-(the time it adds), and ``skew not compensated: <reason>`` (first frame, a cut, too
+``skew compensated %`` (share of the pairs that needed it: a still scene needs none),
+``skew shift px`` and ``skew compensation ms`` (the time it adds), and ``skew not compensated: <reason>`` (first frame, a cut, too
 little texture, ...; those pairs go on as they came, logged once per reason).
 
 Stamps that go back further than the pairing tolerance (a looping bag, a
