@@ -59,8 +59,9 @@ and current frame (:class:`~canopy_stereo.skew.SkewCompensator`); the shift is c
 into the right camera's rectification map, so the right image (grey from the start: its
 only output is mono) is resampled once. ``/diagnostics`` reports ``skew ms`` (right minus left stamp),
 ``skew compensated %`` (share of the pairs that needed it: a still scene needs none),
-``skew shift px`` and ``skew compensation ms`` (the time it adds), and ``skew not compensated: <reason>`` (first frame, a cut, too
-little texture, ...; those pairs go on as they came, logged once per reason).
+``skew shift px`` and ``skew compensation ms`` (the time it adds), and ``skew not compensated:
+<reason>`` (first frame, a cut, too little texture, ...; those pairs go on as they came, logged
+once per reason).
 
 Stamps that go back further than the pairing tolerance (a looping bag, a
 restarted driver) reset the pairing with one log line; pairing goes on.
