@@ -10,6 +10,7 @@ import numpy as np
 from numba import njit
 
 from canopy_stereo.elas.parallel import run_row_bands
+from canopy_stereo.elas.simd import LR_LANES, lr_keep8
 
 INVALID = np.float32(-1.0)
 #: Gap interpolation: ends closer than this are averaged, else the smaller one is used.
@@ -39,11 +40,14 @@ def _lr_check(d_left, d_right, threshold, step, want_right, out_l, out_r, row_st
     ``out_l`` and, with ``want_right``, ``out_r``."""
     w = d_left.shape[1]
     inv_step = 1.0 / step
+    vector_stop = w - w % LR_LANES
     for v in range(row_start, row_stop):
         row_l = d_left[v]
         row_r = d_right[v]
         dst_l = out_l[v]
-        for c in range(w):
+        for c in range(0, vector_stop, LR_LANES):
+            lr_keep8(row_l, c, row_r, step, inv_step, -1.0, threshold, dst_l)
+        for c in range(vector_stop, w):
             d = row_l[c]
             # partner column round((c*step - d) / step), rounding half up
             x = (c * step - d) * inv_step + 0.5
@@ -51,7 +55,9 @@ def _lr_check(d_left, d_right, threshold, step, want_right, out_l, out_r, row_st
             dst_l[c] = _lr_keep(d, c2, row_r, threshold)
         if want_right:
             dst_r = out_r[v]
-            for c in range(w):
+            for c in range(0, vector_stop, LR_LANES):
+                lr_keep8(row_r, c, row_l, step, inv_step, 1.0, threshold, dst_r)
+            for c in range(vector_stop, w):
                 d = row_r[c]
                 x = (c * step + d) * inv_step + 0.5
                 c1 = int(x) if x >= 0 else -1
