@@ -193,89 +193,8 @@ def sad_reference(a, offset_a, b, offset_b, nbytes):
     return s
 
 
-#: Disparities per group of :func:`sad64x8_first_two_min` (one AVX-512 ``psadbw`` each).
+#: Disparities per group of :func:`sad64_chunks_first_two_min` (one AVX-512 vector).
 SUPPORT_LANES = 8
-#: Lane ``k`` of :func:`sad64x8_first_two_min` holds disparity index ``8 g + LANE_ORDER[k]``
-#: of group ``g`` (the order its transposing reduction leaves them in).
-LANE_ORDER = (0, 4, 2, 6, 1, 5, 3, 7)
-
-
-def _transpose_sums(builder, parts):
-    """``<8 x i64>``: lane ``k`` is the sum of the 8 lanes of ``parts[LANE_ORDER[k]]`` (eight
-    ``<8 x i64>``), in three levels of shuffle-and-add (14 shuffles, 7 adds)."""
-    i32 = ir.IntType(32)
-
-    def fold(x, y, first, second):
-        m1 = ir.Constant(ir.VectorType(i32, 8), [i32(k) for k in first])
-        m2 = ir.Constant(ir.VectorType(i32, 8), [i32(k) for k in second])
-        return builder.add(builder.shuffle_vector(x, y, m1), builder.shuffle_vector(x, y, m2))
-
-    level1 = [fold(parts[k], parts[k + 1], (0, 1, 2, 3, 8, 9, 10, 11), (4, 5, 6, 7, 12, 13, 14, 15))
-              for k in range(0, 8, 2)]           # [P0 x4, P1 x4], [P2, P3], [P4, P5], [P6, P7]
-    level2 = [fold(level1[k], level1[k + 1], (0, 1, 8, 9, 4, 5, 12, 13), (2, 3, 10, 11, 6, 7, 14, 15))
-              for k in (0, 2)]                   # [P0 P0 P2 P2 P1 P1 P3 P3], [P4 .. P7 likewise]
-    return fold(level2[0], level2[1], (0, 8, 2, 10, 4, 12, 6, 14), (1, 9, 3, 11, 5, 13, 7, 15))
-
-
-@intrinsic
-def sad64x8_first_two_min(typingctx, a, offset_a, b, offset_b, stride, groups):
-    """The two lowest SADs per lane over ``groups`` groups of 8 disparities (AVX-512BW only).
-
-    Disparity index ``j = 8 g + LANE_ORDER[k]`` (lane ``k`` of group ``g``) costs
-    ``sad64(a, offset_a, b, offset_b + j * stride)``. Per lane, in increasing ``j``: the
-    lowest cost, the second lowest (of the lane's multiset of costs) and the first ``j``
-    with the lowest cost, as a tuple of 24 int64 (``best[0..7], second[0..7],
-    index[0..7]``; INT32_MAX / -1 when ``groups`` is 0). No bounds checking. Only compiled
-    where :data:`PSADBW_WIDTH` is 64 (one ``vpsadbw zmm`` per cost; the eight costs of a
-    group summed by one transposing reduction instead of eight horizontal ones).
-    """
-    if _sad_signature(a, offset_a, b, offset_b) is None or PSADBW_WIDTH != 64:
-        return None
-    if not (isinstance(stride, types.Integer) and isinstance(groups, types.Integer)):
-        return None
-    sig = types.UniTuple(types.int64, 24)(a, offset_a, b, offset_b, stride, groups)
-
-    def codegen(context, builder, signature, args):
-        i8, i32, i64 = ir.IntType(8), ir.IntType(32), ir.IntType(64)
-        v64i8, v8i64, v8i32 = ir.VectorType(i8, 64), ir.VectorType(i64, 8), ir.VectorType(i32, 8)
-        psad = _llvm_function(builder.module, "llvm.x86.avx512.psad.bw.512", v8i64, [v64i8, v64i8])
-        pa = _element_pointer(context, builder, signature.args[0], args[0], args[1],
-                              signature.args[1], v64i8)
-        va = builder.load(pa, align=1)
-        arr_b = context.make_array(signature.args[2])(context, builder, args[2])
-        base = context.cast(builder, args[3], signature.args[3], types.intp)
-        step = context.cast(builder, args[4], signature.args[4], types.intp)
-        n = context.cast(builder, args[5], signature.args[5], types.intp)
-        big = ir.Constant(v8i32, [i32(2147483647)] * 8)
-        best = cgutils.alloca_once_value(builder, big)
-        second = cgutils.alloca_once_value(builder, big)
-        index = cgutils.alloca_once_value(builder, ir.Constant(v8i32, [i32(-1)] * 8))
-        lanes = cgutils.alloca_once_value(builder, ir.Constant(v8i32, [i32(k) for k in LANE_ORDER]))
-        eight = ir.Constant(v8i32, [i32(SUPPORT_LANES)] * 8)
-        with cgutils.for_range(builder, n) as loop:
-            group_base = builder.add(base, builder.mul(loop.index, builder.mul(step, step.type(8))))
-            parts = []
-            for k in range(SUPPORT_LANES):
-                off = builder.add(group_base, builder.mul(step, step.type(k)))
-                pb = builder.bitcast(builder.gep(arr_b.data, [off]), v64i8.as_pointer())
-                parts.append(builder.call(psad, [va, builder.load(pb, align=1)]))
-            cost = builder.trunc(_transpose_sums(builder, parts), v8i32)
-            old_best, old_second = builder.load(best), builder.load(second)
-            lower = builder.icmp_signed("<", cost, old_best)
-            smaller = builder.select(builder.icmp_signed("<", cost, old_second), cost, old_second)
-            builder.store(builder.select(lower, old_best, smaller), second)
-            here = builder.load(lanes)
-            builder.store(builder.select(lower, here, builder.load(index)), index)
-            builder.store(builder.select(lower, cost, old_best), best)
-            builder.store(builder.add(here, eight), lanes)
-        items = []
-        for vec in (best, second, index):
-            value = builder.load(vec)
-            items += [builder.sext(builder.extract_element(value, i32(k)), i64)
-                      for k in range(SUPPORT_LANES)]
-        return context.make_tuple(builder, signature.return_type, items)
-
-    return sig, codegen
 
 
 def _splat(builder, value, count):
@@ -433,6 +352,89 @@ def quad_first_min(typingctx, own, offset_own, other, offset_other, stride, cell
             window_loop(None)
         result = builder.load(best_d)
         items = [builder.sext(builder.extract_element(result, i32(2 * k)), i64) for k in range(4)]
+        return context.make_tuple(builder, signature.return_type, items)
+
+    return sig, codegen
+
+
+@intrinsic
+def sad64_chunks_first_two_min(typingctx, own, own_at, other, other_at, chunk_stride, group_step,
+                               groups, first_index, index_step, count):
+    """The two lowest 64-byte SADs per lane over ``groups`` groups of 8 (AVX-512BW only),
+    with the cost vectors stored chunk-major: qword ``c`` (0..7) of the vector at column
+    ``x`` is ``own[c * chunk_stride + x]`` (``other`` likewise), so that chunk ``c`` of 8
+    neighbouring columns is one 64-byte load.
+
+    Lane ``k`` of group ``g`` compares ``own``'s column ``own_at`` with ``other``'s column
+    ``other_at + g * group_step + k``; its cost is the sum over the 8 chunks of one
+    ``vpsadbw`` each (no horizontal sums), and its index ``j = first_index + k * index_step
+    + 8 g``; costs with ``j >= count`` do not count. Per lane, in increasing ``g``: the
+    lowest cost, the second lowest (of the lane's multiset) and the ``j`` of the first
+    lowest, as 24 int64 (``best[0..7], second[0..7], index[0..7]``; INT32_MAX / -1 where
+    a lane has no cost). No bounds checking: the caller guarantees every load lies inside
+    the arrays.
+    """
+    if PSADBW_WIDTH != 64:
+        return None
+    if not all(isinstance(x, types.Array) and x.dtype == types.uint64 and x.ndim == 1
+               for x in (own, other)):
+        return None
+    ints = (own_at, other_at, chunk_stride, group_step, groups, first_index, index_step, count)
+    if not all(isinstance(x, types.Integer) for x in ints):
+        return None
+    sig = types.UniTuple(types.int64, 24)(own, own_at, other, other_at, chunk_stride, group_step,
+                                          groups, first_index, index_step, count)
+
+    def codegen(context, builder, signature, args):
+        i8, i32, i64 = ir.IntType(8), ir.IntType(32), ir.IntType(64)
+        v64i8, v8i64 = ir.VectorType(i8, 64), ir.VectorType(i64, 8)
+        sargs = signature.args
+
+        def scalar(k):
+            return context.cast(builder, args[k], sargs[k], types.int64)
+
+        def data(k):
+            return context.make_array(sargs[k])(context, builder, args[k]).data
+
+        psad = _llvm_function(builder.module, "llvm.x86.avx512.psad.bw.512", v8i64, [v64i8, v64i8])
+        own_ptr, other_ptr = data(0), data(2)
+        stride = scalar(4)
+        own_chunks = []
+        for c in range(SUPPORT_LANES):
+            at = builder.add(scalar(1), builder.mul(stride, i64(c)))
+            word = builder.load(builder.gep(own_ptr, [at]))
+            own_chunks.append(builder.bitcast(_splat(builder, word, 8), v64i8))
+        big = ir.Constant(v8i64, [2147483647] * 8)
+        best = cgutils.alloca_once_value(builder, big)
+        second = cgutils.alloca_once_value(builder, big)
+        index = cgutils.alloca_once_value(builder, ir.Constant(v8i64, [-1] * 8))
+        lane = ir.Constant(v8i64, list(range(8)))
+        first_j = builder.add(_splat(builder, scalar(7), 8),
+                              builder.mul(lane, _splat(builder, scalar(8), 8)))
+        lanes_j = cgutils.alloca_once_value(builder, first_j)
+        count = _splat(builder, scalar(9), 8)
+        eight = ir.Constant(v8i64, [SUPPORT_LANES] * 8)
+        with cgutils.for_range(builder, scalar(6)) as loop:
+            base = builder.add(scalar(3), builder.mul(loop.index, scalar(5)))
+            cost = None
+            for c in range(SUPPORT_LANES):
+                at = builder.add(base, builder.mul(stride, i64(c)))
+                ptr = builder.bitcast(builder.gep(other_ptr, [at]), v64i8.as_pointer())
+                part = builder.call(psad, [own_chunks[c], builder.load(ptr, align=1)])
+                cost = part if cost is None else builder.add(cost, part)
+            here = builder.load(lanes_j)
+            cost = builder.select(builder.icmp_signed("<", here, count), cost, big)
+            old_best, old_second = builder.load(best), builder.load(second)
+            lower = builder.icmp_signed("<", cost, old_best)
+            smaller = builder.select(builder.icmp_signed("<", cost, old_second), cost, old_second)
+            builder.store(builder.select(lower, old_best, smaller), second)
+            builder.store(builder.select(lower, here, builder.load(index)), index)
+            builder.store(builder.select(lower, cost, old_best), best)
+            builder.store(builder.add(here, eight), lanes_j)
+        items = []
+        for vec in (best, second, index):
+            value = builder.load(vec)
+            items += [builder.extract_element(value, i32(k)) for k in range(SUPPORT_LANES)]
         return context.make_tuple(builder, signature.return_type, items)
 
     return sig, codegen

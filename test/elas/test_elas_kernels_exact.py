@@ -690,22 +690,31 @@ def test_stable_argsort_equals_numpys_stable_sort(rng):
 
 
 def test_support_search_by_eight_disparities_equals_one_at_a_time(rng):
-    """The AVX-512 lowest-two search (8 disparities per vector, lanes merged) gives the
-    one-at-a-time search's lowest, second lowest and first best disparity, ties included."""
+    """The AVX-512 lowest-two search (chunk-major row buffers, 8 disparities per vector,
+    lanes merged) gives the one-at-a-time search's lowest, second lowest and first best
+    disparity, ties included, in both directions and with partial last groups."""
     from canopy_stereo.elas.simd import PSADBW_WIDTH
 
     if PSADBW_WIDTH != 64:
         pytest.skip("the eight-disparity search is compiled only with AVX-512BW")
-    width = 300
+    width, pad, lanes = 300, support.CHUNK_PAD, support.SUPPORT_LANES
+
+    def chunk_major(flat):
+        words = flat.view(np.uint64).reshape(width, lanes)
+        out = np.zeros((lanes, width + 2 * pad), np.uint64)
+        out[:, pad:pad + width] = words.T
+        return out.reshape(-1)
+
     for levels in (2, 4, 256):       # few levels: many equal costs
         own = rng.integers(0, levels, width * support.SUPPORT_BYTES, dtype=np.uint8)
         other = rng.integers(0, levels, width * support.SUPPORT_BYTES, dtype=np.uint8)
+        own_chunks, other_chunks = chunk_major(own), chunk_major(other)
         for _ in range(60):
             sign = int(rng.choice([-1, 1]))
             u = int(rng.integers(120, 180))
             dmin = int(rng.integers(0, 20))
             dmax = dmin + int(rng.integers(10, 100))
-            a = u * support.SUPPORT_BYTES
-            ref = support._lowest_two_scalar(own, other, a, sign, dmin, dmax)
-            got = support._lowest_two_vector(own, other, a, sign, dmin, dmax)
+            ref = support._lowest_two_scalar(own, other, u * support.SUPPORT_BYTES, sign, dmin,
+                                             dmax)
+            got = support._lowest_two_chunks(own_chunks, other_chunks, u, sign, dmin, dmax)
             assert tuple(int(x) for x in got) == tuple(int(x) for x in ref)
