@@ -238,8 +238,7 @@ def _reference_of(scene, organized, plant, camera_mm) -> dict:
     ref = reference_surface(organized, plant, np.zeros_like(plant), scene.frame, scene.canopy_points, scale=scale)
     canopy = scene.report["canopy"]
     canopy["extent_height"] = canopy["height"]
-    if ref["kind"] != "none":
-        canopy["height"] = float(canopy["bbox_max"][2]) - ref["height"]
+    canopy["height"] = ref["plant_height"]
     return ref
 
 
@@ -247,6 +246,7 @@ def plant_summary(p: dict) -> dict:
     """One plant's entry of ``report["plants"]`` from its report (lab units): its index,
     reference surface, canopy, leaf count, leaf area (cm^2), mean leaf length and width (mm)."""
     return {"plant_index": int(p.get("plant_index", 0)), "reference": p.get("reference"),
+            "at_image_border": p.get("at_image_border"),
             "canopy": p["canopy"], "n_leaves": len(p.get("leaves", [])),
             "leaf_area": float(sum(lf["area"] for lf in p.get("leaves", []))),
             "mean_leaf_length": float(np.mean([lf["length"] for lf in p["leaves"]])) if p.get("leaves") else None,
