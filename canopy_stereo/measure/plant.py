@@ -188,11 +188,6 @@ def measure_plant(left_bgr, disparity, rig, *, rectification: Rectification, mas
     if left_bgr is not None and np.asarray(left_bgr).shape[:2] != organized.shape[:2]:
         raise CanopyStereoError(f"the left image is {np.asarray(left_bgr).shape[1]}x{np.asarray(left_bgr).shape[0]} "
                                 f"but the rig's images are {organized.shape[1]}x{organized.shape[0]}")
-    if whole_scene:
-        plant, source = finite, "whole scene"
-    elif mask is not None:
-        plant = np.asarray(mask)
-        plant, source = (plant.max(axis=2) if plant.ndim == 3 else plant) > 0, "given"
     camera_mm = camera_mm_of(rig)
     instances = None
     if whole_scene:
@@ -207,6 +202,10 @@ def measure_plant(left_bgr, disparity, rig, *, rectification: Rectification, mas
             raise CanopyStereoError("no plant found in the image (the automatic plant mask is empty); "
                                     "give a mask, or measure the whole scene")
     n_plants = 0 if instances is None else int(instances.max())
+    if n_plants == 1:  # a lone plant as measure_plants measures each: without the background behind it
+        from canopy_stereo.measure.plants import trimmed_mask
+
+        plant = trimmed_mask(organized, plant, camera=camera_mm)
     plants: list[dict] = []
     if n_plants > 1:  # each plant on its own: height from its pot rim / soil / the ground
         from canopy_stereo.measure.plants import measure_plants

@@ -42,12 +42,13 @@ def reference_surface(organized: np.ndarray, plant: np.ndarray, others: np.ndarr
     points' horizontal distances from the foot) and from 60 % of the plant's height (or
     four times its reach: a top view sees the leaves, not the stem down to the soil) below
     its foot to 10 % above, lie more than :data:`RING_PX` pixels from every plant, and
-    are not on the ground plane. When they are flat (:func:`_soil_plane`: a plane holds
-    95 % of them within 3 % of the plant's height) the plane is the reference, ``soil``,
-    and the plant's height is its top above that plane along the plane's normal (the soil
-    of a tray seen from above need not face the camera squarely); else their 98th
-    percentile height is the reference, ``pot_rim`` (a pot wall standing above its soil);
-    without container points the ground plane (``ground``, height 0), else ``none`` (the
+    are not on the ground plane. Without a ground plane (a top view: the frame's up is the
+    view's), when they are flat (:func:`_soil_plane`: a plane holds 95 % of them within 3 %
+    of the plant's height) that plane is the reference, ``soil``, and the plant's height is
+    its top above the plane along the plane's normal (the soil of a tray seen from above
+    need not face the camera squarely). Otherwise their 98th percentile height is the
+    reference: ``pot_rim`` when the container stands more than 3 % of the plant's height (a
+    pot wall), else ``soil``; without container points the ground plane (``ground``, height 0), else ``none`` (the
     plant's lowest point).
 
     Args:
@@ -82,7 +83,8 @@ def reference_surface(organized: np.ndarray, plant: np.ndarray, others: np.ndarr
     C = C[keep]
     top_z = float(z.max()) if len(z) else 0.0
     if len(C) >= MIN_CONTAINER_POINTS:
-        soil = _soil_plane(C, foot, height)
+        # without a ground plane, up is the view's or the image's: the soil's own plane is better
+        soil = None if has_ground else _soil_plane(C, foot, height)
         if soil is not None:  # flat: soil (a tray seen from above may be tilted to the view)
             slope, offset = soil
             surface = float(offset + slope @ foot)
@@ -91,7 +93,8 @@ def reference_surface(organized: np.ndarray, plant: np.ndarray, others: np.ndarr
                     "n_points": int(len(C)), "plant_height": float(above.max()),
                     "tilt_deg": float(np.degrees(np.arctan(np.linalg.norm(slope))))}
         top = float(np.percentile(C[:, 2], 98))
-        return {"kind": "pot_rim", "height": top, "height_above_ground": top if has_ground else None,
+        kind = "pot_rim" if top - float(np.percentile(C[:, 2], 5)) > 0.03 * height else "soil"
+        return {"kind": kind, "height": top, "height_above_ground": top if has_ground else None,
                 "n_points": int(len(C)), "plant_height": top_z - top, "tilt_deg": 0.0}
     if has_ground:
         return {"kind": "ground", "height": 0.0, "height_above_ground": 0.0, "n_points": int(frame.ground_inliers),
@@ -201,6 +204,16 @@ def _scene_ground(organized, finite, plants, P):
              else float(np.linalg.norm(np.ptp(organized[finite], axis=0))))
     frame = measuring_frame(canopy, organized[finite & ~plants], "auto", right, down, view, scale)
     return "auto" if frame.ground_plane is None else frame.ground_plane
+
+
+def trimmed_mask(organized: np.ndarray, mask: np.ndarray, *, camera) -> np.ndarray:
+    """(H, W) bool: a plant's ``mask`` without the pixels whose points lie more than
+    :data:`MAX_BEHIND_FRACTION` beyond the plant's median distance from the ``camera``
+    (``P`` (3, 4), or None: the mask as it is): background seen through the mask's edge,
+    which is not the plant (how :func:`measure_plants` measures each plant; the one
+    measuring pipeline measures a lone plant so too)."""
+    organized = np.asarray(organized, np.float64)
+    return _trimmed(organized, np.all(np.isfinite(organized), axis=-1), np.asarray(mask, bool), camera)
 
 
 def _trimmed(organized, finite, mask, P):

@@ -144,7 +144,8 @@ def measure_scene(organized, leaf_ids=None, *, mask=None, ground="auto", unit: s
         ids = separate_leaves(organized, plant,
                               min_pixels=max(10, min_leaf_pixels // 2))
     all_plant = (plant if plant is not None else finite) & finite
-    exact_cloud = bool(all_plant.sum() >= 16 and roughness(organized, all_plant, skip_jumps=True) < EXACT_CLOUD_ROUGHNESS)
+    exact_cloud = bool(all_plant.sum() >= 16
+                       and roughness(organized, all_plant, skip_jumps=True) < EXACT_CLOUD_ROUGHNESS)
     leaves, skipped = [], []
     leaf_surfaces: list = []  # (N, 3) surface points of the leaves kept
     in_leaf = np.zeros((h, w), bool)

@@ -39,6 +39,7 @@ from canopy_stereo.segmentation.colour_model import (
     relabel_by_colour,
 )
 from canopy_stereo.segmentation.grabcut import GC_BGD, GC_FGD, GC_PR_BGD, GC_PR_FGD, labels_to_mask
+from canopy_stereo.segmentation.roots import MIN_ROOT_PIXELS, container_bands, split_by_roots
 from canopy_stereo.segmentation.shape import (
     attached_parts,
     caps,
@@ -281,7 +282,8 @@ def segment_plants(image_bgr, *, disparity=None, points=None, depth=None, camera
         if mask.shape != (h, w):
             mask = cv2.resize(mask.astype(np.uint8) * 255, (w, h), interpolation=cv2.INTER_LINEAR) >= 128
     mask = _drop_small_and_sticks(mask, settings)
-    instances, plants = plant_instances(mask, q_full, min_plant=float(settings.min_plant))
+    roots = _resize_map(container_bands(cues["solids"], cues["caps"]), (w, h))
+    instances, plants = plant_instances(mask, q_full, min_plant=float(settings.min_plant), roots=roots)
     return PlantSegmentation(mask=np.where(instances > 0, 255, 0).astype(np.uint8), instances=instances,
                              plants=plants, cues=cues)
 
@@ -344,11 +346,11 @@ def _without_object_parts(mask: np.ndarray, solids: np.ndarray, lab_img: np.ndar
     flat = lab.ravel()
     counts = np.bincount(flat, minlength=n)
     mean = np.stack([np.bincount(flat, weights=colours[:, c], minlength=n) for c in range(3)], 1)
-    mean /= np.maximum(counts, 1)[:, None]
+    mean = mean / np.maximum(counts, 1)[:, None]
     sflat = solid_lab.ravel()
     scounts = np.bincount(sflat, minlength=ns)
     smean = np.stack([np.bincount(sflat, weights=colours[:, c], minlength=ns) for c in range(3)], 1)
-    smean /= np.maximum(scounts, 1)[:, None]
+    smean = smean / np.maximum(scounts, 1)[:, None]
     near = cv2.dilate(solid_lab.astype(np.float32), np.ones((5, 5), np.uint8)).astype(np.int64)
     keep = np.ones(n, bool)
     keep[0] = False
@@ -413,11 +415,45 @@ def _foliage_areas(lab: np.ndarray, n: int, q: np.ndarray | None, qs: np.ndarray
     return np.bincount(lab.ravel(), weights=(1.0 / qq ** 2).ravel(), minlength=n)
 
 
+def _split_rooted(lab, n, stats, q, roots):
+    """Connected regions (``lab`` 1..n-1) standing in two or more containers' bands split into
+    their plants (:func:`~canopy_stereo.segmentation.roots.split_by_roots`): ``(n, lab, stats,
+    origin)`` with the new labels, their ``cv2`` stats and the region each comes from."""
+    sel = (lab > 0) & (roots > 0)
+    nroot = int(roots.max()) + 1
+    hits = np.bincount(lab[sel] * nroot + roots[sel], minlength=n * nroot).reshape(n, nroot)
+    candidates = np.nonzero((hits >= MIN_ROOT_PIXELS).sum(axis=1) >= 2)[0]
+    origin = list(range(n))
+    if not len(candidates):
+        return n, lab, stats, np.arange(n)
+    lab = lab.copy()
+    for i in candidates:
+        pieces = split_by_roots(lab == i, q, roots)
+        for piece in (pieces or [])[1:]:
+            lab[piece] = len(origin)
+            origin.append(int(i))
+    n = len(origin)
+    stats = np.zeros((n, 5), np.int64)
+    from scipy import ndimage
+
+    for k, box in enumerate(ndimage.find_objects(lab), start=1):
+        if box is not None:
+            sv, su = box
+            stats[k, :4] = su.start, sv.start, su.stop - su.start, sv.stop - sv.start
+    return n, lab, stats, np.asarray(origin)
+
+
 def plant_instances(mask: np.ndarray, q: np.ndarray | None = None, *, join_px: int | None = None,
-                    min_plant: float = MIN_PLANT_FRACTION):
+                    min_plant: float = MIN_PLANT_FRACTION, roots: np.ndarray | None = None):
     """Plants of a mask: ``(instances (H, W) int32, plants list)``.
 
     Connected regions are one plant each, except that:
+
+    * with ``roots`` ((H, W) int, the band above each container numbered 1..:
+      :func:`~canopy_stereo.segmentation.roots.container_bands`) and ``q``, a region that stands
+      in the bands of two or more containers is split into one plant per container along its
+      depth jumps (two potted plants whose leaves overlap in the image:
+      :func:`~canopy_stereo.segmentation.roots.split_by_roots`);
 
     * a region whose foliage area (its pixels weighted by the square of their depth, from the
       inverse depth ``q``; pixel counts without ``q``) is below ``min_plant`` (0..1) times the
@@ -439,6 +475,9 @@ def plant_instances(mask: np.ndarray, q: np.ndarray | None = None, *, join_px: i
         raise CanopyStereoError(f"min_plant must be a fraction in [0, 1] of the largest plant, got {min_plant}")
     close_px = max(3, join_px // 4)
     n, lab, stats, _ = cv2.connectedComponentsWithStats(m.astype(np.uint8), connectivity=8)
+    origin = np.arange(n)  # the connected region each label comes from
+    if roots is not None and q is not None and n > 1:
+        n, lab, stats, origin = _split_rooted(lab, n, stats, q, np.asarray(roots))
     parent = list(range(n))
 
     def find(i):
@@ -471,6 +510,8 @@ def plant_instances(mask: np.ndarray, q: np.ndarray | None = None, *, join_px: i
                     continue
                 same_depth = (not np.isfinite(qs[i]) or not np.isfinite(qs[j])
                               or abs(qs[i] - qs[j]) <= 0.15 * max(qs[i], qs[j]))
+                if origin[i] == origin[j]:
+                    continue  # one region split between the containers its plants grow from
                 if same_depth and (j in near or not (big[i] and big[j])):
                     links.append((j not in near, i, j))
         for far, i, j in sorted(links):
