@@ -343,14 +343,7 @@ def _without_object_parts(mask: np.ndarray, solids: np.ndarray, lab_img: np.ndar
         return mask
     ns, solid_lab = cv2.connectedComponents(solids.astype(np.uint8), connectivity=8)
     colours = lab_img.reshape(-1, 3).astype(np.float64) * np.array([100.0 / 255.0, 1.0, 1.0])
-    flat = lab.ravel()
-    counts = np.bincount(flat, minlength=n)
-    mean = np.stack([np.bincount(flat, weights=colours[:, c], minlength=n) for c in range(3)], 1)
-    mean = mean / np.maximum(counts, 1)[:, None]
-    sflat = solid_lab.ravel()
-    scounts = np.bincount(sflat, minlength=ns)
-    smean = np.stack([np.bincount(sflat, weights=colours[:, c], minlength=ns) for c in range(3)], 1)
-    smean = smean / np.maximum(scounts, 1)[:, None]
+    mean, smean = _label_means(lab, n, colours), _label_means(solid_lab, ns, colours)
     near = cv2.dilate(solid_lab.astype(np.float32), np.ones((5, 5), np.uint8)).astype(np.int64)
     keep = np.ones(n, bool)
     keep[0] = False
@@ -361,6 +354,14 @@ def _without_object_parts(mask: np.ndarray, solids: np.ndarray, lab_img: np.ndar
         s = objects[regions == i][np.argmax(hits[regions == i])]
         keep[i] = np.linalg.norm(mean[i] - smean[s]) > max_distance
     return keep[lab]
+
+
+def _label_means(lab: np.ndarray, n: int, values: np.ndarray) -> np.ndarray:
+    """(n, C) float64 mean of ``values`` ((H * W, C)) over each label 0..n-1 of ``lab``."""
+    flat = lab.ravel()
+    counts = np.maximum(np.bincount(flat, minlength=n), 1).astype(np.float64)
+    sums = np.stack([np.bincount(flat, weights=values[:, c], minlength=n) for c in range(values.shape[1])], 1)
+    return np.asarray(sums, np.float64) / counts[:, None]
 
 
 def _drop_small_and_sticks(mask: np.ndarray, settings: PlantSegmenterSettings) -> np.ndarray:
