@@ -19,12 +19,12 @@ matching the left one and ``(u + d, v)`` when matching the right one; it must al
 be more than 2 pixels from the border.
 
 Each cost is one vector instruction (:func:`~canopy_stereo.elas.simd.sad16`);
-four neighbouring pixels with the same disparity bounds share one 64-byte SAD per
-candidate (their descriptors, and those of their matches at any one ``d``, lie side
-by side), each pixel's own window masked in one vector compare
-(:func:`~canopy_stereo.elas.simd.sad16x4_store_outside`) and its own prior added
-(:func:`~canopy_stereo.elas.simd.sad16x4_store`), and keep their first minima in one
-vector (:func:`~canopy_stereo.elas.simd.first_min4`); rows run in parallel.
+four neighbouring pixels of one grid cell are matched together
+(:func:`~canopy_stereo.elas.simd.quad_first_min`): one 64-byte SAD per candidate
+(their descriptors, and those of their matches at any one ``d``, lie side by side),
+each pixel's own window, prior and largest disparity applied per lane (so pixels with
+different plane predictions, near the left/right border or not matched at all share
+the group) and their first minima kept in one vector; rows run in parallel.
 """
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ import numpy as np
 from numba import njit
 
 from canopy_stereo.elas.parallel import run_row_bands
-from canopy_stereo.elas.simd import DESC_BYTES, MASKED, first_min4, sad16, sad16x4_store, sad16x4_store_outside
+from canopy_stereo.elas.simd import DESC_BYTES, PRIOR_REGISTER, quad_first_min, sad16
 
 #: Pixels closer than this to the left/right border are not matched.
 MATCH_BORDER = 2
@@ -77,22 +77,21 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
                 step, subpixel, out, offsets, row_start, row_stop):
     """Output rows ``[row_start, row_stop)`` of :func:`match_job` (arguments there).
 
-    With ``step`` 1, four neighbouring pixels of one grid cell that share everything
-    that decides their candidates (all matched, the same plane prediction ``mu``, the
-    same prior flag and disparity bounds) are matched together: each candidate's four
-    costs are four descriptors side by side in both images, and each pixel keeps its
-    own first minimum exactly as when matched alone. (Written out in one function:
-    helpers taking arrays cost reference counting per call.)
+    With ``step`` 1, four neighbouring pixels of one grid cell are matched together
+    (:func:`~canopy_stereo.elas.simd.quad_first_min`): each candidate's four costs are
+    four descriptors side by side in both images, and each pixel keeps its own first
+    minimum exactly as when matched alone. (Written out in one function: helpers
+    taking arrays cost reference counting per call.)
     """
     h, w, _ = desc_own.shape
     flat_own = desc_own.reshape(-1)
     flat_other = desc_other.reshape(-1)
     lane_best = np.empty(4, np.int64)
-    # the four-pixel path's candidates: grid candidates and the union of the four plane
-    # windows, each at most disp_max + 1 disparities (the window is clipped to the bounds)
-    max_candidates = 2 * (disp_max + 1)
-    quad_costs = np.empty(4 * max_candidates, np.int32)
-    quad_disp = np.empty(max_candidates, np.int64)
+    lane_hi = np.empty(4, np.int64)
+    # the prior padded to the entries quad_first_min may load at once
+    prior_padded = np.zeros(max(prior.shape[0], PRIOR_REGISTER), np.int32)
+    for i in range(prior.shape[0]):
+        prior_padded[i] = prior[i]
     # matched columns x = u - sign*d must satisfy MATCH_BORDER <= x < w - MATCH_BORDER
     n_cells = grid_counts.shape[1]
     for r in range(row_start, row_stop):
@@ -111,9 +110,12 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
             u_stop = min((gx + 1) * grid_size, w - MATCH_BORDER)
             u = u_first
             while u < u_stop:
-                # ---- four pixels u .. u+3 at once, when they share their candidates
-                quad = False
-                if step == 1 and u + 4 <= u_stop:
+                # ---- four pixels u .. u+3 at once: every candidate of any of the four is
+                # one 64-byte SAD, each pixel's own candidates unmasked (its window, prior
+                # and largest disparity; a pixel that is not matched has every candidate
+                # masked). Rows 1 .. h-2 only: there the 64-byte loads of a lane beyond its
+                # bounds stay inside the descriptor array (one column off at most).
+                if step == 1 and u + 4 <= u_stop and v >= 1 and v < h - 1:
                     t0 = tri_row[u]
                     t1 = tri_row[u + 1]
                     t2 = tri_row[u + 2]
@@ -125,74 +127,78 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
                     if not (on0 | on1 | on2 | on3):
                         u += 4          # none of the four is matched
                         continue
-                    # (bitwise & and |: few, predictable branches)
-                    if on0 & on1 & on2 & on3:
+                    # each pixel's largest disparity (its matched column inside the border),
+                    # -1 when it is not matched; the smallest is disp_min for all four
+                    # (MATCH_BORDER <= u and u + 3 < w - MATCH_BORDER)
+                    if sign > 0:
+                        hi0 = min(disp_max, u - MATCH_BORDER)
+                        hi1 = min(disp_max, u + 1 - MATCH_BORDER)
+                        hi2 = min(disp_max, u + 2 - MATCH_BORDER)
+                        hi3 = min(disp_max, u + 3 - MATCH_BORDER)
+                    else:
+                        hi0 = min(disp_max, w - MATCH_BORDER - 1 - u)
+                        hi1 = min(disp_max, w - MATCH_BORDER - 2 - u)
+                        hi2 = min(disp_max, w - MATCH_BORDER - 3 - u)
+                        hi3 = min(disp_max, w - MATCH_BORDER - 4 - u)
+                    # truncated, as the original; a pixel that is not matched takes the
+                    # prediction of one that is (it keeps the union of windows small)
+                    mu0 = mu1 = mu2 = mu3 = 0
+                    p0 = p1 = p2 = p3 = False
+                    if on0:
                         mu0 = int(planes[t0, 0] * u + planes[t0, 1] * v + planes[t0, 2])
+                        p0 = plane_valid[t0]
+                    else:
+                        hi0 = -1
+                    if on1:
                         mu1 = int(planes[t1, 0] * (u + 1) + planes[t1, 1] * v + planes[t1, 2])
+                        p1 = plane_valid[t1]
+                    else:
+                        hi1 = -1
+                    if on2:
                         mu2 = int(planes[t2, 0] * (u + 2) + planes[t2, 1] * v + planes[t2, 2])
+                        p2 = plane_valid[t2]
+                    else:
+                        hi2 = -1
+                    if on3:
                         mu3 = int(planes[t3, 0] * (u + 3) + planes[t3, 1] * v + planes[t3, 2])
-                        if sign > 0:
-                            d_lo = max(disp_min, u - (w - MATCH_BORDER - 1))
-                            d_hi = min(disp_max, u - MATCH_BORDER)
-                            d_lo3 = max(disp_min, u + 3 - (w - MATCH_BORDER - 1))
-                            d_hi3 = min(disp_max, u + 3 - MATCH_BORDER)
-                        else:
-                            d_lo = max(disp_min, MATCH_BORDER - u)
-                            d_hi = min(disp_max, w - MATCH_BORDER - 1 - u)
-                            d_lo3 = max(disp_min, MATCH_BORDER - u - 3)
-                            d_hi3 = min(disp_max, w - MATCH_BORDER - 4 - u)
-                        # (the bounds are monotonic in u: equal at u and u+3 means all equal)
-                        quad = (d_lo == d_lo3) & (d_hi == d_hi3) & (d_lo <= d_hi)
-                if quad:
-                    # the candidates' costs of the four pixels, each pixel seeing its own
-                    # candidates in the order of the one-pixel path (grid candidates
-                    # outside its window, then its window), then each pixel's first minimum
-                    p0 = plane_valid[t0]
-                    p1 = plane_valid[t1]
-                    p2 = plane_valid[t2]
-                    p3 = plane_valid[t3]
-                    a0 = row + u * DESC_BYTES
-                    n_cand = 0
-                    for j in range(n_grid):
-                        d = cell[j]
-                        if d < d_lo or d > d_hi:
-                            continue
-                        sad16x4_store_outside(flat_own, a0, flat_other,
-                                              a0 - sign * d * DESC_BYTES, d, mu0, mu1, mu2,
-                                              mu3, radius, quad_costs, 4 * n_cand)
-                        quad_disp[n_cand] = d
-                        n_cand += 1
+                        p3 = plane_valid[t3]
+                    else:
+                        hi3 = -1
+                    if not (on0 & on1 & on2 & on3):
+                        mu_on = mu0 if on0 else (mu1 if on1 else (mu2 if on2 else mu3))
+                        mu0 = mu0 if on0 else mu_on
+                        mu1 = mu1 if on1 else mu_on
+                        mu2 = mu2 if on2 else mu_on
+                        mu3 = mu3 if on3 else mu_on
+                    hi_max = max(max(hi0, hi1), max(hi2, hi3))
                     mu_lo = min(min(mu0, mu1), min(mu2, mu3))
                     mu_hi = max(max(mu0, mu1), max(mu2, mu3))
-                    for d in range(max(mu_lo - radius, d_lo), min(mu_hi + radius, d_hi) + 1):
-                        x0 = abs(d - mu0)
-                        x1 = abs(d - mu1)
-                        x2 = abs(d - mu2)
-                        x3 = abs(d - mu3)
-                        b0 = MASKED if x0 > radius else (prior[x0] if p0 else 0)
-                        b1 = MASKED if x1 > radius else (prior[x1] if p1 else 0)
-                        b2 = MASKED if x2 > radius else (prior[x2] if p2 else 0)
-                        b3 = MASKED if x3 > radius else (prior[x3] if p3 else 0)
-                        sad16x4_store(flat_own, a0, flat_other, a0 - sign * d * DESC_BYTES,
-                                      b0, b1, b2, b3, quad_costs, 4 * n_cand)
-                        quad_disp[n_cand] = d
-                        n_cand += 1
-                    best0, best1, best2, best3 = first_min4(quad_costs, quad_disp, n_cand)
+                    a0 = row + u * DESC_BYTES
+                    best0, best1, best2, best3 = quad_first_min(
+                        flat_own, a0, flat_other, a0, -sign * DESC_BYTES, cell, n_grid,
+                        disp_min, hi_max, max(mu_lo - radius, disp_min),
+                        min(mu_hi + radius, hi_max), radius, prior_padded, mu0, mu1, mu2, mu3, hi0, hi1,
+                        hi2, hi3, p0, p1, p2, p3)
                     lane_best[0] = best0
                     lane_best[1] = best1
                     lane_best[2] = best2
                     lane_best[3] = best3
+                    lane_hi[0] = hi0
+                    lane_hi[1] = hi1
+                    lane_hi[2] = hi2
+                    lane_hi[3] = hi3
                     for k in range(4):
                         best_d = lane_best[k]
                         if best_d >= 0:
                             out_row[u + k] = np.float32(best_d)
                             if subpixel:
                                 _subpixel_offset(flat_own, flat_other, row + (u + k) * DESC_BYTES,
-                                                 sign, best_d, d_lo, d_hi, off_row, u + k)
+                                                 sign, best_d, disp_min, lane_hi[k], off_row,
+                                                 u + k)
                     u += 4
                     continue
                 # ---- one pixel at a time (the definition; the four-pixel path agrees with
-                # it): the pixels of a group of four that did not qualify, or step 2
+                # it): the last pixels of a cell (fewer than four), rows 0 and h - 1, step 2
                 stop = min(u + 4, u_stop) if step == 1 else u + step
                 for uu in range(u, stop, step):
                     t = tri_row[uu]

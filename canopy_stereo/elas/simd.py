@@ -8,12 +8,12 @@ A plain loop is what numba would otherwise emit, and it does not vectorise
 (about 10x slower), which is why this one function is written in IR.
 
 :func:`sad64` does the same over 64 bytes (the four descriptors of a support
-candidate). :func:`sad16x4_store` gives the four 16-byte SADs of 64 bytes at once
-(dense matching of four neighbouring pixels): there the per-block sums need x86's
-``psadbw`` by name (the generic pattern becomes a long zero-extend-and-add chain),
-so :func:`psadbw_width` picks the instruction numba's target has, with the generic
-IR elsewhere. :func:`first_min4` keeps four running minima in one vector.
-:func:`sad_reference` is the plain-loop computation, for tests.
+candidate). :func:`quad_first_min` matches four neighbouring pixels at once: each
+candidate disparity's four 16-byte SADs are one 64-byte SAD, and the four running
+minima stay in one vector. There the per-block sums need x86's ``psadbw`` by name
+(the generic pattern becomes a long zero-extend-and-add chain), so
+:func:`psadbw_width` picks the instruction numba's target has, with the generic IR
+elsewhere. :func:`sad_reference` is the plain-loop computation, for tests.
 """
 from __future__ import annotations
 
@@ -112,15 +112,6 @@ def psadbw_width() -> int:
 PSADBW_WIDTH = psadbw_width()
 
 
-def _argument_block_sums(context, builder, signature, args):
-    """``<4 x i32>`` block SADs of the 64 bytes at ``(a, offset_a)`` and ``(b, offset_b)``,
-    an intrinsic's first four arguments (unaligned loads)."""
-    vec_i8 = ir.VectorType(ir.IntType(8), 64)
-    pa = _element_pointer(context, builder, signature.args[0], args[0], args[1], signature.args[1], vec_i8)
-    pb = _element_pointer(context, builder, signature.args[2], args[2], args[3], signature.args[3], vec_i8)
-    return _block_sums(builder, builder.load(pa, align=1), builder.load(pb, align=1))
-
-
 def _block_sums(builder, va, vb):
     """``<4 x i32>``: the SAD of each 16-byte block of two ``<64 x i8>`` vectors."""
     i8, i32, i64 = ir.IntType(8), ir.IntType(32), ir.IntType(64)
@@ -169,138 +160,6 @@ def _element_pointer(context, builder, array_type, array, index, index_type, ele
     arr = context.make_array(array_type)(context, builder, array)
     idx = context.cast(builder, index, index_type, types.intp)
     return builder.bitcast(builder.gep(arr.data, [idx]), elem_type.as_pointer())
-
-
-#: A :func:`sad16x4_store` bonus at least this large masks its lane (cost INT32_MAX).
-MASKED = 1 << 30
-
-
-@intrinsic
-def sad16x4_store(typingctx, a, offset_a, b, offset_b, bonus0, bonus1, bonus2, bonus3, out,
-                  out_offset):
-    """Store the four :func:`sad16` of 16-byte blocks ``k = 0..3`` plus a bonus per block,
-    ``sad16(a, offset_a + 16k, b, offset_b + 16k) + bonus_k``, as int32 at
-    ``out[out_offset + k]``; a bonus of :data:`MASKED` or more stores INT32_MAX instead.
-
-    One 64-byte load from each uint8 array and x86 ``psadbw`` (one on AVX-512BW,
-    two on AVX2, four on SSE2; portable IR elsewhere). No bounds checking: the
-    caller guarantees ``offset + 64 <= len`` and ``out_offset + 4 <= len(out)``.
-    """
-    if _sad_signature(a, offset_a, b, offset_b) is None:
-        return None
-    bonuses = (bonus0, bonus1, bonus2, bonus3)
-    if not (isinstance(out, types.Array) and out.dtype == types.int32 and out.ndim == 1
-            and all(isinstance(x, types.Integer) for x in bonuses)
-            and isinstance(out_offset, types.Integer)):
-        return None
-    sig = types.void(a, offset_a, b, offset_b, *bonuses, out, out_offset)
-
-    def codegen(context, builder, signature, args):
-        i32 = ir.IntType(32)
-        vec_i32 = ir.VectorType(i32, 4)
-        sums = _argument_block_sums(context, builder, signature, args)
-        extra = ir.Constant(vec_i32, ir.Undefined)
-        for k in range(4):
-            value = context.cast(builder, args[4 + k], signature.args[4 + k], types.int32)
-            extra = builder.insert_element(extra, value, i32(k))
-        masked = builder.icmp_signed(">=", extra, ir.Constant(vec_i32, [i32(MASKED)] * 4))
-        cost = builder.select(masked, ir.Constant(vec_i32, [i32(2147483647)] * 4),
-                              builder.add(sums, extra))
-        po = _element_pointer(context, builder, signature.args[8], args[8], args[9],
-                              signature.args[9], vec_i32)
-        builder.store(cost, po, align=4)
-        return context.get_dummy_value()
-
-    return sig, codegen
-
-
-@intrinsic
-def sad16x4_store_outside(typingctx, a, offset_a, b, offset_b, d, mu0, mu1, mu2, mu3, radius,
-                          out, out_offset):
-    """:func:`sad16x4_store` of candidate disparity ``d`` with block ``k`` masked
-    (INT32_MAX) where ``|d - mu_k| <= radius`` (inside that pixel's plane window) and no
-    bonus elsewhere; the masks are one vector compare."""
-    if _sad_signature(a, offset_a, b, offset_b) is None:
-        return None
-    scalars = (d, mu0, mu1, mu2, mu3, radius, out_offset)
-    if not (isinstance(out, types.Array) and out.dtype == types.int32 and out.ndim == 1
-            and all(isinstance(x, types.Integer) for x in scalars)):
-        return None
-    sig = types.void(a, offset_a, b, offset_b, d, mu0, mu1, mu2, mu3, radius, out, out_offset)
-
-    def codegen(context, builder, signature, args):
-        i64 = ir.IntType(64)
-        i32 = ir.IntType(32)
-        vec_i32 = ir.VectorType(i32, 4)
-        vec_i64 = ir.VectorType(i64, 4)
-        sums = _argument_block_sums(context, builder, signature, args)
-
-        def as_i64(k):
-            return context.cast(builder, args[k], signature.args[k], types.int64)
-
-        mus = ir.Constant(vec_i64, ir.Undefined)
-        for k in range(4):
-            mus = builder.insert_element(mus, as_i64(5 + k), i32(k))
-        undef = ir.Constant(vec_i64, ir.Undefined)
-        zeros = ir.Constant(vec_i32, [i32(0)] * 4)
-        dvec = builder.shuffle_vector(builder.insert_element(undef, as_i64(4), i32(0)), undef,
-                                      zeros)
-        rvec = builder.shuffle_vector(builder.insert_element(undef, as_i64(9), i32(0)), undef,
-                                      zeros)
-        diff = builder.sub(dvec, mus)
-        neg = builder.sub(ir.Constant(vec_i64, [i64(0)] * 4), diff)
-        dist = builder.select(builder.icmp_signed("<", diff, ir.Constant(vec_i64, [i64(0)] * 4)),
-                              neg, diff)
-        inside = builder.icmp_signed("<=", dist, rvec)
-        cost = builder.select(inside, ir.Constant(vec_i32, [i32(2147483647)] * 4), sums)
-        po = _element_pointer(context, builder, signature.args[10], args[10], args[11],
-                              signature.args[11], vec_i32)
-        builder.store(cost, po, align=4)
-        return context.get_dummy_value()
-
-    return sig, codegen
-
-
-@intrinsic
-def first_min4(typingctx, costs, values, count):
-    """Per lane ``k = 0..3``: ``values[j]`` of the first ``j < count`` with the lowest
-    ``costs[4j + k]`` (int32), or -1 when ``count`` is 0; a tuple of four int64.
-
-    The same as ``best = INT32_MAX; for j: if costs[4j+k] < best: ...`` for each lane,
-    with the four lanes in one vector compare-and-select.
-    """
-    if not (isinstance(costs, types.Array) and costs.dtype == types.int32 and costs.ndim == 1
-            and isinstance(values, types.Array) and values.dtype == types.int64
-            and values.ndim == 1 and isinstance(count, types.Integer)):
-        return None
-    sig = types.UniTuple(types.int64, 4)(costs, values, count)
-
-    def codegen(context, builder, signature, args):
-        i32, i64 = ir.IntType(32), ir.IntType(64)
-        v4i32, v4i64 = ir.VectorType(i32, 4), ir.VectorType(i64, 4)
-        best_e = cgutils.alloca_once_value(builder, ir.Constant(v4i32, [i32(2147483647)] * 4))
-        best_v = cgutils.alloca_once_value(builder, ir.Constant(v4i64, [i64(-1)] * 4))
-        n = context.cast(builder, args[2], signature.args[2], types.intp)
-        carr = context.make_array(signature.args[0])(context, builder, args[0])
-        varr = context.make_array(signature.args[1])(context, builder, args[1])
-        with cgutils.for_range(builder, n) as loop:
-            j = loop.index
-            pc = builder.bitcast(builder.gep(carr.data, [builder.mul(j, j.type(4))]),
-                                 v4i32.as_pointer())
-            cost = builder.load(pc, align=4)
-            value = builder.load(builder.gep(varr.data, [j]))
-            splat = builder.insert_element(ir.Constant(v4i64, ir.Undefined), value, i32(0))
-            splat = builder.shuffle_vector(splat, ir.Constant(v4i64, ir.Undefined),
-                                           ir.Constant(v4i32, [i32(0)] * 4))
-            old_e = builder.load(best_e)
-            lower = builder.icmp_signed("<", cost, old_e)
-            builder.store(builder.select(lower, cost, old_e), best_e)
-            builder.store(builder.select(lower, splat, builder.load(best_v)), best_v)
-        result = builder.load(best_v)
-        items = [builder.extract_element(result, i32(k)) for k in range(4)]
-        return context.make_tuple(builder, signature.return_type, items)
-
-    return sig, codegen
 
 
 @njit(cache=True)
@@ -392,6 +251,194 @@ def sad64x8_first_two_min(typingctx, a, offset_a, b, offset_b, stride, groups):
             value = builder.load(vec)
             items += [builder.sext(builder.extract_element(value, i32(k)), i64)
                       for k in range(SUPPORT_LANES)]
+        return context.make_tuple(builder, signature.return_type, items)
+
+    return sig, codegen
+
+
+def _splat(builder, value, count):
+    """``<count x T>`` with every lane ``value``."""
+    vec = ir.VectorType(value.type, count)
+    undef = ir.Constant(vec, ir.Undefined)
+    zeros = ir.Constant(ir.VectorType(ir.IntType(32), count), [0] * count)
+    return builder.shuffle_vector(builder.insert_element(undef, value, ir.IntType(32)(0)), undef,
+                                  zeros)
+
+
+#: Entries of the prior table :func:`quad_first_min` keeps in one register (AVX2).
+PRIOR_REGISTER = 8
+
+
+@intrinsic
+def quad_first_min(typingctx, own, offset_own, other, offset_other, stride, cell, n_cell,
+                   cell_lo, cell_hi, window_lo, window_hi, radius, prior, mu0, mu1, mu2, mu3,
+                   hi0, hi1, hi2, hi3, prior0, prior1, prior2, prior3):
+    """Dense matching of four neighbouring pixels: each pixel's first lowest cost over
+    the grid candidates outside its window, then its window, as a tuple of four int64
+    disparities (-1 where a pixel has no candidate).
+
+    Pixel ``k`` (0..3) has the 16-byte descriptor at ``own[offset_own + 16 k]``; its cost
+    at disparity ``d`` is the SAD against ``other[offset_other + d * stride + 16 k]``
+    (``stride`` = -16 matching the left image, +16 the right), plus, in its window, the
+    prior. Pixel ``k`` has the plane prediction ``mu_k``, the largest disparity ``hi_k``
+    (-1: not matched) and ``prior_k`` (bool): whether its plane's prior applies.
+    Candidates, in this order:
+
+    * ``cell[j]`` for ``j < n_cell`` with ``cell_lo <= d <= cell_hi``: cost SAD,
+      skipped by pixel ``k`` where ``|d - mu_k| <= radius`` or ``d > hi_k``;
+    * ``d`` in ``[window_lo, window_hi]``: cost ``SAD + prior[|d - mu_k|]`` (``SAD``
+      alone where the prior does not apply), skipped where ``|d - mu_k| > radius`` or
+      ``d > hi_k``.
+
+    Each pixel keeps the first candidate of lowest cost (strictly lower replaces), with
+    its four costs one 64-byte SAD (x86 ``psadbw``, see :func:`psadbw_width`) and the
+    four running minima in one vector. No bounds checking: the caller guarantees that
+    every candidate's 64 bytes lie inside ``other`` and that ``prior`` holds at least
+    ``max(radius + 1, PRIOR_REGISTER)`` entries (with AVX2 and ``radius`` below
+    :data:`PRIOR_REGISTER` the prior is looked up in a register, one ``vpermd``).
+    """
+    if _sad_signature(own, offset_own, other, offset_other) is None:
+        return None
+    lanes = (mu0, mu1, mu2, mu3, hi0, hi1, hi2, hi3)
+    flags = (prior0, prior1, prior2, prior3)
+    ints = (stride, n_cell, cell_lo, cell_hi, window_lo, window_hi, radius) + lanes
+    if not (all(isinstance(x, types.Integer) for x in ints)
+            and all(isinstance(x, (types.Boolean, types.Integer)) for x in flags)
+            and all(isinstance(x, types.Array) and x.dtype == types.int32 and x.ndim == 1
+                    for x in (cell, prior))):
+        return None
+    sig = types.UniTuple(types.int64, 4)(own, offset_own, other, offset_other, stride, cell,
+                                         n_cell, cell_lo, cell_hi, window_lo, window_hi, radius,
+                                         prior, *lanes, *flags)
+
+    def codegen(context, builder, signature, args):
+        i8, i32, i64 = ir.IntType(8), ir.IntType(32), ir.IntType(64)
+        v4i32, v64i8 = ir.VectorType(i32, 4), ir.VectorType(i8, 64)
+        sargs = signature.args
+
+        def scalar(k, ty=types.intp):
+            return context.cast(builder, args[k], sargs[k], ty)
+
+        def data(k):
+            return context.make_array(sargs[k])(context, builder, args[k]).data
+
+        va = builder.load(_element_pointer(context, builder, sargs[0], args[0], args[1], sargs[1],
+                                           v64i8), align=1)
+        other_base = builder.gep(data(2), [scalar(3)])
+        stride_ = scalar(4)
+
+        def lane_vector(first, ty=types.int32):
+            vec = ir.Constant(v4i32, ir.Undefined)
+            for k in range(4):
+                vec = builder.insert_element(vec, scalar(first + k, ty), i32(k))
+            return vec
+
+        mu, hi = lane_vector(13), lane_vector(17)
+        prior_on = builder.icmp_signed("!=", lane_vector(21), ir.Constant(v4i32, [0] * 4))
+        rvec = _splat(builder, scalar(11, types.int32), 4)
+        zero = ir.Constant(v4i32, [0] * 4)
+        big = ir.Constant(v4i32, [2147483647] * 4)
+        best_e = cgutils.alloca_once_value(builder, big)
+        best_d = cgutils.alloca_once_value(builder, ir.Constant(v4i32, [-1] * 4))
+
+        prior_ptr = data(12)
+        v8i32 = ir.VectorType(i32, 8)
+        permd = _llvm_function(builder.module, "llvm.x86.avx2.permd", v8i32, [v8i32, v8i32])
+
+        def prior_lookup(index, table):
+            """``prior[index]`` per lane (``index`` <4 x i32>, every lane <= radius)."""
+            if table is not None:       # one register permute: prior[0..7] in a register
+                wide = builder.shuffle_vector(index, ir.Constant(v4i32, ir.Undefined),
+                                              ir.Constant(v8i32, list(range(4)) + [0] * 4))
+                return builder.shuffle_vector(builder.call(permd, [table, wide]),
+                                              ir.Constant(v8i32, ir.Undefined),
+                                              ir.Constant(v4i32, list(range(4))))
+            bonus = ir.Constant(v4i32, ir.Undefined)
+            for k in range(4):
+                item = builder.sext(builder.extract_element(index, i32(k)), i64)
+                bonus = builder.insert_element(bonus, builder.load(builder.gep(prior_ptr, [item])),
+                                               i32(k))
+            return bonus
+
+        def candidate(d64, window, table=None):
+            """Fold the four costs of disparity ``d64`` (i64) into the running minima."""
+            ptr = builder.bitcast(builder.gep(other_base, [builder.mul(d64, stride_)]),
+                                  v64i8.as_pointer())
+            sums = _block_sums(builder, va, builder.load(ptr, align=1))
+            dvec = _splat(builder, builder.trunc(d64, i32), 4)
+            diff = builder.sub(dvec, mu)
+            dist = builder.select(builder.icmp_signed("<", diff, zero), builder.sub(zero, diff),
+                                  diff)
+            beyond = builder.icmp_signed(">", dvec, hi)
+            if window:
+                masked = builder.or_(builder.icmp_signed(">", dist, rvec), beyond)
+                bonus = prior_lookup(builder.select(masked, zero, dist), table)
+                bonus = builder.select(prior_on, bonus, zero)
+                cost = builder.select(masked, big, builder.add(sums, bonus))
+            else:
+                masked = builder.or_(builder.icmp_signed("<=", dist, rvec), beyond)
+                cost = builder.select(masked, big, sums)
+            old = builder.load(best_e)
+            lower = builder.icmp_signed("<", cost, old)
+            builder.store(builder.select(lower, cost, old), best_e)
+            builder.store(builder.select(lower, dvec, builder.load(best_d)), best_d)
+
+        cell_ptr = data(5)
+        lo, hi_ = scalar(7, types.int64), scalar(8, types.int64)
+        # a grid candidate inside every pixel's window, [max mu - r, min mu + r], is masked
+        # for all four: skipped without its SAD (a third of them on Middlebury 2014)
+        mus = [scalar(13 + k, types.int64) for k in range(4)]
+        mu_min, mu_max = mus[0], mus[0]
+        for m in mus[1:]:
+            mu_min = builder.select(builder.icmp_signed("<", m, mu_min), m, mu_min)
+            mu_max = builder.select(builder.icmp_signed(">", m, mu_max), m, mu_max)
+        r64 = scalar(11, types.int64)
+        shared_lo, shared_hi = builder.sub(mu_max, r64), builder.add(mu_min, r64)
+        # ``cell`` is increasing: the candidates below the shared window and those above it
+        # are two runs of it, found by counting (no branch per candidate)
+        n_below_lo = cgutils.alloca_once_value(builder, i64(0))
+        n_below_shared = cgutils.alloca_once_value(builder, i64(0))
+        n_to_shared = cgutils.alloca_once_value(builder, i64(0))
+        n_to_hi = cgutils.alloca_once_value(builder, i64(0))
+
+        def cell_item(index):
+            return builder.sext(builder.load(builder.gep(cell_ptr, [index])), i64)
+
+        with cgutils.for_range(builder, scalar(6)) as loop:
+            d64 = cell_item(loop.index)
+            for counter, op, bound in ((n_below_lo, "<", lo), (n_below_shared, "<", shared_lo),
+                                       (n_to_shared, "<=", shared_hi), (n_to_hi, "<=", hi_)):
+                hit = builder.zext(builder.icmp_signed(op, d64, bound), i64)
+                builder.store(builder.add(builder.load(counter), hit), counter)
+        first, stop = builder.load(n_below_lo), builder.load(n_to_hi)
+        below_stop = builder.select(builder.icmp_signed("<", builder.load(n_below_shared), stop),
+                                    builder.load(n_below_shared), stop)
+        above_first = builder.load(n_to_shared)     # (after the first run when they overlap)
+        for bound in (first, below_stop):
+            above_first = builder.select(builder.icmp_signed(">", bound, above_first), bound,
+                                         above_first)
+        for run_first, run_stop in ((first, below_stop), (above_first, stop)):
+            with cgutils.for_range(builder, builder.sub(run_stop, run_first)) as loop:
+                candidate(cell_item(builder.add(run_first, loop.index)), False)
+        w_lo = scalar(9, types.int64)
+        count = builder.add(builder.sub(scalar(10, types.int64), w_lo), i64(1))
+
+        def window_loop(table):
+            with cgutils.for_range(builder, count) as loop:
+                candidate(builder.add(w_lo, loop.index), True, table)
+
+        if PSADBW_WIDTH >= 32:          # AVX2: the prior table fits one register
+            small = builder.icmp_signed("<", scalar(11, types.int64), i64(PRIOR_REGISTER))
+            with builder.if_else(small) as (in_register, in_memory):
+                with in_register:
+                    table = builder.load(builder.bitcast(prior_ptr, v8i32.as_pointer()), align=4)
+                    window_loop(table)
+                with in_memory:
+                    window_loop(None)
+        else:
+            window_loop(None)
+        result = builder.load(best_d)
+        items = [builder.sext(builder.extract_element(result, i32(k)), i64) for k in range(4)]
         return context.make_tuple(builder, signature.return_type, items)
 
     return sig, codegen

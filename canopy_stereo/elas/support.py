@@ -219,12 +219,17 @@ def remove_inconsistent(grid, window, threshold, min_support):
             d = grid[i, j]
             if d < 0:
                 continue
+            # counted row by row (contiguous), each row at once; enough support ends
+            # the count (only "fewer than min_support" matters)
             support = 0
-            for j2 in range(max(j - window, 0), min(j + window + 1, cols)):
-                for i2 in range(max(i - window, 0), min(i + window + 1, rows)):
-                    d2 = grid[i2, j2]
-                    if d2 >= 0 and abs(d - d2) <= threshold:
-                        support += 1
+            j_lo, j_hi = max(j - window, 0), min(j + window + 1, cols)
+            for i2 in range(max(i - window, 0), min(i + window + 1, rows)):
+                row = grid[i2]
+                for j2 in range(j_lo, j_hi):
+                    d2 = row[j2]
+                    support += (d2 >= 0) & (abs(d - d2) <= threshold)
+                if support >= min_support:
+                    break
             if support < min_support:
                 grid[i, j] = -1
     return grid

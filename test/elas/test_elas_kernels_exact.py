@@ -237,6 +237,36 @@ def test_support_candidates_are_exact_on_random_images(rng):
     assert (ref == 7).sum() > 10
 
 
+def reference_remove_inconsistent(grid, window, threshold, min_support):
+    grid = grid.copy()
+    rows, cols = grid.shape
+    for j in range(cols):
+        for i in range(rows):
+            d = grid[i, j]
+            if d < 0:
+                continue
+            near = grid[max(i - window, 0):i + window + 1, max(j - window, 0):j + window + 1]
+            if ((near >= 0) & (np.abs(near - d) <= threshold)).sum() < min_support:
+                grid[i, j] = -1
+    return grid
+
+
+def test_inconsistent_support_removal_is_exact(rng, plants):
+    """The filter updates in place (columns outer, rows inner): later points see the
+    earlier removals; the count may stop early, the result may not change."""
+    p = plants["params"]
+    real = support.candidate_grid(*plants["desc"], *plants["tex"], p.candidate_stepsize,
+                                  p.disp_min, p.disp_max, p.support_texture,
+                                  p.support_threshold, p.lr_threshold)
+    noisy = rng.integers(0, 30, (40, 50)).astype(np.int32)
+    noisy[rng.random(noisy.shape) < 0.4] = -1
+    for cells, args in ((real, (5, 5, 5)), (noisy, (5, 5, 5)), (noisy, (2, 3, 4))):
+        ref = reference_remove_inconsistent(cells, *args)
+        got = support.remove_inconsistent(cells.copy(), *args)
+        assert same_bits(got, ref)
+        assert (ref < 0).sum() > (cells < 0).sum() and (ref >= 0).any()
+
+
 # ------------------------------------------------------------------- the whole run
 def _runs_with_one_and_two_threads(left, right, p):
     import numba
@@ -284,70 +314,85 @@ def test_elas_run_at_1280x720_is_the_same_with_two_threads():
 
 
 # --------------------------------------------------------------- SIMD intrinsics
-def _sad16x4_both():
-    """A fresh (uncached) kernel: sad16x4_store next to the plain loop, so that it is
-    compiled with the current simd.PSADBW_WIDTH."""
+def _quad_both():
+    """A fresh (uncached) kernel: quad_first_min next to the one-pixel-at-a-time
+    definition, so that it is compiled with the current simd.PSADBW_WIDTH."""
     from numba import njit
 
-    from canopy_stereo.elas.simd import MASKED, sad16x4_store, sad_reference
+    from canopy_stereo.elas.simd import quad_first_min, sad_reference
 
     @njit
-    def both(a, b, n, bonuses):
-        out = np.zeros(4 * n, np.int32)
-        ref = np.zeros(4 * n, np.int32)
+    def both(own, other, quads, cell, radius, prior, lo):
+        n = quads.shape[0]
+        got = np.empty((n, 4), np.int64)
+        ref = np.empty((n, 4), np.int64)
         for i in range(n):
-            sad16x4_store(a, i * 3, b, i * 5, bonuses[i, 0], bonuses[i, 1], bonuses[i, 2],
-                          bonuses[i, 3], out, 4 * i)
+            a, b, stride, n_cell = quads[i, 0], quads[i, 1], quads[i, 2], quads[i, 3]
+            mu, hi, flag = quads[i, 4:8], quads[i, 8:12], quads[i, 12:16]
+            hi_max = max(max(hi[0], hi[1]), max(hi[2], hi[3]))
+            w_lo = max(min(min(mu[0], mu[1]), min(mu[2], mu[3])) - radius, lo)
+            w_hi = min(max(max(mu[0], mu[1]), max(mu[2], mu[3])) + radius, hi_max)
+            got[i] = quad_first_min(own, a, other, b, stride, cell, n_cell, lo, hi_max, w_lo,
+                                    w_hi, radius, prior, mu[0], mu[1], mu[2], mu[3], hi[0],
+                                    hi[1], hi[2], hi[3], flag[0] != 0, flag[1] != 0,
+                                    flag[2] != 0, flag[3] != 0)
             for k in range(4):
-                if bonuses[i, k] >= MASKED:
-                    ref[4 * i + k] = 2147483647
-                else:
-                    ref[4 * i + k] = sad_reference(a, i * 3 + 16 * k, b, i * 5 + 16 * k,
-                                                   16) + bonuses[i, k]
-        return out, ref
+                best_e, best_d = 2147483647, -1
+                for j in range(n_cell):
+                    d = cell[j]
+                    if d < lo or d > hi_max or abs(d - mu[k]) <= radius or d > hi[k]:
+                        continue
+                    e = sad_reference(own, a + 16 * k, other, b + d * stride + 16 * k, 16)
+                    if e < best_e:
+                        best_e, best_d = e, d
+                for d in range(w_lo, w_hi + 1):
+                    if abs(d - mu[k]) > radius or d > hi[k]:
+                        continue
+                    e = sad_reference(own, a + 16 * k, other, b + d * stride + 16 * k, 16)
+                    if flag[k]:
+                        e += prior[abs(d - mu[k])]
+                    if e < best_e:
+                        best_e, best_d = e, d
+                ref[i, k] = best_d
+        return got, ref
 
     return both
 
 
-def test_sad16x4_store_equals_four_plain_sads_with_every_instruction_width(rng, monkeypatch):
+@pytest.mark.parametrize("width", [64, 32, 16, 0])
+def test_quad_first_min_equals_one_pixel_at_a_time(rng, monkeypatch, width):
+    """Four pixels' first minima over grid candidates and plane windows (own prior,
+    window and largest disparity per pixel, unmatched pixels), ties included, at every
+    psadbw width (0: portable IR), with the prior in a register (small radius, AVX2) and
+    in memory."""
     from canopy_stereo.elas import simd
 
-    n = 300
-    a = rng.integers(0, 256, 3 * n + 64, dtype=np.uint8)
-    b = rng.integers(0, 256, 5 * n + 64, dtype=np.uint8)
-    bonuses = rng.integers(-60, 1, (n, 4)).astype(np.int64)
-    bonuses[rng.random((n, 4)) < 0.2] = simd.MASKED
-    a[:64], b[:64] = 0, 255                       # the largest sum, 16 * 255 per block
-    widths = [w for w in (64, 32, 16) if w <= simd.PSADBW_WIDTH] + [0]
-    for width in widths:
-        monkeypatch.setattr(simd, "PSADBW_WIDTH", width)
-        out, ref = _sad16x4_both()(a, b, n, bonuses)
-        assert np.array_equal(out, ref), f"psadbw width {width}"
-    assert ref[0] == 16 * 255 + bonuses[0, 0] or bonuses[0, 0] >= simd.MASKED
+    if width > simd.PSADBW_WIDTH:
+        pytest.skip(f"this CPU has no {width}-byte psadbw")
 
-
-def test_first_min4_keeps_each_lanes_first_minimum(rng):
-    from numba import njit
-
-    from canopy_stereo.elas.simd import first_min4
-
-    @njit
-    def run(costs, values, n):
-        return first_min4(costs, values, n)
-
-    for _ in range(300):
-        n = int(rng.integers(0, 15))
-        costs = rng.integers(-3, 4, 4 * n).astype(np.int32)   # many ties
-        costs[rng.random(4 * n) < 0.2] = 2147483647
-        values = rng.integers(0, 300, n).astype(np.int64)
-        expect = []
-        for k in range(4):
-            best, value = 2147483647, -1
-            for j in range(n):
-                if costs[4 * j + k] < best:
-                    best, value = costs[4 * j + k], values[j]
-            expect.append(value)
-        assert run(costs, values, n) == tuple(expect)
+    n, span = 400, 40
+    levels = 3                                         # few byte values: many equal costs
+    own = rng.integers(0, levels, 64 * n, dtype=np.uint8)
+    other = rng.integers(0, levels, 16 * (4 * span + 8), dtype=np.uint8)
+    cell = np.sort(rng.choice(span, 12, replace=False)).astype(np.int32)
+    quads = np.zeros((n, 16), np.int64)
+    quads[:, 0] = 64 * np.arange(n)
+    quads[:, 2] = rng.choice([-16, 16], n)
+    quads[:, 1] = np.where(quads[:, 2] < 0, 16 * (span + 2), 16 * (2 * span + 2))
+    quads[:, 3] = rng.integers(0, 13, n)
+    quads[:, 4:8] = rng.integers(-5, span + 5, (n, 1)) + rng.integers(-3, 4, (n, 4))
+    quads[:, 8:12] = rng.integers(span // 2, span, (n, 1)) + np.arange(4) * rng.choice([-1, 1, 0], (n, 1))
+    quads[:, 8:12][rng.random((n, 4)) < 0.1] = -1      # pixels that are not matched
+    quads[:, 12:16] = rng.random((n, 4)) < 0.6
+    monkeypatch.setattr(simd, "PSADBW_WIDTH", width)
+    kernel = _quad_both()
+    for radius in (2, 3, 9):
+        table = matching.prior_table(0.02, 3.0, radius / 2.0, radius + 1)
+        prior = np.zeros(max(radius + 1, simd.PRIOR_REGISTER), np.int32)
+        prior[:radius + 1] = table
+        got, ref = kernel(own, other, quads, cell, radius, prior, 1)
+        assert np.array_equal(got, ref), f"radius {radius}"
+        assert (ref >= 0).mean() > 0.5 and (ref < 0).any()
 
 
 # ------------------------------------------------------------------ dense matching
@@ -622,40 +667,6 @@ def test_rasterisation_is_exact(rng, plants):
     triangles = np.vstack([rng.integers(0, 30, (40, 3)), [[30, 31, 32]]]).astype(np.int32)
     ref = reference_rasterize(vertices, triangles, 50, 60)
     assert same_bits(delaunay.rasterize_triangles(vertices, triangles, 50, 60), ref)
-
-
-def test_sad16x4_store_outside_masks_each_pixels_window(rng, monkeypatch):
-    from numba import njit
-
-    from canopy_stereo.elas import simd
-
-    def kernel():
-        @njit
-        def both(a, b, n, d, mus, radius):
-            out = np.zeros(4 * n, np.int32)
-            ref = np.zeros(4 * n, np.int32)
-            for i in range(n):
-                simd.sad16x4_store_outside(a, i * 3, b, i * 5, d[i], mus[i, 0], mus[i, 1],
-                                           mus[i, 2], mus[i, 3], radius, out, 4 * i)
-                for k in range(4):
-                    if abs(d[i] - mus[i, k]) <= radius:
-                        ref[4 * i + k] = 2147483647
-                    else:
-                        ref[4 * i + k] = simd.sad_reference(a, i * 3 + 16 * k, b,
-                                                            i * 5 + 16 * k, 16)
-            return out, ref
-        return both
-
-    n = 300
-    a = rng.integers(0, 256, 3 * n + 64, dtype=np.uint8)
-    b = rng.integers(0, 256, 5 * n + 64, dtype=np.uint8)
-    d = rng.integers(0, 60, n).astype(np.int64)
-    mus = rng.integers(0, 60, (n, 4)).astype(np.int64)
-    for width in [w for w in (64, 32, 16) if w <= simd.PSADBW_WIDTH] + [0]:
-        monkeypatch.setattr(simd, "PSADBW_WIDTH", width)
-        out, ref = kernel()(a, b, n, d, mus, 3)
-        assert np.array_equal(out, ref), f"psadbw width {width}"
-        assert (ref == 2147483647).any() and (ref < 2147483647).any()
 
 
 def test_stable_argsort_equals_numpys_stable_sort(rng):
