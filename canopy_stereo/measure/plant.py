@@ -81,6 +81,12 @@ def original_cloud_mm(disparity, rig, rectification: Rectification) -> np.ndarra
     from canopy_stereo.geometry.triangulation import organized_from_disparity
 
     disp = np.asarray(disparity, np.float32)
+    doffs = np.float32(rectification.doffs)
+    if doffs != 0:
+        # the values as the graph carries them (disparity_node publishes d - doffs in float32 and
+        # the measuring side adds doffs back): float32 rounding then gives every entry point the
+        # same disparity to the last bit (a no-op on values that made that round trip already)
+        disp = (disp - doffs) + doffs
     disp = np.where(np.isfinite(disp), disp, np.float32(-1))
     org = organized_from_disparity(disp, rectification, rig.P_left, rig.P_right, rig.image_size,
                                    D_left=rig.D_left)
