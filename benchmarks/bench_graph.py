@@ -5,7 +5,9 @@ Per configuration (``--configs``; ``--quick`` for the two headline ones, ``--hd`
 bgr8 pairs of **real plant images** (Middlebury 2014 "Plants", the pair in the bundled
 ``bags/plants.mcap``, cropped to 640x480 and resized to the configuration's size; the
 crop window drifts by a few pixels and sensor noise changes every frame, as a hand-held
-rig's would; ``--scene croton`` uses the bundled synthetic croton instead), and prints:
+rig's would; ``--scene croton`` uses the bundled synthetic croton instead, ``--scene aloe`` the
+held-out Middlebury 2006 Aloe with disparities to about 130 px, from ``../shared/data``:
+``test/support/aloe.py``), and prints:
 
 * clouds/s offered (pairs published per second) and delivered (``points2`` received for
   them per second, first pair published -> last cloud received) and their ratio;
@@ -56,6 +58,7 @@ graph fed the croton frames at ``--rates`` (issue 12's benchmark).
 from __future__ import annotations
 
 import argparse
+import collections
 import contextlib
 import io
 import os
@@ -217,6 +220,8 @@ COMPRESSED_CONFIGS = tuple(f"{c}:compressed" for c in QUICK_CONFIGS)
 HD_CONFIGS = tuple(f"processes:elas:{mask}:1280x720{transport}" for mask in MASKS for transport in ("", ":compressed"))
 #: Crop of the 710x496 Plants pair to 640x480 (centre of the drift), pixels.
 PLANTS_CROP = (35, 8)
+#: Scenes whose frames are a drifting window of one real pair (the others: their frames, cycled).
+DRIFTING_SCENES = ("plants", "aloe")
 #: Drift of the crop window (pixels, each way) and its period (frames).
 DRIFT_PX, DRIFT_PERIOD = (12, 6), 60
 #: Standard deviation of the per-frame sensor noise (grey levels).
@@ -295,17 +300,24 @@ def bench_frames(scene: str, size: str, n_frames: int = DRIFT_PERIOD, seed: int 
     import cv2
     import numpy as np
 
-    bag = BagReader(bundled_bag(scene))
-    lefts = [msg_to_image(m).copy() for _, m in bag.read("/stereo/left/image_raw")]
-    rights = [msg_to_image(m).copy() for _, m in bag.read("/stereo/right/image_raw")]
-    rig = load_rig(bundled_rig(scene))
+    if scene == "aloe":  # the held-out real plant, disparities to about 130 px (shared data)
+        from test.support.aloe import ALOE_CROP, aloe_source
+
+        rig, left, right = aloe_source()
+        lefts, rights, crop = [left], [right], ALOE_CROP
+    else:
+        bag = BagReader(bundled_bag(scene))
+        lefts = [msg_to_image(m).copy() for _, m in bag.read("/stereo/left/image_raw")]
+        rights = [msg_to_image(m).copy() for _, m in bag.read("/stereo/right/image_raw")]
+        rig, crop = load_rig(bundled_rig(scene)), PLANTS_CROP
     scale = SIZES[size]
     width, height = (int(v) for v in size.split("x"))
     ww, wh = round(width / scale), round(height / scale)  # the source window: 640x480 or 640x360
     rng = np.random.default_rng(seed)
     frames = []
-    if scene == "plants":
-        (cx, cy), (dx, dy) = PLANTS_CROP, DRIFT_PX
+    drifting = scene in DRIFTING_SCENES
+    if drifting:
+        (cx, cy), (dx, dy) = crop, DRIFT_PX
         cy += (480 - wh) // 2
         rig = scaled_rig(rig, scale, (cx, cy), (ww, wh))
         cx, cy = min(cx, lefts[0].shape[1] - ww - dx), min(cy, lefts[0].shape[0] - wh - dy)
@@ -315,7 +327,7 @@ def bench_frames(scene: str, size: str, n_frames: int = DRIFT_PERIOD, seed: int 
         lefts, rights = [im[y0:y0 + wh] for im in lefts], [im[y0:y0 + wh] for im in rights]
     for k in range(n_frames):
         left, right = lefts[k % len(lefts)], rights[k % len(rights)]
-        if scene == "plants":
+        if drifting:
             phase = 2 * np.pi * k / DRIFT_PERIOD
             x = cx + int(round(dx * np.sin(phase)))
             y = cy + int(round(dy * np.sin(2 * phase)))
@@ -401,6 +413,7 @@ class DiagnosticsTotals:
 
         self.lock = threading.Lock()
         self.latest: dict = {}
+        self.reasons: dict = {}
         node.create_subscription(DiagnosticArray, "/diagnostics", self._on, 50)
 
     def _on(self, msg) -> None:
@@ -412,10 +425,19 @@ class DiagnosticsTotals:
             with self.lock:
                 self.latest[node] = {"out": max(outs) if outs else 0,
                                      "dropped": int(values.get("dropped total", 0))}
+                reasons = self.reasons.setdefault(node, collections.Counter())
+                for k, v in values.items():  # each report's window: summed, the run's reasons
+                    if k.startswith("dropped: "):
+                        reasons[k[len("dropped: "):]] += int(v)
 
     def snapshot(self) -> dict:
         with self.lock:
             return {k: dict(v) for k, v in self.latest.items()}
+
+    def reason_counts(self) -> dict:
+        """node -> {drop reason: count} summed over the reports heard so far."""
+        with self.lock:
+            return {k: dict(v) for k, v in self.reasons.items()}
 
 
 def parse_node_parameter(text: str) -> tuple[str, str, object]:
@@ -542,6 +564,7 @@ def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rat
         with lock:
             arrivals.clear()
         diag0 = diagnostics.snapshot()
+        reasons0 = diagnostics.reason_counts()
 
         def cpu_now() -> dict:
             if pids:
@@ -572,6 +595,7 @@ def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rat
         cpu1, wall1 = cpu_now(), time.monotonic()
         time.sleep(1.3)  # the next diagnostics period
         diag1 = diagnostics.snapshot()
+        reasons1 = diagnostics.reason_counts()
         with lock:
             got = {s: t for s, t in arrivals.items() if s in wanted}
         lat_ms = np.array([(got[s] - s) / 1e6 for s in sent if s in got])
@@ -585,6 +609,9 @@ def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rat
             if name in diag1:
                 row["out"] = diag1[name]["out"] - diag0.get(name, {}).get("out", 0)
                 row["dropped"] = diag1[name]["dropped"] - diag0.get(name, {}).get("dropped", 0)
+                before = reasons0.get(name, {})
+                row["drop_reasons"] = {k: n - before.get(k, 0) for k, n in reasons1.get(name, {}).items()
+                                       if n - before.get(k, 0) > 0}
             if name in pids:
                 row["rss_peak_mb"] = proc_peak_rss_mb(pids[name])
             nodes[name] = row
@@ -629,6 +656,10 @@ def format_result(r: dict) -> list[str]:
     if r["config"].startswith("inprocess"):
         parts.append(f"process {r['process_rss_peak_mb']:.0f} MB")
     lines.append("    cpu ms per offered pair (per frame output): " + ", ".join(parts))
+    for name, v in r["nodes"].items():
+        top = sorted(v.get("drop_reasons", {}).items(), key=lambda kv: -kv[1])[:3]
+        if top:
+            lines.append(f"    {_short(name)} drops: " + "; ".join(f"{n}x {k[:90]}" for k, n in top))
     return lines
 
 
@@ -735,8 +766,9 @@ def main(argv=None) -> int:
     p.add_argument("--hd", action="store_true",
                    help=f"only the 1280x720 graph: {', '.join(HD_CONFIGS)} (issue 28)")
     p.add_argument("--jpeg-quality", type=int, default=95, help="JPEG quality of compressed inputs (default 95)")
-    p.add_argument("--scene", choices=("plants", "croton"), default="plants",
-                   help="frames: the real Middlebury Plants pair (default) or the synthetic croton")
+    p.add_argument("--scene", choices=("plants", "croton", "aloe"), default="plants",
+                   help="frames: the real Middlebury Plants pair (default, disparities 0-81), the synthetic "
+                        "croton, or the held-out real Aloe (disparities to about 130 px; needs ../shared/data)")
     p.add_argument("--rate", type=float, default=30.0, help="camera rate (pairs/s)")
     p.add_argument("--frames", type=int, default=None,
                    help="pairs fed per configuration (default 90; the --replay/--processes modes: 40)")

@@ -121,10 +121,12 @@ def generate_launch_description():
                                "elas.subsampling": LaunchConfiguration("elas_subsampling"),
                                # masked clouds: match only in the plant region of the previous masks
                                "roi": LaunchConfiguration("use_mask")}]),
-        # nothing waits for every mask unless use_mask: GrabCut segments the newest image
+        # nothing waits for every mask unless use_mask: GrabCut segments the newest image;
+        # masked: a mask for every frame the matcher matched (and only for those)
         Node(package=PACKAGE, executable="segment_node", namespace=ns,
              parameters=[{"queue_size": PythonExpression(
                  ["5 if '", LaunchConfiguration("use_mask"), "'.lower() == 'true' else 1"]),
+                 "follow_disparity": LaunchConfiguration("use_mask"),
                  "depth_cue": LaunchConfiguration("segment_depth_cue")}]),
         Node(package=PACKAGE, executable="traits_node", namespace=ns,
              condition=IfCondition(LaunchConfiguration("traits")), parameters=[rig]),

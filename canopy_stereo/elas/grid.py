@@ -89,3 +89,38 @@ def disparity_grid(points: np.ndarray, image_size: tuple[int, int], grid_size: i
                   workspace.array("grid_counts", shape[:2], np.int32))
     _grid(pts, bool(right_image), w, h, grid_size, int(disp_min), int(disp_max), *arrays)
     return arrays[2], arrays[3]
+
+
+@njit(cache=True, nogil=True)
+def _ranks_into(lists, counts, ranks):
+    gh, gw, size = ranks.shape
+    for gy in range(gh):
+        for gx in range(gw):
+            cell = lists[gy, gx]
+            n = counts[gy, gx]
+            dst = ranks[gy, gx]
+            j = 0
+            for d in range(size):
+                while j < n and cell[j] < d:
+                    j += 1
+                dst[d] = j
+
+
+def candidate_ranks(lists: np.ndarray, counts: np.ndarray, *, workspace=None) -> np.ndarray:
+    """Per cell, how many of its candidates lie below each disparity.
+
+    Args:
+        lists, counts: a :func:`disparity_grid` (lists (gh, gw, D) int32, increasing).
+        workspace: a :class:`~canopy_stereo.elas.workspace.Workspace` to take the
+            array from (overwritten by its next use); a fresh array when None.
+
+    Returns:
+        int16 (gh, gw, D + 1): ``ranks[gy, gx, d]`` is the number of candidates of cell
+        ``(gy, gx)`` smaller than ``d`` (``d = 0 .. D``), so the candidates in
+        ``[a, b]`` are ``lists[gy, gx, ranks[a]:ranks[b + 1]]`` (D <= 32001: int16).
+    """
+    shape = (lists.shape[0], lists.shape[1], lists.shape[2] + 1)
+    ranks = np.empty(shape, np.int16) if workspace is None else \
+        workspace.array("grid_ranks", shape, np.int16)
+    _ranks_into(lists, counts, ranks)
+    return ranks

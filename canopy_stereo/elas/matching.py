@@ -33,6 +33,7 @@ import math
 import numpy as np
 from numba import njit
 
+from canopy_stereo.elas.grid import candidate_ranks
 from canopy_stereo.elas.parallel import run_row_bands
 from canopy_stereo.elas.simd import DESC_BYTES, PRIOR_REGISTER, quad_first_min, sad16
 
@@ -50,6 +51,16 @@ def prior_table(beta: float, gamma: float, sigma: float, size: int) -> np.ndarra
     delta = np.arange(size, dtype=np.float64)
     val = (math.log(gamma) - np.log(gamma + np.exp(-delta ** 2 / (2.0 * sigma ** 2)))) / beta
     return np.trunc(val).astype(np.int32)
+
+
+def window_prior(prior: np.ndarray, radius: int) -> np.ndarray:
+    """int32 (max(2 radius + 1, PRIOR_REGISTER),) the prior across the plane window:
+    entry ``i`` is ``prior[|i - radius|]`` (disparity ``mu - radius + i``), zeros after
+    ``2 radius`` (:func:`~canopy_stereo.elas.simd.quad_first_min` may load them)."""
+    offsets = np.abs(np.arange(2 * radius + 1) - radius)
+    out = np.zeros(max(2 * radius + 1, PRIOR_REGISTER), np.int32)
+    out[:2 * radius + 1] = np.asarray(prior, np.int32)[offsets]
+    return out
 
 
 def plane_radius(sigma: float, sradius: float) -> int:
@@ -73,8 +84,8 @@ def _subpixel_offset(flat_own, flat_other, a, sign, best_d, d_lo, d_hi, off_row,
 
 @njit(cache=True, nogil=True)
 def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_lists,
-                grid_counts, grid_size, prior, radius, sign, disp_min, disp_max, match_texture,
-                step, subpixel, out, offsets, row_start, row_stop):
+                grid_counts, grid_ranks, grid_size, prior, prior_window, radius, sign, disp_min,
+                disp_max, match_texture, step, subpixel, out, offsets, row_start, row_stop):
     """Output rows ``[row_start, row_stop)`` of :func:`match_job` (arguments there).
 
     With ``step`` 1, four neighbouring pixels of one grid cell are matched together
@@ -88,10 +99,6 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
     flat_other = desc_other.reshape(-1)
     lane_best = np.empty(4, np.int64)
     lane_hi = np.empty(4, np.int64)
-    # the prior padded to the entries quad_first_min may load at once
-    prior_padded = np.zeros(max(prior.shape[0], PRIOR_REGISTER), np.int32)
-    for i in range(prior.shape[0]):
-        prior_padded[i] = prior[i]
     # matched columns x = u - sign*d must satisfy MATCH_BORDER <= x < w - MATCH_BORDER
     n_cells = grid_counts.shape[1]
     for r in range(row_start, row_stop):
@@ -105,6 +112,8 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
         for gx in range(n_cells):
             cell = grid_lists[gy, gx]
             n_grid = grid_counts[gy, gx]
+            ranks = grid_ranks[gy, gx]      # candidates below d: ranks[clip(d, 0, n_ranks-1)]
+            n_ranks = ranks.shape[0]
             u_first = max(gx * grid_size, MATCH_BORDER)
             u_first = ((u_first + step - 1) // step) * step
             u_stop = min((gx + 1) * grid_size, w - MATCH_BORDER)
@@ -173,12 +182,21 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
                     hi_max = max(max(hi0, hi1), max(hi2, hi3))
                     mu_lo = min(min(mu0, mu1), min(mu2, mu3))
                     mu_hi = max(max(mu0, mu1), max(mu2, mu3))
+                    # the grid candidates in [disp_min, hi_max] below and above the window
+                    # every pixel shares, [mu_hi - r, mu_lo + r] (masked for all four, so
+                    # not evaluated): two runs of the increasing cell list
+                    first = np.int64(ranks[min(disp_min, n_ranks - 1)])
+                    stop = np.int64(ranks[min(hi_max + 1, n_ranks - 1)])
+                    below = np.int64(ranks[min(max(mu_hi - radius, 0), n_ranks - 1)])
+                    above = np.int64(ranks[min(max(mu_lo + radius + 1, 0), n_ranks - 1)])
+                    below = min(max(below, first), stop)
+                    above = min(max(above, below), stop)
                     a0 = row + u * DESC_BYTES
                     best0, best1, best2, best3 = quad_first_min(
-                        flat_own, a0, flat_other, a0, -sign * DESC_BYTES, cell, n_grid,
-                        disp_min, hi_max, max(mu_lo - radius, disp_min),
-                        min(mu_hi + radius, hi_max), radius, prior_padded, mu0, mu1, mu2, mu3, hi0, hi1,
-                        hi2, hi3, p0, p1, p2, p3)
+                        flat_own, a0, flat_other, a0, -sign * DESC_BYTES, cell, first, below,
+                        above, stop, max(mu_lo - radius, disp_min), min(mu_hi + radius, hi_max),
+                        radius, prior_window, mu0, mu1, mu2, mu3, hi0, hi1, hi2, hi3, p0, p1, p2,
+                        p3)
                     lane_best[0] = best0
                     lane_best[1] = best1
                     lane_best[2] = best2
@@ -285,9 +303,11 @@ def match_job(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_
         offsets = workspace.array("offsets", out_shape, np.float32)
         disp.fill(-1.0)
         offsets.fill(0.0)
+    ranks = candidate_ranks(grid_lists, grid_counts, workspace=workspace)
     args = (desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_lists, grid_counts,
-            int(grid_size), prior, int(radius), int(sign), int(disp_min), int(disp_max),
-            int(match_texture), int(step), bool(subpixel), disp, offsets)
+            ranks, int(grid_size), prior, window_prior(prior, int(radius)), int(radius),
+            int(sign), int(disp_min), int(disp_max), int(match_texture), int(step),
+            bool(subpixel), disp, offsets)
     return (_match_rows, out_shape[0], args), disp, offsets
 
 

@@ -315,9 +315,20 @@ def _adaptive_mean_rows(disp, linear, before, after, rows, row_start, row_stop):
                 wt = _mean_weight(tap[u], centre[u], linear)
                 s[u] += wt * tap[u]
                 sw[u] += wt
-        dst = rows[v]
-        for u in range(w):
-            dst[u] = s[u] / sw[u] if centre[u] >= 0 else centre[u]
+        _mean_quotient(s, sw, centre, rows[v])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _mean_quotient(s, sw, centre, dst):
+    """``dst[u] = s[u] / sw[u]`` where ``centre[u]`` is valid, else ``centre[u]``.
+
+    The quotient is computed for every pixel and then selected (0/0 = NaN where the
+    centre is invalid is never stored; a valid centre weighs itself, so ``sw > 0``
+    there): one vector division for many pixels instead of one division and branch per
+    pixel (numpy's error model: no zero-division check, which kept it scalar)."""
+    for u in range(dst.shape[0]):
+        q = s[u] / sw[u]
+        dst[u] = q if centre[u] >= 0 else centre[u]
 
 
 @njit(cache=True, nogil=True)
@@ -338,9 +349,7 @@ def _adaptive_mean_columns(rows, linear, before, after, out, row_start, row_stop
                 wt = _mean_weight(tap[u], centre[u], linear)
                 s[u] += wt * tap[u]
                 sw[u] += wt
-        dst = out[v]
-        for u in range(w):
-            dst[u] = s[u] / sw[u] if centre[u] >= 0 else centre[u]
+        _mean_quotient(s, sw, centre, out[v])
 
 
 def adaptive_mean(disp: np.ndarray, linear: bool = False, *, workspace=None) -> np.ndarray:
@@ -402,23 +411,16 @@ def _median7(t0, t1, t2, t3, t4, t5, t6):
     x1, x2 = min(x1, x2), max(x1, x2)
     x3, x4 = min(x3, x4), max(x3, x4)
     x5, x6 = min(x5, x6), max(x5, x6)
-    k = n // 2
-    if k == 0:
-        return x0
-    if k == 1:
-        return x1
-    if k == 2:
-        return x2
-    return x3
+    k = n // 2      # (selects, not branches: the pixel loops vectorise)
+    low = x1 if k == 1 else x0
+    high = x3 if k == 3 else x2
+    return high if k >= 2 else low
 
 
 @njit(cache=True, nogil=True)
 def _median(disp, radius, rows):
     """Rows pass (into ``rows``) then columns pass of the 7-tap median of valid values."""
     h, w = disp.shape
-    for v in range(h):      # (a loop: an array-to-array slice assignment compiles for seconds)
-        for u in range(w):
-            rows[v, u] = disp[v, u]
     line = np.full(w + 2 * radius, -1.0, dtype=np.float32)
     for v in range(h):
         src = disp[v]
@@ -426,10 +428,10 @@ def _median(disp, radius, rows):
             line[radius + u] = src[u]
         dst = rows[v]
         for u in range(w):
-            if src[u] >= 0:
-                dst[u] = _median7(line[u], line[u + 1], line[u + 2], line[u + 3], line[u + 4],
-                                  line[u + 5], line[u + 6])
-    out = rows.copy()
+            m = _median7(line[u], line[u + 1], line[u + 2], line[u + 3], line[u + 4],
+                         line[u + 5], line[u + 6])
+            dst[u] = m if src[u] >= 0 else src[u]
+    out = np.empty_like(rows)       # (every pixel is written below)
     pad = np.full(w, -1.0, dtype=np.float32)
     for v in range(h):
         centre = rows[v]
@@ -441,8 +443,8 @@ def _median(disp, radius, rows):
         r6 = rows[v + 3] if v + 3 < h else pad
         dst = out[v]
         for u in range(w):
-            if centre[u] >= 0:
-                dst[u] = _median7(r0[u], r1[u], r2[u], centre[u], r4[u], r5[u], r6[u])
+            m = _median7(r0[u], r1[u], r2[u], centre[u], r4[u], r5[u], r6[u])
+            dst[u] = m if centre[u] >= 0 else centre[u]
     return out
 
 

@@ -32,7 +32,7 @@ from canopy_stereo.elas.simd import (
     PSADBW_WIDTH,
     SUPPORT_LANES,
     sad64,
-    sad64x8_first_two_min,
+    sad64_chunks_first_two_min,
 )
 
 #: Offset (pixels) of the four descriptor samples from the candidate, both axes.
@@ -94,15 +94,46 @@ def _fold_lowest_two(flat_own, flat_other, a, sign, dmin, dmax, best_e, second_e
     return best_e, second_e, best_d
 
 
+#: Zero columns on each side of a chunk-major row buffer (a group of 8 disparities may
+#: reach past the last valid column).
+CHUNK_PAD = SUPPORT_LANES
+
+
 @njit(cache=True, inline="always")
-def _lowest_two_vector(flat_own, flat_other, a, sign, dmin, dmax):
-    """:func:`_lowest_two_scalar` with groups of 8 disparities in one AVX-512 vector
-    (:func:`~canopy_stereo.elas.simd.sad64x8_first_two_min`), the lanes merged exactly
-    (lowest, then the multiset's second lowest, ties to the first ``d``), the last
-    ``< 8`` disparities one at a time."""
-    groups = (dmax - dmin + 1) // SUPPORT_LANES
-    r = sad64x8_first_two_min(flat_own, a, flat_other, a - sign * dmin * SUPPORT_BYTES,
-                              -sign * SUPPORT_BYTES, groups)
+def _sample_row_chunks(words, v, dst):
+    """:func:`_sample_row` stored chunk-major: ``dst[c, CHUNK_PAD + x]`` (uint64 (8,
+    W + 2 CHUNK_PAD)) is qword ``c`` of column ``x``'s cost vector."""
+    w = words.shape[1]
+    off = SUPPORT_SAMPLE_OFFSET
+    top = words[v - off]
+    bottom = words[v + off]
+    for k in range(2):
+        for x in range(off, w - off):
+            dst[k, CHUNK_PAD + x] = top[x - off, k]
+        for x in range(off, w - off):
+            dst[2 + k, CHUNK_PAD + x] = top[x + off, k]
+        for x in range(off, w - off):
+            dst[4 + k, CHUNK_PAD + x] = bottom[x - off, k]
+        for x in range(off, w - off):
+            dst[6 + k, CHUNK_PAD + x] = bottom[x + off, k]
+
+
+@njit(cache=True, inline="always")
+def _lowest_two_chunks(buf_own, buf_other, u, sign, dmin, dmax):
+    """:func:`_lowest_two_scalar` of column ``u`` over chunk-major row buffers
+    (:func:`_sample_row_chunks`, flattened), 8 disparities per group
+    (:func:`~canopy_stereo.elas.simd.sad64_chunks_first_two_min`), the lanes merged
+    exactly (lowest, then the multiset's second lowest, ties to the first ``d``)."""
+    stride = buf_own.shape[0] // SUPPORT_LANES
+    n = dmax - dmin + 1
+    groups = (n + SUPPORT_LANES - 1) // SUPPORT_LANES
+    if sign > 0:    # other column u - dmin - j: lane k of group g is j = 8 g + 7 - k
+        r = sad64_chunks_first_two_min(buf_own, CHUNK_PAD + u, buf_other,
+                                       CHUNK_PAD + u - dmin - (SUPPORT_LANES - 1), stride,
+                                       -SUPPORT_LANES, groups, SUPPORT_LANES - 1, -1, n)
+    else:           # other column u + dmin + j: lane k of group g is j = 8 g + k
+        r = sad64_chunks_first_two_min(buf_own, CHUNK_PAD + u, buf_other, CHUNK_PAD + u + dmin,
+                                       stride, SUPPORT_LANES, groups, 0, 1, n)
     best_e = np.int64(2147483647)
     second_e = np.int64(2147483647)
     best_j = -1
@@ -116,24 +147,56 @@ def _lowest_two_vector(flat_own, flat_other, a, sign, dmin, dmax):
         best_e = e if lower else best_e
     for k in range(SUPPORT_LANES):
         second_e = min(second_e, r[SUPPORT_LANES + k])
-    best_d = dmin + best_j if best_j >= 0 else -1
-    return _fold_lowest_two(flat_own, flat_other, a, sign, dmin + groups * SUPPORT_LANES, dmax,
-                            best_e, second_e, best_d)
-
-
-#: The lowest-two search compiled here: eight disparities per vector with AVX-512BW.
-_lowest_two = _lowest_two_vector if PSADBW_WIDTH == 64 else _lowest_two_scalar
+    return best_e, second_e, (dmin + best_j if best_j >= 0 else -1)
 
 
 @njit(cache=True, inline="always")
-def _candidate_disparity(flat_own, flat_other, texture_own, row_base, width, u, v, sign,
+def _lowest_two_interleaved(buf_own, buf_other, u, sign, dmin, dmax):
+    """:func:`_lowest_two_scalar` of column ``u`` over interleaved row buffers
+    (:func:`_sample_row`, flattened to bytes)."""
+    return _lowest_two_scalar(buf_own, buf_other, u * SUPPORT_BYTES, sign, dmin, dmax)
+
+
+@njit(cache=True)
+def _row_buffer_chunks(w):
+    return np.zeros(SUPPORT_LANES * (w + 2 * CHUNK_PAD), np.uint64)
+
+
+@njit(cache=True)
+def _row_buffer_interleaved(w):
+    return np.zeros(w * SUPPORT_BYTES, np.uint8)
+
+
+@njit(cache=True, inline="always")
+def _sample_into_chunks(words, v, flat):
+    _sample_row_chunks(words, v, flat.reshape(SUPPORT_LANES, flat.shape[0] // SUPPORT_LANES))
+
+
+@njit(cache=True, inline="always")
+def _sample_into_interleaved(words, v, flat):
+    w = words.shape[1]
+    _sample_row(words, v, flat.view(np.uint64).reshape(w, SUPPORT_BYTES // 8))
+
+
+#: The row buffers and the lowest-two search compiled here: chunk-major buffers and eight
+#: disparities per vector with AVX-512BW, interleaved 64-byte vectors one SAD at a time
+#: elsewhere.
+if PSADBW_WIDTH == 64:
+    _row_buffer, _sample_into, _lowest_two = (_row_buffer_chunks, _sample_into_chunks,
+                                              _lowest_two_chunks)
+else:
+    _row_buffer, _sample_into, _lowest_two = (_row_buffer_interleaved, _sample_into_interleaved,
+                                              _lowest_two_interleaved)
+
+
+@njit(cache=True, inline="always")
+def _candidate_disparity(flat_own, flat_other, texture_own, width, u, v, sign,
                          disp_min, disp_max, support_texture, support_threshold):
     """Best disparity of candidate (u, v) of the *own* image, or -1.
 
-    ``flat_own``/``flat_other`` are the candidate-row cost vectors (see
-    :func:`_sample_row`) flattened; ``row_base`` is the byte offset of this
-    candidate row. ``sign`` is +1 for the left image (match at ``u - d`` in the
-    right image) and -1 for the right image (match at ``u + d``).
+    ``flat_own``/``flat_other`` are the candidate row's cost vectors (the row buffers
+    of :func:`_sample_into`). ``sign`` is +1 for the left image (match at ``u - d`` in
+    the right image) and -1 for the right image (match at ``u + d``).
     """
     off = SUPPORT_SAMPLE_OFFSET
     if texture_own[v, u] < support_texture:
@@ -147,8 +210,7 @@ def _candidate_disparity(flat_own, flat_other, texture_own, row_base, width, u, 
     if dmax - dmin + 1 < MIN_SUPPORT_DISPARITIES:
         return -1
     # at least MIN_SUPPORT_DISPARITIES (> 1) costs are seen, so both lowest exist
-    best_e, second_e, best_d = _lowest_two(flat_own, flat_other, row_base + u * SUPPORT_BYTES,
-                                           sign, dmin, dmax)
+    best_e, second_e, best_d = _lowest_two(flat_own, flat_other, u, sign, dmin, dmax)
     if np.float32(best_e) < support_threshold * np.float32(second_e):
         return best_d
     return -1
@@ -159,31 +221,29 @@ def _candidate_rows(words_left, words_right, tex_left, tex_right, step, disp_min
                     support_texture, support_threshold, lr_threshold, grid, row_start, row_stop):
     """Candidate cells of rows ``[row_start, row_stop)`` of :func:`candidate_grid`.
 
-    Each candidate row's cost vectors (:func:`_sample_row`) are gathered into two
-    row buffers (W, 8) uint64 that this call reuses for all its rows (gathering whole
-    images cost ~8 MB of fresh pages per frame at 640x480).
+    Each candidate row's cost vectors (:func:`_sample_into`) are gathered into two
+    row buffers that this call reuses for all its rows (gathering whole images cost
+    ~8 MB of fresh pages per frame at 640x480).
     """
     h, w, _ = words_left.shape
-    buf_l = np.zeros((w, SUPPORT_BYTES // 8), np.uint64)
-    buf_r = np.zeros((w, SUPPORT_BYTES // 8), np.uint64)
-    flat_l = buf_l.reshape(-1).view(np.uint8)
-    flat_r = buf_r.reshape(-1).view(np.uint8)
+    flat_l = _row_buffer(w)
+    flat_r = _row_buffer(w)
     cols = grid.shape[1]
     for i in range(row_start, row_stop):
         v = i * step
         if v < SUPPORT_MARGIN or v > h - 1 - SUPPORT_MARGIN:
             continue
-        _sample_row(words_left, v, buf_l)
-        _sample_row(words_right, v, buf_r)
+        _sample_into(words_left, v, flat_l)
+        _sample_into(words_right, v, flat_r)
         for j in range(cols):
             u = j * step
             if u < SUPPORT_MARGIN or u > w - 1 - SUPPORT_MARGIN:
                 continue
-            d = _candidate_disparity(flat_l, flat_r, tex_left, 0, w, u, v, 1, disp_min,
+            d = _candidate_disparity(flat_l, flat_r, tex_left, w, u, v, 1, disp_min,
                                      disp_max, support_texture, support_threshold)
             if d < 0:
                 continue
-            d_back = _candidate_disparity(flat_r, flat_l, tex_right, 0, w, u - d, v, -1,
+            d_back = _candidate_disparity(flat_r, flat_l, tex_right, w, u - d, v, -1,
                                           disp_min, disp_max, support_texture, support_threshold)
             if d_back >= 0 and abs(d - d_back) <= lr_threshold:
                 grid[i, j] = d

@@ -40,7 +40,7 @@ NODE_KEYS = frozenset({
     "matcher", "preset", "threads", "waiting_pairs", "roi", "roi_margin", "roi_full_every", "roi_max_share",
     # segment_node (the seeder's settings)
     "rect", "auto_init", "depth_cue", "sure_margin", "edge_px", "colour_model", "scale", "iterations", "refine",
-    "min_region", "recut_every", "propagate_scale", "max_pixels", "queue_size",
+    "min_region", "recut_every", "follow_disparity", "propagate_scale", "max_pixels", "queue_size",
     # point_cloud_node
     "cloud_frame", "organized", "use_mask",
     # camera_node

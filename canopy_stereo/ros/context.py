@@ -103,6 +103,39 @@ def tune_thread_switching(interval_s: float = PIPELINE_SWITCH_INTERVAL_S) -> Non
         sys.setswitchinterval(interval_s)
 
 
+#: Environment variable overriding :data:`NODE_OPENCV_THREADS` (an integer; 0 = OpenCV's default pool).
+OPENCV_THREADS_ENV = "CANOPY_STEREO_OPENCV_THREADS"
+#: OpenCV threads of a node process (remap, colour conversion, optical flow, GrabCut).
+NODE_OPENCV_THREADS = 1
+
+
+def tune_opencv_threads(default: int = NODE_OPENCV_THREADS) -> int:
+    """One OpenCV thread in a node process (``CANOPY_STEREO_OPENCV_THREADS`` overrides it;
+    0 = OpenCV's own pool, one thread per core); returns the count set.
+
+    The graph's parallelism is its processes (and ELAS's own ``threads`` budget): on two
+    cores every other node is busy while one remaps, and OpenCV's pool in each of four
+    processes only adds hand-offs. Measured on the rectify path (640x480, Plants frames:
+    conversion, rectification, skew compensation, messages): 6.0 ms of CPU per pair with one
+    thread, 7.6 ms with OpenCV's two (``benchmarks/bench_graph.py`` gives the graph's figures).
+    """
+    import cv2
+
+    raw = os.environ.get(OPENCV_THREADS_ENV, "").strip()
+    n = int(default)
+    if raw:
+        try:
+            n = int(raw)
+            if n < 0:
+                raise ValueError
+        except ValueError:  # a tuning knob: say so, keep the default
+            print(f"warning: {OPENCV_THREADS_ENV} must be an integer >= 0, got {raw!r}: using {default}",
+                  file=sys.stderr)
+            n = int(default)
+    cv2.setNumThreads(n if n > 0 else -1)
+    return n
+
+
 #: glibc malloc settings for node processes (bytes): see :func:`tune_memory_allocator`.
 PIPELINE_MALLOC_OPTIONS = {"mmap_threshold": 32 << 20, "trim_threshold": 64 << 20, "top_pad": 16 << 20}
 
@@ -341,9 +374,10 @@ def raw_image_topics(argv, namespace: str = "/stereo") -> tuple[str, str]:
 
 def tune_node_process(argv=None) -> None:
     """Process settings for running pipeline nodes: :func:`tune_thread_switching`,
-    :func:`tune_memory_allocator` and :func:`use_bounded_dds_memory` (its raw image readers
+    :func:`tune_opencv_threads`, :func:`tune_memory_allocator` and :func:`use_bounded_dds_memory` (its raw image readers
     named after the topics ``argv``'s ``--ros-args`` resolve them to: :func:`raw_image_topics`)."""
     tune_thread_switching()
+    tune_opencv_threads()
     tune_memory_allocator()
     use_bounded_dds_memory(raw_image_topics(argv) if argv is not None else RAW_IMAGE_TOPICS)
 

@@ -169,7 +169,8 @@ class CanopyGraph:
             # the cloud keeps plant pixels only: match only where the previous masks had plant
             | ({"roi": True} if o.use_mask else {}),
             # nothing waits for every mask unless use_mask: let GrabCut skip frames under load
-            "segment_node": ({} if o.use_mask else {"queue_size": 1})
+            # masked: a mask for every frame the matcher matched (and only for those)
+            "segment_node": ({"follow_disparity": True} if o.use_mask else {"queue_size": 1})
             | ({"depth_cue": True} if o.segment_depth_cue else {})
             | ({} if o.recut_every is None else {"recut_every": int(o.recut_every)})
             | ({} if o.propagate_scale is None else {"propagate_scale": float(o.propagate_scale)}),

@@ -18,7 +18,10 @@ property of one camera's image stream, independent of the stereo geometry,
 and the rectification that follows is the usual one. When it cannot
 compensate -- the first frame, a gap or a cut in the right stream, too little
 texture, a skew longer than a frame interval -- the pair goes on as it came
-and :attr:`SkewReport.reason` says why.
+and :attr:`SkewReport.reason` says why. A still scene (a rig on a tripod, no wind:
+no part of the image would move by :data:`STILL_SHIFT_PX`) needs nothing: after the flow
+and its checks the pair goes on as it came (``still``), without the warp (rectification alone:
+about 1 ms of CPU less per 640x480 pair).
 """
 from __future__ import annotations
 
@@ -31,9 +34,11 @@ from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.skew.motion import (
     ImageMotion,
     check_frames,
+    checked_motion,
+    flow_percentile_px,
     move_in_time,
+    reduced_flow,
     reduced_grey,
-    reduced_motion,
     sample_moved,
 )
 
@@ -41,6 +46,12 @@ from canopy_stereo.skew.motion import (
 MIN_SKEW_S = 2e-4
 #: Longest interval (s) between two right frames across which motion is followed.
 MAX_INTERVAL_S = 0.5
+#: A pair whose right image would move less than this (pixels, for 99 % of the image: leaves
+#: moving in wind in front of a still backdrop count) is still: nothing to compensate (0.05 px
+#: is 0.25 % of depth at a 20 px disparity, below ELAS's sub-pixel noise).
+STILL_SHIFT_PX = 0.05
+#: Percentile of the flow length that decides :data:`STILL_SHIFT_PX`.
+STILL_PERCENTILE = 99.0
 #: Least fraction of textured pixels for a usable motion.
 MIN_TEXTURED = 0.02
 #: Least fraction of the textured pixels the motion must explain (less: a cut).
@@ -55,9 +66,13 @@ class SkewReport:
         skew_ms: right stamp minus left stamp (ms; positive: the right image is later).
         applied: whether the right image was moved to the left image's instant.
         shift_frames: how far the right image was moved in time, in right frame intervals
-            (negative: back towards its previous frame); 0 when not applied.
-        shift_px: median image displacement applied (pixels); 0 when not applied.
-        reason: why it was not applied (empty when applied).
+            (negative: back towards its previous frame); 0 when not applied (but for ``still``).
+        shift_px: median image displacement applied (pixels); 0 when not applied; for a
+            ``still`` pair the displacement 99 % of the image stays below.
+        reason: why it was not applied (empty when applied): ``off``, ``in step`` (no skew),
+            ``still`` (the skew moves nothing by :data:`STILL_SHIFT_PX`: no compensation
+            needed, none spent) or what prevented it (first frame, a gap, a cut, too little
+            texture, a skew longer than a frame interval).
         cost_ms: wall time the compensation took (motion, checks and warp), ms
             (:meth:`SkewCompensator.measure`: motion and checks).
     """
@@ -176,12 +191,17 @@ class SkewCompensator:
         small = reduced_grey(right, scale=self.flow_scale)
         self._previous = (int(stamp_right_ns), right, small)  # the next pair's previous: reduced once
         h, w = right.shape[:2]
-        motion = reduced_motion(prev_small, small, size=(w, h), preset=self.flow_preset)
+        flow = reduced_flow(prev_small, small, preset=self.flow_preset)
+        motion = checked_motion(prev_small, small, flow, size=(w, h))
         if motion.textured < MIN_TEXTURED:
             return unchanged(f"too little texture ({100 * motion.textured:.1f} % of the pixels)")
         if motion.explained < MIN_EXPLAINED:
             return unchanged(f"a cut: the previous right frame explains {100 * motion.explained:.0f} % "
                              "of this one")
+        moving_px = abs(frames) * flow_percentile_px(flow, size=(w, h), percentile=STILL_PERCENTILE)
+        if moving_px < STILL_SHIFT_PX:  # a still scene: the skew shows nothing (no warp needed)
+            return None, SkewReport(skew_ms, False, shift_frames=frames, shift_px=moving_px, reason="still",
+                                    cost_ms=1e3 * (time.perf_counter() - t0))
         return SkewShift(motion, frames), SkewReport(skew_ms, True, shift_frames=frames,
                                                      shift_px=abs(frames) * motion.median_px,
                                                      cost_ms=1e3 * (time.perf_counter() - t0))

@@ -322,35 +322,35 @@ def _quad_both():
     from canopy_stereo.elas.simd import quad_first_min, sad_reference
 
     @njit
-    def both(own, other, quads, cell, radius, prior, lo):
+    def both(own, other, quads, cell, radius, window_prior):
         n = quads.shape[0]
         got = np.empty((n, 4), np.int64)
         ref = np.empty((n, 4), np.int64)
         for i in range(n):
-            a, b, stride, n_cell = quads[i, 0], quads[i, 1], quads[i, 2], quads[i, 3]
+            a, b, stride = quads[i, 0], quads[i, 1], quads[i, 2]
+            runs = quads[i, 16:20]
             mu, hi, flag = quads[i, 4:8], quads[i, 8:12], quads[i, 12:16]
-            hi_max = max(max(hi[0], hi[1]), max(hi[2], hi[3]))
-            w_lo = max(min(min(mu[0], mu[1]), min(mu[2], mu[3])) - radius, lo)
-            w_hi = min(max(max(mu[0], mu[1]), max(mu[2], mu[3])) + radius, hi_max)
-            got[i] = quad_first_min(own, a, other, b, stride, cell, n_cell, lo, hi_max, w_lo,
-                                    w_hi, radius, prior, mu[0], mu[1], mu[2], mu[3], hi[0],
-                                    hi[1], hi[2], hi[3], flag[0] != 0, flag[1] != 0,
-                                    flag[2] != 0, flag[3] != 0)
+            w_lo, w_hi = quads[i, 20], quads[i, 21]
+            got[i] = quad_first_min(own, a, other, b, stride, cell, runs[0], runs[1], runs[2],
+                                    runs[3], w_lo, w_hi, radius, window_prior, mu[0], mu[1],
+                                    mu[2], mu[3], hi[0], hi[1], hi[2], hi[3], flag[0] != 0,
+                                    flag[1] != 0, flag[2] != 0, flag[3] != 0)
             for k in range(4):
                 best_e, best_d = 2147483647, -1
-                for j in range(n_cell):
-                    d = cell[j]
-                    if d < lo or d > hi_max or abs(d - mu[k]) <= radius or d > hi[k]:
-                        continue
-                    e = sad_reference(own, a + 16 * k, other, b + d * stride + 16 * k, 16)
-                    if e < best_e:
-                        best_e, best_d = e, d
+                for run in (0, 2):
+                    for j in range(runs[run], runs[run + 1]):
+                        d = cell[j]
+                        if abs(d - mu[k]) <= radius or d > hi[k]:
+                            continue
+                        e = sad_reference(own, a + 16 * k, other, b + d * stride + 16 * k, 16)
+                        if e < best_e:
+                            best_e, best_d = e, d
                 for d in range(w_lo, w_hi + 1):
                     if abs(d - mu[k]) > radius or d > hi[k]:
                         continue
                     e = sad_reference(own, a + 16 * k, other, b + d * stride + 16 * k, 16)
                     if flag[k]:
-                        e += prior[abs(d - mu[k])]
+                        e += window_prior[d - mu[k] + radius]
                     if e < best_e:
                         best_e, best_d = e, d
                 ref[i, k] = best_d
@@ -361,38 +361,46 @@ def _quad_both():
 
 @pytest.mark.parametrize("width", [64, 32, 16, 0])
 def test_quad_first_min_equals_one_pixel_at_a_time(rng, monkeypatch, width):
-    """Four pixels' first minima over grid candidates and plane windows (own prior,
-    window and largest disparity per pixel, unmatched pixels), ties included, at every
-    psadbw width (0: portable IR), with the prior in a register (small radius, AVX2) and
-    in memory."""
+    """Four pixels' first minima over two runs of grid candidates and a window (own
+    prior, window and largest disparity per pixel, unmatched pixels), ties included, at
+    every psadbw width (0: portable IR), with the prior in a register (small radius,
+    AVX2) and in memory."""
     from canopy_stereo.elas import simd
 
     if width > simd.PSADBW_WIDTH:
         pytest.skip(f"this CPU has no {width}-byte psadbw")
-
     n, span = 400, 40
     levels = 3                                         # few byte values: many equal costs
     own = rng.integers(0, levels, 64 * n, dtype=np.uint8)
     other = rng.integers(0, levels, 16 * (4 * span + 8), dtype=np.uint8)
     cell = np.sort(rng.choice(span, 12, replace=False)).astype(np.int32)
-    quads = np.zeros((n, 16), np.int64)
+    quads = np.zeros((n, 22), np.int64)
     quads[:, 0] = 64 * np.arange(n)
     quads[:, 2] = rng.choice([-16, 16], n)
     quads[:, 1] = np.where(quads[:, 2] < 0, 16 * (span + 2), 16 * (2 * span + 2))
-    quads[:, 3] = rng.integers(0, 13, n)
     quads[:, 4:8] = rng.integers(-5, span + 5, (n, 1)) + rng.integers(-3, 4, (n, 4))
     quads[:, 8:12] = rng.integers(span // 2, span, (n, 1)) + np.arange(4) * rng.choice([-1, 1, 0], (n, 1))
     quads[:, 8:12][rng.random((n, 4)) < 0.1] = -1      # pixels that are not matched
     quads[:, 12:16] = rng.random((n, 4)) < 0.6
+    quads[:, 16:20] = np.sort(rng.integers(0, len(cell) + 1, (n, 4)), axis=1)   # two runs
+    quads[:, 20] = rng.integers(0, span // 2, n)
+    quads[:, 21] = quads[:, 20] + rng.integers(-1, 12, n)
     monkeypatch.setattr(simd, "PSADBW_WIDTH", width)
     kernel = _quad_both()
     for radius in (2, 3, 9):
         table = matching.prior_table(0.02, 3.0, radius / 2.0, radius + 1)
-        prior = np.zeros(max(radius + 1, simd.PRIOR_REGISTER), np.int32)
-        prior[:radius + 1] = table
-        got, ref = kernel(own, other, quads, cell, radius, prior, 1)
+        got, ref = kernel(own, other, quads, cell, radius, matching.window_prior(table, radius))
         assert np.array_equal(got, ref), f"radius {radius}"
         assert (ref >= 0).mean() > 0.5 and (ref < 0).any()
+
+
+def test_candidate_ranks_count_the_candidates_below_each_disparity(plants):
+    lists, counts = plants["maps"][False]["lists"], plants["maps"][False]["counts"]
+    ranks = grid.candidate_ranks(lists, counts)
+    for gy, gx in ((0, 0), (3, 5), (lists.shape[0] - 1, lists.shape[1] - 1)):
+        cell = lists[gy, gx, :counts[gy, gx]]
+        expect = [(cell < d).sum() for d in range(lists.shape[2] + 1)]
+        assert np.array_equal(ranks[gy, gx], expect)
 
 
 # ------------------------------------------------------------------ dense matching
@@ -682,22 +690,31 @@ def test_stable_argsort_equals_numpys_stable_sort(rng):
 
 
 def test_support_search_by_eight_disparities_equals_one_at_a_time(rng):
-    """The AVX-512 lowest-two search (8 disparities per vector, lanes merged) gives the
-    one-at-a-time search's lowest, second lowest and first best disparity, ties included."""
+    """The AVX-512 lowest-two search (chunk-major row buffers, 8 disparities per vector,
+    lanes merged) gives the one-at-a-time search's lowest, second lowest and first best
+    disparity, ties included, in both directions and with partial last groups."""
     from canopy_stereo.elas.simd import PSADBW_WIDTH
 
     if PSADBW_WIDTH != 64:
         pytest.skip("the eight-disparity search is compiled only with AVX-512BW")
-    width = 300
+    width, pad, lanes = 300, support.CHUNK_PAD, support.SUPPORT_LANES
+
+    def chunk_major(flat):
+        words = flat.view(np.uint64).reshape(width, lanes)
+        out = np.zeros((lanes, width + 2 * pad), np.uint64)
+        out[:, pad:pad + width] = words.T
+        return out.reshape(-1)
+
     for levels in (2, 4, 256):       # few levels: many equal costs
         own = rng.integers(0, levels, width * support.SUPPORT_BYTES, dtype=np.uint8)
         other = rng.integers(0, levels, width * support.SUPPORT_BYTES, dtype=np.uint8)
+        own_chunks, other_chunks = chunk_major(own), chunk_major(other)
         for _ in range(60):
             sign = int(rng.choice([-1, 1]))
             u = int(rng.integers(120, 180))
             dmin = int(rng.integers(0, 20))
             dmax = dmin + int(rng.integers(10, 100))
-            a = u * support.SUPPORT_BYTES
-            ref = support._lowest_two_scalar(own, other, a, sign, dmin, dmax)
-            got = support._lowest_two_vector(own, other, a, sign, dmin, dmax)
+            ref = support._lowest_two_scalar(own, other, u * support.SUPPORT_BYTES, sign, dmin,
+                                             dmax)
+            got = support._lowest_two_chunks(own_chunks, other_chunks, u, sign, dmin, dmax)
             assert tuple(int(x) for x in got) == tuple(int(x) for x in ref)

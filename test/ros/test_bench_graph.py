@@ -107,3 +107,22 @@ def test_one_configuration_reports_every_figure(tmp_path):
     assert r["process_rss_peak_mb"] > 50
     lines = bench_graph.format_result(r)
     assert lines[0].startswith("inprocess:sgbm:mask:320x240") and "segment" in lines[1]
+
+
+@pytest.mark.shared
+def test_aloe_scene_holds_disparities_to_about_130_px_within_its_rig_range(shared_data):
+    """``--scene aloe`` (issue 28's second 640x480 scene): the ground truth, scaled and cropped as
+    the frames are, reaches about 130 px and lies inside the rig's search range."""
+    import cv2
+
+    from test.support.aloe import ALOE_CROP, ALOE_SCALE, aloe_dir
+
+    rig, frames = bench_graph.bench_frames("aloe", "640x480", n_frames=2)
+    assert rig.image_size == (640, 480) and frames[0][0].shape == (480, 640, 3)
+    gt = cv2.imread(str(aloe_dir(shared_data) / "aloeGT.png"), cv2.IMREAD_GRAYSCALE).astype(np.float32)
+    gt = cv2.resize(gt, None, fx=ALOE_SCALE, fy=ALOE_SCALE, interpolation=cv2.INTER_NEAREST) * ALOE_SCALE
+    x0, y0 = ALOE_CROP
+    window = gt[y0:y0 + 480, x0:x0 + 640]
+    known = window[window > 0]
+    assert 120 <= known.max() <= rig.extra["disp_max"] and known.min() >= rig.extra["disp_min"]
+    assert -rig.P_right[0, 3] / rig.P_right[0, 0] == pytest.approx(160.0)  # Middlebury 2006's baseline, mm

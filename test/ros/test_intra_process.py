@@ -28,7 +28,7 @@ from canopy_stereo.ros.runner import run_bag  # noqa: E402
 INTERNAL = {
     "disparity_node": {"/stereo/left/image_rect", "/stereo/right/image_rect",
                        "/stereo/left/image_rect/camera_info", "/stereo/right/image_rect/camera_info"},
-    "segment_node": {"/stereo/left/image_rect_color"},
+    "segment_node": {"/stereo/left/image_rect_color", "/stereo/disparity"},  # follow_disparity: masked
     "point_cloud_node": {"/stereo/disparity", "/stereo/left/image_rect_color",
                          "/stereo/left/image_rect/camera_info", "/stereo/left/mask"},
 }

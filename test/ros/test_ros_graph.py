@@ -282,3 +282,23 @@ def test_node_processes_tune_the_allocator_unless_the_environment_does():
     env["MALLOC_MMAP_THRESHOLD_"] = "1048576"
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "False"]  # the user's own setting wins
+
+
+@pytest.mark.slow
+def test_node_processes_use_one_opencv_thread_unless_the_environment_says():
+    import os
+    import subprocess
+    import sys
+
+    code = ("import cv2; from canopy_stereo.ros.context import tune_opencv_threads as t; "
+            "print(t(), cv2.getNumThreads())")
+    env = {k: v for k, v in os.environ.items() if k != "CANOPY_STEREO_OPENCV_THREADS"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["1", "1"]
+    env["CANOPY_STEREO_OPENCV_THREADS"] = "0"  # OpenCV's own pool: one thread per core
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split()[0] == "0" and int(out.stdout.split()[1]) == os.cpu_count()
+    env["CANOPY_STEREO_OPENCV_THREADS"] = "many"  # named, and the default kept
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["1", "1"]
+    assert "CANOPY_STEREO_OPENCV_THREADS must be an integer >= 0, got 'many'" in out.stderr

@@ -49,13 +49,15 @@ def test_launch_file_evaluates_to_one_process_per_node():
                                   "frame_id": "left_camera_optical_frame"}
     assert cmds[2].parameters["fps"] == 10.0  # pairing tolerance from the camera rate
     assert cmds[3].parameters == {"matcher": "elas", "elas.subsampling": False, "roi": False}
-    assert cmds[4].parameters == {"queue_size": 1, "depth_cue": False}  # no mask used: the newest image
+    assert cmds[4].parameters == {"queue_size": 1, "follow_disparity": False,  # no mask used: the newest image
+                                  "depth_cue": False}
     assert set(declared) >= {"rig", "namespace", "left_device", "right_device", "fps", "matcher", "use_mask",
                              "segment_depth_cue", "elas_subsampling", "bag", "rate", "loop"}
     cmds, _ = evaluate({"elas_subsampling": "true", "segment_depth_cue": "true"})
     assert cmds[3].parameters["elas.subsampling"] is True and cmds[4].parameters["depth_cue"] is True
     cmds, _ = evaluate({"use_mask": "true"})  # masked clouds: disparity only where the plant was
     assert cmds[3].parameters["roi"] is True and cmds[5].parameters["use_mask"] is True
+    assert cmds[4].parameters["follow_disparity"] is True and cmds[4].parameters["queue_size"] == 5
 
 
 def _clouds(ros_processes, commands, want: int, timeout_s: float):

@@ -99,3 +99,36 @@ def test_graph_masks_follow_the_disparity_with_the_depth_cue():
         assert 0.05 < mask.mean() < 0.95
         near, far = np.median(d[mask & valid]), np.median(d[~mask & valid])
         assert near > far + 3.0, (near, far)  # the croton stands about 0.3 m before its backdrop
+
+
+@pytest.mark.slow
+def test_segment_node_follow_disparity_segments_only_the_matched_frames(ros_processes):
+    """``follow_disparity:=true`` (the masked graph's setting): three images, disparities for
+    the first and the third only (the matcher skipped the second): two masks, for those stamps,
+    found by colour as without it (the disparity's values are not used)."""
+    ros_processes.start("segment_node", params={"follow_disparity": True, "scale": 0.5})
+    probe = Probe(ros_processes.domain_id)
+    try:
+        pub_img = probe.publisher(Image, "left/image_rect_color")
+        pub_disp = probe.publisher(DisparityImage, "disparity")
+        masks = probe.subscribe(Image, "left/mask")
+        assert wait_for(lambda: pub_img.get_subscription_count() >= 1 and pub_disp.get_subscription_count() >= 1
+                        and masks.subscription.get_publisher_count() >= 1, 60.0,
+                        group=ros_processes), ros_processes.logs()
+        img, disparity, truth = _red_plant_scene()
+        for k in range(3):
+            pub_img.publish(convert.image_to_msg(img, "bgr8", stamp_ns=T0 + k, frame_id="left_rect"))
+        time.sleep(1.0)
+        assert len(masks) == 0, ros_processes.logs()  # no disparity yet: nothing segmented
+        flat = np.full_like(disparity, 20.0)  # says nothing about the plant: the colour finds it
+        for k in (0, 2):
+            pub_disp.publish(convert.disparity_to_msg(flat, 500.0, 0.06, 0, 64, stamp_ns=T0 + k,
+                                                      frame_id="left_rect"))
+        assert wait_for(lambda: len(masks) == 2, 60.0, group=ros_processes), ros_processes.logs()
+        time.sleep(0.5)
+        assert masks.stamps() == [T0, T0 + 2]
+        for _, _, data in masks.items:
+            mask = convert.msg_to_image(deserialize_message(data, Image), ("mono8",)) > 0
+            assert _iou(mask, truth) > 0.8, _iou(mask, truth)
+    finally:
+        probe.close()

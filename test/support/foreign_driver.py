@@ -4,7 +4,7 @@ environment without ``FASTRTPS_DEFAULT_PROFILES_FILE``/``RMW_FASTRTPS_USE_QOS_FR
 :func:`foreign_env`), system-default QoS (reliable, keep last 10), publishing bgr8 pairs on
 ``/stereo/left|right/image_raw`` stamped with the wall clock at publication, as drivers do.
 
-    python -m test.support.foreign_driver --rate 10 --frames 200 [--scene croton|plants]
+    python -m test.support.foreign_driver --rate 10 --frames 200 [--scene croton|plants|aloe]
 
 Waits until both topics have ``--subscribers`` subscriptions (default 1), sends, waits
 ``--linger`` s and prints one JSON line ``{"sent": {stamp_ns: monotonic s}, ...}``
@@ -28,7 +28,14 @@ def foreign_env(env: dict) -> dict:
 
 
 def load_frames(scene: str = "croton"):
-    """(left, right) bgr8 640x480 pairs of a bundled bag."""
+    """(left, right) bgr8 640x480 pairs of a bundled bag, or of the Aloe (``aloe``: the shared data's,
+    :mod:`test.support.aloe`)."""
+    if scene == "aloe":
+        from test.support.aloe import ALOE_CROP, aloe_source
+
+        _, left, right = aloe_source()
+        (x, y) = ALOE_CROP
+        return [(left[y:y + 480, x:x + 640].copy(), right[y:y + 480, x:x + 640].copy())]
     from canopy_stereo.bag import BagReader
     from canopy_stereo.ros.bundled import bundled_bag
     from canopy_stereo.ros.convert import msg_to_image

@@ -176,10 +176,11 @@ class ProcessGroup:
         node -> extra parameters, ``common``: parameters of every node. As in the launch
         file and ``canopy_graph``, segment_node segments the newest image (queue_size 1)
         unless point_cloud_node uses the masks, and then disparity_node matches only in the
-        plant region of the previous masks (``roi``)."""
+        plant region of the previous masks (``roi``) and segment_node segments the frames it
+        matched (``follow_disparity``)."""
         out = {}
         use_mask = bool((params or {}).get("point_cloud_node", {}).get("use_mask", False))
-        defaults = {"segment_node": {} if use_mask else {"queue_size": 1},
+        defaults = {"segment_node": {"follow_disparity": True} if use_mask else {"queue_size": 1},
                     "disparity_node": {"roi": True} if use_mask else {}}
         for node in nodes:
             values = {**(common or {}), **defaults.get(node, {}), **(params or {}).get(node, {})}

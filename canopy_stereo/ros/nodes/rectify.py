@@ -58,9 +58,10 @@ instant (the pair's stamp) along the right camera's own motion between its previ
 and current frame (:class:`~canopy_stereo.skew.SkewCompensator`); the shift is composed
 into the right camera's rectification map, so the right image (grey from the start: its
 only output is mono) is resampled once. ``/diagnostics`` reports ``skew ms`` (right minus left stamp),
-``skew compensated %`` (share of the pairs), ``skew shift px`` and ``skew compensation ms``
-(the time it adds), and ``skew not compensated: <reason>`` (first frame, a cut, too
-little texture, ...; those pairs go on as they came, logged once per reason).
+``skew compensated %`` (share of the pairs that needed it: a still scene needs none),
+``skew shift px`` and ``skew compensation ms`` (the time it adds), and ``skew not compensated:
+<reason>`` (first frame, a cut, too little texture, ...; those pairs go on as they came, logged
+once per reason).
 
 Stamps that go back further than the pairing tolerance (a looping bag, a
 restarted driver) reset the pairing with one log line; pairing goes on.
@@ -308,7 +309,7 @@ class RectifyNode(CanopyNode):
         line once per reason it was not compensated)."""
         d = self.diagnostics
         d.sample("skew ms", rep.skew_ms)
-        if rep.reason in ("off", "in step"):
+        if rep.reason in ("off", "in step", "still"):  # nothing to compensate
             return
         d.sample("skew compensated %", 100.0 if rep.applied else 0.0)
         if rep.applied:

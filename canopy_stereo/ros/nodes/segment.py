@@ -23,6 +23,13 @@ node's parameters, with their ranges (changeable at run time unless noted):
 * ``depth_cue`` (read-only, default false): also subscribe ``disparity`` and use it as
   the CLI does (near = plant; the colour threshold is found among the near pixels);
   a mask then waits for the disparity of its image;
+* ``follow_disparity`` (read-only, default false; the launch file and ``canopy_graph`` set it
+  when the cloud is masked): segment only the images ``disparity_node`` matched: subscribe
+  ``disparity`` and pair it with its image by exact stamp (as ``depth_cue`` does, without using
+  its values). When the cameras outpace the matcher, the frames it skips get no cloud, and now
+  no mask either: the segmentation's CPU goes to the frames that become clouds (a mask then
+  comes after its disparity: the cloud's latency grows by the segmentation time, about
+  10 ms at 640x480). Images wait up to ``FOLLOW_QUEUE`` frames for their disparity;
 * ``sure_margin``, ``edge_px``, ``colour_model``, ``refine``, ``min_region``: see
   :class:`~canopy_stereo.segmentation.SeederSettings` (-1 / ``auto`` = its None);
 * ``iterations``: GrabCut iterations;
@@ -65,8 +72,11 @@ from canopy_stereo.segmentation.auto import VIDEO_SEEDER, decode_setting, seeder
 from canopy_stereo.segmentation.grabcut import clip_rect
 from canopy_stereo.segmentation.propagate import DEFAULT_MAX_PIXELS, DEFAULT_RECUT_EVERY, MaskPropagator
 
-#: Streams of the exact-time pairing with ``depth_cue``.
+#: Streams of the exact-time pairing with ``depth_cue`` or ``follow_disparity``.
 _STREAMS = ("left/image_rect_color", "disparity")
+#: Images kept waiting for their disparity with ``follow_disparity`` (1 s at 30 frames/s: the
+#: matcher's latency under load, 0.5 s at 1280x720 on two cores).
+FOLLOW_QUEUE = 30
 
 
 class SegmentNode(CanopyNode):
@@ -98,6 +108,9 @@ class SegmentNode(CanopyNode):
         self.declare_number("queue_size", 5, "input queue depth; 1 = always segment the latest image "
                             "and skip the ones that arrived meanwhile (when nothing waits for every mask)",
                             minimum=1, maximum=100, read_only=True)
+        self.declare_flag("follow_disparity", False, "segment only the images disparity_node matched (pair "
+                          "each image with its disparity by exact stamp): no mask for a frame that gets no "
+                          "cloud", read_only=True)
         self.declare_number("image_width", 0, "width every image must have (the rig's); 0 = any",
                             minimum=0, maximum=16384, read_only=True)
         self.declare_number("image_height", 0, "height every image must have (the rig's); 0 = any",
@@ -110,9 +123,11 @@ class SegmentNode(CanopyNode):
         self.pub = self.make_publisher(Image, "left/mask")
         depth = max(1, int(self.get_parameter("queue_size").value))
         self.depth_cue = bool(self.settings["seeder"].depth_cue)
+        self.follow_disparity = bool(self.get_parameter("follow_disparity").value)
         self.sync = None
-        if self.depth_cue:
-            self.sync = ExactTimeSynchronizer(2, max(depth, 5), on_jump=self.time_jump_handler(_STREAMS))
+        if self.depth_cue or self.follow_disparity:
+            waiting = max(depth, FOLLOW_QUEUE if self.follow_disparity else 5)
+            self.sync = ExactTimeSynchronizer(2, waiting, on_jump=self.time_jump_handler(_STREAMS))
             self.sub_disp = self.make_subscription(DisparityImage, "disparity", lambda m: self._on(1, m),
                                                    depth=depth)
         w, h = self.expected_size or WARM_UP_SIZE
@@ -185,10 +200,13 @@ class SegmentNode(CanopyNode):
         else:
             self.count("disparity_received")
             check_disparity_msg(msg, expected_size=self.expected_size)
-            frame = msg_to_disparity(msg)
-            # message disparities are reduced by the cameras' cx offset: measured from the
-            # search range's start they are >= 0 where valid, near = high (NaN = unknown)
-            item = frame.disparity - np.float32(frame.min_disparity)
+            if self.depth_cue:
+                frame = msg_to_disparity(msg)
+                # message disparities are reduced by the cameras' cx offset: measured from the
+                # search range's start they are >= 0 where valid, near = high (NaN = unknown)
+                item = frame.disparity - np.float32(frame.min_disparity)
+            else:  # follow_disparity: its stamp says which image to segment
+                item = None
         if self.sync is None:
             self._segment(msg.header, item, None)
             return
