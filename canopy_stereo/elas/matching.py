@@ -97,6 +97,11 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
     h, w, _ = desc_own.shape
     flat_own = desc_own.reshape(-1)
     flat_other = desc_other.reshape(-1)
+    # the grid's cells as offsets into flat arrays (a view per cell costs reference counting)
+    flat_lists = grid_lists.reshape(-1)
+    flat_ranks = grid_ranks.reshape(-1)
+    n_disp = grid_lists.shape[2]
+    n_ranks = grid_ranks.shape[2]
     lane_best = np.empty(4, np.int64)
     lane_hi = np.empty(4, np.int64)
     # matched columns x = u - sign*d must satisfy MATCH_BORDER <= x < w - MATCH_BORDER
@@ -110,10 +115,10 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
         out_row = out[r]
         off_row = offsets[r]
         for gx in range(n_cells):
-            cell = grid_lists[gy, gx]
+            cell = (gy * n_cells + gx) * n_disp     # the cell's candidates start here
             n_grid = grid_counts[gy, gx]
-            ranks = grid_ranks[gy, gx]      # candidates below d: ranks[clip(d, 0, n_ranks-1)]
-            n_ranks = ranks.shape[0]
+            # its candidates below d: flat_ranks[ranks + clip(d, 0, n_ranks - 1)]
+            ranks = (gy * n_cells + gx) * n_ranks
             u_first = max(gx * grid_size, MATCH_BORDER)
             u_first = ((u_first + step - 1) // step) * step
             u_stop = min((gx + 1) * grid_size, w - MATCH_BORDER)
@@ -185,16 +190,18 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
                     # the grid candidates in [disp_min, hi_max] below and above the window
                     # every pixel shares, [mu_hi - r, mu_lo + r] (masked for all four, so
                     # not evaluated): two runs of the increasing cell list
-                    first = np.int64(ranks[min(disp_min, n_ranks - 1)])
-                    stop = np.int64(ranks[min(hi_max + 1, n_ranks - 1)])
-                    below = np.int64(ranks[min(max(mu_hi - radius, 0), n_ranks - 1)])
-                    above = np.int64(ranks[min(max(mu_lo + radius + 1, 0), n_ranks - 1)])
+                    first = np.int64(flat_ranks[ranks + min(disp_min, n_ranks - 1)])
+                    stop = np.int64(flat_ranks[ranks + min(hi_max + 1, n_ranks - 1)])
+                    below = np.int64(flat_ranks[ranks + min(max(mu_hi - radius, 0), n_ranks - 1)])
+                    above = np.int64(flat_ranks[ranks + min(max(mu_lo + radius + 1, 0),
+                                                            n_ranks - 1)])
                     below = min(max(below, first), stop)
                     above = min(max(above, below), stop)
                     a0 = row + u * DESC_BYTES
                     best0, best1, best2, best3 = quad_first_min(
-                        flat_own, a0, flat_other, a0, -sign * DESC_BYTES, cell, first, below,
-                        above, stop, max(mu_lo - radius, disp_min), min(mu_hi + radius, hi_max),
+                        flat_own, a0, flat_other, a0, -sign * DESC_BYTES, flat_lists,
+                        cell + first, cell + below, cell + above, cell + stop,
+                        max(mu_lo - radius, disp_min), min(mu_hi + radius, hi_max),
                         radius, prior_window, mu0, mu1, mu2, mu3, hi0, hi1, hi2, hi3, p0, p1, p2,
                         p3)
                     lane_best[0] = best0
@@ -236,7 +243,7 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
                     best_e = _NO_COST
                     best_d = -1
                     for j in range(n_grid):
-                        d = cell[j]
+                        d = flat_lists[cell + j]
                         if (d >= w_lo and d <= w_hi) or d < d_lo or d > d_hi:
                             continue
                         e = sad16(flat_own, a, flat_other, a - sign * d * DESC_BYTES)

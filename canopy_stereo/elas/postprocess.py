@@ -10,6 +10,7 @@ import numpy as np
 from numba import njit
 
 from canopy_stereo.elas.parallel import run_row_bands
+from canopy_stereo.elas.simd import LR_LANES, lr_keep8
 
 INVALID = np.float32(-1.0)
 #: Gap interpolation: ends closer than this are averaged, else the smaller one is used.
@@ -39,11 +40,14 @@ def _lr_check(d_left, d_right, threshold, step, want_right, out_l, out_r, row_st
     ``out_l`` and, with ``want_right``, ``out_r``."""
     w = d_left.shape[1]
     inv_step = 1.0 / step
+    vector_stop = w - w % LR_LANES
     for v in range(row_start, row_stop):
         row_l = d_left[v]
         row_r = d_right[v]
         dst_l = out_l[v]
-        for c in range(w):
+        for c in range(0, vector_stop, LR_LANES):
+            lr_keep8(row_l, c, row_r, step, inv_step, -1.0, threshold, dst_l)
+        for c in range(vector_stop, w):
             d = row_l[c]
             # partner column round((c*step - d) / step), rounding half up
             x = (c * step - d) * inv_step + 0.5
@@ -51,7 +55,9 @@ def _lr_check(d_left, d_right, threshold, step, want_right, out_l, out_r, row_st
             dst_l[c] = _lr_keep(d, c2, row_r, threshold)
         if want_right:
             dst_r = out_r[v]
-            for c in range(w):
+            for c in range(0, vector_stop, LR_LANES):
+                lr_keep8(row_r, c, row_l, step, inv_step, 1.0, threshold, dst_r)
+            for c in range(vector_stop, w):
                 d = row_r[c]
                 x = (c * step + d) * inv_step + 0.5
                 c1 = int(x) if x >= 0 else -1
@@ -90,7 +96,8 @@ def _find_root(parent, r):
 
 
 @njit(cache=True, nogil=True)
-def _remove_small_segments(disp, sim_threshold, min_size, label, parent, run_size, out):
+def _remove_small_segments(disp, sim_threshold, min_size, label, parent, run_size, run_start,
+                           run_length, out):
     """Connected segments of row runs with union-find, then one pass that invalidates
     the pixels of small segments.
 
@@ -99,7 +106,9 @@ def _remove_small_segments(disp, sim_threshold, min_size, label, parent, run_siz
     A row run is a maximal horizontally joined stretch; runs are united through their
     vertical joins (consecutive joins between the same two runs are united once). A
     NaN pixel joins nothing: a segment of its own, as in a flood fill seeded there.
-    ``label`` int32 (H, W), ``parent`` and ``run_size`` int32 (H*W,) are scratch.
+    ``label`` int32 (H, W), ``parent``, ``run_size``, ``run_start`` and ``run_length``
+    int32 (H*W,) are scratch. The output is a copy of the map with the runs of small
+    segments then invalidated run by run (no per-pixel lookup of its segment).
     """
     h, w = disp.shape
     n_runs = 0
@@ -121,6 +130,7 @@ def _remove_small_segments(disp, sim_threshold, min_size, label, parent, run_siz
                 n_runs += 1
                 parent[r] = r
                 run_size[r] = 1
+                run_start[r] = v * w + u
             lab[u] = r
             if v > 0:
                 above = disp[v - 1, u]
@@ -135,19 +145,23 @@ def _remove_small_segments(disp, sim_threshold, min_size, label, parent, run_siz
                             parent[y] = x
                         elif y < x:
                             parent[x] = y
-    # segment sizes at the roots, then each run's root
+    # segment sizes at the roots (each run's own length kept apart)
+    for r in range(n_runs):
+        run_length[r] = run_size[r]
     for r in range(n_runs):
         if parent[r] != r:
             run_size[_find_root(parent, r)] += run_size[r]
-    for r in range(n_runs):
-        parent[r] = _find_root(parent, r)
     for v in range(h):
         row = disp[v]
-        lab = label[v]
         dst = out[v]
         for u in range(w):
-            r = lab[u]
-            dst[u] = INVALID if r >= 0 and run_size[parent[r]] < min_size else row[u]
+            dst[u] = row[u]
+    flat = out.reshape(-1)
+    for r in range(n_runs):
+        if run_size[_find_root(parent, r)] < min_size:
+            start = run_start[r]
+            for i in range(start, start + run_length[r]):
+                flat[i] = INVALID
     return out
 
 
@@ -165,11 +179,14 @@ def remove_small_segments(disp: np.ndarray, sim_threshold: float, min_size: int,
     h, w = disp.shape
     if workspace is None:
         scratch = (np.empty((h, w), np.int32), np.empty(h * w, np.int32),
+                   np.empty(h * w, np.int32), np.empty(h * w, np.int32),
                    np.empty(h * w, np.int32), np.empty_like(disp))
     else:
         scratch = (workspace.array("segments_label", (h, w), np.int32),
                    workspace.array("segments_parent", (h * w,), np.int32),
                    workspace.array("segments_run_size", (h * w,), np.int32),
+                   workspace.array("segments_run_start", (h * w,), np.int32),
+                   workspace.array("segments_run_length", (h * w,), np.int32),
                    workspace.array("segments", (h, w), np.float32))
     return _remove_small_segments(disp, float(sim_threshold), int(min_size), *scratch)
 

@@ -438,3 +438,79 @@ def sad64_chunks_first_two_min(typingctx, own, own_at, other, other_at, chunk_st
         return context.make_tuple(builder, signature.return_type, items)
 
     return sig, codegen
+
+
+#: Pixels per call of :func:`lr_keep8`.
+LR_LANES = 8
+
+
+@intrinsic
+def lr_keep8(typingctx, row, c, other, step, inv_step, direction, threshold, dst):
+    """The left-right check of pixels ``c .. c+7`` of a row, as one vector operation.
+
+    For each pixel, ``d = row[c + k]`` (float32) and its partner column
+    ``c2 = int(x)`` for ``x = (((c + k) * step + direction * d) * inv_step + 0.5`` (float64;
+    ``direction`` -1.0 checking the left map, +1.0 the right) when ``x >= 0``, else -1;
+    ``dst[c + k]`` is -1.0 where ``d >= 0`` and the partner ``other[c2]`` is missing
+    (``c2`` outside ``[0, len(other))``, or negative) or differs from ``d`` by more than
+    ``threshold`` (``|d - partner|`` in float32), else ``d``: the scalar check of
+    :func:`~canopy_stereo.elas.postprocess.left_right_check` bit for bit, with the eight
+    partners loaded one by one. No bounds checking: ``c + 8 <= len(row), len(dst)``.
+    """
+    arrays = (row, other, dst)
+    if not all(isinstance(a, types.Array) and a.dtype == types.float32 and a.ndim == 1
+               for a in arrays):
+        return None
+    if not (isinstance(c, types.Integer) and isinstance(step, types.Integer)
+            and all(isinstance(x, types.Float) for x in (inv_step, direction, threshold))):
+        return None
+    sig = types.void(row, c, other, step, inv_step, direction, threshold, dst)
+
+    def codegen(context, builder, signature, args):
+        i32, i64 = ir.IntType(32), ir.IntType(64)
+        f32, f64 = ir.FloatType(), ir.DoubleType()
+        n = LR_LANES
+        vf32, vf64, vi64 = ir.VectorType(f32, n), ir.VectorType(f64, n), ir.VectorType(i64, n)
+        sargs = signature.args
+        row_a = context.make_array(sargs[0])(context, builder, args[0])
+        other_a = context.make_array(sargs[2])(context, builder, args[2])
+        dst_a = context.make_array(sargs[7])(context, builder, args[7])
+        c0 = context.cast(builder, args[1], sargs[1], types.int64)
+        step_ = context.cast(builder, args[3], sargs[3], types.int64)
+        inv = _splat(builder, context.cast(builder, args[4], sargs[4], types.float64), n)
+        sgn = _splat(builder, context.cast(builder, args[5], sargs[5], types.float64), n)
+        thr = _splat(builder, context.cast(builder, args[6], sargs[6], types.float64), n)
+        width = builder.extract_value(other_a.shape, 0)
+        d = builder.load(builder.bitcast(builder.gep(row_a.data, [c0]), vf32.as_pointer()),
+                         align=4)
+        cols = builder.add(_splat(builder, c0, n), ir.Constant(vi64, list(range(n))))
+        pos = builder.sitofp(builder.mul(cols, _splat(builder, step_, n)), vf64)
+        x = builder.fadd(builder.fmul(builder.fadd(pos, builder.fmul(sgn, builder.fpext(d, vf64))),
+                                      inv), ir.Constant(vf64, [0.5] * n))
+        # x < 0 (or NaN) -> -1; x clipped to the width before the conversion (outside either way)
+        w64 = _splat(builder, builder.sitofp(width, f64), n)
+        clipped = builder.select(builder.fcmp_ordered("<", x, w64), x, w64)
+        c2 = builder.select(builder.fcmp_ordered(">=", x, ir.Constant(vf64, [0.0] * n)),
+                            builder.fptosi(clipped, vi64), ir.Constant(vi64, [-1] * n))
+        zero64 = ir.Constant(vi64, [0] * n)
+        wvec = _splat(builder, width, n)
+        outside = builder.or_(builder.icmp_signed("<", c2, zero64),
+                              builder.icmp_signed(">=", c2, wvec))
+        index = builder.select(outside, zero64, c2)
+        partner = ir.Constant(vf32, ir.Undefined)
+        for k in range(n):
+            item = builder.extract_element(index, i32(k))
+            partner = builder.insert_element(partner, builder.load(builder.gep(other_a.data, [item])),
+                                             i32(k))
+        zero32 = ir.Constant(vf32, [0.0] * n)
+        fabs = _llvm_function(builder.module, "llvm.fabs.v8f32", vf32, [vf32])
+        far = builder.fcmp_ordered(">", builder.fpext(builder.call(fabs, [builder.fsub(d, partner)]),
+                                                      vf64), thr)
+        bad = builder.or_(builder.or_(outside, builder.fcmp_ordered("<", partner, zero32)), far)
+        drop = builder.and_(builder.fcmp_ordered(">=", d, zero32), bad)
+        out = builder.select(drop, ir.Constant(vf32, [-1.0] * n), d)
+        builder.store(out, builder.bitcast(builder.gep(dst_a.data, [c0]), vf32.as_pointer()),
+                      align=4)
+        return context.get_dummy_value()
+
+    return sig, codegen

@@ -91,7 +91,7 @@ def reference_lr_check(d_left, d_right, threshold, step):
                     out_l[v, c] = INVALID
             d = d_right[v, c]
             if d >= 0:
-                c1 = int((c * step + float(d)) * inv_step + 0.5)
+                c1 = int(min((c * step + float(d)) * inv_step + 0.5, w))  # (inf: outside)
                 if c1 >= w or d_left[v, c1] < 0 or abs(d - d_left[v, c1]) > threshold:
                     out_r[v, c] = INVALID
     return out_l, out_r
@@ -116,6 +116,23 @@ def test_left_right_check_is_exact_on_random_maps(rng, step, integer):
     only_l, none_r = postprocess.left_right_check(d_left, d_right, 2.0, step=step,
                                                   want_right=False)
     assert none_r is None and same_bits(only_l, ref_l)
+
+
+def test_left_right_check_is_exact_with_non_finite_values(rng):
+    """NaN and infinities in either map (the vector check's partner columns are clipped
+    before the conversion): the same maps as the scalar definition."""
+    shape = (9, 45)                     # 40 columns in vectors of 8, then 5 one by one
+    d_left = random_disparity(rng, shape, integer=False, hi=20)
+    d_right = random_disparity(rng, shape, integer=False, hi=20)
+    for d in (d_left, d_right):
+        d[rng.random(shape) < 0.05] = np.nan
+        d[rng.random(shape) < 0.05] = np.inf
+        d[rng.random(shape) < 0.05] = -np.inf
+        d[rng.random(shape) < 0.05] = 1e30
+    for step in (1, 2):
+        ref_l, ref_r = reference_lr_check(d_left, d_right, 2.0, step)
+        got_l, got_r = postprocess.left_right_check(d_left, d_right, 2.0, step=step)
+        assert same_bits(got_l, ref_l) and same_bits(got_r, ref_r)
 
 
 def test_left_right_check_is_exact_on_real_maps(plants):

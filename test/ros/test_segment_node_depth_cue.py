@@ -39,19 +39,31 @@ def _iou(a, b):
     return (a & b).sum() / (a | b).sum()
 
 
+def _segment_node_and_probe(ros_processes, params):
+    """``segment_node`` with ``params`` in its own process and a probe matched with it:
+    ``(probe, image publisher, disparity publisher, mask subscription)``."""
+    ros_processes.start("segment_node", params=params)
+    probe = Probe(ros_processes.domain_id)
+    pub_img = probe.publisher(Image, "left/image_rect_color")
+    pub_disp = probe.publisher(DisparityImage, "disparity")
+    masks = probe.subscribe(Image, "left/mask")
+    try:
+        assert wait_for(lambda: pub_img.get_subscription_count() >= 1 and pub_disp.get_subscription_count() >= 1
+                        and masks.subscription.get_publisher_count() >= 1, 60.0,
+                        group=ros_processes), ros_processes.logs()
+    except BaseException:
+        probe.close()
+        raise
+    return probe, pub_img, pub_disp, masks
+
+
 @pytest.mark.slow
 def test_segment_node_process_uses_the_disparity_cue(ros_processes):
     """``segment_node --ros-args -p depth_cue:=true -p auto_init:=none`` in its own process:
     a mask waits for the disparity of its image and follows the disparity, not the colour."""
-    ros_processes.start("segment_node", params={"depth_cue": True, "auto_init": "none", "scale": 0.5})
-    probe = Probe(ros_processes.domain_id)
+    probe, pub_img, pub_disp, masks = _segment_node_and_probe(
+        ros_processes, {"depth_cue": True, "auto_init": "none", "scale": 0.5})
     try:
-        pub_img = probe.publisher(Image, "left/image_rect_color")
-        pub_disp = probe.publisher(DisparityImage, "disparity")
-        masks = probe.subscribe(Image, "left/mask")
-        assert wait_for(lambda: pub_img.get_subscription_count() >= 1 and pub_disp.get_subscription_count() >= 1
-                        and masks.subscription.get_publisher_count() >= 1, 60.0,
-                        group=ros_processes), ros_processes.logs()
         img, disparity, truth = _red_plant_scene()
         # an image alone is not segmented: its disparity has not come
         pub_img.publish(convert.image_to_msg(img, "bgr8", stamp_ns=T0, frame_id="left_rect"))
@@ -106,15 +118,8 @@ def test_segment_node_follow_disparity_segments_only_the_matched_frames(ros_proc
     """``follow_disparity:=true`` (the masked graph's setting): three images, disparities for
     the first and the third only (the matcher skipped the second): two masks, for those stamps,
     found by colour as without it (the disparity's values are not used)."""
-    ros_processes.start("segment_node", params={"follow_disparity": True, "scale": 0.5})
-    probe = Probe(ros_processes.domain_id)
+    probe, pub_img, pub_disp, masks = _segment_node_and_probe(ros_processes, {"follow_disparity": True, "scale": 0.5})
     try:
-        pub_img = probe.publisher(Image, "left/image_rect_color")
-        pub_disp = probe.publisher(DisparityImage, "disparity")
-        masks = probe.subscribe(Image, "left/mask")
-        assert wait_for(lambda: pub_img.get_subscription_count() >= 1 and pub_disp.get_subscription_count() >= 1
-                        and masks.subscription.get_publisher_count() >= 1, 60.0,
-                        group=ros_processes), ros_processes.logs()
         img, disparity, truth = _red_plant_scene()
         for k in range(3):
             pub_img.publish(convert.image_to_msg(img, "bgr8", stamp_ns=T0 + k, frame_id="left_rect"))
