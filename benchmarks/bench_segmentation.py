@@ -48,18 +48,19 @@ def _timed(fn):
 
 
 def _height_errors(sim, instances, ground):
-    """Per plant found: height error (%) against the truth plant it shows most."""
+    """Height errors (%) against the truth plant each instance shows most: ``(of the plants
+    wholly in view, of those the image border cuts)``."""
     if not instances.any():
-        return []
+        return [], []
     res = measure_plants(sim.xyz_left, instances, camera=sim.rig.P_left, ground=ground, separate=False)
-    errs = []
+    errs: tuple[list, list] = ([], [])
     for rep in res["plants"]:
         ids, counts = np.unique(sim.plants_left[instances == rep["plant_index"]], return_counts=True)
         k = int(ids[np.argmax(counts)])
         if k == 0 or "canopy" not in rep:
             continue
         truth = sim.truth["plants"][k - 1]["height"]
-        errs.append(100.0 * (rep["canopy"]["height"] / truth - 1.0))
+        errs[bool(rep["at_image_border"])].append(100.0 * (rep["canopy"]["height"] / truth - 1.0))
     return errs
 
 
@@ -79,11 +80,12 @@ def simulated(name: str, seed: int) -> None:
                                   ("plants", new.mask > 0, new.instances, new_ms)):
         iou = (mask & truth).sum() / max(1, (mask | truth).sum())
         taken = (mask & distractor).sum() / max(1, distractor.sum())
-        errs = _height_errors(sim, inst, ground)
+        errs, cut = _height_errors(sim, inst, ground)
         worst = f"{max(abs(e) for e in errs):6.2f}" if errs else "   n/a"
+        border = f" (+{len(cut)} cut by the border: worst {max(abs(e) for e in cut):.1f} %)" if cut else ""
         print(f"  {name:<19}{seed:>2}  {label:<7} IoU {iou:5.3f}  distractors taken {100 * taken:5.1f} %  "
               f"plants {int(inst.max()):>2}/{in_view:<2}  height |err| worst {worst} %  "
-              f"median {np.median(np.abs(errs)) if errs else float('nan'):5.2f} %  {ms}")
+              f"median {np.median(np.abs(errs)) if errs else float('nan'):5.2f} %{border}  {ms}")
 
 
 def real_plants(shared: Path) -> None:
@@ -105,15 +107,17 @@ def real_plants(shared: Path) -> None:
     new, new_ms = _timed(lambda: segment_plants(left, disparity=d))
     # the mask reconstruct --auto-mask (and --measure, batch, demo) uses: the cloud of the pair
     from canopy_stereo.io.rig import load_rig
-    from canopy_stereo.measure.plant import automatic_plant_mask
+    from canopy_stereo.measure.plant import camera_mm_of, plant_mask_of
 
     rig = load_rig(REPO / "config" / "plants_rig.yaml")
     rec = reconstruct_pair(left, right, rig)
-    cloud, cloud_ms = _timed(lambda: automatic_plant_mask(left, rec.organized, rig))
-    for label, mask, ms in (("seeder", old, old_ms), ("plants", new.mask > 0, new_ms),
-                            ("cloud", cloud, cloud_ms)):
+    cloud, cloud_ms = _timed(lambda: plant_mask_of(left, rec.organized * 1000.0 * rig.metres_per_unit,
+                                                   camera_mm=camera_mm_of(rig)))
+    for label, seg, ms in (("seeder", None, old_ms), ("plants", new, new_ms), ("cloud", cloud, cloud_ms)):
+        mask = old if seg is None else seg.mask > 0
         cov = "  ".join(f"{k} {100 * (mask & m).sum() / m.sum():5.1f} %" for k, m in regions.items())
-        print(f"  Plants 710x496  {label:<7} {cov}  {ms}")
+        found = "" if seg is None else f"  plants {seg.n_plants}"
+        print(f"  Plants 710x496  {label:<7} {cov}{found}  {ms}")
 
 
 def main() -> None:

@@ -22,13 +22,17 @@ def nice_voxel_size(extent: float, cells: int = 50) -> float:
 
 
 def voxel_volume(points: np.ndarray, voxel_size: float) -> tuple[float, int]:
-    """Volume of the occupied cubic voxels of edge ``voxel_size`` and their count."""
+    """Volume of the occupied cubic voxels of edge ``voxel_size`` and their count. The voxels are
+    those of one fixed grid of the world frame (faces at multiples of ``voxel_size``), not of a
+    grid hung on the lowest point: the last digits of one point can then move it to the next
+    voxel at most, never shift the whole grid (entry points whose clouds differ in the last
+    digits count the same voxels)."""
     if voxel_size <= 0 or not np.isfinite(voxel_size):
         raise CanopyStereoError(f"voxel size must be positive, got {voxel_size}")
     P = np.asarray(points, np.float64)
     if not len(P):
         return 0.0, 0
-    idx = np.floor((P - P.min(axis=0)) / voxel_size).astype(np.int64)
+    idx = np.floor(P / voxel_size).astype(np.int64)
     n = len(np.unique(idx, axis=0))
     return float(n * voxel_size ** 3), int(n)
 

@@ -116,7 +116,8 @@ def drop_detached_clusters(points: np.ndarray, cell: float, *, min_fraction: flo
     keep = np.ones(len(P), bool)
     if len(P) < 10 or not (cell > 0):
         return keep
-    idx = np.floor((P - P.min(axis=0)) / cell).astype(np.int64)
+    idx = np.floor(P / cell).astype(np.int64)  # one grid of the world frame (as the voxel volume's)
+    idx -= idx.min(axis=0)
     shape = idx.max(axis=0) + 1
     if np.prod(shape) > 50_000_000:  # absurd spread for the cell: leave the points alone
         return keep

@@ -52,6 +52,10 @@ RELIABLE_VIEW_ANGLE_DEG = 75.0
 #: A leaf whose length section is shorter than this fraction of the longest
 #: path over its surface is not leaf-shaped (bent, or several leaves) and not ``reliable``.
 MIN_SECTION_FRACTION = 0.8
+#: A candidate length section shorter than this fraction of the straight distance between its
+#: two ends left the region near its middle (an L-shaped cluster of leaves, not one leaf): it is
+#: not taken (its length, a few millimetres, changed wildly with the cloud's last digits).
+MIN_SECTION_OF_CHORD = 0.5
 #: View angle (degrees) beyond which a pixel's surface area is capped.
 MAX_VIEW_ANGLE_DEG = 84.0
 #: Width stations along the midrib before refinement.
@@ -320,6 +324,8 @@ def measure_leaf(organized: np.ndarray, leaf_mask: np.ndarray, *, leaf_id: int =
     geodesic = candidates[0][2]
     for cand_a, cand_b, _ in candidates:
         sec = _midrib_section(surface, phi, cand_a, cand_b, normal)
+        if sec is not None and sec.length < MIN_SECTION_OF_CHORD * np.linalg.norm(cand_b - cand_a):
+            sec = None  # the section left the region near its middle: not one leaf's midrib
         if sec is not None and (midrib is None or sec.length > midrib.length):
             midrib, end_a, end_b = sec, cand_a, cand_b
         elif midrib is None and np.linalg.norm(cand_b - cand_a) > np.linalg.norm(end_b - end_a):

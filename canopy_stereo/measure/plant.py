@@ -81,6 +81,12 @@ def original_cloud_mm(disparity, rig, rectification: Rectification) -> np.ndarra
     from canopy_stereo.geometry.triangulation import organized_from_disparity
 
     disp = np.asarray(disparity, np.float32)
+    doffs = np.float32(rectification.doffs)
+    if doffs != 0:
+        # the values as the graph carries them (disparity_node publishes d - doffs in float32 and
+        # the measuring side adds doffs back): float32 rounding then gives every entry point the
+        # same disparity to the last bit (a no-op on values that made that round trip already)
+        disp = (disp - doffs) + doffs
     disp = np.where(np.isfinite(disp), disp, np.float32(-1))
     org = organized_from_disparity(disp, rectification, rig.P_left, rig.P_right, rig.image_size,
                                    D_left=rig.D_left)
@@ -188,11 +194,6 @@ def measure_plant(left_bgr, disparity, rig, *, rectification: Rectification, mas
     if left_bgr is not None and np.asarray(left_bgr).shape[:2] != organized.shape[:2]:
         raise CanopyStereoError(f"the left image is {np.asarray(left_bgr).shape[1]}x{np.asarray(left_bgr).shape[0]} "
                                 f"but the rig's images are {organized.shape[1]}x{organized.shape[0]}")
-    if whole_scene:
-        plant, source = finite, "whole scene"
-    elif mask is not None:
-        plant = np.asarray(mask)
-        plant, source = (plant.max(axis=2) if plant.ndim == 3 else plant) > 0, "given"
     camera_mm = camera_mm_of(rig)
     instances = None
     if whole_scene:
@@ -207,6 +208,10 @@ def measure_plant(left_bgr, disparity, rig, *, rectification: Rectification, mas
             raise CanopyStereoError("no plant found in the image (the automatic plant mask is empty); "
                                     "give a mask, or measure the whole scene")
     n_plants = 0 if instances is None else int(instances.max())
+    if n_plants == 1:  # a lone plant as measure_plants measures each: without the background behind it
+        from canopy_stereo.measure.plants import trimmed_mask
+
+        plant = trimmed_mask(organized, plant, camera=camera_mm)
     plants: list[dict] = []
     if n_plants > 1:  # each plant on its own: height from its pot rim / soil / the ground
         from canopy_stereo.measure.plants import measure_plants
@@ -238,8 +243,7 @@ def _reference_of(scene, organized, plant, camera_mm) -> dict:
     ref = reference_surface(organized, plant, np.zeros_like(plant), scene.frame, scene.canopy_points, scale=scale)
     canopy = scene.report["canopy"]
     canopy["extent_height"] = canopy["height"]
-    if ref["kind"] != "none":
-        canopy["height"] = float(canopy["bbox_max"][2]) - ref["height"]
+    canopy["height"] = ref["plant_height"]
     return ref
 
 
@@ -247,6 +251,7 @@ def plant_summary(p: dict) -> dict:
     """One plant's entry of ``report["plants"]`` from its report (lab units): its index,
     reference surface, canopy, leaf count, leaf area (cm^2), mean leaf length and width (mm)."""
     return {"plant_index": int(p.get("plant_index", 0)), "reference": p.get("reference"),
+            "at_image_border": p.get("at_image_border"),
             "canopy": p["canopy"], "n_leaves": len(p.get("leaves", [])),
             "leaf_area": float(sum(lf["area"] for lf in p.get("leaves", []))),
             "mean_leaf_length": float(np.mean([lf["length"] for lf in p["leaves"]])) if p.get("leaves") else None,

@@ -23,6 +23,8 @@ from canopy_stereo.measure.viewpoint import resolve_camera
 REFERENCE_KINDS = ("pot_rim", "soil", "ground", "none")
 #: Fewest container points that make a reference surface.
 MIN_CONTAINER_POINTS = 30
+#: Steepest soil (degrees from the measuring frame's horizontal) taken as a plant's reference plane.
+MAX_SOIL_TILT_DEG = 20.0
 #: Width (pixels) of the ring around the plants that is not taken for their container.
 RING_PX = 4
 #: A plant pixel whose point lies farther from the camera than the plant's median distance
@@ -40,10 +42,14 @@ def reference_surface(organized: np.ndarray, plant: np.ndarray, others: np.ndarr
     points' horizontal distances from the foot) and from 60 % of the plant's height (or
     four times its reach: a top view sees the leaves, not the stem down to the soil) below
     its foot to 10 % above, lie more than :data:`RING_PX` pixels from every plant, and
-    are not on the ground plane. Their 98th percentile height is the reference:
-    ``pot_rim`` when the container stands more than 3 % of the plant's height (a pot
-    wall), else ``soil``; without container
-    points the ground plane (``ground``, height 0), else ``none`` (the plant's lowest point).
+    are not on the ground plane. Without a ground plane (a top view: the frame's up is the
+    view's), when they are flat (:func:`_soil_plane`: a plane holds 95 % of them within 3 %
+    of the plant's height) that plane is the reference, ``soil``, and the plant's height is
+    its top above the plane along the plane's normal (the soil of a tray seen from above
+    need not face the camera squarely). Otherwise their 98th percentile height is the
+    reference: ``pot_rim`` when the container stands more than 3 % of the plant's height (a
+    pot wall), else ``soil``; without container points the ground plane (``ground``, height 0), else ``none`` (the
+    plant's lowest point).
 
     Args:
         organized: (H, W, 3) world points.
@@ -52,8 +58,10 @@ def reference_surface(organized: np.ndarray, plant: np.ndarray, others: np.ndarr
         plant_points: (N, 3) world points of the plant's canopy.
         scale: typical distance to the scene (world units; the ground tolerance is 1 %).
 
-    Returns ``{"kind", "height" (frame z of the surface, world units), "height_above_ground"
-    (or None without a ground plane), "n_points"}``.
+    Returns ``{"kind", "height" (frame z of the surface under the plant's foot, world units),
+    "height_above_ground" (or None without a ground plane), "n_points", "plant_height" (the
+    plant's top above the surface, world units; ``none``: the plant's own extent),
+    "tilt_deg" (of the soil plane against the frame's horizontal; 0 otherwise)}``.
     """
     F = frame.to_frame(plant_points)
     z = F[:, 2]
@@ -73,15 +81,49 @@ def reference_surface(organized: np.ndarray, plant: np.ndarray, others: np.ndarr
     if has_ground:
         keep &= C[:, 2] > 0.01 * scale
     C = C[keep]
+    top_z = float(z.max()) if len(z) else 0.0
     if len(C) >= MIN_CONTAINER_POINTS:
+        # without a ground plane, up is the view's or the image's: the soil's own plane is better
+        soil = None if has_ground else _soil_plane(C, foot, height)
+        if soil is not None:  # flat: soil (a tray seen from above may be tilted to the view)
+            slope, offset = soil
+            surface = float(offset + slope @ foot)
+            above = F[:, 2] - (F[:, :2] @ slope + offset)
+            return {"kind": "soil", "height": surface, "height_above_ground": surface if has_ground else None,
+                    "n_points": int(len(C)), "plant_height": float(above.max()),
+                    "tilt_deg": float(np.degrees(np.arctan(np.linalg.norm(slope))))}
         top = float(np.percentile(C[:, 2], 98))
-        span = top - float(np.percentile(C[:, 2], 5))
-        kind = "pot_rim" if span > 0.03 * height else "soil"
+        kind = "pot_rim" if top - float(np.percentile(C[:, 2], 5)) > 0.03 * height else "soil"
         return {"kind": kind, "height": top, "height_above_ground": top if has_ground else None,
-                "n_points": int(len(C))}
+                "n_points": int(len(C)), "plant_height": top_z - top, "tilt_deg": 0.0}
     if has_ground:
-        return {"kind": "ground", "height": 0.0, "height_above_ground": 0.0, "n_points": int(frame.ground_inliers)}
-    return {"kind": "none", "height": float(z.min()), "height_above_ground": None, "n_points": 0}
+        return {"kind": "ground", "height": 0.0, "height_above_ground": 0.0, "n_points": int(frame.ground_inliers),
+                "plant_height": top_z, "tilt_deg": 0.0}
+    return {"kind": "none", "height": float(z.min()) if len(z) else 0.0, "height_above_ground": None, "n_points": 0,
+            "plant_height": height, "tilt_deg": 0.0}
+
+
+def _soil_plane(C: np.ndarray, foot: np.ndarray, height: float):
+    """``(slope (2,), offset)`` of the plane ``z = slope . (x, y) + offset`` the container points
+    ``C`` (N, 3, frame coordinates) lie on when they are flat soil: the least-squares plane of
+    the points (refitted without those more than 3 % of the plant's ``height`` off it), tilted
+    by at most :data:`MAX_SOIL_TILT_DEG`, that holds 95 % of them within 3 % of ``height``;
+    else None (a pot: a rim above its soil)."""
+    tol = 0.03 * height
+    if not tol > 0:
+        return None
+    A = np.column_stack([C[:, 0] - foot[0], C[:, 1] - foot[1], np.ones(len(C))])
+    use = np.ones(len(C), bool)
+    for _ in range(3):
+        if use.sum() < MIN_CONTAINER_POINTS:
+            return None
+        coef = np.linalg.lstsq(A[use], C[use, 2], rcond=None)[0]
+        resid = np.abs(C[:, 2] - A @ coef)
+        use = resid <= tol
+    slope = coef[:2]
+    if np.degrees(np.arctan(np.linalg.norm(slope))) > MAX_SOIL_TILT_DEG or use.mean() < 0.95:
+        return None
+    return slope, float(coef[2] - slope @ foot)
 
 
 def measure_plants(organized, instances, *, ground="auto", unit: str = "mm", camera="auto",
@@ -97,7 +139,8 @@ def measure_plants(organized, instances, *, ground="auto", unit: str = "mm", cam
 
     Returns ``{"n_plants": N, "unit": unit, "plants": [report, ...]}``: each report is
     :func:`~canopy_stereo.measure.scene.measure_scene`'s REPORT dict of that plant alone
-    plus ``plant_index`` and ``reference`` (:func:`reference_surface`); its
+    plus ``plant_index``, ``reference`` (:func:`reference_surface`) and ``at_image_border``
+    (its pixels touch the image border: its top or its extents may lie out of view); its
     ``canopy["height"]`` is the top of the plant above the reference surface (world
     units) and ``canopy["extent_height"]`` the plant's own vertical extent. With
     ``ground="auto"`` the ground plane is found once for the scene; each plant is measured
@@ -140,11 +183,15 @@ def measure_plants(organized, instances, *, ground="auto", unit: str = "mm", cam
         if not isinstance(plane, str) and isinstance(ground, str):
             report["frame"]["kind"] = "ground"
         canopy = report["canopy"]
-        top = float(canopy["bbox_max"][2])
         canopy["extent_height"] = canopy["height"]
-        canopy["height"] = top - ref["height"] if ref["kind"] != "none" else canopy["height"]
-        plants.append({"plant_index": k, "reference": ref, **report})
+        canopy["height"] = ref["plant_height"]
+        plants.append({"plant_index": k, "reference": ref, "at_image_border": _at_border(inst == k), **report})
     return {"n_plants": len(plants), "unit": unit, "plants": plants}
+
+
+def _at_border(mask: np.ndarray) -> bool:
+    """Whether a plant's pixels touch the image border (part of it may be out of view)."""
+    return bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
 
 
 def _scene_ground(organized, finite, plants, P):
@@ -157,6 +204,16 @@ def _scene_ground(organized, finite, plants, P):
              else float(np.linalg.norm(np.ptp(organized[finite], axis=0))))
     frame = measuring_frame(canopy, organized[finite & ~plants], "auto", right, down, view, scale)
     return "auto" if frame.ground_plane is None else frame.ground_plane
+
+
+def trimmed_mask(organized: np.ndarray, mask: np.ndarray, *, camera) -> np.ndarray:
+    """(H, W) bool: a plant's ``mask`` without the pixels whose points lie more than
+    :data:`MAX_BEHIND_FRACTION` beyond the plant's median distance from the ``camera``
+    (``P`` (3, 4), or None: the mask as it is): background seen through the mask's edge,
+    which is not the plant (how :func:`measure_plants` measures each plant; the one
+    measuring pipeline measures a lone plant so too)."""
+    organized = np.asarray(organized, np.float64)
+    return _trimmed(organized, np.all(np.isfinite(organized), axis=-1), np.asarray(mask, bool), camera)
 
 
 def _trimmed(organized, finite, mask, P):

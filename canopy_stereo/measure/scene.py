@@ -27,7 +27,7 @@ from canopy_stereo.measure.cleaning import (
 from canopy_stereo.measure.frame import MeasuringFrame, image_directions, measuring_frame
 from canopy_stereo.measure.instances import separate_leaves
 from canopy_stereo.measure.leaf import measure_leaf
-from canopy_stereo.measure.surface import EXACT_ROUGHNESS, roughness
+from canopy_stereo.measure.surface import roughness
 from canopy_stereo.measure.viewpoint import resolve_camera
 
 #: Leaves seen more obliquely than this (70 degrees; nearly edge-on) add their cleaned raw
@@ -35,6 +35,12 @@ from canopy_stereo.measure.viewpoint import resolve_camera
 #: which is poorly determined along the line of sight.
 MAX_SURFACE_VIEW_ANGLE_DEG = 70.0
 
+
+#: Roughness (pixel sizes, depth jumps left out: :func:`~canopy_stereo.measure.surface.roughness`)
+#: below which a plant's cloud is exact (rendered) and not cleaned: rendered seedlings measure
+#: 0.003-0.025 with the background pixels an automatic mask takes at their edges, stereo
+#: clouds of the same seedlings 0.18 and more (ELAS).
+EXACT_CLOUD_ROUGHNESS = 0.05
 
 #: Cell edge, as a fraction of the canopy's size, of the clustering that drops
 #: stray matches detached from the canopy (:func:`drop_detached_clusters`).
@@ -138,7 +144,8 @@ def measure_scene(organized, leaf_ids=None, *, mask=None, ground="auto", unit: s
         ids = separate_leaves(organized, plant,
                               min_pixels=max(10, min_leaf_pixels // 2))
     all_plant = (plant if plant is not None else finite) & finite
-    exact_cloud = bool(all_plant.sum() >= 16 and roughness(organized, all_plant) < EXACT_ROUGHNESS)
+    exact_cloud = bool(all_plant.sum() >= 16
+                       and roughness(organized, all_plant, skip_jumps=True) < EXACT_CLOUD_ROUGHNESS)
     leaves, skipped = [], []
     leaf_surfaces: list = []  # (N, 3) surface points of the leaves kept
     in_leaf = np.zeros((h, w), bool)

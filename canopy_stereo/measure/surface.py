@@ -322,13 +322,18 @@ def shift_projection(P, v0: int, u0: int) -> np.ndarray:
 EXACT_ROUGHNESS = 0.02
 
 
-def roughness(organized: np.ndarray, valid: np.ndarray, *, sigma: float = 1.5) -> float:
+def roughness(organized: np.ndarray, valid: np.ndarray, *, sigma: float = 1.5, skip_jumps: bool = False) -> float:
     """Small-scale scatter of a surface, in pixel sizes.
 
     Robust standard deviation of the points' distances (along the local
     normal) from a local-linear fit at ``sigma`` pixels, divided by the pixel
     size (square root of the median pixel footprint). About 0 for exact
-    (rendered) surfaces, 0.1 or more for stereo reconstructions.
+    (rendered) surfaces, 0.1 or more for stereo reconstructions. With
+    ``skip_jumps`` the pixels whose fit reaches across a depth jump (within
+    ``2 sigma`` pixels of a valid 4-neighbour pair more than :data:`JUMP_SPACINGS`
+    median neighbour spacings apart: a thin stem before its soil, the background
+    a mask took at a leaf's edge) are left out when others remain (at least 16):
+    the scatter of the surfaces, not of the steps between them.
     """
     X, Xu, Xv = local_linear_fit(organized, valid, valid, sigma=sigma)
     n = np.cross(Xu, Xv)
@@ -338,5 +343,32 @@ def roughness(organized: np.ndarray, valid: np.ndarray, *, sigma: float = 1.5) -
     ok = valid & np.isfinite(res) & np.isfinite(foot) & (foot > 0)
     if ok.sum() < 8:
         return float("inf")
+    if skip_jumps:
+        away = ok & ~_near_jumps(organized, valid, int(np.ceil(2.0 * sigma)))
+        if away.sum() >= 16:
+            ok = away
     pix = float(np.sqrt(np.median(foot[ok])))
     return float(1.4826 * np.median(np.abs(res[ok])) / pix)
+
+
+#: A step between 4-neighbours longer than this many median neighbour spacings is a depth jump.
+JUMP_SPACINGS = 4.0
+
+
+def _near_jumps(organized: np.ndarray, valid: np.ndarray, reach: int) -> np.ndarray:
+    """(H, W) bool: pixels within ``reach`` pixels of a depth jump between valid 4-neighbours."""
+    pts = np.where(valid[..., None], organized, np.nan)
+    steps = [np.linalg.norm(pts[:, 1:] - pts[:, :-1], axis=-1), np.linalg.norm(pts[1:] - pts[:-1], axis=-1)]
+    finite = np.concatenate([s[np.isfinite(s)] for s in steps])
+    jump = np.zeros(valid.shape, bool)
+    if not len(finite):
+        return jump
+    limit = JUMP_SPACINGS * float(np.median(finite))
+    with np.errstate(invalid="ignore"):
+        across, down = steps[0] > limit, steps[1] > limit
+    jump[:, 1:] |= across
+    jump[:, :-1] |= across
+    jump[1:] |= down
+    jump[:-1] |= down
+    k = np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)
+    return cv2.dilate(jump.astype(np.uint8), k).astype(bool)

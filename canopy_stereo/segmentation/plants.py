@@ -39,6 +39,7 @@ from canopy_stereo.segmentation.colour_model import (
     relabel_by_colour,
 )
 from canopy_stereo.segmentation.grabcut import GC_BGD, GC_FGD, GC_PR_BGD, GC_PR_FGD, labels_to_mask
+from canopy_stereo.segmentation.roots import MIN_ROOT_PIXELS, container_bands, split_by_roots
 from canopy_stereo.segmentation.shape import (
     attached_parts,
     caps,
@@ -83,6 +84,15 @@ class PlantSegmenterSettings:
         rim_fraction: height of the band just above a solid (its rim) that is background unless
             the shape cue is sure a plant stands out there, as a fraction of its width.
         use_colour: learn colour models from the shape cue and cut with them.
+        min_plant: smallest plant, 0..1, as a fraction of the largest plant's foliage area
+            (pixels weighted by their squared depth, so near and far plants compare in real
+            size): smaller regions are fragments, joined to a plant beside them or left out
+            (:func:`plant_instances`); 0 keeps every region.
+        object_colour: a region touching a solid object whose mean Lab colour lies within this
+            distance (CIE76 Delta E, 0..100) of the object's is part of the object (its handle,
+            its spout), not a plant; 0 turns the test off. Measured: a watering can's handle
+            5.5 from its can; plants 15-36 from their pots (the jade plant's lowest leaves in
+            the shade of the Middlebury Plants terracotta pot: 14.8).
     """
 
     scale: float | None = None
@@ -98,6 +108,15 @@ class PlantSegmenterSettings:
     cap_fraction: float = 0.15
     rim_fraction: float = 0.06
     use_colour: bool = True
+    min_plant: float = 0.1
+    object_colour: float = 10.0
+
+    def __post_init__(self):
+        if not 0.0 <= float(self.min_plant) <= 1.0:
+            raise CanopyStereoError(f"min_plant must be a fraction in [0, 1] of the largest plant, "
+                                    f"got {self.min_plant}")
+        if not 0.0 <= float(self.object_colour) <= 100.0:
+            raise CanopyStereoError(f"object_colour must be a Lab distance in [0, 100], got {self.object_colour}")
 
     def replace(self, **changes) -> PlantSegmenterSettings:
         return replace(self, **changes)
@@ -256,13 +275,18 @@ def segment_plants(image_bgr, *, disparity=None, points=None, depth=None, camera
         near_solid = _resize_map((cues["solids"] | cues["caps"]).astype(np.uint8), (w, h)) > 0
         mask = _with_shape_evidence(mask, _resize_map(cues["evidence"].astype(np.uint8), (w, h)) > 0,
                                     near_solid)
+        if settings.object_colour > 0:
+            solids = _resize_map(cues["solids"].astype(np.uint8), (w, h)) > 0
+            lab_img = colours if settings.colour_space == "lab" else cv2.cvtColor(img, cv2.COLOR_BGR2LAB)
+            mask = _without_object_parts(mask, solids, lab_img, max_distance=float(settings.object_colour))
     else:
         mask = labels_to_mask(labels) > 0
         if mask.shape != (h, w):
             mask = cv2.resize(mask.astype(np.uint8) * 255, (w, h), interpolation=cv2.INTER_LINEAR) >= 128
     mask = _drop_small_and_sticks(mask, settings)
-    instances, plants = plant_instances(mask, q_full)
-    return PlantSegmentation(mask=np.where(mask, 255, 0).astype(np.uint8), instances=instances,
+    roots = _resize_map(container_bands(cues["solids"], cues["caps"]), (w, h))
+    instances, plants = plant_instances(mask, q_full, min_plant=float(settings.min_plant), roots=roots)
+    return PlantSegmentation(mask=np.where(instances > 0, 255, 0).astype(np.uint8), instances=instances,
                              plants=plants, cues=cues)
 
 
@@ -310,6 +334,38 @@ def _with_shape_evidence(mask: np.ndarray, sure: np.ndarray, near_solid: np.ndar
     return keep[lab]
 
 
+def _without_object_parts(mask: np.ndarray, solids: np.ndarray, lab_img: np.ndarray, *,
+                          max_distance: float) -> np.ndarray:
+    """``mask`` without the regions (8-connected) that touch a solid object (within 2 pixels)
+    and whose mean colour (uint8 Lab image, OpenCV's scaling: L * 255 / 100, a and b + 128)
+    lies within ``max_distance`` (CIE76, L in 0..100) of that object's: the handle of a
+    watering can that stands out of the planes like a plant but has the can's colour."""
+    n, lab = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    if n <= 1 or not solids.any():
+        return mask
+    ns, solid_lab = cv2.connectedComponents(solids.astype(np.uint8), connectivity=8)
+    colours = lab_img.reshape(-1, 3).astype(np.float64) * np.array([100.0 / 255.0, 1.0, 1.0])
+    mean, smean = _label_means(lab, n, colours), _label_means(solid_lab, ns, colours)
+    near = cv2.dilate(solid_lab.astype(np.float32), np.ones((5, 5), np.uint8)).astype(np.int64)
+    keep = np.ones(n, bool)
+    keep[0] = False
+    sel = (lab > 0) & (near > 0)
+    pairs, hits = np.unique(lab[sel] * ns + near[sel], return_counts=True)
+    regions, objects = pairs // ns, pairs % ns
+    for i in np.unique(regions):  # each region against the object it touches most
+        s = objects[regions == i][np.argmax(hits[regions == i])]
+        keep[i] = np.linalg.norm(mean[i] - smean[s]) > max_distance
+    return keep[lab]
+
+
+def _label_means(lab: np.ndarray, n: int, values: np.ndarray) -> np.ndarray:
+    """(n, C) float64 mean of ``values`` ((H * W, C)) over each label 0..n-1 of ``lab``."""
+    flat = lab.ravel()
+    counts = np.maximum(np.bincount(flat, minlength=n), 1).astype(np.float64)
+    sums = np.stack([np.bincount(flat, weights=values[:, c], minlength=n) for c in range(values.shape[1])], 1)
+    return np.asarray(sums, np.float64) / counts[:, None]
+
+
 def _drop_small_and_sticks(mask: np.ndarray, settings: PlantSegmenterSettings) -> np.ndarray:
     """``mask`` without regions below ``min_region`` of the image and without sticks."""
     n, lab, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
@@ -347,19 +403,84 @@ def _region_medians(lab: np.ndarray, n: int, q: np.ndarray | None) -> np.ndarray
     return qs
 
 
-def plant_instances(mask: np.ndarray, q: np.ndarray | None = None, *, join_px: int | None = None):
+#: Default smallest plant, as a fraction of the largest plant's foliage area (see :func:`plant_instances`).
+MIN_PLANT_FRACTION = 0.1
+
+
+def _foliage_areas(lab: np.ndarray, n: int, q: np.ndarray | None, qs: np.ndarray) -> np.ndarray:
+    """(n,) foliage area of each label 1..n-1 of ``lab`` up to one common factor: the sum over its
+    pixels of ``1 / q^2`` (a pixel's area on the object grows with the square of its depth;
+    pixels without ``q`` count at their region's median ``q``), or its pixel count without ``q``."""
+    if q is None or not np.isfinite(qs[1:]).any():
+        return np.bincount(lab.ravel(), minlength=n).astype(np.float64)
+    fill = np.where(np.isfinite(qs), qs, np.nanmedian(qs[1:]))
+    qq = np.where(np.isfinite(q) & (q > 0), q, fill[lab])
+    return np.bincount(lab.ravel(), weights=(1.0 / qq ** 2).ravel(), minlength=n)
+
+
+def _split_rooted(lab, n, stats, q, roots):
+    """Connected regions (``lab`` 1..n-1) standing in two or more containers' bands split into
+    their plants (:func:`~canopy_stereo.segmentation.roots.split_by_roots`): ``(n, lab, stats,
+    origin)`` with the new labels, their ``cv2`` stats and the region each comes from."""
+    sel = (lab > 0) & (roots > 0)
+    nroot = int(roots.max()) + 1
+    hits = np.bincount(lab[sel] * nroot + roots[sel], minlength=n * nroot).reshape(n, nroot)
+    candidates = np.nonzero((hits >= MIN_ROOT_PIXELS).sum(axis=1) >= 2)[0]
+    origin = list(range(n))
+    if not len(candidates):
+        return n, lab, stats, np.arange(n)
+    lab = lab.copy()
+    for i in candidates:
+        pieces = split_by_roots(lab == i, q, roots)
+        for piece in (pieces or [])[1:]:
+            lab[piece] = len(origin)
+            origin.append(int(i))
+    n = len(origin)
+    stats = np.zeros((n, 5), np.int64)
+    from scipy import ndimage
+
+    for k, box in enumerate(ndimage.find_objects(lab), start=1):
+        if box is not None:
+            sv, su = box
+            stats[k, :4] = su.start, sv.start, su.stop - su.start, sv.stop - sv.start
+    return n, lab, stats, np.asarray(origin)
+
+
+def plant_instances(mask: np.ndarray, q: np.ndarray | None = None, *, join_px: int | None = None,
+                    min_plant: float = MIN_PLANT_FRACTION, roots: np.ndarray | None = None):
     """Plants of a mask: ``(instances (H, W) int32, plants list)``.
 
-    Connected regions are one plant each, except that regions within ``join_px``
-    pixels of each other (default 2 % of the image diagonal) whose median inverse
-    depths (``q``) agree within 15 % are joined (leaves of one plant seen apart);
-    plants are numbered 1.. by the column of their pixel centroid (ties: by row).
+    Connected regions are one plant each, except that:
+
+    * with ``roots`` ((H, W) int, the band above each container numbered 1..:
+      :func:`~canopy_stereo.segmentation.roots.container_bands`) and ``q``, a region that stands
+      in the bands of two or more containers is split into one plant per container along its
+      depth jumps (two potted plants whose leaves overlap in the image:
+      :func:`~canopy_stereo.segmentation.roots.split_by_roots`);
+
+    * a region whose foliage area (its pixels weighted by the square of their depth, from the
+      inverse depth ``q``; pixel counts without ``q``) is below ``min_plant`` (0..1) times the
+      largest region's is a *fragment*: it joins the nearest region within ``join_px`` pixels
+      (default 2 % of the image diagonal) whose median inverse depth agrees within 15 % (a
+      leaf of a plant seen apart); a fragment nothing takes (alone or with other fragments,
+      still below ``min_plant``) is not a plant (a piece of a table edge) and is left out;
+    * two plant-sized regions join only when they come within a quarter of ``join_px`` (at
+      least 3 pixels) of each other with agreeing depths (one plant that the mask broke): the
+      seedlings of a tray, a few millimetres apart, stay apart.
+
+    Plants are numbered 1.. by the column of their pixel centroid (ties: by row).
     """
     m = np.asarray(mask) > 0
     h, w = m.shape
     if join_px is None:
         join_px = max(2, int(0.02 * np.hypot(h, w)))
+    if not 0.0 <= float(min_plant) <= 1.0:
+        raise CanopyStereoError(f"min_plant must be a fraction in [0, 1] of the largest plant, got {min_plant}")
+    close_px = max(3, join_px // 4)
     n, lab, stats, _ = cv2.connectedComponentsWithStats(m.astype(np.uint8), connectivity=8)
+    origin = np.arange(n)  # the connected region each label comes from
+    if roots is not None and q is not None and n > 1:
+        n, lab, stats, origin = _split_rooted(lab, n, stats, q, np.asarray(roots))
     parent = list(range(n))
 
     def find(i):
@@ -368,9 +489,15 @@ def plant_instances(mask: np.ndarray, q: np.ndarray | None = None, *, join_px: i
             i = parent[i]
         return i
 
+    qs = _region_medians(lab, n, q)
+    area = _foliage_areas(lab, n, q, qs)
+    big = area >= float(min_plant) * (area[1:].max() if n > 1 else 0.0)
+    big[0] = False
+    group_area = area.copy()
     if n > 2:
-        qs = _region_medians(lab, n, q)
-        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * join_px + 1, 2 * join_px + 1))
+        k_far = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * join_px + 1, 2 * join_px + 1))
+        k_close = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * close_px + 1, 2 * close_px + 1))
+        links = []  # (gap class, i, j): close links first, then fragments by size
         for i in range(1, n):
             # the region grown by join_px, within its box widened by join_px (the same pixels
             # as growing it on the whole image)
@@ -378,16 +505,30 @@ def plant_instances(mask: np.ndarray, q: np.ndarray | None = None, *, join_px: i
             x0, y0 = max(0, x - join_px), max(0, y - join_px)
             x1, y1 = min(w, x + bw + join_px), min(h, y + bh + join_px)
             crop = lab[y0:y1, x0:x1]
-            grown = cv2.dilate((crop == i).astype(np.uint8), k).astype(bool)
-            for j in np.unique(crop[grown & m[y0:y1, x0:x1]]):
+            own = (crop == i).astype(np.uint8)
+            on = m[y0:y1, x0:x1]
+            near = set(np.unique(crop[(cv2.dilate(own, k_close) > 0) & on]).tolist())
+            for j in np.unique(crop[(cv2.dilate(own, k_far) > 0) & on]).tolist():
                 if j <= i:
                     continue
                 same_depth = (not np.isfinite(qs[i]) or not np.isfinite(qs[j])
                               or abs(qs[i] - qs[j]) <= 0.15 * max(qs[i], qs[j]))
-                if same_depth:
-                    parent[find(j)] = find(i)
+                if origin[i] == origin[j]:
+                    continue  # one region split between the containers its plants grow from
+                if same_depth and (j in near or not (big[i] and big[j])):
+                    links.append((j not in near, i, j))
+        for far, i, j in sorted(links):
+            a, b = find(i), find(j)
+            if a == b or (far and big[a] and big[b]):
+                continue
+            parent[b] = a
+            big[a] |= big[b]
+            group_area[a] += group_area[b]
     roots = np.array([find(i) for i in range(n)])
     groups = np.unique(roots[1:]) if n > 1 else np.zeros(0, np.int64)
+    if len(groups):  # fragments nothing took are not plants
+        groups = groups[group_area[groups] >= float(min_plant) * group_area[groups].max()]
+        roots = np.where(np.isin(roots, groups), roots, 0)
     plants: list[dict] = []
     inst = np.zeros((h, w), np.int32)
     if not len(groups):

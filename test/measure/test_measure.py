@@ -218,7 +218,7 @@ def test_measure_organized_report_with_leaf_ids(rig, tmp_path):
     assert canopy["n_points"] == len(pts)
     assert canopy["hull_volume"] == pytest.approx(ConvexHull(pts).volume, rel=1e-9)
     vs = canopy["voxel_size"]
-    occupied = len(np.unique(np.floor((pts - pts.min(axis=0)) / vs).astype(np.int64), axis=0))
+    occupied = len(np.unique(np.floor(pts / vs).astype(np.int64), axis=0))  # the world-frame grid
     assert canopy["occupied_voxels"] == occupied and canopy["voxel_volume"] == pytest.approx(occupied * vs ** 3)
     assert canopy["leaf_area_density"] == pytest.approx(canopy["leaf_area"] / canopy["hull_volume"])
     # JSON and CSV

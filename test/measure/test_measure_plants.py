@@ -42,16 +42,23 @@ def test_measure_plants_rejects_bad_instances(two_pots):
 @pytest.mark.slow
 def test_seedling_heights_above_the_tray_from_a_top_view(paper_rig):
     """Each seedling of the tray (true instances, exact cloud, ground="view"): its height above the
-    soil of the tray, which a top view sees around the leaves, not under them."""
+    soil of the tray, which a top view sees around the leaves, not under them, measured along the
+    soil's normal (the tray need not face the camera squarely): within 2 % of the truth for every
+    seedling wholly in view; those cut by the image border are flagged."""
     sim = render_scene("seedling_tray", paper_rig, effects=CLEAN, supersample=1)
     inst = sim.plants_left.astype(np.int32)
     counts = np.bincount(inst.ravel())
     inst[counts[inst] < 50] = 0  # seedlings barely in view
     res = measure_plants(sim.xyz_left, inst, camera=sim.rig.P_left, ground="view", separate=False)
-    errors = []
+    errors = {}
     for rep in res["plants"]:
-        assert rep["reference"]["kind"] in ("soil", "pot_rim")
-        truth = sim.truth["plants"][rep["plant_index"] - 1]["height"]
-        errors.append(abs(rep["canopy"]["height"] / truth - 1.0))
-    assert len(errors) > 30
-    assert np.mean(np.array(errors) <= 0.02) >= 0.85 and max(errors) < 0.08
+        assert rep["reference"]["kind"] == "soil"
+        k = rep["plant_index"]
+        pixels = inst == k
+        assert rep["at_image_border"] == bool(pixels[0].any() or pixels[-1].any() or pixels[:, 0].any()
+                                              or pixels[:, -1].any())
+        truth = sim.truth["plants"][k - 1]["height"]
+        if not rep["at_image_border"]:
+            errors[k] = rep["canopy"]["height"] / truth - 1.0
+    assert len(errors) > 25
+    assert max(abs(e) for e in errors.values()) <= 0.02, errors

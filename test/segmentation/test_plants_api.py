@@ -61,3 +61,49 @@ def test_inverse_depth_of_a_cloud_uses_its_camera(paper_rig):
     ok = np.isfinite(q_given)
     assert np.allclose(q_given[ok], q_estimated[ok], rtol=1e-3)
     assert np.nanmedian(q_given) == pytest.approx(50.0)
+
+
+def test_plant_sized_regions_apart_stay_apart_and_fragments_join_or_go():
+    m = np.zeros((100, 300), bool)
+    m[20:60, 20:60] = True      # a seedling
+    m[20:60, 70:110] = True     # another, 10 px away at the same depth: not joined
+    m[62:66, 20:30] = True      # a fragment of the first (40 px, 2 px below it): joins it
+    m[80:84, 250:256] = True    # a stray fragment far from all: not a plant
+    q = np.full(m.shape, 30.0)
+    inst, plants = plant_instances(m, q)
+    assert len(plants) == 2 and inst[64, 25] == 1 and inst[30, 80] == 2 and inst[82, 252] == 0
+    # min_plant weighs pixels by their squared depth: a region 3 x farther is 9 x larger
+    q[20:60, 70:110] = 10.0
+    assert [p["bbox"][0] for p in plant_instances(m, q)[1]] == [20, 70]  # 1/9 of it: still a plant
+    assert [p["bbox"][0] for p in plant_instances(m, q, min_plant=0.5)[1]] == [70]
+    _, plants = plant_instances(m, q, min_plant=0.0)
+    assert len(plants) == 3  # every region a plant; the piece 2 px below the first still joins it
+    with pytest.raises(Exception, match="min_plant"):
+        plant_instances(m, q, min_plant=2.0)
+
+
+def test_touching_plants_are_split_by_the_containers_they_grow_from():
+    from canopy_stereo.segmentation.roots import container_bands, split_by_roots
+
+    h, w = 120, 200
+    solids = np.zeros((h, w), bool)
+    solids[90:120, 20:80] = True     # left pot
+    solids[90:120, 120:180] = True   # right pot
+    bands = np.zeros((h, w), bool)
+    bands[80:90, 20:80] = bands[80:90, 120:180] = True
+    roots = container_bands(solids, bands)
+    assert roots[85, 50] == 1 and roots[85, 150] == 2 and roots[50, 100] == 0
+    # two plants whose leaves touch at column 100; the right one 20 % farther; a branch of the
+    # left plant (same depth as it) reaches over the right one's foliage
+    region = np.zeros((h, w), bool)
+    region[10:90, 30:170] = True
+    q = np.where(np.arange(w)[None, :] < 100, 50.0, 40.0) * np.ones((h, 1))
+    q[10:20, 100:130] = 50.0
+    pieces = split_by_roots(region, q, roots)
+    assert len(pieces) == 2 and sum(p.sum() for p in pieces) == region.sum()
+    left, right = sorted(pieces, key=lambda p: np.nonzero(p)[1].mean())
+    assert left[50, 60] and right[50, 140] and left[15, 120]
+    inst, plants = plant_instances(region, q, roots=roots)
+    assert len(plants) == 2 and inst[15, 120] == 1 and inst[50, 140] == 2
+    # standing in one container's band: left whole
+    assert split_by_roots(region & (np.arange(w)[None, :] < 110), q, roots) is None
