@@ -21,7 +21,7 @@ import sys
 import numpy as np
 from numba import njit
 
-from canopy_stereo.elas.simd import DESC_BYTES, sad16
+from canopy_stereo.elas.simd import DESC_BYTES, sad16, transpose16x16
 
 #: (row, column) offsets of the 12 horizontal-gradient samples (the centre twice).
 DU_OFFSETS = ((-2, 0), (-1, -2), (-1, 0), (-1, 2), (0, -1), (0, 0), (0, 0), (0, 1),
@@ -166,6 +166,7 @@ def _assemble_words_into(du, dv, adu, adv, desc, texture):
         flat_adv[i] = _centred(flat_dv[i])
     words = desc.reshape(h, w * DESC_BYTES).view(np.uint64).reshape(h, w, 2)
     flat_words = words.reshape(-1)
+    flat_bytes = desc.reshape(-1)
     b = BORDER
     n = w - 2 * b
     for v in range(h):
@@ -200,7 +201,12 @@ def _assemble_words_into(du, dv, adu, adv, desc, texture):
         # the row's words as a 1-D contiguous array: word 2i / 2i+1 of pixel b+i (a 2-D
         # slice has run-time strides and does not vectorise)
         out = flat_words[(v * w + b) * 2:(v * w + b + n) * 2]
-        for i in range(n):
+        row_bytes = flat_bytes[(v * w + b) * DESC_BYTES:(v * w + b + n) * DESC_BYTES]
+        blocks = n - n % 16
+        for i in range(0, blocks, 16):
+            transpose16x16(m2c, m1l, m1c, m1r, z_l, z_c, z_c, z_r, p1l, p1c, p1r, p2c, vm1, vl,
+                           vr, vp1, i, row_bytes, i * DESC_BYTES)
+        for i in range(blocks, n):
             out[2 * i] = _pack8(m2c[i], m1l[i], m1c[i], m1r[i], z_l[i], z_c[i], z_c[i], z_r[i])
             out[2 * i + 1] = _pack8(p1l[i], p1c[i], p1r[i], p2c[i], vm1[i], vl[i], vr[i],
                                     vp1[i])
