@@ -514,3 +514,44 @@ def lr_keep8(typingctx, row, c, other, step, inv_step, direction, threshold, dst
         return context.get_dummy_value()
 
     return sig, codegen
+
+
+@intrinsic
+def transpose16x16(typingctx, s0, s1, s2, s3, s4, s5, s6, s7, s8, s9, s10, s11, s12, s13, s14,
+                   s15, index, dst, dst_index):
+    """Byte ``k`` of pixel ``p`` (``p, k = 0..15``): ``dst[dst_index + 16 p + k] =
+    s_k[index + p]``, i.e. sixteen 16-byte descriptors from sixteen sample rows, as one
+    256-byte shuffle. No bounds checking."""
+    sources = (s0, s1, s2, s3, s4, s5, s6, s7, s8, s9, s10, s11, s12, s13, s14, s15)
+    if not all(isinstance(a, types.Array) and a.dtype == types.uint8 and a.ndim == 1
+               for a in sources + (dst,)):
+        return None
+    if not (isinstance(index, types.Integer) and isinstance(dst_index, types.Integer)):
+        return None
+    sig = types.void(*sources, index, dst, dst_index)
+
+    def codegen(context, builder, signature, args):
+        i8, i32 = ir.IntType(8), ir.IntType(32)
+        v16 = ir.VectorType(i8, 16)
+        sargs = signature.args
+        at = context.cast(builder, args[16], sargs[16], types.intp)
+        parts = []
+        for k in range(16):
+            data = context.make_array(sargs[k])(context, builder, args[k]).data
+            parts.append(builder.load(builder.bitcast(builder.gep(data, [at]), v16.as_pointer()),
+                                      align=1))
+        while len(parts) > 1:
+            n = parts[0].type.count
+            mask = ir.Constant(ir.VectorType(i32, 2 * n), list(range(2 * n)))
+            parts = [builder.shuffle_vector(parts[j], parts[j + 1], mask)
+                     for j in range(0, len(parts), 2)]
+        whole = parts[0]
+        mask = ir.Constant(ir.VectorType(i32, 256), [16 * k + p for p in range(16) for k in range(16)])
+        out = builder.shuffle_vector(whole, ir.Constant(whole.type, ir.Undefined), mask)
+        dst_a = context.make_array(sargs[17])(context, builder, args[17])
+        off = context.cast(builder, args[18], sargs[18], types.intp)
+        ptr = builder.bitcast(builder.gep(dst_a.data, [off]), ir.VectorType(i8, 256).as_pointer())
+        builder.store(out, ptr, align=1)
+        return context.get_dummy_value()
+
+    return sig, codegen
