@@ -21,7 +21,7 @@ import sys
 import numpy as np
 from numba import njit
 
-from canopy_stereo.elas.simd import DESC_BYTES, sad16
+from canopy_stereo.elas.simd import DESC_BYTES, sad16, transpose16x16
 
 #: (row, column) offsets of the 12 horizontal-gradient samples (the centre twice).
 DU_OFFSETS = ((-2, 0), (-1, -2), (-1, 0), (-1, 2), (0, -1), (0, 0), (0, 0), (0, 1),
@@ -143,21 +143,30 @@ def _assemble_words(du, dv):
     h, w = du.shape
     desc = np.empty((h, w, DESC_BYTES), dtype=np.uint8)
     texture = np.empty((h, w), dtype=np.int32)
-    _assemble_words_into(du, dv, desc, texture)
+    _assemble_words_into(du, dv, np.empty((h, w), np.uint8), np.empty((h, w), np.uint8), desc,
+                         texture)
     return desc, texture
 
 
 @njit(cache=True, nogil=True)
-def _assemble_words_into(du, dv, desc, texture):
-    """Fill ``desc`` (H, W, 16) uint8 and ``texture`` (H, W) int32.
+def _assemble_words_into(du, dv, adu, adv, desc, texture):
+    """Fill ``desc`` (H, W, 16) uint8 and ``texture`` (H, W) int32 (``adu``, ``adv``: uint8
+    (H, W) scratch for ``|du - 128|``, ``|dv - 128|``).
 
     The same bytes as :func:`_assemble_bytes` with the offsets of :data:`DU_OFFSETS` and
     :data:`DV_OFFSETS` spelled out, about 3x faster (vectorises over ``u``); the
-    :data:`BORDER` margin is zeroed here, so ``desc`` may hold anything before.
+    :data:`BORDER` margin is zeroed here, so ``desc`` may hold anything before. The
+    texture sums the gradients' distances from 128, each computed once per pixel.
     """
     h, w = du.shape
+    flat_du, flat_dv = du.reshape(-1), dv.reshape(-1)
+    flat_adu, flat_adv = adu.reshape(-1), adv.reshape(-1)
+    for i in range(h * w):
+        flat_adu[i] = _centred(flat_du[i])
+        flat_adv[i] = _centred(flat_dv[i])
     words = desc.reshape(h, w * DESC_BYTES).view(np.uint64).reshape(h, w, 2)
     flat_words = words.reshape(-1)
+    flat_bytes = desc.reshape(-1)
     b = BORDER
     n = w - 2 * b
     for v in range(h):
@@ -180,19 +189,33 @@ def _assemble_words_into(du, dv, desc, texture):
         vm1, vl, vr, vp1 = dv[v - 1, b:b + n], dv[v, b - 1:b - 1 + n], dv[v, b + 1:b + 1 + n], \
             dv[v + 1, b:b + n]
         tex = texture[v, b:b + n]
+        a_m2c = adu[v - 2, b:b + n]
+        a_m1l, a_m1c, a_m1r = adu[v - 1, b - 2:b - 2 + n], adu[v - 1, b:b + n], \
+            adu[v - 1, b + 2:b + 2 + n]
+        a_zl, a_zc, a_zr = adu[v, b - 1:b - 1 + n], adu[v, b:b + n], adu[v, b + 1:b + 1 + n]
+        a_p1l, a_p1c, a_p1r = adu[v + 1, b - 2:b - 2 + n], adu[v + 1, b:b + n], \
+            adu[v + 1, b + 2:b + 2 + n]
+        a_p2c = adu[v + 2, b:b + n]
+        a_vm1, a_vl, a_vr, a_vp1 = adv[v - 1, b:b + n], adv[v, b - 1:b - 1 + n], \
+            adv[v, b + 1:b + 1 + n], adv[v + 1, b:b + n]
         # the row's words as a 1-D contiguous array: word 2i / 2i+1 of pixel b+i (a 2-D
         # slice has run-time strides and does not vectorise)
         out = flat_words[(v * w + b) * 2:(v * w + b + n) * 2]
-        for i in range(n):
+        row_bytes = flat_bytes[(v * w + b) * DESC_BYTES:(v * w + b + n) * DESC_BYTES]
+        blocks = n - n % 16
+        for i in range(0, blocks, 16):
+            transpose16x16(m2c, m1l, m1c, m1r, z_l, z_c, z_c, z_r, p1l, p1c, p1r, p2c, vm1, vl,
+                           vr, vp1, i, row_bytes, i * DESC_BYTES)
+        for i in range(blocks, n):
             out[2 * i] = _pack8(m2c[i], m1l[i], m1c[i], m1r[i], z_l[i], z_c[i], z_c[i], z_r[i])
             out[2 * i + 1] = _pack8(p1l[i], p1c[i], p1r[i], p2c[i], vm1[i], vl[i], vr[i],
                                     vp1[i])
         for i in range(n):      # a loop of its own: it vectorises (the two together do not)
-            tex[i] = (_centred(m2c[i]) + _centred(m1l[i]) + _centred(m1c[i]) + _centred(m1r[i])
-                      + _centred(z_l[i]) + 2 * _centred(z_c[i]) + _centred(z_r[i])
-                      + _centred(p1l[i]) + _centred(p1c[i]) + _centred(p1r[i])
-                      + _centred(p2c[i]) + _centred(vm1[i]) + _centred(vl[i]) + _centred(vr[i])
-                      + _centred(vp1[i]))
+            tex[i] = (np.int32(a_m2c[i]) + np.int32(a_m1l[i]) + np.int32(a_m1c[i])
+                      + np.int32(a_m1r[i]) + np.int32(a_zl[i]) + 2 * np.int32(a_zc[i])
+                      + np.int32(a_zr[i]) + np.int32(a_p1l[i]) + np.int32(a_p1c[i])
+                      + np.int32(a_p1r[i]) + np.int32(a_p2c[i]) + np.int32(a_vm1[i])
+                      + np.int32(a_vl[i]) + np.int32(a_vr[i]) + np.int32(a_vp1[i]))
 
 
 def gradient_bytes(gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -229,5 +252,6 @@ def compute_descriptors(gray: np.ndarray, *, workspace=None) -> tuple[np.ndarray
     desc = workspace.array("desc", (h, w, DESC_BYTES), np.uint8)
     texture = workspace.array("texture", (h, w), np.int32)
     _sobel_into(gray, du, dv)
-    _assemble_words_into(du, dv, desc, texture)
+    _assemble_words_into(du, dv, workspace.array("du_centred", (h, w), np.uint8),
+                         workspace.array("dv_centred", (h, w), np.uint8), desc, texture)
     return desc, texture

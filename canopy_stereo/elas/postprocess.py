@@ -10,7 +10,7 @@ import numpy as np
 from numba import njit
 
 from canopy_stereo.elas.parallel import run_row_bands
-from canopy_stereo.elas.simd import LR_LANES, lr_keep8
+from canopy_stereo.elas.simd import LR_LANES, MEAN_LANES, lr_keep8, step_mean16
 
 INVALID = np.float32(-1.0)
 #: Gap interpolation: ends closer than this are averaged, else the smaller one is used.
@@ -326,6 +326,13 @@ def _adaptive_mean_rows(disp, linear, before, after, rows, row_start, row_stop):
             line[before + u] = centre[u]
             s[u] = 0.0
             sw[u] = 0.0
+        if not linear:      # sixteen pixels at a time in registers, the rest as below
+            done = w - w % MEAN_LANES
+            for u in range(0, done, MEAN_LANES):
+                step_mean16(line, u, 1, before + after + 1, centre, u, rows[v], u)
+            for u in range(done, w):
+                rows[v, u] = _step_mean_pixel(line, u, 1, before + after + 1, centre[u])
+            continue
         for k in range(before + after + 1):
             tap = line[k:k + w]
             for u in range(w):
@@ -333,6 +340,21 @@ def _adaptive_mean_rows(disp, linear, before, after, rows, row_start, row_stop):
                 s[u] += wt * tap[u]
                 sw[u] += wt
         _mean_quotient(s, sw, centre, rows[v])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _step_mean_pixel(taps, first, tap_stride, n_taps, c):
+    """One pixel of :func:`~canopy_stereo.elas.simd.step_mean16` (the same float32 steps;
+    numpy's error model: 0/0 where the centre is invalid is not stored)."""
+    s = np.float32(0.0)
+    sw = np.float32(0.0)
+    for k in range(n_taps):
+        t = taps[first + k * tap_stride]
+        wt = _mean_weight(t, c, False)
+        s += wt * t
+        sw += wt
+    q = s / sw
+    return q if c >= 0 else c
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -355,8 +377,18 @@ def _adaptive_mean_columns(rows, linear, before, after, out, row_start, row_stop
     h, w = rows.shape
     s = np.empty(w, dtype=np.float32)
     sw = np.empty(w, dtype=np.float32)
+    flat = rows.reshape(-1)
     for v in range(row_start, row_stop):
         centre = rows[v]
+        if not linear and v >= before and v + after < h:
+            # all taps inside: sixteen pixels at a time in registers, the rest one by one
+            done = w - w % MEAN_LANES
+            first = (v - before) * w
+            for u in range(0, done, MEAN_LANES):
+                step_mean16(flat, first + u, w, before + after + 1, centre, u, out[v], u)
+            for u in range(done, w):
+                out[v, u] = _step_mean_pixel(flat, first + u, w, before + after + 1, centre[u])
+            continue
         for u in range(w):
             s[u] = 0.0
             sw[u] = 0.0

@@ -514,3 +514,114 @@ def lr_keep8(typingctx, row, c, other, step, inv_step, direction, threshold, dst
         return context.get_dummy_value()
 
     return sig, codegen
+
+
+@intrinsic
+def transpose16x16(typingctx, s0, s1, s2, s3, s4, s5, s6, s7, s8, s9, s10, s11, s12, s13, s14,
+                   s15, index, dst, dst_index):
+    """Byte ``k`` of pixel ``p`` (``p, k = 0..15``): ``dst[dst_index + 16 p + k] =
+    s_k[index + p]``, i.e. sixteen 16-byte descriptors from sixteen sample rows, as one
+    256-byte shuffle. No bounds checking."""
+    sources = (s0, s1, s2, s3, s4, s5, s6, s7, s8, s9, s10, s11, s12, s13, s14, s15)
+    if not all(isinstance(a, types.Array) and a.dtype == types.uint8 and a.ndim == 1
+               for a in sources + (dst,)):
+        return None
+    if not (isinstance(index, types.Integer) and isinstance(dst_index, types.Integer)):
+        return None
+    sig = types.void(*sources, index, dst, dst_index)
+
+    def codegen(context, builder, signature, args):
+        i8, i32 = ir.IntType(8), ir.IntType(32)
+        v16 = ir.VectorType(i8, 16)
+        sargs = signature.args
+        at = context.cast(builder, args[16], sargs[16], types.intp)
+        parts = []
+        for k in range(16):
+            data = context.make_array(sargs[k])(context, builder, args[k]).data
+            parts.append(builder.load(builder.bitcast(builder.gep(data, [at]), v16.as_pointer()),
+                                      align=1))
+        while len(parts) > 1:
+            n = parts[0].type.count
+            mask = ir.Constant(ir.VectorType(i32, 2 * n), list(range(2 * n)))
+            parts = [builder.shuffle_vector(parts[j], parts[j + 1], mask)
+                     for j in range(0, len(parts), 2)]
+        whole = parts[0]
+        mask = ir.Constant(ir.VectorType(i32, 256), [16 * k + p for p in range(16) for k in range(16)])
+        out = builder.shuffle_vector(whole, ir.Constant(whole.type, ir.Undefined), mask)
+        dst_a = context.make_array(sargs[17])(context, builder, args[17])
+        off = context.cast(builder, args[18], sargs[18], types.intp)
+        ptr = builder.bitcast(builder.gep(dst_a.data, [off]), ir.VectorType(i8, 256).as_pointer())
+        builder.store(out, ptr, align=1)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+#: Pixels per call of :func:`step_mean16`.
+MEAN_LANES = 16
+
+
+@intrinsic
+def step_mean16(typingctx, taps, first, tap_stride, n_taps, centre, centre_at, dst, dst_at):
+    """The adaptive mean (step weights) of 16 neighbouring pixels, in registers.
+
+    Pixel ``p`` (0..15) with centre ``c = centre[centre_at + p]`` has taps
+    ``t_k = taps[first + k * tap_stride + p]``, ``k = 0 .. n_taps - 1``, each weighing
+    ``w_k = (2 [|t_k - c| < 8] + 2 [|t_k - c| < 2]) * [t_k >= 0]`` (float32); then
+    ``dst[dst_at + p] = s / sw`` with ``s = 0 + w_0 t_0 + w_1 t_1 + ...`` and
+    ``sw = 0 + w_0 + w_1 + ...`` added in that order (float32) where ``c >= 0``, else ``c``:
+    :func:`~canopy_stereo.elas.postprocess.adaptive_mean` bit for bit, without the sums'
+    round trips through memory. No bounds checking.
+    """
+    arrays = (taps, centre, dst)
+    if not all(isinstance(a, types.Array) and a.dtype == types.float32 and a.ndim == 1
+               for a in arrays):
+        return None
+    if not all(isinstance(x, types.Integer) for x in (first, tap_stride, n_taps, centre_at,
+                                                       dst_at)):
+        return None
+    sig = types.void(taps, first, tap_stride, n_taps, centre, centre_at, dst, dst_at)
+
+    def codegen(context, builder, signature, args):
+        f32 = ir.FloatType()
+        n = MEAN_LANES
+        vf = ir.VectorType(f32, n)
+        sargs = signature.args
+
+        def pointer(k, at_k):
+            data = context.make_array(sargs[k])(context, builder, args[k]).data
+            at = context.cast(builder, args[at_k], sargs[at_k], types.intp)
+            return data, at
+
+        def load(data, at):
+            return builder.load(builder.bitcast(builder.gep(data, [at]), vf.as_pointer()), align=4)
+
+        taps_data, first_ = pointer(0, 1)
+        stride = context.cast(builder, args[2], sargs[2], types.intp)
+        c_data, c_at = pointer(4, 5)
+        c = load(c_data, c_at)
+        zero, one = ir.Constant(vf, [0.0] * n), ir.Constant(vf, [1.0] * n)
+        two = ir.Constant(vf, [2.0] * n)
+        fabs = _llvm_function(builder.module, "llvm.fabs.v16f32", vf, [vf])
+        s = cgutils.alloca_once_value(builder, zero)
+        sw = cgutils.alloca_once_value(builder, zero)
+        with cgutils.for_range(builder, context.cast(builder, args[3], sargs[3], types.intp)) as loop:
+            t = load(taps_data, builder.add(first_, builder.mul(loop.index, stride)))
+            delta = builder.call(fabs, [builder.fsub(t, c)])
+            near = builder.fmul(two, builder.select(builder.fcmp_ordered("<", delta,
+                                                                         ir.Constant(vf, [8.0] * n)),
+                                                    one, zero))
+            close = builder.fmul(two, builder.select(builder.fcmp_ordered("<", delta,
+                                                                          ir.Constant(vf, [2.0] * n)),
+                                                     one, zero))
+            valid = builder.select(builder.fcmp_ordered(">=", t, zero), one, zero)
+            weight = builder.fmul(builder.fadd(near, close), valid)
+            builder.store(builder.fadd(builder.load(s), builder.fmul(weight, t)), s)
+            builder.store(builder.fadd(builder.load(sw), weight), sw)
+        q = builder.fdiv(builder.load(s), builder.load(sw))
+        out = builder.select(builder.fcmp_ordered(">=", c, zero), q, c)
+        d_data, d_at = pointer(6, 7)
+        builder.store(out, builder.bitcast(builder.gep(d_data, [d_at]), vf.as_pointer()), align=4)
+        return context.get_dummy_value()
+
+    return sig, codegen

@@ -706,6 +706,22 @@ def test_stable_argsort_equals_numpys_stable_sort(rng):
     assert np.array_equal(stable_argsort(keys), np.argsort(keys, kind="stable"))
 
 
+def test_support_row_buffers_hold_the_same_cost_vectors(plants):
+    """The interleaved row buffer (CPUs without AVX-512BW) and the chunk-major one hold
+    the same 64-byte cost vector of every column."""
+    desc = plants["desc"][0]
+    h, w = desc.shape[:2]
+    words = desc.reshape(h, w * 16).view(np.uint64).reshape(h, w, 2)
+    interleaved = support._row_buffer_interleaved(w)
+    chunks = support._row_buffer_chunks(w)
+    support._sample_into_interleaved(words, 40, interleaved)
+    support._sample_into_chunks(words, 40, chunks)
+    pad = support.CHUNK_PAD
+    by_column = interleaved.view(np.uint64).reshape(w, support.SUPPORT_LANES)
+    assert np.array_equal(chunks.reshape(support.SUPPORT_LANES, -1)[:, pad:pad + w], by_column.T)
+    assert by_column[2:w - 2].any()
+
+
 def test_support_search_by_eight_disparities_equals_one_at_a_time(rng):
     """The AVX-512 lowest-two search (chunk-major row buffers, 8 disparities per vector,
     lanes merged) gives the one-at-a-time search's lowest, second lowest and first best
