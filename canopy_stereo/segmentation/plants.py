@@ -86,8 +86,9 @@ class PlantSegmenterSettings:
         use_colour: learn colour models from the shape cue and cut with them.
         min_plant: smallest plant, 0..1, as a fraction of the largest plant's foliage area
             (pixels weighted by their squared depth, so near and far plants compare in real
-            size): smaller regions are fragments, joined to a plant beside them or left out
-            (:func:`plant_instances`); 0 keeps every region.
+            size; pixel counts with a disparity cue, whose offset is unknown): smaller regions
+            are fragments, joined to a plant beside them or left out (:func:`plant_instances`);
+            0 keeps every region.
         object_colour: a region touching a solid object whose mean Lab colour lies within this
             distance (CIE76 Delta E, 0..100) of the object's is part of the object (its handle,
             its spout), not a plant; 0 turns the test off. Measured: a watering can's handle
@@ -285,7 +286,9 @@ def segment_plants(image_bgr, *, disparity=None, points=None, depth=None, camera
             mask = cv2.resize(mask.astype(np.uint8) * 255, (w, h), interpolation=cv2.INTER_LINEAR) >= 128
     mask = _drop_small_and_sticks(mask, settings)
     roots = _resize_map(container_bands(cues["solids"], cues["caps"]), (w, h))
-    instances, plants = plant_instances(mask, q_full, min_plant=float(settings.min_plant), roots=roots)
+    # a disparity's offset (doffs) is unknown here: its regions are weighed by their pixels
+    instances, plants = plant_instances(mask, q_full, min_plant=float(settings.min_plant), roots=roots,
+                                        depth_weighted=disparity is None)
     return PlantSegmentation(mask=np.where(instances > 0, 255, 0).astype(np.uint8), instances=instances,
                              plants=plants, cues=cues)
 
@@ -447,7 +450,8 @@ def _split_rooted(lab, n, stats, q, roots):
 
 
 def plant_instances(mask: np.ndarray, q: np.ndarray | None = None, *, join_px: int | None = None,
-                    min_plant: float = MIN_PLANT_FRACTION, roots: np.ndarray | None = None):
+                    min_plant: float = MIN_PLANT_FRACTION, roots: np.ndarray | None = None,
+                    depth_weighted: bool = True):
     """Plants of a mask: ``(instances (H, W) int32, plants list)``.
 
     Connected regions are one plant each, except that:
@@ -459,7 +463,8 @@ def plant_instances(mask: np.ndarray, q: np.ndarray | None = None, *, join_px: i
       :func:`~canopy_stereo.segmentation.roots.split_by_roots`);
 
     * a region whose foliage area (its pixels weighted by the square of their depth, from the
-      inverse depth ``q``; pixel counts without ``q``) is below ``min_plant`` (0..1) times the
+      inverse depth ``q``; pixel counts without ``q`` or with ``depth_weighted=False``, e.g. for a
+      disparity whose offset ``doffs`` is unknown) is below ``min_plant`` (0..1) times the
       largest region's is a *fragment*: it joins the nearest region within ``join_px`` pixels
       (default 2 % of the image diagonal) whose median inverse depth agrees within 15 % (a
       leaf of a plant seen apart); a fragment nothing takes (alone or with other fragments,
@@ -490,7 +495,7 @@ def plant_instances(mask: np.ndarray, q: np.ndarray | None = None, *, join_px: i
         return i
 
     qs = _region_medians(lab, n, q)
-    area = _foliage_areas(lab, n, q, qs)
+    area = _foliage_areas(lab, n, q if depth_weighted else None, qs)
     big = area >= float(min_plant) * (area[1:].max() if n > 1 else 0.0)
     big[0] = False
     group_area = area.copy()

@@ -4,21 +4,18 @@ Two potted plants side by side often overlap in the image (the leaves of one
 before the other's): their mask is one connected region. Each plant rises from
 its own container, though, and seen from the side its lowest parts stand in the
 band just above the container (the soil, :func:`~canopy_stereo.segmentation.shape.caps`).
-:func:`split_by_roots` cuts a mask region that stands in the bands of two or more
-containers along its depth jumps into *parts* (pixels linked to an 8-neighbour
-whose inverse depth is within :data:`PART_JUMP` of theirs), roots each part that
-stands in a container's band in that container, and gives every other part to the
-rooted group it shares the longest border with (a branch reaching sideways belongs
-to the plant it grows out of, not to the one behind it). Regions that stand in at
-most one band are left whole.
+:func:`split_by_roots` seeds one plant per container whose band a mask region
+stands in and gives every other pixel of the region to the seed it reaches along
+the path with the smallest largest depth step (a marker-controlled watershed on
+the depth jumps): a branch reaching sideways belongs to the plant it grows out of,
+not to the one it occludes. Regions that stand in at most one band are left whole.
 """
 from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit
 
-#: Largest relative inverse-depth step (|dq| / q, i.e. |dz| / z) between 8-neighbours of one part.
-PART_JUMP = 0.006
 #: Fewest pixels of a part in a container's band that root it there.
 MIN_ROOT_PIXELS = 20
 
@@ -54,79 +51,72 @@ def _pairs(shape):
         yield a, b
 
 
-def depth_parts(region: np.ndarray, q: np.ndarray, *, jump: float = PART_JUMP) -> np.ndarray:
-    """(H, W) int32 labels 1.. of the parts of ``region`` (bool) whose pixels are linked to an
-    8-neighbour of the region with an inverse depth ``q`` within ``jump`` (relative) of theirs;
-    pixels without ``q`` are 0."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    h, w = region.shape
-    ok = region & np.isfinite(q)
-    idx = np.arange(h * w).reshape(h, w)
-    rows, cols = [], []
-    for a, b in _pairs((h, w)):
-        with np.errstate(invalid="ignore"):
-            link = ok[a] & ok[b] & (np.abs(q[a] - q[b]) <= jump * np.maximum(q[a], q[b]))
-        rows.append(idx[a][link])
-        cols.append(idx[b][link])
-    r, c = np.concatenate(rows), np.concatenate(cols)
-    graph = coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(h * w, h * w))
-    _, comp = connected_components(graph, directed=False)
-    comp = comp.reshape(h, w)
-    out = np.zeros((h, w), np.int32)
-    _, out[ok] = np.unique(comp[ok], return_inverse=True)
-    out[ok] += 1
+@njit(cache=True)
+def _seeded_forest(order, a, b, seed, n_pixels):
+    """Kruskal's minimum spanning forest over the edges ``(a[k], b[k])`` taken in ``order``
+    (increasing weight), never joining two trees holding different seeds: each pixel ends in the
+    tree of the seed it reaches along the path whose largest step is smallest (0: none)."""
+    parent = np.arange(n_pixels)
+    label = seed.copy()
+    for k in order:
+        ra = a[k]
+        while parent[ra] != ra:
+            parent[ra] = parent[parent[ra]]
+            ra = parent[ra]
+        rb = b[k]
+        while parent[rb] != rb:
+            parent[rb] = parent[parent[rb]]
+            rb = parent[rb]
+        if ra == rb or (label[ra] > 0 and label[rb] > 0 and label[ra] != label[rb]):
+            continue
+        parent[rb] = ra
+        if label[ra] == 0:
+            label[ra] = label[rb]
+    out = np.empty(n_pixels, np.int64)
+    for i in range(n_pixels):
+        r = i
+        while parent[r] != r:
+            r = parent[r]
+        out[i] = label[r]
     return out
 
 
-def split_by_roots(region: np.ndarray, q: np.ndarray, roots: np.ndarray, *,
-                   jump: float = PART_JUMP) -> list[np.ndarray] | None:
+def split_by_roots(region: np.ndarray, q: np.ndarray, roots: np.ndarray) -> list[np.ndarray] | None:
     """The plants of one mask region (bool (H, W)) that stands in the bands of two or more
     containers (``roots``: :func:`container_bands`), as a list of bool masks (together the
-    region), or None when it stands in fewer (or no part can be rooted apart).
+    region), or None when it stands in fewer.
 
-    Parts (:func:`depth_parts`) with at least :data:`MIN_ROOT_PIXELS` pixels in a band are
-    rooted in the container they stand in most; the other parts join, largest shared border
-    first, the rooted group they touch; pixels without depth go to the nearest group.
+    The region's pixels in a container's band (at least :data:`MIN_ROOT_PIXELS` of them) seed
+    that container's plant; every other pixel goes to the seed it reaches through the region
+    along the path whose largest relative inverse-depth step ``|dq| / q`` between 8-neighbours
+    is smallest (a minimum spanning forest: a plant's leaves are reached through its own
+    stems and leaves, not across the depth jump where it occludes the other plant); pixels
+    without depth go to the nearest plant.
     """
     touched = np.bincount(roots[region & (roots > 0)])
-    if np.count_nonzero(touched >= MIN_ROOT_PIXELS) < 2:
+    kept = np.nonzero(touched >= MIN_ROOT_PIXELS)[0]
+    if len(kept) < 2:
         return None
     vs, us = np.nonzero(region)
     y0, y1, x0, x1 = vs.min(), vs.max() + 1, us.min(), us.max() + 1
     reg, qq, rr = region[y0:y1, x0:x1], q[y0:y1, x0:x1], roots[y0:y1, x0:x1]
-    parts = depth_parts(reg, qq, jump=jump)
-    n = int(parts.max()) + 1
-    # pixels of each part in each container's band
-    nroot = int(rr.max()) + 1
-    sel = (parts > 0) & (rr > 0)
-    hits = np.bincount(parts[sel] * nroot + rr[sel], minlength=n * nroot).reshape(n, nroot)
-    group = np.where(hits.max(axis=1) >= MIN_ROOT_PIXELS, hits.argmax(axis=1), 0)
-    group[0] = 0
-    if len(np.unique(group[group > 0])) < 2:
+    ok = reg & np.isfinite(qq) & (qq > 0)
+    h, w = reg.shape
+    idx = np.arange(h * w).reshape(h, w)
+    a, b, wt = [], [], []
+    for sa, sb in _pairs((h, w)):
+        link = ok[sa] & ok[sb]
+        a.append(idx[sa][link])
+        b.append(idx[sb][link])
+        qa, qb = qq[sa][link], qq[sb][link]
+        wt.append(np.abs(qa - qb) / np.maximum(qa, qb))
+    ea, eb, ew = np.concatenate(a), np.concatenate(b), np.concatenate(wt)
+    seed = np.where(ok & np.isin(rr, kept), rr, 0).astype(np.int64).ravel()
+    labels = _seeded_forest(np.argsort(ew, kind="stable"), ea, eb, seed, h * w).reshape(h, w)
+    labels[~ok] = 0
+    if len(np.unique(labels[labels > 0])) < 2:
         return None
-    # shared border (8-neighbour pixel pairs) between parts
-    border = np.zeros((n, n), np.int64)
-    for a, b in _pairs(parts.shape):
-        pa, pb = parts[a], parts[b]
-        cross = (pa > 0) & (pb > 0) & (pa != pb)
-        np.add.at(border, (pa[cross], pb[cross]), 1)
-    border += border.T
-    while True:
-        free = group == 0
-        free[0] = False
-        if not free.any():
-            break
-        rooted = group > 0
-        touch = border[np.ix_(free, rooted)]
-        if touch.max(initial=0) == 0:
-            break
-        fi, ri = np.unravel_index(np.argmax(touch), touch.shape)
-        group[np.nonzero(free)[0][fi]] = group[np.nonzero(rooted)[0][ri]]
-    labels = group[parts]
-    # pixels without depth (or parts cut off from every rooted one): the nearest group
-    if (reg & (labels == 0)).any():
+    if (reg & (labels == 0)).any():  # without depth, or cut off from every seed: the nearest plant
         _, (iy, ix) = _nearest_labelled(labels > 0)
         labels = np.where(reg & (labels == 0), labels[iy, ix], labels)
     out = []

@@ -124,11 +124,13 @@ def _check_outputs(out: Path, folder: Path, truth: dict) -> list[dict]:
         assert float(r["canopy_width_mm"]) == pytest.approx(width, rel=0.05)
         # the hull follows the mask's outline. It read up to 23 % large (a_w3) because at half of
         # 320x240 the pot is too small to be told from the plant (2542 pot pixels in seed 2's frame 0
-        # mask, 46 at full size). What is left, +7..+19 % (medians of the two frames), is the soil in
-        # the pot (seed 0, frame 0: 1265 pixels, -8 % of the hull without them) and the background the
-        # matcher fills between leaves at a leaf's depth (449 pixels, -12 %); with the truth mask on
-        # the same cloud the hull is within 1 %.
-        assert float(r["hull_volume_cm3"]) == pytest.approx(hull, rel=0.25)
+        # mask, 46 at full size); then +7..+19 % (medians of the two frames), and now +2.8..+13.1 %
+        # since a lone plant is measured without the background seen through its mask's edge (as
+        # each of several plants is: b_w2's frame 0, 337 pixels, 17571 -> 15077 cm^3). What is left
+        # is the soil in the pot (seed 0, frame 0: 1265 pixels, -8 % of the hull without them) and
+        # the background the matcher fills between leaves at a leaf's depth; with the truth mask
+        # on the same cloud the hull is within 1 %.
+        assert float(r["hull_volume_cm3"]) == pytest.approx(hull, rel=0.17)
         assert 0 < float(r["voxel_volume_cm3"]) < float(r["hull_volume_cm3"])
         assert float(r["leaf_count"]) >= 3 and float(r["leaf_area_cm2"]) > 100
     errors = _table(out / "errors.csv")
