@@ -287,8 +287,9 @@ def measurement_lines(report: dict, *, max_leaves: int = 8) -> list[str]:
                          f"width {pc['width']:.0f} mm, hull {pc['hull_volume']:.0f} cm^3, leaves {p['n_leaves']}")
     leaves = report.get("leaves", [])
     for leaf in leaves[:max_leaves]:
-        lines.append(f"  leaf {leaf['id']}: length {leaf['length']:.0f} mm, width {leaf['width']:.0f} mm, "
-                     f"area {leaf['area']:.1f} cm^2")
+        # no width: no single midrib was found (a cluster of leaves), not a leaf 0 mm wide
+        width = f"width {leaf['width']:.0f} mm" if leaf["width"] > 0 else "width not measured (no single midrib)"
+        lines.append(f"  leaf {leaf['id']}: length {leaf['length']:.0f} mm, {width}, area {leaf['area']:.1f} cm^2")
     if len(leaves) > max_leaves:
         lines.append(f"  ... {len(leaves) - max_leaves} more leaves")
     return lines

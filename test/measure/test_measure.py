@@ -348,3 +348,18 @@ def test_detached_clusters_are_dropped_attached_ones_kept():
     # only candidates may go
     cand = np.zeros(len(P), bool)
     assert drop_detached_clusters(P, cell=12.0, min_fraction=0.002, candidates=cand).all()
+
+
+def test_summary_names_a_leaf_without_width_instead_of_printing_0_mm():
+    """A 'leaf' whose midrib was not found (a cluster of leaves) has width 0 in the report;
+    the summary says it was not measured rather than '0 mm'."""
+    from canopy_stereo.measure.plant import measurement_lines
+
+    canopy = {"height": 300.0, "width": 200.0, "depth": 150.0, "hull_volume": 900.0, "voxel_volume": 100.0,
+              "voxel_size": 10.0, "n_leaves": 2}
+    leaves = [{"id": 1, "length": 120.0, "width": 45.0, "area": 40.0},
+              {"id": 2, "length": 133.0, "width": 0.0, "area": 66.0}]
+    lines = measurement_lines({"canopy": canopy, "leaves": leaves, "source": {"mask": "auto"},
+                               "reference": {"kind": "ground"}})
+    assert "  leaf 1: length 120 mm, width 45 mm, area 40.0 cm^2" in lines
+    assert "  leaf 2: length 133 mm, width not measured (no single midrib), area 66.0 cm^2" in lines
