@@ -34,11 +34,10 @@ from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.skew.motion import (
     ImageMotion,
     check_frames,
-    checked_motion,
     flow_percentile_px,
     move_in_time,
-    reduced_flow,
     reduced_grey,
+    reduced_motion,
     sample_moved,
 )
 
@@ -191,14 +190,13 @@ class SkewCompensator:
         small = reduced_grey(right, scale=self.flow_scale)
         self._previous = (int(stamp_right_ns), right, small)  # the next pair's previous: reduced once
         h, w = right.shape[:2]
-        flow = reduced_flow(prev_small, small, preset=self.flow_preset)
-        motion = checked_motion(prev_small, small, flow, size=(w, h))
+        motion = reduced_motion(prev_small, small, size=(w, h), preset=self.flow_preset)
         if motion.textured < MIN_TEXTURED:
             return unchanged(f"too little texture ({100 * motion.textured:.1f} % of the pixels)")
         if motion.explained < MIN_EXPLAINED:
             return unchanged(f"a cut: the previous right frame explains {100 * motion.explained:.0f} % "
                              "of this one")
-        moving_px = abs(frames) * flow_percentile_px(flow, size=(w, h), percentile=STILL_PERCENTILE)
+        moving_px = abs(frames) * flow_percentile_px(motion.flow_reduced, size=(w, h), percentile=STILL_PERCENTILE)
         if moving_px < STILL_SHIFT_PX:  # a still scene: the skew shows nothing (no warp needed)
             return None, SkewReport(skew_ms, False, shift_frames=frames, shift_px=moving_px, reason="still",
                                     cost_ms=1e3 * (time.perf_counter() - t0))

@@ -137,32 +137,11 @@ def reduced_motion(previous: np.ndarray, current: np.ndarray, *, size: tuple[int
                    preset: str = "ultrafast") -> ImageMotion:
     """:func:`image_motion` of two frames already reduced by :func:`reduced_grey` (uint8 (h, w)
     each, one scale); ``size``: ``(W, H)`` of the full-resolution frames."""
-    return checked_motion(previous, current, reduced_flow(previous, current, preset=preset), size=size)
-
-
-def reduced_flow(previous: np.ndarray, current: np.ndarray, *, preset: str = "ultrafast") -> np.ndarray:
-    """The flow of :func:`reduced_motion` alone, unchecked: float32 (h, w, 2) in reduced pixels
-    (``current(x) ~ previous(x + flow(x))``) of two frames reduced by :func:`reduced_grey`."""
-    if previous.shape != current.shape:
-        raise CanopyStereoError(f"reduced frames of {previous.shape} and {current.shape}: reduce both at one scale")
-    return _dis(preset).calc(current, previous, None)
-
-
-def flow_percentile_px(flow_reduced: np.ndarray, *, size: tuple[int, int], percentile: float) -> float:
-    """``percentile`` (0-100) of the flow's length over a grid of every 4th reduced pixel, in
-    full-resolution pixels per frame interval (``size``: ``(W, H)`` of the full frames)."""
-    sample = np.ascontiguousarray(flow_reduced[::4, ::4])
-    lengths = cv2.magnitude(sample[..., 0], sample[..., 1])
-    return float(np.percentile(lengths, percentile)) * (size[0] / flow_reduced.shape[1])
-
-
-def checked_motion(previous: np.ndarray, current: np.ndarray, small: np.ndarray, *,
-                   size: tuple[int, int]) -> ImageMotion:
-    """:class:`ImageMotion` of the reduced ``small`` flow (:func:`reduced_flow`) of the reduced
-    frames ``previous`` and ``current``: how textured the current frame is and how much of it
-    the flow explains (a cut explains little)."""
     w, h = size
     prev_g, cur_g = previous, current
+    if prev_g.shape != cur_g.shape:
+        raise CanopyStereoError(f"reduced frames of {prev_g.shape} and {cur_g.shape}: reduce both at one scale")
+    small = _dis(preset).calc(cur_g, prev_g, None)  # cur(x) ~ prev(x + small(x))
     # how well the motion explains the current frame, on the textured pixels
     sh, sw = cur_g.shape
     gx = cv2.Sobel(cur_g, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
@@ -181,6 +160,14 @@ def checked_motion(previous: np.ndarray, current: np.ndarray, small: np.ndarray,
         explained = cv2.countNonZero(cv2.bitwise_and(below, textured_px)) / n_textured
     return ImageMotion(flow_reduced=small, size=(w, h), textured=textured, explained=explained,
                        median_px=flow_percentile_px(small, size=(w, h), percentile=50.0))
+
+
+def flow_percentile_px(flow_reduced: np.ndarray, *, size: tuple[int, int], percentile: float) -> float:
+    """``percentile`` (0-100) of the flow's length over a grid of every 4th reduced pixel, in
+    full-resolution pixels per frame interval (``size``: ``(W, H)`` of the full frames)."""
+    sample = np.ascontiguousarray(flow_reduced[::4, ::4])
+    lengths = cv2.magnitude(sample[..., 0], sample[..., 1])
+    return float(np.percentile(lengths, percentile)) * (size[0] / flow_reduced.shape[1])
 
 
 def _remap(image: np.ndarray, coords: np.ndarray) -> np.ndarray:
