@@ -35,6 +35,7 @@ import numpy as np
 
 from canopy_stereo.errors import ImageError
 from canopy_stereo.io.images import to_bgr
+from canopy_stereo.segmentation.frozen_cut import frozen_model_cut
 from canopy_stereo.segmentation.grabcut import GC_BGD, GC_FGD, GC_PR_BGD, GC_PR_FGD
 
 #: Components of a colour model (OpenCV's GrabCut models have 5).
@@ -236,10 +237,9 @@ def grabcut_with_models(image_bgr, labels: np.ndarray, plant_gmm: ColourGMM,
     GrabCut normally re-learns its models from its current labels; here they
     stay those learned from the sure pixels, so the pixels in doubt cannot
     drag the plant model towards the background. Returns the final (H, W) uint8
-    labels (``labels`` is not modified).
+    labels (``labels`` is not modified). The cut is OpenCV's, solved on the undecided
+    pixels only (:func:`~canopy_stereo.segmentation.frozen_cut.frozen_model_cut`).
     """
-    import cv2
-
     img = np.ascontiguousarray(to_bgr(image_bgr, "image"))
     lab = np.asarray(labels).astype(np.uint8).copy()
     if lab.shape != img.shape[:2]:
@@ -248,9 +248,4 @@ def grabcut_with_models(image_bgr, labels: np.ndarray, plant_gmm: ColourGMM,
     fg = (lab == GC_FGD) | (lab == GC_PR_FGD)
     if not fg.any() or fg.all() or not ((lab == GC_PR_FGD) | (lab == GC_PR_BGD)).any():
         return lab  # nothing to decide
-    try:
-        cv2.grabCut(img, lab, None, background_gmm.grabcut_model(), plant_gmm.grabcut_model(), 1,
-                    cv2.GC_EVAL_FREEZE_MODEL)
-    except cv2.error as exc:
-        raise ImageError(f"GrabCut failed on this seed: {str(exc).strip().splitlines()[-1]}") from None
-    return lab
+    return frozen_model_cut(img, lab, background_gmm.grabcut_model(), plant_gmm.grabcut_model())

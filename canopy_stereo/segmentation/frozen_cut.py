@@ -1,0 +1,335 @@
+"""GrabCut's graph cut with fixed colour models, solved on the undecided pixels only.
+
+OpenCV's ``cv2.grabCut(..., GC_EVAL_FREEZE_MODEL)`` builds a graph over every pixel of
+the image and runs max-flow over all of it, although the sure pixels (``GC_BGD``,
+``GC_FGD``) cannot change: their terminal link (``lambda = 9 gamma = 450``) outweighs all
+their neighbour links together (at most ``4 gamma + 4 gamma / sqrt 2``, about 341). In
+a video frame seeded automatically most pixels are sure (on the Plants frames at 160x120
+about 9 % are undecided), so :func:`frozen_model_cut` builds the graph of the undecided
+(``GC_PR_*``) pixels only: a link to a sure neighbour becomes part of the pixel's
+terminal link towards that neighbour's side. The energy is OpenCV's term for term
+(``gamma = 50``; ``beta`` from the whole image's 8-neighbour colour differences; data
+terms ``-ln`` of the models' densities without the common ``(2 pi)^-3/2``), so the cut
+is the same minimum cut; pixels whose side does not change the energy (ties) may differ.
+
+Colours are BGR (any channel order, the models' own), 0..255. Labels are OpenCV's
+GrabCut labels (:data:`~canopy_stereo.segmentation.grabcut.GC_BGD` ...).
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from canopy_stereo.errors import ImageError
+
+#: OpenCV GrabCut's smoothness weight (``gamma``) and sure pixels' terminal weight (``9 gamma``).
+GAMMA = 50.0
+LAMBDA = 9.0 * GAMMA
+#: Data term of a colour neither model can produce (OpenCV: ``-ln 0``, an infinite link).
+_NEVER = 1e30
+#: OpenCV divides gamma by the float square root of 2 for diagonal links.
+_SQRT2 = float(np.sqrt(np.float32(2.0)))
+
+
+def model_terms(model: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(coefs (5,), means (5, 3), inverse covariances (5, 3, 3), 1/sqrt(det) (5,))`` of a
+    (1, 65) OpenCV GrabCut model (weights, means, covariances row-major); unused components
+    (weight 0) get zeros."""
+    m = np.asarray(model, np.float64).reshape(-1)
+    k = m.size // 13
+    coefs, means, covs = m[:k], m[k:4 * k].reshape(k, 3), m[4 * k:].reshape(k, 3, 3)
+    inv = np.zeros((k, 3, 3))
+    scale = np.zeros(k)
+    for c in range(k):
+        if coefs[c] > 0:
+            det = float(np.linalg.det(covs[c]))
+            if not det > np.finfo(np.float64).eps:
+                raise ImageError(f"colour model component {c} has a singular covariance (determinant {det:g})")
+            inv[c] = np.linalg.inv(covs[c])
+            scale[c] = 1.0 / np.sqrt(det)
+    return coefs, means, inv, scale
+
+
+@njit(cache=True)
+def _beta(img):
+    """OpenCV GrabCut's beta: 1 / (2 mean squared colour difference of 8-neighbours)."""
+    h, w = img.shape[0], img.shape[1]
+    total = 0.0
+    for y in range(h):
+        for x in range(w):
+            for dy, dx in ((0, -1), (-1, -1), (-1, 0), (-1, 1)):
+                yy, xx = y + dy, x + dx
+                if yy < 0 or xx < 0 or xx >= w:
+                    continue
+                for c in range(3):
+                    d = float(img[y, x, c]) - float(img[yy, xx, c])
+                    total += d * d
+    if total <= 2.220446049250313e-16:
+        return 0.0
+    return 1.0 / (2.0 * total / (4 * w * h - 3 * w - 3 * h + 2))
+
+
+@njit(cache=True)
+def _data_term(colour, coefs, means, inv, scale):
+    """``-ln`` of the mixture density at ``colour`` without the (2 pi)^-3/2 factor."""
+    p = 0.0
+    for c in range(coefs.shape[0]):
+        if coefs[c] <= 0:
+            continue
+        d0 = colour[0] - means[c, 0]
+        d1 = colour[1] - means[c, 1]
+        d2 = colour[2] - means[c, 2]
+        mult = (d0 * (d0 * inv[c, 0, 0] + d1 * inv[c, 1, 0] + d2 * inv[c, 2, 0])
+                + d1 * (d0 * inv[c, 0, 1] + d1 * inv[c, 1, 1] + d2 * inv[c, 2, 1])
+                + d2 * (d0 * inv[c, 0, 2] + d1 * inv[c, 1, 2] + d2 * inv[c, 2, 2]))
+        p += coefs[c] * scale[c] * np.exp(-0.5 * mult)
+    if p <= 0.0:
+        return _NEVER
+    return -np.log(p)
+
+
+#: The 8 neighbour offsets (dy, dx); direction k's opposite is (k + 4) % 8. The first 4 are
+#: OpenCV's left, up-left, up, up-right.
+_DY = np.array([0, -1, -1, -1, 0, 1, 1, 1], np.int64)
+_DX = np.array([-1, -1, 0, 1, 1, 1, 0, -1], np.int64)
+
+
+@njit(cache=True)
+def _build_graph(img, labels, bg_terms, fg_terms, gamma, beta, dy, dx):
+    """The graph of the undecided pixels: ``(pixel (n, 2) [y, x], neighbour (n, 8) node or
+    -1, capacity (n, 8) towards that neighbour, source (n,), sink (n,))`` with the terminal
+    links reduced so that one of source/sink is 0 (the flow straight through a pixel)."""
+    h, w = labels.shape
+    node = np.full((h, w), -1, np.int64)
+    n = 0
+    for y in range(h):
+        for x in range(w):
+            if labels[y, x] >= 2:
+                node[y, x] = n
+                n += 1
+    pixel = np.empty((n, 2), np.int64)
+    nb = np.full((n, 8), -1, np.int64)
+    cap = np.zeros((n, 8))
+    source = np.zeros(n)
+    sink = np.zeros(n)
+    bg_coefs, bg_means, bg_inv, bg_scale = bg_terms
+    fg_coefs, fg_means, fg_inv, fg_scale = fg_terms
+    colour = np.empty(3)
+    diag = gamma / _SQRT2
+    for y in range(h):
+        for x in range(w):
+            p = node[y, x]
+            if p < 0:
+                continue
+            pixel[p, 0], pixel[p, 1] = y, x
+            for c in range(3):
+                colour[c] = float(img[y, x, c])
+            to_src = _data_term(colour, bg_coefs, bg_means, bg_inv, bg_scale)  # OpenCV's fromSource
+            to_snk = _data_term(colour, fg_coefs, fg_means, fg_inv, fg_scale)  # and toSink
+            for k in range(8):
+                yy, xx = y + dy[k], x + dx[k]
+                if yy < 0 or yy >= h or xx < 0 or xx >= w:
+                    continue
+                q = node[yy, xx]
+                if q >= 0 and k >= 4:
+                    continue  # a link between two undecided pixels: made from the later one
+                d2 = 0.0
+                for c in range(3):
+                    d = colour[c] - float(img[yy, xx, c])
+                    d2 += d * d
+                wgt = (gamma if dy[k] == 0 or dx[k] == 0 else diag) * np.exp(-beta * d2)
+                if q >= 0:
+                    nb[p, k], cap[p, k] = q, wgt
+                    nb[q, k + 4], cap[q, k + 4] = p, wgt
+                elif labels[yy, xx] == 1:  # a sure plant neighbour: on the source side
+                    to_src += wgt
+                else:
+                    to_snk += wgt
+            both = min(to_src, to_snk)
+            source[p], sink[p] = to_src - both, to_snk - both
+    return pixel, nb, cap, source, sink
+
+
+@njit(cache=True)
+def _fix_decided(nb, cap, source, sink):
+    """Settle the nodes whose terminal link outweighs all their neighbour links together
+    (they lie on that side in every minimum cut): a settled node's links to its neighbours
+    join their terminal links, which may settle them in turn. Returns (n,) int8: 1 = plant
+    (source) side, -1 = background (sink) side, 0 = left to the max-flow; the settled nodes
+    are cut out of ``nb``."""
+    n = nb.shape[0]
+    side = np.zeros(n, np.int8)
+    links = np.zeros(n)
+    for p in range(n):
+        for k in range(8):
+            if nb[p, k] >= 0:
+                links[p] += cap[p, k]
+    queue = np.arange(n)
+    queued = np.ones(n, np.bool_)
+    stack = n
+    while stack > 0:
+        stack -= 1
+        p = queue[stack]
+        queued[p] = False
+        if source[p] > links[p]:
+            s = 1
+        elif sink[p] > links[p]:
+            s = -1
+        else:
+            continue
+        side[p] = s
+        for k in range(8):
+            q = nb[p, k]
+            if q < 0:
+                continue
+            o = (k + 4) % 8
+            if s > 0:
+                source[q] += cap[q, o]  # (symmetric links: cap[p, k] == cap[q, o] until the flow)
+            else:
+                sink[q] += cap[q, o]
+            both = min(source[q], sink[q])
+            source[q] -= both
+            sink[q] -= both
+            links[q] = max(links[q] - cap[q, o], 0.0)  # (no rounding below zero: an isolated node is a tie)
+            nb[q, o] = -1
+            nb[p, k] = -1
+            if not queued[q]:
+                queued[q] = True
+                queue[stack] = q
+                stack += 1
+    return side
+
+
+@njit(cache=True)
+def _max_flow_source_side(nb, cap, source, sink):
+    """Dinic's max-flow from the source to the sink of the graph :func:`_build_graph` gives
+    (capacities updated in place); returns (n,) bool, the nodes the source still reaches in
+    the residual graph (the plant side of the minimum cut)."""
+    n = nb.shape[0]
+    level = np.empty(n, np.int64)
+    queue = np.empty(n, np.int64)
+    current = np.empty(n, np.int64)
+    path = np.empty(n, np.int64)  # the direction taken from each node of the path
+    nodes = np.empty(n, np.int64)
+    roots = np.empty(n, np.int64)
+    while True:
+        level[:] = -1
+        qt = 0
+        for p in range(n):
+            if source[p] > 0:
+                level[p] = 0
+                queue[qt] = p
+                qt += 1
+        n_roots = qt
+        roots[:qt] = queue[:qt]
+        last = -1  # the level of the nearest nodes linked to the sink
+        qh = 0
+        while qh < qt:
+            u = queue[qh]
+            qh += 1
+            if sink[u] > 0 and last < 0:
+                last = level[u]
+            if last >= 0 and level[u] >= last:
+                continue
+            for k in range(8):
+                v = nb[u, k]
+                if v >= 0 and cap[u, k] > 0 and level[v] < 0:
+                    level[v] = level[u] + 1
+                    queue[qt] = v
+                    qt += 1
+        if last < 0:
+            break
+        current[:] = 0
+        for r in range(n_roots):
+            root = roots[r]
+            depth = 0
+            u = root
+            while True:
+                if level[u] == last and sink[u] > 0:  # an augmenting path: push its bottleneck
+                    f = min(source[root], sink[u])
+                    for i in range(depth):
+                        f = min(f, cap[nodes[i], path[i]])
+                    source[root] -= f
+                    sink[u] -= f
+                    back = depth
+                    for i in range(depth):
+                        a, k = nodes[i], path[i]
+                        cap[a, k] -= f
+                        cap[nb[a, k], (k + 4) % 8] += f
+                        if back == depth and cap[a, k] <= 0:
+                            back = i
+                    if source[root] <= 0:
+                        break
+                    if back < depth:  # back to the tail of the first saturated link
+                        depth = back
+                        u = nodes[back]
+                    continue  # (else the sink link saturated: u looks further, in vain)
+                k = current[u]
+                while k < 8:
+                    v = nb[u, k]
+                    if v >= 0 and cap[u, k] > 0 and level[v] == level[u] + 1 and level[u] < last:
+                        break
+                    k += 1
+                current[u] = k
+                if k < 8:
+                    nodes[depth], path[depth] = u, k
+                    depth += 1
+                    u = nb[u, k]
+                else:
+                    level[u] = -1  # a dead end in this phase
+                    if depth == 0:
+                        break
+                    depth -= 1
+                    u = nodes[depth]
+                    current[u] += 1
+    # the plant side: the nodes the source still reaches
+    reached = np.zeros(n, np.bool_)
+    qt = 0
+    for p in range(n):
+        if source[p] > 0:
+            reached[p] = True
+            queue[qt] = p
+            qt += 1
+    qh = 0
+    while qh < qt:
+        u = queue[qh]
+        qh += 1
+        for k in range(8):
+            v = nb[u, k]
+            if v >= 0 and cap[u, k] > 0 and not reached[v]:
+                reached[v] = True
+                queue[qt] = v
+                qt += 1
+    return reached
+
+
+def frozen_model_cut(image_bgr: np.ndarray, labels: np.ndarray, background_model: np.ndarray,
+                     plant_model: np.ndarray) -> np.ndarray:
+    """OpenCV's ``grabCut(image, labels, None, background_model, plant_model, 1,
+    GC_EVAL_FREEZE_MODEL)`` on the undecided pixels only (see the module docstring).
+
+    Args:
+        image_bgr: (H, W, 3) uint8 colour image.
+        labels: (H, W) uint8 GrabCut labels (0..3); not modified.
+        background_model, plant_model: (1, 65) float64 OpenCV GrabCut models.
+
+    Returns:
+        New (H, W) uint8 labels: the sure pixels as given, each undecided one
+        ``GC_PR_FGD`` (3) or ``GC_PR_BGD`` (2).
+    """
+    img = np.ascontiguousarray(image_bgr)
+    out = np.ascontiguousarray(labels, dtype=np.uint8).copy()
+    if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8 or out.shape != img.shape[:2]:
+        raise ImageError(f"the cut needs a uint8 (H, W, 3) image and (H, W) labels, got {img.dtype} "
+                         f"{img.shape} and {out.shape}")
+    if out.size and out.max() > 3:
+        raise ImageError("GrabCut labels must be 0 (background), 1 (plant), 2 (probable background) "
+                         "or 3 (probable plant)")
+    if not (out >= 2).any():
+        return out
+    pixel, nb, cap, source, sink = _build_graph(img, out, model_terms(background_model),
+                                                 model_terms(plant_model), GAMMA, _beta(img), _DY, _DX)
+    side = _fix_decided(nb, cap, source, sink)
+    plant = (side > 0) | ((side == 0) & _max_flow_source_side(nb, cap, source, sink))
+    out[pixel[:, 0], pixel[:, 1]] = np.where(plant, 3, 2).astype(np.uint8)
+    return out
