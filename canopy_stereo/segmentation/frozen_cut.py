@@ -38,40 +38,71 @@ _SQRT2 = float(np.sqrt(np.float32(2.0)))
 
 def model_terms(model: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(coefs (5,), means (5, 3), inverse covariances (5, 3, 3), 1/sqrt(det) (5,))`` of a
-    (1, 65) OpenCV GrabCut model (weights, means, covariances row-major); unused components
-    (weight 0) get zeros."""
-    m = np.asarray(model, np.float64).reshape(-1)
-    k = m.size // 13
-    coefs, means, covs = m[:k], m[k:4 * k].reshape(k, 3), m[4 * k:].reshape(k, 3, 3)
-    inv = np.zeros((k, 3, 3))
-    scale = np.zeros(k)
-    for c in range(k):
-        if coefs[c] > 0:
-            det = float(np.linalg.det(covs[c]))
-            if not det > np.finfo(np.float64).eps:
-                raise ImageError(f"colour model component {c} has a singular covariance (determinant {det:g})")
-            inv[c] = np.linalg.inv(covs[c])
-            scale[c] = 1.0 / np.sqrt(det)
+    (1, 65) OpenCV GrabCut model (weights, means, covariances row-major), computed as OpenCV
+    does (cofactors); unused components (weight 0) get zeros."""
+    m = np.ascontiguousarray(model, np.float64).reshape(-1)
+    coefs, means, inv, scale, det, bad = _model_terms_kernel(m)
+    if bad >= 0:
+        raise ImageError(f"colour model component {bad} has a singular covariance (determinant {det:g})")
     return coefs, means, inv, scale
 
 
 @njit(cache=True)
+def _model_terms_kernel(m):
+    k = m.size // 13
+    coefs, means = m[:k].copy(), m[k:4 * k].copy().reshape(k, 3)
+    inv = np.zeros((k, 3, 3))
+    scale = np.zeros(k)
+    for ci in range(k):
+        if coefs[ci] <= 0:
+            continue
+        c = m[4 * k + 9 * ci:4 * k + 9 * ci + 9]
+        det = (c[0] * (c[4] * c[8] - c[5] * c[7]) - c[1] * (c[3] * c[8] - c[5] * c[6])
+               + c[2] * (c[3] * c[7] - c[4] * c[6]))
+        if not det > 2.220446049250313e-16:
+            return coefs, means, inv, scale, det, ci
+        r = 1.0 / det
+        inv[ci, 0, 0] = (c[4] * c[8] - c[5] * c[7]) * r
+        inv[ci, 1, 0] = -(c[3] * c[8] - c[5] * c[6]) * r
+        inv[ci, 2, 0] = (c[3] * c[7] - c[4] * c[6]) * r
+        inv[ci, 0, 1] = -(c[1] * c[8] - c[2] * c[7]) * r
+        inv[ci, 1, 1] = (c[0] * c[8] - c[2] * c[6]) * r
+        inv[ci, 2, 1] = -(c[0] * c[7] - c[1] * c[6]) * r
+        inv[ci, 0, 2] = (c[1] * c[5] - c[2] * c[4]) * r
+        inv[ci, 1, 2] = -(c[0] * c[5] - c[2] * c[3]) * r
+        inv[ci, 2, 2] = (c[0] * c[4] - c[1] * c[3]) * r
+        scale[ci] = 1.0 / np.sqrt(det)
+    return coefs, means, inv, scale, 0.0, -1
+
+
+@njit(cache=True)
 def _beta(img):
-    """OpenCV GrabCut's beta: 1 / (2 mean squared colour difference of 8-neighbours)."""
+    """OpenCV GrabCut's beta: 1 / (2 mean squared colour difference of 8-neighbours) (the sum
+    in integers: exact, as OpenCV's double sum is for any image this size)."""
     h, w = img.shape[0], img.shape[1]
-    total = 0.0
+    total = 0
     for y in range(h):
-        for x in range(w):
-            for dy, dx in ((0, -1), (-1, -1), (-1, 0), (-1, 1)):
-                yy, xx = y + dy, x + dx
-                if yy < 0 or xx < 0 or xx >= w:
-                    continue
-                for c in range(3):
-                    d = float(img[y, x, c]) - float(img[yy, xx, c])
-                    total += d * d
-    if total <= 2.220446049250313e-16:
+        for x in range(1, w):  # left
+            for c in range(3):
+                d = np.int64(img[y, x, c]) - np.int64(img[y, x - 1, c])
+                total += d * d
+        if y == 0:
+            continue
+        for x in range(w):  # up
+            for c in range(3):
+                d = np.int64(img[y, x, c]) - np.int64(img[y - 1, x, c])
+                total += d * d
+        for x in range(1, w):  # up-left
+            for c in range(3):
+                d = np.int64(img[y, x, c]) - np.int64(img[y - 1, x - 1, c])
+                total += d * d
+        for x in range(w - 1):  # up-right
+            for c in range(3):
+                d = np.int64(img[y, x, c]) - np.int64(img[y - 1, x + 1, c])
+                total += d * d
+    if total == 0:
         return 0.0
-    return 1.0 / (2.0 * total / (4 * w * h - 3 * w - 3 * h + 2))
+    return 1.0 / (2.0 * float(total) / (4 * w * h - 3 * w - 3 * h + 2))
 
 
 @njit(cache=True)
