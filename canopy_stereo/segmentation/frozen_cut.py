@@ -88,6 +88,83 @@ def _data_term(colour, coefs, means, inv, scale):
     return -np.log(p)
 
 
+@njit(cache=True)
+def _learn_kernel(img, labels, bg_coefs, bg_means, bg_inv, bg_scale, fg_coefs, fg_means, fg_inv, fg_scale,
+                  out):
+    """OpenCV GrabCut's assignGMMsComponents + learnGMMs: each pixel to its side's most likely
+    component (density without the weight), then weights, means and covariances of the
+    components from their pixels (0.01 added to a covariance's diagonal whose determinant is
+    <= 1e-6). Writes the (2, 65) models [background, plant] into ``out``; returns the fewest
+    samples of a side (0: a side without pixels)."""
+    k = bg_coefs.shape[0]
+    sums = np.zeros((2, k, 3))
+    prods = np.zeros((2, k, 3, 3))
+    counts = np.zeros((2, k), np.int64)
+    h, w = labels.shape
+    colour = np.empty(3)
+    for y in range(h):
+        for x in range(w):
+            side = 1 if labels[y, x] == 1 or labels[y, x] == 3 else 0
+            for c in range(3):
+                colour[c] = float(img[y, x, c])
+            best, top = 0, 0.0
+            for ci in range(k):
+                if side == 0:
+                    coef, mean, inv, scale = bg_coefs[ci], bg_means[ci], bg_inv[ci], bg_scale[ci]
+                else:
+                    coef, mean, inv, scale = fg_coefs[ci], fg_means[ci], fg_inv[ci], fg_scale[ci]
+                if coef <= 0:
+                    continue
+                d0, d1, d2 = colour[0] - mean[0], colour[1] - mean[1], colour[2] - mean[2]
+                mult = (d0 * (d0 * inv[0, 0] + d1 * inv[1, 0] + d2 * inv[2, 0])
+                        + d1 * (d0 * inv[0, 1] + d1 * inv[1, 1] + d2 * inv[2, 1])
+                        + d2 * (d0 * inv[0, 2] + d1 * inv[1, 2] + d2 * inv[2, 2]))
+                p = scale * np.exp(-0.5 * mult)
+                if p > top:
+                    best, top = ci, p
+            counts[side, best] += 1
+            for a in range(3):
+                sums[side, best, a] += colour[a]
+                for b in range(3):
+                    prods[side, best, a, b] += colour[a] * colour[b]
+    fewest = counts[0].sum()
+    if counts[1].sum() < fewest:
+        fewest = counts[1].sum()
+    out[:] = 0.0
+    for side in range(2):
+        total = counts[side].sum()
+        for ci in range(k):
+            n = counts[side, ci]
+            if n == 0 or total == 0:
+                continue
+            out[side, ci] = n / total
+            m = sums[side, ci] / n
+            cov = prods[side, ci] / n - np.outer(m, m)
+            dtrm = (cov[0, 0] * (cov[1, 1] * cov[2, 2] - cov[1, 2] * cov[2, 1])
+                    - cov[0, 1] * (cov[1, 0] * cov[2, 2] - cov[1, 2] * cov[2, 0])
+                    + cov[0, 2] * (cov[1, 0] * cov[2, 1] - cov[1, 1] * cov[2, 0]))
+            if dtrm <= 1e-6:
+                for a in range(3):
+                    cov[a, a] += 0.01
+            out[side, k + 3 * ci:k + 3 * ci + 3] = m
+            out[side, 4 * k + 9 * ci:4 * k + 9 * ci + 9] = cov.ravel()
+    return fewest
+
+
+def learn_models(image_bgr: np.ndarray, labels: np.ndarray, background_model: np.ndarray,
+                 plant_model: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One GrabCut learning step (OpenCV's, exactly): the models of the pixels of each side of
+    ``labels`` (uint8 (H, W) GrabCut labels), each pixel in the component of its side's current
+    model (``background_model``, ``plant_model``: (1, 65) float64) it fits best. Returns the new
+    ``(background_model, plant_model)``; raises :class:`ImageError` when a side has no pixel."""
+    img = np.ascontiguousarray(image_bgr)
+    out = np.zeros((2, np.asarray(background_model).size))
+    if _learn_kernel(img, np.ascontiguousarray(labels), *model_terms(background_model),
+                     *model_terms(plant_model), out) == 0:
+        raise ImageError("GrabCut failed on this seed: one side (plant or background) has no pixel left")
+    return out[:1].copy(), out[1:].copy()
+
+
 #: The 8 neighbour offsets (dy, dx); direction k's opposite is (k + 4) % 8. The first 4 are
 #: OpenCV's left, up-left, up, up-right.
 _DY = np.array([0, -1, -1, -1, 0, 1, 1, 1], np.int64)

@@ -113,3 +113,27 @@ def test_bad_inputs_are_named():
     singular[0, 20:29] = 0.0  # component 0: a zero covariance
     with pytest.raises(ImageError, match="singular covariance"):
         frozen_model_cut(img, seed_lab, bg, singular)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_grabcut_iterations_are_opencvs(seed):
+    """grabcut_labels (OpenCV's k-means start, then learn_models + the cut on the undecided pixels
+    per iteration) against OpenCV's own 3 iterations from the same random state: the same labels."""
+    from canopy_stereo.segmentation.grabcut import grabcut_labels
+
+    img, seed_lab, _, _ = _scene(seed)
+    cv2.setRNGSeed(seed)
+    reference = seed_lab.copy()
+    cv2.grabCut(img, reference, None, np.zeros((1, 65)), np.zeros((1, 65)), 3, cv2.GC_INIT_WITH_MASK)
+    cv2.setRNGSeed(seed)
+    ours = grabcut_labels(img, seed_lab, iterations=3)
+    assert (ours != reference).sum() <= 0.002 * (seed_lab >= 2).sum()
+    assert ((ours == GC_PR_FGD) != (seed_lab == GC_PR_FGD)).any()  # the iterations changed something
+
+
+def test_learning_a_side_without_pixels_is_named():
+    from canopy_stereo.segmentation.frozen_cut import learn_models
+
+    img, seed_lab, bg, fg = _scene(0)
+    with pytest.raises(ImageError, match="no pixel"):
+        learn_models(img, np.zeros_like(seed_lab), bg, fg)
