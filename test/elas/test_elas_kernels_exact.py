@@ -739,6 +739,32 @@ def test_stable_argsort_equals_numpys_stable_sort(rng):
     assert np.array_equal(stable_argsort(keys), np.argsort(keys, kind="stable"))
 
 
+def test_first_occurrences_equal_a_plain_dictionary(rng):
+    """The hash set's first occurrences: a point's first index, found by a Python dict
+    (-0.0 is 0.0; NaN equals nothing), for grids with many duplicates, support-like
+    integer points (negative right-image columns), wide and random coordinates."""
+    from canopy_stereo.elas.sweephull import _first_occurrences
+
+    def reference(xs, ys):
+        seen, first = set(), []
+        for i, (x, y) in enumerate(zip(xs, ys)):
+            if x != x or y != y:          # NaN: a point of its own
+                first.append(i)
+            elif (x + 0.0, y + 0.0) not in seen:
+                seen.add((x + 0.0, y + 0.0))
+                first.append(i)
+        return np.array(first, np.int64)
+
+    cases = [rng.integers(0, 6, (300, 2)), rng.integers(-255, 640, (1500, 2)) * [1, 0] +
+             rng.integers(0, 480, (1500, 1)) // 5 * [0, 5], rng.normal(size=(400, 2)) * 1e6,
+             np.array([[0.0, -0.0], [-0.0, 0.0], [np.nan, 1.0], [np.nan, 1.0], [1.0, 2.0]]),
+             np.zeros((1, 2)), np.zeros((0, 2))]
+    for pts in cases:
+        pts = np.asarray(pts, np.float64)
+        xs, ys = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
+        assert np.array_equal(_first_occurrences(xs, ys), reference(xs, ys))
+
+
 def test_support_row_buffers_hold_the_same_cost_vectors(plants):
     """The interleaved row buffer (CPUs without AVX-512BW) and the chunk-major one hold
     the same 64-byte cost vector of every column."""
