@@ -35,12 +35,25 @@ from numba import njit
 
 from canopy_stereo.elas.grid import candidate_ranks
 from canopy_stereo.elas.parallel import run_row_bands
-from canopy_stereo.elas.simd import DESC_BYTES, PRIOR_REGISTER, quad_first_min, sad16
+from canopy_stereo.elas.simd import (
+    DESC_BYTES,
+    OCTO_LANES,
+    PRIOR_REGISTER,
+    PRIOR_REGISTER_WIDE,
+    PSADBW_WIDTH,
+    octo_first_min,
+    quad_first_min,
+    sad16,
+)
 
 #: Pixels closer than this to the left/right border are not matched.
 MATCH_BORDER = 2
 #: Marks "no candidate yet" in the cost accumulators.
 _NO_COST = np.int32(2147483647)
+#: Eight pixels per call (:func:`~canopy_stereo.elas.simd.octo_first_min`) where the CPU
+#: has 64-byte ``psadbw`` (AVX-512BW); else four (the two candidate SADs would cost four
+#: 32-byte instructions, and the prior would not fit in a register).
+_EIGHT_PIXELS = PSADBW_WIDTH == 64
 
 
 def prior_table(beta: float, gamma: float, sigma: float, size: int) -> np.ndarray:
@@ -54,11 +67,12 @@ def prior_table(beta: float, gamma: float, sigma: float, size: int) -> np.ndarra
 
 
 def window_prior(prior: np.ndarray, radius: int) -> np.ndarray:
-    """int32 (max(2 radius + 1, PRIOR_REGISTER),) the prior across the plane window:
-    entry ``i`` is ``prior[|i - radius|]`` (disparity ``mu - radius + i``), zeros after
-    ``2 radius`` (:func:`~canopy_stereo.elas.simd.quad_first_min` may load them)."""
+    """int32 (max(2 radius + 1, PRIOR_REGISTER, PRIOR_REGISTER_WIDE),) the prior across the
+    plane window: entry ``i`` is ``prior[|i - radius|]`` (disparity ``mu - radius + i``),
+    zeros after ``2 radius`` (:func:`~canopy_stereo.elas.simd.quad_first_min` and
+    :func:`~canopy_stereo.elas.simd.octo_first_min` may load them)."""
     offsets = np.abs(np.arange(2 * radius + 1) - radius)
-    out = np.zeros(max(2 * radius + 1, PRIOR_REGISTER), np.int32)
+    out = np.zeros(max(2 * radius + 1, PRIOR_REGISTER, PRIOR_REGISTER_WIDE), np.int32)
     out[:2 * radius + 1] = np.asarray(prior, np.int32)[offsets]
     return out
 
@@ -104,6 +118,8 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
     n_ranks = grid_ranks.shape[2]
     lane_best = np.empty(4, np.int64)
     lane_hi = np.empty(4, np.int64)
+    lanes = np.empty(3 * OCTO_LANES, np.int32)     # eight pixels: mu, largest d, prior flag
+    lane_out = np.empty(OCTO_LANES, np.int32)
     # matched columns x = u - sign*d must satisfy MATCH_BORDER <= x < w - MATCH_BORDER
     n_cells = grid_counts.shape[1]
     for r in range(row_start, row_stop):
@@ -124,6 +140,61 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
             u_stop = min((gx + 1) * grid_size, w - MATCH_BORDER)
             u = u_first
             while u < u_stop:
+                # ---- eight pixels u .. u+7 at once (AVX-512): as the four below, with the
+                # lanes' predictions, largest disparities and prior flags in `lanes`
+                if _EIGHT_PIXELS and step == 1 and u + OCTO_LANES <= u_stop and v >= 1 \
+                        and v < h - 1:
+                    n_on = 0
+                    mu_lo = 2147483647
+                    mu_hi = -2147483648
+                    hi_max = -1
+                    for k in range(OCTO_LANES):
+                        t = tri_row[u + k]
+                        if t >= 0 and tex_row[u + k] >= match_texture:
+                            mu_k = int(planes[t, 0] * (u + k) + planes[t, 1] * v + planes[t, 2])
+                            n_on += 1
+                            mu_lo = min(mu_lo, mu_k)
+                            mu_hi = max(mu_hi, mu_k)
+                            hi_k = min(disp_max, u + k - MATCH_BORDER) if sign > 0 else \
+                                min(disp_max, w - MATCH_BORDER - 1 - u - k)
+                            hi_max = max(hi_max, hi_k)
+                            lanes[k] = mu_k
+                            lanes[OCTO_LANES + k] = hi_k
+                            lanes[2 * OCTO_LANES + k] = plane_valid[t]
+                        else:
+                            lanes[OCTO_LANES + k] = -1
+                            lanes[2 * OCTO_LANES + k] = 0
+                    if n_on == 0:
+                        u += OCTO_LANES     # none of the eight is matched
+                        continue
+                    if n_on < OCTO_LANES:
+                        # a pixel that is not matched takes a prediction of the others
+                        # (within [mu_lo, mu_hi]: the union of windows stays as small)
+                        for k in range(OCTO_LANES):
+                            if lanes[OCTO_LANES + k] < 0:
+                                lanes[k] = mu_lo
+                    first = np.int64(flat_ranks[ranks + min(disp_min, n_ranks - 1)])
+                    stop = np.int64(flat_ranks[ranks + min(hi_max + 1, n_ranks - 1)])
+                    below = np.int64(flat_ranks[ranks + min(max(mu_hi - radius, 0), n_ranks - 1)])
+                    above = np.int64(flat_ranks[ranks + min(max(mu_lo + radius + 1, 0),
+                                                            n_ranks - 1)])
+                    below = min(max(below, first), stop)
+                    above = min(max(above, below), stop)
+                    a0 = row + u * DESC_BYTES
+                    octo_first_min(flat_own, a0, flat_other, a0, -sign * DESC_BYTES, flat_lists,
+                                   cell + first, cell + below, cell + above, cell + stop,
+                                   max(mu_lo - radius, disp_min), min(mu_hi + radius, hi_max),
+                                   radius, prior_window, lanes, lane_out)
+                    for k in range(OCTO_LANES):
+                        best_d = lane_out[k]
+                        if best_d >= 0:
+                            out_row[u + k] = np.float32(best_d)
+                            if subpixel:
+                                _subpixel_offset(flat_own, flat_other, row + (u + k) * DESC_BYTES,
+                                                 sign, best_d, disp_min, lanes[OCTO_LANES + k],
+                                                 off_row, u + k)
+                    u += OCTO_LANES
+                    continue
                 # ---- four pixels u .. u+3 at once: every candidate of any of the four is
                 # one 64-byte SAD, each pixel's own candidates unmasked (its window, prior
                 # and largest disparity; a pixel that is not matched has every candidate

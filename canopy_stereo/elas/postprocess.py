@@ -196,21 +196,12 @@ def _fill_line(line, max_gap, discon, extrapolate):
     n = line.shape[0]
     count = 0
     for i in range(n):
-        if line[i] >= 0:
-            if 1 <= count <= max_gap:
-                i1 = i - count
-                if i1 > 0:
-                    d1 = line[i1 - 1]
-                    d2 = line[i]
-                    if abs(d1 - d2) < discon:
-                        fill = np.float32(0.5 * (d1 + d2))
-                    else:
-                        fill = min(d1, d2)
-                    for j in range(i1, i):
-                        line[j] = fill
-            count = 0
-        else:
-            count += 1
+        valid = line[i] >= 0
+        if valid and count >= 1 and count <= max_gap and i - count > 0:
+            fill = _gap_fill(line[i - count - 1], line[i], discon)
+            for j in range(i - count, i):
+                line[j] = fill
+        count = 0 if valid else count + 1
     if extrapolate:
         for i in range(n):
             if line[i] >= 0:
@@ -235,21 +226,31 @@ def _gap_fill(d1, d2, discon):
 @njit(cache=True, nogil=True)
 def _fill_columns(out, max_gap, discon, extrapolate):
     """:func:`_fill_line` on every column of ``out`` (H, W) in place, scanning whole rows
-    (contiguous) with one run counter per column instead of transposing the map."""
+    (contiguous) with one run counter per column instead of transposing the map. Per row,
+    one branch-free (vectorised) pass finds the columns whose gap ends there and updates
+    the counters; the few gaps are filled after it (a fill writes only rows above)."""
     h, w = out.shape
-    count = np.zeros(w, dtype=np.int64)
+    count = np.zeros(w, dtype=np.int32)
+    gap = np.zeros(w, dtype=np.int32)
     for i in range(h):
         row = out[i]
+        # which columns end a fillable gap here (its length in `gap`), the run counters
+        ends = 0
         for u in range(w):
-            if row[u] >= 0:
-                n = count[u]
-                if n >= 1 and n <= max_gap and i - n > 0:
-                    fill = _gap_fill(out[i - n - 1, u], row[u], discon)
-                    for j in range(i - n, i):
-                        out[j, u] = fill
-                count[u] = 0
-            else:
-                count[u] += 1
+            n = count[u]
+            valid = row[u] >= 0
+            end = valid & (n >= 1) & (n <= max_gap) & (i - n > 0)
+            gap[u] = n if end else 0
+            ends += end
+            count[u] = 0 if valid else n + 1
+        if ends == 0:
+            continue
+        for u in range(w):
+            n = gap[u]
+            if n:
+                fill = _gap_fill(out[i - n - 1, u], row[u], discon)
+                for j in range(i - n, i):
+                    out[j, u] = fill
     if extrapolate:
         for u in range(w):
             for i in range(h):

@@ -208,6 +208,131 @@ def _splat(builder, value, count):
 
 #: Entries of the window prior :func:`quad_first_min` keeps in one register (AVX2).
 PRIOR_REGISTER = 8
+#: Entries of the window prior :func:`octo_first_min` keeps in one register (AVX-512).
+PRIOR_REGISTER_WIDE = 16
+
+
+def _first_min_body(context, builder, own, other_base, stride, cell_ptr, runs, window, radius,
+                    prior_ptr, mu, hi, flag):
+    """The candidate loops of :func:`quad_first_min` / :func:`octo_first_min`.
+
+    ``own``: one ``<64 x i8>`` vector per group of four pixels (their descriptors);
+    ``other_base``: i8 pointer to the first candidate's match, advanced by ``d * stride``
+    (i64) bytes per disparity ``d``; ``cell_ptr``: i32 pointer to the cell's candidates;
+    ``runs``: i64 ``(first0, stop0, first1, stop1)``; ``window``: i64 ``(lo, hi)``;
+    ``radius``: i32; ``prior_ptr``: i32 pointer to the window prior; ``mu``, ``hi``,
+    ``flag``: ``<n x i32>`` (``n = 8 * len(own)``, pixel ``k`` in lanes ``2k`` and
+    ``2k + 1``, as the paired block sums come). Returns the ``<n x i32>`` first
+    minima's disparities (-1: none), in the same lanes.
+    """
+    i8, i32, i64 = ir.IntType(8), ir.IntType(32), ir.IntType(64)
+    n = 8 * len(own)
+    vni32, v64i8 = ir.VectorType(i32, n), ir.VectorType(i8, 64)
+    # t = d - (mu - r): inside the window iff 0 <= t <= 2r, one unsigned compare
+    mu_low = builder.sub(mu, _splat(builder, radius, n))
+    prior_on = builder.icmp_signed("!=", flag, ir.Constant(vni32, [0] * n))
+    span = _splat(builder, builder.mul(radius, i32(2)), n)
+    zero = ir.Constant(vni32, [0] * n)
+    big = ir.Constant(vni32, [2147483647] * n)
+    best_e = cgutils.alloca_once_value(builder, big)
+    best_d = cgutils.alloca_once_value(builder, ir.Constant(vni32, [-1] * n))
+    # the prior in one register: AVX2 vpermd (8 lanes), AVX-512 vpermd (16 lanes)
+    if n == 8 and PSADBW_WIDTH >= 32:
+        permute, entries = "llvm.x86.avx2.permd", PRIOR_REGISTER
+    elif n == 16 and PSADBW_WIDTH == 64:
+        permute, entries = "llvm.x86.avx512.permvar.si.512", PRIOR_REGISTER_WIDE
+    else:
+        permute, entries = None, 0
+    permd = None if permute is None else _llvm_function(builder.module, permute, vni32,
+                                                        [vni32, vni32])
+
+    def prior_lookup(index, table):
+        """``prior_window[index]`` per lane (``index`` <n x i32>, every lane <= 2r)."""
+        if table is not None:       # one register permute: the table in a register
+            return builder.call(permd, [table, index])
+        bonus = ir.Constant(vni32, ir.Undefined)
+        for lane in range(0, n, 2):
+            item = builder.sext(builder.extract_element(index, i32(lane)), i64)
+            value = builder.load(builder.gep(prior_ptr, [item]))
+            bonus = builder.insert_element(bonus, value, i32(lane))
+            bonus = builder.insert_element(bonus, value, i32(lane + 1))
+        return bonus
+
+    def candidate(d64, window, table=None):
+        """Fold the costs of disparity ``d64`` (i64) into the running minima."""
+        at = builder.gep(other_base, [builder.mul(d64, stride)])
+        sums = None
+        for q, va in enumerate(own):
+            ptr = builder.bitcast(builder.gep(at, [i64(64 * q)]), v64i8.as_pointer())
+            part = _block_sums_paired(builder, va, builder.load(ptr, align=1))
+            sums = part if sums is None else builder.shuffle_vector(
+                sums, part, ir.Constant(ir.VectorType(i32, sums.type.count + 8),
+                                        list(range(sums.type.count + 8))))
+        dvec = _splat(builder, builder.trunc(d64, i32), n)
+        t = builder.sub(dvec, mu_low)
+        beyond = builder.icmp_signed(">", dvec, hi)
+        if window:
+            masked = builder.or_(builder.icmp_unsigned(">", t, span), beyond)
+            bonus = prior_lookup(builder.select(masked, zero, t), table)
+            bonus = builder.select(prior_on, bonus, zero)
+            cost = builder.select(masked, big, builder.add(sums, bonus))
+        else:
+            masked = builder.or_(builder.icmp_unsigned("<=", t, span), beyond)
+            cost = builder.select(masked, big, sums)
+        old = builder.load(best_e)
+        lower = builder.icmp_signed("<", cost, old)
+        builder.store(builder.select(lower, cost, old), best_e)
+        builder.store(builder.select(lower, dvec, builder.load(best_d)), best_d)
+
+    for run in (0, 2):
+        count = builder.sub(runs[run + 1], runs[run])
+        with cgutils.for_range(builder, count) as loop:
+            index = builder.add(runs[run], loop.index)
+            candidate(builder.sext(builder.load(builder.gep(cell_ptr, [index])), i64), False)
+    w_lo = window[0]
+    count = builder.add(builder.sub(window[1], w_lo), i64(1))
+
+    def window_loop(table):
+        with cgutils.for_range(builder, count) as loop:
+            candidate(builder.add(w_lo, loop.index), True, table)
+
+    if permd is not None:           # a window of up to `entries` disparities in a register
+        small = builder.icmp_signed("<", builder.mul(builder.sext(radius, i64), i64(2)),
+                                    i64(entries))
+        with builder.if_else(small) as (in_register, in_memory):
+            with in_register:
+                table = builder.load(builder.bitcast(prior_ptr, vni32.as_pointer()), align=4)
+                window_loop(table)
+            with in_memory:
+                window_loop(None)
+    else:
+        window_loop(None)
+    return builder.load(best_d)
+
+
+def _first_min_types(own, offset_own, other, offset_other, ints, arrays) -> bool:
+    """Whether the arguments of a first-minimum intrinsic have the types it takes."""
+    return (_sad_signature(own, offset_own, other, offset_other) is not None
+            and all(isinstance(x, types.Integer) for x in ints)
+            and all(isinstance(x, types.Array) and x.dtype == types.int32 and x.ndim == 1
+                    and x.layout == "C" for x in arrays))
+
+
+def _first_min_args(context, builder, sargs, args):
+    """(scalar(k, type), data pointer(k)) readers of an intrinsic's arguments."""
+    def scalar(k, ty=types.intp):
+        return context.cast(builder, args[k], sargs[k], ty)
+
+    def data(k):
+        return context.make_array(sargs[k])(context, builder, args[k]).data
+
+    return scalar, data
+
+
+def _run_arguments(scalar):
+    """The runs ``(first0, stop0, first1, stop1)`` (arguments 6-9) and window (10-11), i64."""
+    return ([scalar(6 + k, types.int64) for k in range(4)],
+            [scalar(10 + k, types.int64) for k in range(2)])
 
 
 @intrinsic
@@ -239,37 +364,20 @@ def quad_first_min(typingctx, own, offset_own, other, offset_other, stride, cell
     ``max(2 radius + 1, PRIOR_REGISTER)`` entries (with AVX2 and ``2 radius + 1`` at most
     :data:`PRIOR_REGISTER` the prior is looked up in a register, one ``vpermd``).
     """
-    if _sad_signature(own, offset_own, other, offset_other) is None:
-        return None
     lanes = (mu0, mu1, mu2, mu3, hi0, hi1, hi2, hi3)
     flags = (prior0, prior1, prior2, prior3)
     ints = (stride, first0, stop0, first1, stop1, window_lo, window_hi, radius) + lanes
-    if not (all(isinstance(x, types.Integer) for x in ints)
-            and all(isinstance(x, (types.Boolean, types.Integer)) for x in flags)
-            and all(isinstance(x, types.Array) and x.dtype == types.int32 and x.ndim == 1
-                    for x in (cell, prior))):
+    if not (_first_min_types(own, offset_own, other, offset_other, ints, (cell, prior))
+            and all(isinstance(x, (types.Boolean, types.Integer)) for x in flags)):
         return None
     sig = types.UniTuple(types.int64, 4)(own, offset_own, other, offset_other, stride, cell,
                                          first0, stop0, first1, stop1, window_lo, window_hi,
                                          radius, prior, *lanes, *flags)
-    # argument positions
-    a_cell, a_runs, a_window, a_radius, a_prior, a_mu, a_hi, a_flag = 5, 6, 10, 12, 13, 14, 18, 22
 
     def codegen(context, builder, signature, args):
         i8, i32, i64 = ir.IntType(8), ir.IntType(32), ir.IntType(64)
-        v8i32, v64i8 = ir.VectorType(i32, 8), ir.VectorType(i8, 64)
-        sargs = signature.args
-
-        def scalar(k, ty=types.intp):
-            return context.cast(builder, args[k], sargs[k], ty)
-
-        def data(k):
-            return context.make_array(sargs[k])(context, builder, args[k]).data
-
-        va = builder.load(_element_pointer(context, builder, sargs[0], args[0], args[1], sargs[1],
-                                           v64i8), align=1)
-        other_base = builder.gep(data(2), [scalar(3)])
-        stride_ = scalar(4)
+        v8i32 = ir.VectorType(i32, 8)
+        scalar, data = _first_min_args(context, builder, signature.args, args)
 
         # eight lanes, pixel k in lanes 2k and 2k + 1 (as the paired block sums come)
         def lane_vector(first):
@@ -279,80 +387,69 @@ def quad_first_min(typingctx, own, offset_own, other, offset_other, stride, cell
                                              i32(lane))
             return vec
 
-        radius_ = scalar(a_radius, types.int32)
-        # t = d - (mu - r): inside the window iff 0 <= t <= 2r, one unsigned compare
-        mu_low = builder.sub(lane_vector(a_mu), _splat(builder, radius_, 8))
-        hi = lane_vector(a_hi)
-        prior_on = builder.icmp_signed("!=", lane_vector(a_flag), ir.Constant(v8i32, [0] * 8))
-        span = _splat(builder, builder.mul(radius_, i32(2)), 8)
-        zero = ir.Constant(v8i32, [0] * 8)
-        big = ir.Constant(v8i32, [2147483647] * 8)
-        best_e = cgutils.alloca_once_value(builder, big)
-        best_d = cgutils.alloca_once_value(builder, ir.Constant(v8i32, [-1] * 8))
-        prior_ptr = data(a_prior)
-        permd = _llvm_function(builder.module, "llvm.x86.avx2.permd", v8i32, [v8i32, v8i32])
-
-        def prior_lookup(index, table):
-            """``prior_window[index]`` per lane (``index`` <8 x i32>, every lane <= 2r)."""
-            if table is not None:       # one register permute: the table in a register
-                return builder.call(permd, [table, index])
-            bonus = ir.Constant(v8i32, ir.Undefined)
-            for lane in range(0, 8, 2):
-                item = builder.sext(builder.extract_element(index, i32(lane)), i64)
-                value = builder.load(builder.gep(prior_ptr, [item]))
-                bonus = builder.insert_element(bonus, value, i32(lane))
-                bonus = builder.insert_element(bonus, value, i32(lane + 1))
-            return bonus
-
-        def candidate(d64, window, table=None):
-            """Fold the four costs of disparity ``d64`` (i64) into the running minima."""
-            ptr = builder.bitcast(builder.gep(other_base, [builder.mul(d64, stride_)]),
-                                  v64i8.as_pointer())
-            sums = _block_sums_paired(builder, va, builder.load(ptr, align=1))
-            dvec = _splat(builder, builder.trunc(d64, i32), 8)
-            t = builder.sub(dvec, mu_low)
-            beyond = builder.icmp_signed(">", dvec, hi)
-            if window:
-                masked = builder.or_(builder.icmp_unsigned(">", t, span), beyond)
-                bonus = prior_lookup(builder.select(masked, zero, t), table)
-                bonus = builder.select(prior_on, bonus, zero)
-                cost = builder.select(masked, big, builder.add(sums, bonus))
-            else:
-                masked = builder.or_(builder.icmp_unsigned("<=", t, span), beyond)
-                cost = builder.select(masked, big, sums)
-            old = builder.load(best_e)
-            lower = builder.icmp_signed("<", cost, old)
-            builder.store(builder.select(lower, cost, old), best_e)
-            builder.store(builder.select(lower, dvec, builder.load(best_d)), best_d)
-
-        cell_ptr = data(a_cell)
-        for run in (0, 2):
-            first = scalar(a_runs + run, types.int64)
-            count = builder.sub(scalar(a_runs + run + 1, types.int64), first)
-            with cgutils.for_range(builder, count) as loop:
-                index = builder.add(first, loop.index)
-                candidate(builder.sext(builder.load(builder.gep(cell_ptr, [index])), i64), False)
-        w_lo = scalar(a_window, types.int64)
-        count = builder.add(builder.sub(scalar(a_window + 1, types.int64), w_lo), i64(1))
-
-        def window_loop(table):
-            with cgutils.for_range(builder, count) as loop:
-                candidate(builder.add(w_lo, loop.index), True, table)
-
-        if PSADBW_WIDTH >= 32:          # AVX2: a window of up to 8 disparities in a register
-            small = builder.icmp_signed("<", builder.mul(scalar(a_radius, types.int64), i64(2)),
-                                        i64(PRIOR_REGISTER))
-            with builder.if_else(small) as (in_register, in_memory):
-                with in_register:
-                    table = builder.load(builder.bitcast(prior_ptr, v8i32.as_pointer()), align=4)
-                    window_loop(table)
-                with in_memory:
-                    window_loop(None)
-        else:
-            window_loop(None)
-        result = builder.load(best_d)
+        va = builder.load(builder.bitcast(builder.gep(data(0), [scalar(1)]),
+                                          ir.VectorType(i8, 64).as_pointer()), align=1)
+        runs, window = _run_arguments(scalar)
+        result = _first_min_body(context, builder, [va], builder.gep(data(2), [scalar(3)]),
+                                 scalar(4), data(5), runs, window, scalar(12, types.int32),
+                                 data(13), lane_vector(14), lane_vector(18), lane_vector(22))
         items = [builder.sext(builder.extract_element(result, i32(2 * k)), i64) for k in range(4)]
         return context.make_tuple(builder, signature.return_type, items)
+
+    return sig, codegen
+
+
+#: Pixels per call of :func:`octo_first_min`.
+OCTO_LANES = 8
+
+
+@intrinsic
+def octo_first_min(typingctx, own, offset_own, other, offset_other, stride, cell, first0, stop0,
+                   first1, stop1, window_lo, window_hi, radius, prior, lanes, best):
+    """:func:`quad_first_min` of eight neighbouring pixels (two groups of four side by
+    side: two 64-byte SADs per candidate, the eight running minima in one 16-lane vector).
+
+    Pixel ``k`` (0..7) has the descriptor at ``own[offset_own + 16 k]`` and its match at
+    ``other[offset_other + d * stride + 16 k]``; ``lanes`` (int32, 24 entries) holds the
+    plane predictions ``mu_k`` (entries 0..7), largest disparities ``hi_k`` (8..15, -1:
+    not matched) and prior flags (16..23, non-zero: the prior applies). The candidates,
+    their order and costs are those of :func:`quad_first_min`; each pixel's disparity is
+    written to ``best[k]`` (int32, -1 where it has no candidate). ``prior`` holds at
+    least ``max(2 radius + 1, PRIOR_REGISTER_WIDE)`` entries (with AVX-512 and
+    ``2 radius + 1`` at most :data:`PRIOR_REGISTER_WIDE` it is looked up in a register).
+    No bounds checking.
+    """
+    ints = (stride, first0, stop0, first1, stop1, window_lo, window_hi, radius)
+    if not _first_min_types(own, offset_own, other, offset_other, ints,
+                            (cell, prior, lanes, best)):
+        return None
+    sig = types.void(own, offset_own, other, offset_other, stride, cell, first0, stop0, first1,
+                     stop1, window_lo, window_hi, radius, prior, lanes, best)
+
+    def codegen(context, builder, signature, args):
+        i8, i32 = ir.IntType(8), ir.IntType(32)
+        v8i32, v16i32 = ir.VectorType(i32, 8), ir.VectorType(i32, 16)
+        scalar, data = _first_min_args(context, builder, signature.args, args)
+        own_at = builder.gep(data(0), [scalar(1)])
+        own = [builder.load(builder.bitcast(builder.gep(own_at, [ir.IntType(64)(64 * q)]),
+                                            ir.VectorType(i8, 64).as_pointer()), align=1)
+               for q in range(2)]
+        lane_data = data(14)
+
+        def lane_vector(first):     # pixel k in lanes 2k and 2k + 1
+            at = builder.gep(lane_data, [ir.IntType(64)(first)])
+            vec = builder.load(builder.bitcast(at, v8i32.as_pointer()), align=4)
+            return builder.shuffle_vector(vec, ir.Constant(v8i32, ir.Undefined),
+                                          ir.Constant(v16i32, [k // 2 for k in range(16)]))
+
+        runs, window = _run_arguments(scalar)
+        result = _first_min_body(context, builder, own, builder.gep(data(2), [scalar(3)]),
+                                 scalar(4), data(5), runs, window, scalar(12, types.int32),
+                                 data(13), lane_vector(0), lane_vector(8), lane_vector(16))
+        even = builder.shuffle_vector(result, ir.Constant(v16i32, ir.Undefined),
+                                      ir.Constant(v8i32, [2 * k for k in range(8)]))
+        builder.store(even, builder.bitcast(data(15), v8i32.as_pointer()), align=4)
+        return context.get_dummy_value()
 
     return sig, codegen
 

@@ -335,33 +335,44 @@ def stable_argsort(keys):
 @njit(cache=True, nogil=True)
 def _first_occurrences(xs, ys):
     """int64 indices of the first occurrence of every distinct point ``(xs[i], ys[i])``,
-    increasing (``0.0`` and ``-0.0`` are the same coordinate, as for ``np.unique``).
+    increasing (``0.0`` and ``-0.0`` are the same coordinate, as for ``np.unique``; a
+    point with a NaN coordinate equals none).
 
-    Two stable sorts (by y, then by x) put equal points next to each other in input
-    order, so the first of each run is the first occurrence.
+    One pass in input order over an open-addressing hash set of the points (the bits of
+    ``x + 0.0`` and ``y + 0.0``: -0.0 becomes 0.0), each point compared by ``==``.
     """
     n = xs.shape[0]
-    by_y = stable_argsort(ys)
-    xs_by_y = np.empty(n, dtype=np.float64)
-    for k in range(n):
-        xs_by_y[k] = xs[by_y[k]]
-    by_x = stable_argsort(xs_by_y)
-    is_first = np.zeros(n, dtype=np.bool_)
-    previous = -1
-    for k in range(n):
-        i = by_y[by_x[k]]
-        is_first[i] = previous < 0 or not (xs[i] == xs[previous] and ys[i] == ys[previous])
-        previous = i
+    size = 2
+    shift = 63
+    while size < 2 * n:
+        size *= 2
+        shift -= 1
+    table = np.full(size, -1, dtype=np.int64)
+    key_x = np.empty(n, dtype=np.float64)
+    key_y = np.empty(n, dtype=np.float64)
+    for i in range(n):
+        key_x[i] = xs[i] + 0.0
+        key_y[i] = ys[i] + 0.0
+    bits_x = key_x.view(np.uint64)
+    bits_y = key_y.view(np.uint64)
+    first = np.empty(n, dtype=np.int64)
     count = 0
     for i in range(n):
-        count += is_first[i]
-    first = np.empty(count, dtype=np.int64)
-    count = 0
-    for i in range(n):
-        if is_first[i]:
-            first[count] = i
-            count += 1
-    return first
+        # Fibonacci hashing: the top bits of the product depend on every bit of the key
+        h = (bits_x[i] ^ (bits_y[i] >> np.uint64(17)) ^ (bits_y[i] << np.uint64(29))) \
+            * np.uint64(0x9E3779B97F4A7C15)
+        slot = np.int64(h >> np.uint64(shift))
+        while True:
+            j = table[slot]
+            if j < 0:
+                table[slot] = i
+                first[count] = i
+                count += 1
+                break
+            if xs[j] == xs[i] and ys[j] == ys[i]:
+                break
+            slot = (slot + 1) & (size - 1)
+    return first[:count]
 
 
 @njit(cache=True, nogil=True)

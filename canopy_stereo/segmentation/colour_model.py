@@ -32,9 +32,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from canopy_stereo.errors import ImageError
 from canopy_stereo.io.images import to_bgr
+from canopy_stereo.segmentation.frozen_cut import frozen_model_cut
 from canopy_stereo.segmentation.grabcut import GC_BGD, GC_FGD, GC_PR_BGD, GC_PR_FGD
 
 #: Components of a colour model (OpenCV's GrabCut models have 5).
@@ -85,36 +87,146 @@ class ColourGMM:
                                self.covariances.reshape(k, 9).ravel()])[None].astype(np.float64)
 
 
-def _component_log_densities(x: np.ndarray, gmm: ColourGMM) -> np.ndarray:
+@njit(cache=True)
+def _inverse_and_log_det(cov):
+    """(3, 3) inverse and natural log determinant of a (positive definite) 3x3 matrix."""
+    a = cov
+    c00 = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
+    c01 = a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]
+    c02 = a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]
+    det = a[0, 0] * c00 + a[0, 1] * c01 + a[0, 2] * c02
+    inv = np.empty((3, 3))
+    inv[0, 0], inv[1, 0], inv[2, 0] = c00 / det, c01 / det, c02 / det
+    inv[0, 1] = (a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2]) / det
+    inv[1, 1] = (a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]) / det
+    inv[2, 1] = (a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1]) / det
+    inv[0, 2] = (a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]) / det
+    inv[1, 2] = (a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]) / det
+    inv[2, 2] = (a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]) / det
+    return inv, np.log(abs(det))
+
+
+@njit(cache=True)
+def _gmm_from_responsibilities(x, resp):
+    """(weights (K,), means (K, 3), covariances (K, 3, 3)) of colours ``x`` (N, 3) weighted by
+    ``resp`` (N, K); a component without weight keeps mean 0 and covariance ``COV_FLOOR`` I."""
+    k = resp.shape[1]
+    n = np.zeros(k)
+    means = np.zeros((k, 3))
+    covs = np.zeros((k, 3, 3))
+    for i in range(x.shape[0]):
+        for j in range(k):
+            r = resp[i, j]
+            n[j] += r
+            for a in range(3):
+                means[j, a] += r * x[i, a]
+    total = n.sum()
+    weights = np.zeros(k)
+    for j in range(k):
+        if n[j] > 1e-9:
+            weights[j] = n[j] / total
+            means[j] /= n[j]
+        else:
+            means[j] = 0.0
+    for i in range(x.shape[0]):
+        for j in range(k):
+            if n[j] > 1e-9:
+                r = resp[i, j]
+                for a in range(3):
+                    da = r * (x[i, a] - means[j, a])
+                    for b in range(3):
+                        covs[j, a, b] += da * (x[i, b] - means[j, b])
+    for j in range(k):
+        if n[j] > 1e-9:
+            covs[j] /= n[j]
+        for a in range(3):
+            covs[j, a, a] += COV_FLOOR
+    return weights, means, covs
+
+
+@njit(cache=True)
+def _log_densities(x, weights, means, covs):
     """(N, K) ``ln(w_k N(x | mu_k, S_k))``; ``-inf`` for unused components."""
-    out = np.full((len(x), len(gmm.weights)), -np.inf)
-    for k, (w, mu, cov) in enumerate(zip(gmm.weights, gmm.means, gmm.covariances)):
-        if w <= 0:
+    n, k = x.shape[0], weights.shape[0]
+    out = np.full((n, k), -np.inf)
+    log_2pi3 = 3.0 * np.log(2.0 * np.pi)
+    for j in range(k):
+        if weights[j] <= 0:
             continue
-        inv = np.linalg.inv(cov)
-        _, logdet = np.linalg.slogdet(cov)
-        d = x - mu
-        maha = ((d @ inv) * d).sum(axis=1)
-        out[:, k] = np.log(w) - 0.5 * (maha + logdet + 3.0 * np.log(2.0 * np.pi))
+        inv, logdet = _inverse_and_log_det(covs[j])
+        const = np.log(weights[j]) - 0.5 * (logdet + log_2pi3)
+        for i in range(n):
+            d0, d1, d2 = x[i, 0] - means[j, 0], x[i, 1] - means[j, 1], x[i, 2] - means[j, 2]
+            maha = (d0 * (d0 * inv[0, 0] + d1 * inv[1, 0] + d2 * inv[2, 0])
+                    + d1 * (d0 * inv[0, 1] + d1 * inv[1, 1] + d2 * inv[2, 1])
+                    + d2 * (d0 * inv[0, 2] + d1 * inv[1, 2] + d2 * inv[2, 2]))
+            out[i, j] = const - 0.5 * maha
     return out
 
 
-def _gmm_from_responsibilities(x: np.ndarray, resp: np.ndarray) -> ColourGMM:
-    n = resp.sum(axis=0)
-    used = n > 1e-9
-    weights = np.where(used, n, 0.0) / n.sum()
-    means = np.zeros((resp.shape[1], 3))
-    covs = np.tile(np.eye(3) * COV_FLOOR, (resp.shape[1], 1, 1))
-    for k in np.nonzero(used)[0]:
-        means[k] = resp[:, k] @ x / n[k]
-        d = x - means[k]
-        covs[k] = (resp[:, k, None] * d).T @ d / n[k] + np.eye(3) * COV_FLOOR
-    return ColourGMM(weights, means, covs)
+def _component_log_densities(x: np.ndarray, gmm: ColourGMM) -> np.ndarray:
+    """(N, K) ``ln(w_k N(x | mu_k, S_k))``; ``-inf`` for unused components."""
+    return _log_densities(np.ascontiguousarray(x, np.float64), np.asarray(gmm.weights, np.float64),
+                          np.asarray(gmm.means, np.float64), np.asarray(gmm.covariances, np.float64))
 
 
-def _nearest(x: np.ndarray, centres: np.ndarray) -> np.ndarray:
-    d2 = (centres ** 2).sum(axis=1)[None, :] - 2.0 * (x @ centres.T)
-    return d2.argmin(axis=1)
+@njit(cache=True)
+def _nearest(x, centres):
+    """Index (N,) of each row's nearest centre (the first of equals)."""
+    k = centres.shape[0]
+    norms = np.zeros(k)
+    for j in range(k):
+        norms[j] = centres[j, 0] ** 2 + centres[j, 1] ** 2 + centres[j, 2] ** 2
+    lab = np.zeros(x.shape[0], np.int64)
+    for i in range(x.shape[0]):
+        best = np.inf
+        for j in range(k):
+            d = norms[j] - 2.0 * (x[i, 0] * centres[j, 0] + x[i, 1] * centres[j, 1] + x[i, 2] * centres[j, 2])
+            if d < best:
+                best, lab[i] = d, j
+    return lab
+
+
+@njit(cache=True)
+def _lloyd(x, centres, iterations):
+    """Cluster index (N,) of each row after Lloyd iterations from ``centres`` (modified)."""
+    lab = _nearest(x, centres)
+    k = centres.shape[0]
+    for _ in range(iterations):
+        sums = np.zeros((k, 3))
+        counts = np.zeros(k)
+        for i in range(x.shape[0]):
+            counts[lab[i]] += 1.0
+            for a in range(3):
+                sums[lab[i], a] += x[i, a]
+        for j in range(k):
+            if counts[j] > 0:
+                centres[j] = sums[j] / counts[j]
+        new = _nearest(x, centres)
+        if np.array_equal(new, lab):
+            break
+        lab = new
+    return lab
+
+
+@njit(cache=True)
+def _em(x, lab, components, iterations):
+    """EM of a ``components``-component GMM from the hard assignment ``lab``."""
+    resp = np.zeros((x.shape[0], components))
+    for i in range(x.shape[0]):
+        resp[i, lab[i]] = 1.0
+    weights, means, covs = _gmm_from_responsibilities(x, resp)
+    for _ in range(iterations):
+        comp = _log_densities(x, weights, means, covs)
+        for i in range(x.shape[0]):
+            top = comp[i].max()
+            s = 0.0
+            for j in range(components):
+                resp[i, j] = np.exp(comp[i, j] - top)
+                s += resp[i, j]
+            resp[i] /= s
+        weights, means, covs = _gmm_from_responsibilities(x, resp)
+    return weights, means, covs
 
 
 def _kmeans(x: np.ndarray, k: int, rng: np.random.Generator, iterations: int) -> np.ndarray:
@@ -127,18 +239,7 @@ def _kmeans(x: np.ndarray, k: int, rng: np.random.Generator, iterations: int) ->
             break
         centres.append(x[rng.choice(len(x), p=d2 / total)])
         d2 = np.minimum(d2, ((x - centres[-1]) ** 2).sum(axis=1))
-    c = np.array(centres)
-    lab = _nearest(x, c)
-    for _ in range(iterations):
-        onehot = np.zeros((len(x), len(c)))
-        onehot[np.arange(len(x)), lab] = 1.0
-        n = onehot.sum(axis=0)
-        c = np.where(n[:, None] > 0, (onehot.T @ x) / np.maximum(n, 1.0)[:, None], c)
-        new = _nearest(x, c)
-        if np.array_equal(new, lab):
-            break
-        lab = new
-    return lab
+    return _lloyd(np.ascontiguousarray(x), np.array(centres), iterations)
 
 
 def fit_colour_gmm(pixels: np.ndarray, components: int = COMPONENTS, *, max_samples: int = MAX_SAMPLES,
@@ -159,16 +260,7 @@ def fit_colour_gmm(pixels: np.ndarray, components: int = COMPONENTS, *, max_samp
     if len(x) > max_samples:
         x = x[rng.choice(len(x), max_samples, replace=False)]
     lab = _kmeans(x, components, rng, iterations=10)
-    resp = np.zeros((len(x), components))
-    resp[np.arange(len(x)), lab] = 1.0
-    gmm = _gmm_from_responsibilities(x, resp)
-    for _ in range(iterations):
-        comp = _component_log_densities(x, gmm)
-        comp -= comp.max(axis=1, keepdims=True)
-        resp = np.exp(comp)
-        resp /= resp.sum(axis=1, keepdims=True)
-        gmm = _gmm_from_responsibilities(x, resp)
-    return gmm
+    return ColourGMM(*_em(np.ascontiguousarray(x), lab, components, iterations))
 
 
 def colour_log_ratio(image_bgr: np.ndarray, plant: np.ndarray, background: np.ndarray, *,
@@ -236,10 +328,9 @@ def grabcut_with_models(image_bgr, labels: np.ndarray, plant_gmm: ColourGMM,
     GrabCut normally re-learns its models from its current labels; here they
     stay those learned from the sure pixels, so the pixels in doubt cannot
     drag the plant model towards the background. Returns the final (H, W) uint8
-    labels (``labels`` is not modified).
+    labels (``labels`` is not modified). The cut is OpenCV's, solved on the undecided
+    pixels only (:func:`~canopy_stereo.segmentation.frozen_cut.frozen_model_cut`).
     """
-    import cv2
-
     img = np.ascontiguousarray(to_bgr(image_bgr, "image"))
     lab = np.asarray(labels).astype(np.uint8).copy()
     if lab.shape != img.shape[:2]:
@@ -248,9 +339,4 @@ def grabcut_with_models(image_bgr, labels: np.ndarray, plant_gmm: ColourGMM,
     fg = (lab == GC_FGD) | (lab == GC_PR_FGD)
     if not fg.any() or fg.all() or not ((lab == GC_PR_FGD) | (lab == GC_PR_BGD)).any():
         return lab  # nothing to decide
-    try:
-        cv2.grabCut(img, lab, None, background_gmm.grabcut_model(), plant_gmm.grabcut_model(), 1,
-                    cv2.GC_EVAL_FREEZE_MODEL)
-    except cv2.error as exc:
-        raise ImageError(f"GrabCut failed on this seed: {str(exc).strip().splitlines()[-1]}") from None
-    return lab
+    return frozen_model_cut(img, lab, background_gmm.grabcut_model(), plant_gmm.grabcut_model())

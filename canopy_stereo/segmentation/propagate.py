@@ -20,8 +20,9 @@ be learned again. :class:`MaskPropagator` therefore
   a depth cue: its sure pixels follow the plant as it moves)
   and one graph cut with the propagated models kept fixed
   (:func:`~canopy_stereo.segmentation.colour_model.grabcut_with_models`, OpenCV's
-  ``GC_EVAL_FREEZE_MODEL``), at ``propagate_scale`` (default: the full cut's ``scale``;
-  lower is cheaper and coarser).
+  ``GC_EVAL_FREEZE_MODEL`` energy solved on the seed's undecided pixels only,
+  :mod:`~canopy_stereo.segmentation.frozen_cut`), at ``propagate_scale`` (default: the full
+  cut's ``scale``; lower is cheaper and coarser).
 
 Measured (``test/test_segmentation_propagate.py``; ``benchmarks/bench_graph.py``,
 ``segment`` row): on the bundled scenes the propagated masks stay within IoU 0.95 of a
@@ -155,7 +156,7 @@ class MaskPropagator:
         self.propagated += 1
         if plant.shape != (h, w):
             plant = cv2.resize(plant, (w, h), interpolation=cv2.INTER_LINEAR)
-            plant = np.where(plant >= 128, 255, 0).astype(np.uint8)
+            plant = cv2.threshold(plant, 127, 255, cv2.THRESH_BINARY)[1]  # >= 128: 255, else 0
         return plant
 
     __call__ = segment

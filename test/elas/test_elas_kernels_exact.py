@@ -331,82 +331,115 @@ def test_elas_run_at_1280x720_is_the_same_with_two_threads():
 
 
 # --------------------------------------------------------------- SIMD intrinsics
-def _quad_both():
-    """A fresh (uncached) kernel: quad_first_min next to the one-pixel-at-a-time
-    definition, so that it is compiled with the current simd.PSADBW_WIDTH."""
+def _reference_first_min():
+    """One pixel's first minimum by the definition (simd.quad_first_min's docstring)."""
     from numba import njit
 
-    from canopy_stereo.elas.simd import quad_first_min, sad_reference
+    from canopy_stereo.elas.simd import sad_reference
 
     @njit
-    def both(own, other, quads, cell, radius, window_prior):
-        n = quads.shape[0]
-        got = np.empty((n, 4), np.int64)
-        ref = np.empty((n, 4), np.int64)
+    def first_min(own, a, other, b, stride, cell, runs, w_lo, w_hi, radius, window_prior, mu,
+                  hi, flag):
+        best_e, best_d = 2147483647, -1
+        for run in (0, 2):
+            for j in range(runs[run], runs[run + 1]):
+                d = cell[j]
+                if abs(d - mu) <= radius or d > hi:
+                    continue
+                e = sad_reference(own, a, other, b + d * stride, 16)
+                if e < best_e:
+                    best_e, best_d = e, d
+        for d in range(w_lo, w_hi + 1):
+            if abs(d - mu) > radius or d > hi:
+                continue
+            e = sad_reference(own, a, other, b + d * stride, 16)
+            if flag:
+                e += window_prior[d - mu + radius]
+            if e < best_e:
+                best_e, best_d = e, d
+        return best_d
+
+    return first_min
+
+
+def _first_min_both(pixels):
+    """A fresh (uncached) kernel: quad_first_min (``pixels`` 4) or octo_first_min (8)
+    next to the one-pixel-at-a-time definition, so that it is compiled with the current
+    simd.PSADBW_WIDTH. Row ``i`` of ``groups``: own offset, other offset, stride, -,
+    mu (8), largest d (8), prior flag (8), runs (4), window (2)."""
+    from numba import njit
+
+    from canopy_stereo.elas.simd import octo_first_min, quad_first_min
+
+    reference = _reference_first_min()
+
+    @njit
+    def both(own, other, groups, cell, radius, window_prior):
+        n = groups.shape[0]
+        got = np.empty((n, pixels), np.int64)
+        ref = np.empty((n, pixels), np.int64)
+        lanes = np.empty(24, np.int32)
+        best = np.empty(8, np.int32)
         for i in range(n):
-            a, b, stride = quads[i, 0], quads[i, 1], quads[i, 2]
-            runs = quads[i, 16:20]
-            mu, hi, flag = quads[i, 4:8], quads[i, 8:12], quads[i, 12:16]
-            w_lo, w_hi = quads[i, 20], quads[i, 21]
-            got[i] = quad_first_min(own, a, other, b, stride, cell, runs[0], runs[1], runs[2],
-                                    runs[3], w_lo, w_hi, radius, window_prior, mu[0], mu[1],
-                                    mu[2], mu[3], hi[0], hi[1], hi[2], hi[3], flag[0] != 0,
-                                    flag[1] != 0, flag[2] != 0, flag[3] != 0)
-            for k in range(4):
-                best_e, best_d = 2147483647, -1
-                for run in (0, 2):
-                    for j in range(runs[run], runs[run + 1]):
-                        d = cell[j]
-                        if abs(d - mu[k]) <= radius or d > hi[k]:
-                            continue
-                        e = sad_reference(own, a + 16 * k, other, b + d * stride + 16 * k, 16)
-                        if e < best_e:
-                            best_e, best_d = e, d
-                for d in range(w_lo, w_hi + 1):
-                    if abs(d - mu[k]) > radius or d > hi[k]:
-                        continue
-                    e = sad_reference(own, a + 16 * k, other, b + d * stride + 16 * k, 16)
-                    if flag[k]:
-                        e += window_prior[d - mu[k] + radius]
-                    if e < best_e:
-                        best_e, best_d = e, d
-                ref[i, k] = best_d
+            a, b, stride = groups[i, 0], groups[i, 1], groups[i, 2]
+            mu, hi, flag = groups[i, 4:12], groups[i, 12:20], groups[i, 20:28]
+            runs = groups[i, 28:32]
+            w_lo, w_hi = groups[i, 32], groups[i, 33]
+            if pixels == 4:
+                got[i] = quad_first_min(own, a, other, b, stride, cell, runs[0], runs[1],
+                                        runs[2], runs[3], w_lo, w_hi, radius, window_prior,
+                                        mu[0], mu[1], mu[2], mu[3], hi[0], hi[1], hi[2], hi[3],
+                                        flag[0] != 0, flag[1] != 0, flag[2] != 0, flag[3] != 0)
+            else:
+                lanes[:8] = mu
+                lanes[8:16] = hi
+                lanes[16:] = flag
+                octo_first_min(own, a, other, b, stride, cell, runs[0], runs[1], runs[2],
+                               runs[3], w_lo, w_hi, radius, window_prior, lanes, best)
+                got[i] = best
+            for k in range(pixels):
+                ref[i, k] = reference(own, a + 16 * k, other, b + 16 * k, stride, cell, runs,
+                                      w_lo, w_hi, radius, window_prior, mu[k], hi[k],
+                                      flag[k] != 0)
         return got, ref
 
     return both
 
 
+@pytest.mark.parametrize("pixels", [4, 8])
 @pytest.mark.parametrize("width", [64, 32, 16, 0])
-def test_quad_first_min_equals_one_pixel_at_a_time(rng, monkeypatch, width):
-    """Four pixels' first minima over two runs of grid candidates and a window (own
-    prior, window and largest disparity per pixel, unmatched pixels), ties included, at
-    every psadbw width (0: portable IR), with the prior in a register (small radius,
-    AVX2) and in memory."""
+def test_first_min_of_four_and_eight_pixels_equals_one_pixel_at_a_time(rng, monkeypatch, width,
+                                                                       pixels):
+    """Four (eight) pixels' first minima over two runs of grid candidates and a window
+    (own prior, window and largest disparity per pixel, unmatched pixels), ties included,
+    at every psadbw width (0: portable IR), with the prior in a register (small radius,
+    AVX2 / AVX-512) and in memory."""
     from canopy_stereo.elas import simd
 
     if width > simd.PSADBW_WIDTH:
         pytest.skip(f"this CPU has no {width}-byte psadbw")
     n, span = 400, 40
     levels = 3                                         # few byte values: many equal costs
-    own = rng.integers(0, levels, 64 * n, dtype=np.uint8)
-    other = rng.integers(0, levels, 16 * (4 * span + 8), dtype=np.uint8)
+    own = rng.integers(0, levels, 16 * pixels * n, dtype=np.uint8)
+    other = rng.integers(0, levels, 16 * (4 * span + 16), dtype=np.uint8)
     cell = np.sort(rng.choice(span, 12, replace=False)).astype(np.int32)
-    quads = np.zeros((n, 22), np.int64)
-    quads[:, 0] = 64 * np.arange(n)
-    quads[:, 2] = rng.choice([-16, 16], n)
-    quads[:, 1] = np.where(quads[:, 2] < 0, 16 * (span + 2), 16 * (2 * span + 2))
-    quads[:, 4:8] = rng.integers(-5, span + 5, (n, 1)) + rng.integers(-3, 4, (n, 4))
-    quads[:, 8:12] = rng.integers(span // 2, span, (n, 1)) + np.arange(4) * rng.choice([-1, 1, 0], (n, 1))
-    quads[:, 8:12][rng.random((n, 4)) < 0.1] = -1      # pixels that are not matched
-    quads[:, 12:16] = rng.random((n, 4)) < 0.6
-    quads[:, 16:20] = np.sort(rng.integers(0, len(cell) + 1, (n, 4)), axis=1)   # two runs
-    quads[:, 20] = rng.integers(0, span // 2, n)
-    quads[:, 21] = quads[:, 20] + rng.integers(-1, 12, n)
+    groups = np.zeros((n, 34), np.int64)
+    groups[:, 0] = 16 * pixels * np.arange(n)
+    groups[:, 2] = rng.choice([-16, 16], n)
+    groups[:, 1] = np.where(groups[:, 2] < 0, 16 * (span + 2), 16 * (2 * span + 2))
+    groups[:, 4:12] = rng.integers(-5, span + 5, (n, 1)) + rng.integers(-3, 4, (n, 8))
+    groups[:, 12:20] = rng.integers(span // 2, span, (n, 1)) + \
+        np.arange(8) * rng.choice([-1, 1, 0], (n, 1))
+    groups[:, 12:20][rng.random((n, 8)) < 0.1] = -1    # pixels that are not matched
+    groups[:, 20:28] = rng.random((n, 8)) < 0.6
+    groups[:, 28:32] = np.sort(rng.integers(0, len(cell) + 1, (n, 4)), axis=1)   # two runs
+    groups[:, 32] = rng.integers(0, span // 2, n)
+    groups[:, 33] = groups[:, 32] + rng.integers(-1, 12, n)
     monkeypatch.setattr(simd, "PSADBW_WIDTH", width)
-    kernel = _quad_both()
-    for radius in (2, 3, 9):
+    kernel = _first_min_both(pixels)
+    for radius in (2, 3, 7, 9):
         table = matching.prior_table(0.02, 3.0, radius / 2.0, radius + 1)
-        got, ref = kernel(own, other, quads, cell, radius, matching.window_prior(table, radius))
+        got, ref = kernel(own, other, groups, cell, radius, matching.window_prior(table, radius))
         assert np.array_equal(got, ref), f"radius {radius}"
         assert (ref >= 0).mean() > 0.5 and (ref < 0).any()
 
@@ -704,6 +737,32 @@ def test_stable_argsort_equals_numpys_stable_sort(rng):
         assert np.array_equal(stable_argsort(keys), np.argsort(keys, kind="stable"))
     keys = rng.normal(size=777)
     assert np.array_equal(stable_argsort(keys), np.argsort(keys, kind="stable"))
+
+
+def test_first_occurrences_equal_a_plain_dictionary(rng):
+    """The hash set's first occurrences: a point's first index, found by a Python dict
+    (-0.0 is 0.0; NaN equals nothing), for grids with many duplicates, support-like
+    integer points (negative right-image columns), wide and random coordinates."""
+    from canopy_stereo.elas.sweephull import _first_occurrences
+
+    def reference(xs, ys):
+        seen, first = set(), []
+        for i, (x, y) in enumerate(zip(xs, ys)):
+            if x != x or y != y:          # NaN: a point of its own
+                first.append(i)
+            elif (x + 0.0, y + 0.0) not in seen:
+                seen.add((x + 0.0, y + 0.0))
+                first.append(i)
+        return np.array(first, np.int64)
+
+    cases = [rng.integers(0, 6, (300, 2)), rng.integers(-255, 640, (1500, 2)) * [1, 0] +
+             rng.integers(0, 480, (1500, 1)) // 5 * [0, 5], rng.normal(size=(400, 2)) * 1e6,
+             np.array([[0.0, -0.0], [-0.0, 0.0], [np.nan, 1.0], [np.nan, 1.0], [1.0, 2.0]]),
+             np.zeros((1, 2)), np.zeros((0, 2))]
+    for pts in cases:
+        pts = np.asarray(pts, np.float64)
+        xs, ys = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
+        assert np.array_equal(_first_occurrences(xs, ys), reference(xs, ys))
 
 
 def test_support_row_buffers_hold_the_same_cost_vectors(plants):
