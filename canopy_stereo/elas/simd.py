@@ -261,13 +261,29 @@ def _first_min_body(context, builder, own, other_base, stride, cell_ptr, runs, w
     def candidate(d64, window, table=None):
         """Fold the costs of disparity ``d64`` (i64) into the running minima."""
         at = builder.gep(other_base, [builder.mul(d64, stride)])
-        sums = None
-        for q, va in enumerate(own):
-            ptr = builder.bitcast(builder.gep(at, [i64(64 * q)]), v64i8.as_pointer())
-            part = _block_sums_paired(builder, va, builder.load(ptr, align=1))
-            sums = part if sums is None else builder.shuffle_vector(
-                sums, part, ir.Constant(ir.VectorType(i32, sums.type.count + 8),
-                                        list(range(sums.type.count + 8))))
+        others = [builder.load(builder.bitcast(builder.gep(at, [i64(64 * q)]),
+                                               v64i8.as_pointer()), align=1)
+                  for q in range(len(own))]
+        halves = [_block_halves(builder, va, vb) for va, vb in zip(own, others)] \
+            if len(own) == 2 else [None]
+        if halves[0] is not None:
+            # the half-sums' low dwords of both groups in one <16 x i32> (a two-source
+            # permute instead of two truncations and a concatenation), then each pixel's
+            # two halves added pairwise
+            v16i32 = ir.VectorType(i32, 16)
+            low, high = (builder.bitcast(x, v16i32) for x in halves)
+            pairs = builder.shuffle_vector(low, high,
+                                           ir.Constant(v16i32, [2 * k for k in range(16)]))
+            swapped = builder.shuffle_vector(pairs, ir.Constant(v16i32, ir.Undefined),
+                                             ir.Constant(v16i32, [k ^ 1 for k in range(16)]))
+            sums = builder.add(pairs, swapped)
+        else:
+            sums = None
+            for va, vb in zip(own, others):
+                part = _block_sums_paired(builder, va, vb)
+                sums = part if sums is None else builder.shuffle_vector(
+                    sums, part, ir.Constant(ir.VectorType(i32, sums.type.count + 8),
+                                            list(range(sums.type.count + 8))))
         dvec = _splat(builder, builder.trunc(d64, i32), n)
         t = builder.sub(dvec, mu_low)
         beyond = builder.icmp_signed(">", dvec, hi)
