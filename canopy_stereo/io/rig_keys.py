@@ -37,7 +37,8 @@ NODE_KEYS = frozenset({
     "fps", "sync_slop", "image_transport", "skew_compensation", "use_camera_info", "max_stamp_gap", "zero_stamps",
     "stamp_latency", "fixed_frame", "tf_timeout",
     # disparity_node
-    "matcher", "preset", "threads", "waiting_pairs", "roi", "roi_margin", "roi_full_every", "roi_max_share",
+    "matcher", "preset", "threads", "waiting_pairs", "parallel_pairs", "roi",
+    "roi_margin", "roi_full_every", "roi_max_share",
     # segment_node (the seeder's settings)
     "rect", "auto_init", "depth_cue", "sure_margin", "edge_px", "colour_model", "scale", "iterations", "refine",
     "min_region", "recut_every", "follow_disparity", "propagate_scale", "max_pixels", "queue_size",

@@ -30,6 +30,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField, RegionOf
 from std_msgs.msg import Header
 from stereo_msgs.msg import DisparityImage
 
+from canopy_stereo.disparity.wire import from_wire, to_wire
 from canopy_stereo.errors import ImageError
 from canopy_stereo.geometry.clouds import check_cloud
 
@@ -260,10 +261,8 @@ def disparity_to_msg(disp: np.ndarray, f: float, t: float, min_disparity: float,
         raise ImageError(f"a disparity map must be (H, W), got shape {d.shape}")
     lo, hi = float(min_disparity) - float(doffs), float(max_disparity) - float(doffs)
     # valid: finite, >= 0 and inside the range (NaN compares false; +inf is above the range)
-    valid = (d >= max(0.0, float(min_disparity))) & (d <= float(max_disparity))
-    shifted = d if float(doffs) == 0.0 else d - np.float32(doffs)
-    out = np.where(valid, shifted, np.float32(lo - 1.0)).astype(np.float32, copy=False)
-    x, y, w, h = _mask_window(valid)
+    out, (x, y, w, h) = to_wire(d, valid_min=max(0.0, float(min_disparity)), valid_max=float(max_disparity),
+                                doffs=float(doffs), fill=lo - 1.0)
     msg = DisparityImage()
     msg.header = make_header(stamp_ns, frame_id)
     msg.image = image_to_msg(out, "32FC1", stamp_ns=stamp_ns, frame_id=frame_id)
@@ -287,8 +286,7 @@ def msg_to_disparity(msg: DisparityImage) -> DisparityFrame:
     (below ``min_disparity``, above ``max_disparity`` or non-finite)."""
     img = msg_to_image(msg.image, ("32FC1",))
     lo, hi = float(msg.min_disparity), float(msg.max_disparity)
-    d = img.astype(np.float32, copy=True)
-    d[~np.isfinite(d) | (d < lo) | (d > hi)] = np.nan
+    d = from_wire(img, min_disparity=lo, max_disparity=hi)
     roi = msg.valid_window
     return DisparityFrame(
         disparity=d, f=float(msg.f), t=float(msg.t), min_disparity=lo, max_disparity=hi,

@@ -11,6 +11,11 @@ terminal link towards that neighbour's side. The energy is OpenCV's term for ter
 (``gamma = 50``; ``beta`` from the whole image's 8-neighbour colour differences; data
 terms ``-ln`` of the models' densities without the common ``(2 pi)^-3/2``), so the cut
 is the same minimum cut; pixels whose side does not change the energy (ties) may differ.
+Pixels whose terminal link outweighs all their neighbour links are settled first
+(:func:`_fix_decided`), the rest go to a Boykov-Kolmogorov max-flow (numba).
+
+:func:`learn_models` is GrabCut's learning step, so that :func:`~canopy_stereo.segmentation.grabcut.grabcut_labels`
+runs OpenCV's iterations (after OpenCV's own k-means start) with this cut.
 
 Colours are BGR (any channel order, the models' own), 0..255. Labels are OpenCV's
 GrabCut labels (:data:`~canopy_stereo.segmentation.grabcut.GC_BGD` ...).
@@ -33,40 +38,71 @@ _SQRT2 = float(np.sqrt(np.float32(2.0)))
 
 def model_terms(model: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(coefs (5,), means (5, 3), inverse covariances (5, 3, 3), 1/sqrt(det) (5,))`` of a
-    (1, 65) OpenCV GrabCut model (weights, means, covariances row-major); unused components
-    (weight 0) get zeros."""
-    m = np.asarray(model, np.float64).reshape(-1)
-    k = m.size // 13
-    coefs, means, covs = m[:k], m[k:4 * k].reshape(k, 3), m[4 * k:].reshape(k, 3, 3)
-    inv = np.zeros((k, 3, 3))
-    scale = np.zeros(k)
-    for c in range(k):
-        if coefs[c] > 0:
-            det = float(np.linalg.det(covs[c]))
-            if not det > np.finfo(np.float64).eps:
-                raise ImageError(f"colour model component {c} has a singular covariance (determinant {det:g})")
-            inv[c] = np.linalg.inv(covs[c])
-            scale[c] = 1.0 / np.sqrt(det)
+    (1, 65) OpenCV GrabCut model (weights, means, covariances row-major), computed as OpenCV
+    does (cofactors); unused components (weight 0) get zeros."""
+    m = np.ascontiguousarray(model, np.float64).reshape(-1)
+    coefs, means, inv, scale, det, bad = _model_terms_kernel(m)
+    if bad >= 0:
+        raise ImageError(f"colour model component {bad} has a singular covariance (determinant {det:g})")
     return coefs, means, inv, scale
 
 
 @njit(cache=True)
+def _model_terms_kernel(m):
+    k = m.size // 13
+    coefs, means = m[:k].copy(), m[k:4 * k].copy().reshape(k, 3)
+    inv = np.zeros((k, 3, 3))
+    scale = np.zeros(k)
+    for ci in range(k):
+        if coefs[ci] <= 0:
+            continue
+        c = m[4 * k + 9 * ci:4 * k + 9 * ci + 9]
+        det = (c[0] * (c[4] * c[8] - c[5] * c[7]) - c[1] * (c[3] * c[8] - c[5] * c[6])
+               + c[2] * (c[3] * c[7] - c[4] * c[6]))
+        if not det > 2.220446049250313e-16:
+            return coefs, means, inv, scale, det, ci
+        r = 1.0 / det
+        inv[ci, 0, 0] = (c[4] * c[8] - c[5] * c[7]) * r
+        inv[ci, 1, 0] = -(c[3] * c[8] - c[5] * c[6]) * r
+        inv[ci, 2, 0] = (c[3] * c[7] - c[4] * c[6]) * r
+        inv[ci, 0, 1] = -(c[1] * c[8] - c[2] * c[7]) * r
+        inv[ci, 1, 1] = (c[0] * c[8] - c[2] * c[6]) * r
+        inv[ci, 2, 1] = -(c[0] * c[7] - c[1] * c[6]) * r
+        inv[ci, 0, 2] = (c[1] * c[5] - c[2] * c[4]) * r
+        inv[ci, 1, 2] = -(c[0] * c[5] - c[2] * c[3]) * r
+        inv[ci, 2, 2] = (c[0] * c[4] - c[1] * c[3]) * r
+        scale[ci] = 1.0 / np.sqrt(det)
+    return coefs, means, inv, scale, 0.0, -1
+
+
+@njit(cache=True)
 def _beta(img):
-    """OpenCV GrabCut's beta: 1 / (2 mean squared colour difference of 8-neighbours)."""
+    """OpenCV GrabCut's beta: 1 / (2 mean squared colour difference of 8-neighbours) (the sum
+    in integers: exact, as OpenCV's double sum is for any image this size)."""
     h, w = img.shape[0], img.shape[1]
-    total = 0.0
+    total = 0
     for y in range(h):
-        for x in range(w):
-            for dy, dx in ((0, -1), (-1, -1), (-1, 0), (-1, 1)):
-                yy, xx = y + dy, x + dx
-                if yy < 0 or xx < 0 or xx >= w:
-                    continue
-                for c in range(3):
-                    d = float(img[y, x, c]) - float(img[yy, xx, c])
-                    total += d * d
-    if total <= 2.220446049250313e-16:
+        for x in range(1, w):  # left
+            for c in range(3):
+                d = np.int64(img[y, x, c]) - np.int64(img[y, x - 1, c])
+                total += d * d
+        if y == 0:
+            continue
+        for x in range(w):  # up
+            for c in range(3):
+                d = np.int64(img[y, x, c]) - np.int64(img[y - 1, x, c])
+                total += d * d
+        for x in range(1, w):  # up-left
+            for c in range(3):
+                d = np.int64(img[y, x, c]) - np.int64(img[y - 1, x - 1, c])
+                total += d * d
+        for x in range(w - 1):  # up-right
+            for c in range(3):
+                d = np.int64(img[y, x, c]) - np.int64(img[y - 1, x + 1, c])
+                total += d * d
+    if total == 0:
         return 0.0
-    return 1.0 / (2.0 * total / (4 * w * h - 3 * w - 3 * h + 2))
+    return 1.0 / (2.0 * float(total) / (4 * w * h - 3 * w - 3 * h + 2))
 
 
 @njit(cache=True)
@@ -277,106 +313,167 @@ def _fix_decided(nb, cap, source, sink):
     return side
 
 
+#: Parent codes of the search trees besides a direction 0..7 to the parent node.
+_TERMINAL = 8
+_ORPHAN = 9
+_NONE = -1
+
+
+@njit(cache=True)
+def _origin_ok(p, nb, parent_dir):
+    """Whether ``p``'s parent chain reaches its terminal (no orphan on the way)."""
+    u = p
+    while True:
+        d = parent_dir[u]
+        if d == _TERMINAL:
+            return True
+        if d < 0 or d == _ORPHAN:
+            return False
+        u = nb[u, d]
+
+
 @njit(cache=True)
 def _max_flow_source_side(nb, cap, source, sink):
-    """Dinic's max-flow from the source to the sink of the graph :func:`_build_graph` gives
-    (capacities updated in place); returns (n,) bool, the nodes the source still reaches in
-    the residual graph (the plant side of the minimum cut)."""
+    """Boykov-Kolmogorov max-flow from the source to the sink of the graph :func:`_build_graph`
+    gives (capacities updated in place): a source tree and a sink tree grow until they touch,
+    the path's bottleneck is pushed, the orphaned subtrees are adopted or freed. Returns (n,)
+    bool, the source tree at the end: the nodes the source still reaches in the residual
+    graph (the plant side of the minimum cut)."""
     n = nb.shape[0]
-    level = np.empty(n, np.int64)
-    queue = np.empty(n, np.int64)
-    current = np.empty(n, np.int64)
-    path = np.empty(n, np.int64)  # the direction taken from each node of the path
-    nodes = np.empty(n, np.int64)
-    roots = np.empty(n, np.int64)
-    while True:
-        level[:] = -1
-        qt = 0
-        for p in range(n):
-            if source[p] > 0:
-                level[p] = 0
-                queue[qt] = p
-                qt += 1
-        n_roots = qt
-        roots[:qt] = queue[:qt]
-        last = -1  # the level of the nearest nodes linked to the sink
-        qh = 0
-        while qh < qt:
-            u = queue[qh]
-            qh += 1
-            if sink[u] > 0 and last < 0:
-                last = level[u]
-            if last >= 0 and level[u] >= last:
-                continue
-            for k in range(8):
-                v = nb[u, k]
-                if v >= 0 and cap[u, k] > 0 and level[v] < 0:
-                    level[v] = level[u] + 1
-                    queue[qt] = v
-                    qt += 1
-        if last < 0:
-            break
-        current[:] = 0
-        for r in range(n_roots):
-            root = roots[r]
-            depth = 0
-            u = root
-            while True:
-                if level[u] == last and sink[u] > 0:  # an augmenting path: push its bottleneck
-                    f = min(source[root], sink[u])
-                    for i in range(depth):
-                        f = min(f, cap[nodes[i], path[i]])
-                    source[root] -= f
-                    sink[u] -= f
-                    back = depth
-                    for i in range(depth):
-                        a, k = nodes[i], path[i]
-                        cap[a, k] -= f
-                        cap[nb[a, k], (k + 4) % 8] += f
-                        if back == depth and cap[a, k] <= 0:
-                            back = i
-                    if source[root] <= 0:
-                        break
-                    if back < depth:  # back to the tail of the first saturated link
-                        depth = back
-                        u = nodes[back]
-                    continue  # (else the sink link saturated: u looks further, in vain)
-                k = current[u]
-                while k < 8:
-                    v = nb[u, k]
-                    if v >= 0 and cap[u, k] > 0 and level[v] == level[u] + 1 and level[u] < last:
-                        break
-                    k += 1
-                current[u] = k
-                if k < 8:
-                    nodes[depth], path[depth] = u, k
-                    depth += 1
-                    u = nb[u, k]
-                else:
-                    level[u] = -1  # a dead end in this phase
-                    if depth == 0:
-                        break
-                    depth -= 1
-                    u = nodes[depth]
-                    current[u] += 1
-    # the plant side: the nodes the source still reaches
-    reached = np.zeros(n, np.bool_)
-    qt = 0
+    tree = np.zeros(n, np.int8)
+    parent_dir = np.full(n, _NONE, np.int64)
+    queue = np.empty(n + 1, np.int64)
+    in_queue = np.zeros(n, np.bool_)
+    qh, qt, size = 0, 0, n + 1
+    orphans = np.empty(n, np.int64)
+    n_orphans = 0
     for p in range(n):
         if source[p] > 0:
-            reached[p] = True
-            queue[qt] = p
-            qt += 1
-    qh = 0
-    while qh < qt:
-        u = queue[qh]
-        qh += 1
-        for k in range(8):
-            v = nb[u, k]
-            if v >= 0 and cap[u, k] > 0 and not reached[v]:
-                reached[v] = True
-                queue[qt] = v
-                qt += 1
+            tree[p], parent_dir[p] = 1, _TERMINAL
+        elif sink[p] > 0:
+            tree[p], parent_dir[p] = 2, _TERMINAL
+        else:
+            continue
+        queue[qt] = p
+        qt = (qt + 1) % size
+        in_queue[p] = True
+    while qh != qt:
+        p = queue[qh]
+        qh = (qh + 1) % size
+        in_queue[p] = False
+        k = 0
+        while k < 8 and tree[p] != 0:
+            q = nb[p, k]
+            if q < 0:
+                k += 1
+                continue
+            o = (k + 4) % 8
+            res = cap[p, k] if tree[p] == 1 else cap[q, o]
+            if res <= 0:
+                k += 1
+                continue
+            if tree[q] == 0:
+                tree[q], parent_dir[q] = tree[p], o
+                if not in_queue[q]:
+                    queue[qt] = q
+                    qt = (qt + 1) % size
+                    in_queue[q] = True
+                k += 1
+                continue
+            if tree[q] == tree[p]:
+                k += 1
+                continue
+            # a path: source ... s -> t ... sink
+            if tree[p] == 1:
+                s, t, sk = p, q, k
+            else:
+                s, t, sk = q, p, o
+            f = cap[s, sk]
+            u = s
+            while parent_dir[u] != _TERMINAL:
+                d = parent_dir[u]
+                v = nb[u, d]
+                f = min(f, cap[v, (d + 4) % 8])
+                u = v
+            f = min(f, source[u])
+            u = t
+            while parent_dir[u] != _TERMINAL:
+                d = parent_dir[u]
+                f = min(f, cap[u, d])
+                u = nb[u, d]
+            f = min(f, sink[u])
+            cap[s, sk] -= f
+            cap[t, (sk + 4) % 8] += f
+            u = s
+            while parent_dir[u] != _TERMINAL:
+                d = parent_dir[u]
+                v = nb[u, d]
+                cap[v, (d + 4) % 8] -= f
+                cap[u, d] += f
+                if cap[v, (d + 4) % 8] <= 0:
+                    parent_dir[u] = _ORPHAN
+                    orphans[n_orphans] = u
+                    n_orphans += 1
+                u = v
+            source[u] -= f  # (u: the path's first node, its link to the source)
+            if source[u] <= 0:
+                parent_dir[u] = _ORPHAN
+                orphans[n_orphans] = u
+                n_orphans += 1
+            u = t
+            while parent_dir[u] != _TERMINAL:
+                d = parent_dir[u]
+                v = nb[u, d]
+                cap[u, d] -= f
+                cap[v, (d + 4) % 8] += f
+                if cap[u, d] <= 0:
+                    parent_dir[u] = _ORPHAN
+                    orphans[n_orphans] = u
+                    n_orphans += 1
+                u = v
+            sink[u] -= f
+            if sink[u] <= 0:
+                parent_dir[u] = _ORPHAN
+                orphans[n_orphans] = u
+                n_orphans += 1
+            # adoption
+            while n_orphans > 0:
+                n_orphans -= 1
+                a = orphans[n_orphans]
+                ta = tree[a]
+                found = -1
+                if ta == 1 and source[a] > 0 or ta == 2 and sink[a] > 0:
+                    found = _TERMINAL
+                else:
+                    for j in range(8):
+                        b = nb[a, j]
+                        if b < 0 or tree[b] != ta:
+                            continue
+                        r = cap[b, (j + 4) % 8] if ta == 1 else cap[a, j]
+                        if r > 0 and _origin_ok(b, nb, parent_dir):
+                            found = j
+                            break
+                if found >= 0:
+                    parent_dir[a] = found
+                    continue
+                for j in range(8):
+                    b = nb[a, j]
+                    if b < 0 or tree[b] != ta:
+                        continue
+                    r = cap[b, (j + 4) % 8] if ta == 1 else cap[a, j]
+                    if r > 0 and not in_queue[b]:
+                        queue[qt] = b
+                        qt = (qt + 1) % size
+                        in_queue[b] = True
+                    if parent_dir[b] == (j + 4) % 8:
+                        parent_dir[b] = _ORPHAN
+                        orphans[n_orphans] = b
+                        n_orphans += 1
+                tree[a] = 0
+                parent_dir[a] = _NONE
+    reached = np.zeros(n, np.bool_)
+    for p in range(n):
+        reached[p] = tree[p] == 1
     return reached
 
 

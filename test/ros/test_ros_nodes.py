@@ -526,3 +526,39 @@ def test_rectify_node_takes_the_rig_from_the_drivers_camera_info(harness, paper_
     PR = np.reshape(info_r[0].p, (3, 4))
     assert -PR[0, 3] / PR[0, 0] == pytest.approx(0.0296, abs=1e-4)
     assert PR[0, 0] == pytest.approx(rect.focal_length, rel=1e-6)
+
+
+def test_disparity_node_parallel_pairs_publishes_every_pair_in_stamp_order(harness, paper_rig):
+    """``parallel_pairs`` 2: pairs matched at once give the maps of one-at-a-time matching,
+    published in the order the pairs came."""
+    from canopy_stereo.disparity import compute_disparity
+    from canopy_stereo.ros.nodes.disparity import DisparityNode
+
+    node = harness.add(DisparityNode(**node_kwargs(harness, paper_rig, matcher="elas", disp_min=16, disp_max=48,
+                                                   parallel_pairs=2, waiting_pairs=8)))
+    assert node.matching.workers == 2
+    out = harness.collect(DisparityImage, "disparity")
+    pl, pr = harness.publisher(Image, "left/image_rect"), harness.publisher(Image, "right/image_rect")
+    il, ir = rect_info_publishers(harness)
+    harness.connect(pl, pr, il, ir)
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    shifts = (20, 40, 24, 36, 28, 32)
+    greys = []
+    for k, shift in enumerate(shifts):
+        left, right = textured_pair(paper_rig, shift)
+        gl, gr = cv2.cvtColor(left, cv2.COLOR_BGR2GRAY), cv2.cvtColor(right, cv2.COLOR_BGR2GRAY)
+        greys.append((gl, gr))
+        stamp = T0 + k * 33_000_000
+        publish_rect_infos(il, ir, paper_rig, rect, stamp)
+        pl.publish(convert.image_to_msg(gl, "mono8", stamp_ns=stamp, frame_id="rect"))
+        pr.publish(convert.image_to_msg(gr, "mono8", stamp_ns=stamp, frame_id="rect"))
+    assert wait_for(lambda: len(out) == len(shifts), 4 * TIMEOUT)
+    stamps = [convert.stamp_to_ns(m.header.stamp) for m in out]
+    assert stamps == [T0 + k * 33_000_000 for k in range(len(shifts))]
+    for msg, (gl, gr) in zip(out, greys):
+        alone = compute_disparity(gl, gr, matcher="elas", disp_min=16, disp_max=48)
+        wire = convert.msg_to_image(msg.image)
+        valid = np.isfinite(alone) & (alone >= 16) & (alone <= 48)
+        assert valid.mean() > 0.5 and np.array_equal(valid, wire >= msg.min_disparity)
+        np.testing.assert_allclose(wire[valid] + rect.doffs, alone[valid], atol=1e-3)
+    assert node.stats()["drops"] == {}

@@ -30,6 +30,7 @@ a node never dies from its input.
 from __future__ import annotations
 
 import functools
+import os
 import sys
 import threading
 import time
@@ -189,7 +190,8 @@ class CanopyNode(Node):
         accepts a best-effort publisher (large messages between processes may then be lost).
 
         ``with_info``: ``callback(msg, info)`` with rclpy's message info (a dict with
-        ``received_timestamp`` and ``source_timestamp``, ns; None from an intra-process bus).
+        ``received_timestamp`` and ``source_timestamp``, ns; None from an intra-process bus and in a
+        node process spinning rclpy's events executor, :func:`node_executor_kind`).
 
         With an intra-process bus, a topic that another node of the bus publishes is
         received from the bus instead (a :class:`~canopy_stereo.ros.intra_process.LocalSubscription`
@@ -213,12 +215,17 @@ class CanopyNode(Node):
                 return sub
         qos = sensor_data_qos(depth) if sensor_data else subscription_qos(depth)
         guarded = self.guarded(counted)
-        if with_info:  # rclpy passes the message info to callbacks of exactly two arguments
+        subscribed = guarded
+        # rclpy passes the message info to callbacks of exactly two arguments; its events executor
+        # has none to pass (the callback gets None: the time of the call is the receive time)
+        if with_info and _process_executor != "events":
             def with_message_info(msg, info):
                 return guarded(msg, info)
+
+            subscribed = with_message_info
         kwargs.setdefault("event_callbacks", SubscriptionEventCallbacks(
             message_lost=lambda info: self._samples_lost(topic, info)))
-        sub = self.create_subscription(msg_type, topic, with_message_info if with_info else guarded, qos,
+        sub = self.create_subscription(msg_type, topic, subscribed, qos,
                                        qos_overriding_options=QoSOverridingOptions.with_default_policies(),
                                        **kwargs)
         name = sub.topic_name
@@ -403,9 +410,9 @@ class CanopyNode(Node):
         with self._idle:
             return 0.0 if self._busy > 0 else time.monotonic() - self.last_active
 
-    def latest_only(self, fn, what: str, *, depth: int = 1) -> LatestOnly:
-        """A worker thread that runs ``fn`` on the newest submitted jobs (see :class:`LatestOnly`)."""
-        worker = LatestOnly(self, fn, what, depth)
+    def latest_only(self, fn, what: str, *, depth: int = 1, workers: int = 1) -> LatestOnly:
+        """``workers`` threads that run ``fn`` on the newest submitted jobs (see :class:`LatestOnly`)."""
+        worker = LatestOnly(self, fn, what, depth, workers=workers)
         self._workers.append(worker)
         return worker
 
@@ -434,26 +441,39 @@ class CanopyNode(Node):
 class LatestOnly:
     """Newest-frames-win processing for a node's slow stage.
 
-    The node's callbacks only pair inputs and :meth:`submit` complete jobs; a worker
-    thread runs ``fn(*job)`` (as a :meth:`CanopyNode.guarded` callback: errors are
-    drops, the node counts as busy) on the waiting jobs in order. At most ``depth`` jobs
-    wait: when another arrives the oldest waiting one is dropped as superseded. So a
-    short stall is absorbed, a camera faster than the stage gets its newest pairs
-    processed, latency stays bounded (``depth`` jobs at most wait), and the node's
-    inputs are always drained (no pair loses one of its images in a full queue).
+    The node's callbacks only pair inputs and :meth:`submit` complete jobs; ``workers``
+    threads run ``fn(*job)`` (as a :meth:`CanopyNode.guarded` callback: errors are drops,
+    the node counts as busy) on the waiting jobs in order. At most ``depth`` jobs wait:
+    when another arrives the oldest waiting one is dropped as superseded. So a short stall
+    is absorbed, a camera faster than the stage gets its newest pairs processed, latency
+    stays bounded (``depth`` jobs at most wait), and the node's inputs are always drained
+    (no pair loses one of its images in a full queue).
+
+    With several workers, consecutive jobs run at once (frame-level parallelism: no job is
+    split, so each gives the same result as on one worker). A job publishes its results
+    inside :meth:`in_turn`, which waits until every job taken before it has finished: the
+    outputs leave in the order the jobs came, whichever finishes first.
     """
 
-    def __init__(self, node: CanopyNode, fn, what: str, depth: int = 1):
+    def __init__(self, node: CanopyNode, fn, what: str, depth: int = 1, *, workers: int = 1):
         if depth < 1:
             raise ValueError(f"depth must be >= 1, got {depth}")
-        self.node, self.what, self.depth = node, what, int(depth)
+        if workers < 1:
+            raise ValueError(f"workers must be >= 1, got {workers}")
+        self.node, self.what, self.depth, self.workers = node, what, int(depth), int(workers)
         self._fn = node.guarded(fn)
         self._cond = threading.Condition()
         self._jobs: deque = deque()
-        self._calls: deque = deque()  # functions to run on the worker thread first (see call)
+        self._calls: deque = deque()  # functions to run on a worker thread first (see call)
         self._stop = False
-        self._thread = threading.Thread(target=self._run, name=f"{node.get_name()}:latest", daemon=True)
-        self._thread.start()
+        self._taken = 0  # jobs taken by the workers so far (the next job's turn number)
+        self._turn = 0  # the oldest taken job not finished yet
+        self._finished: set[int] = set()  # finished jobs after self._turn
+        self._local = threading.local()
+        self._threads = [threading.Thread(target=self._run, name=f"{node.get_name()}:latest{k or ''}", daemon=True)
+                         for k in range(self.workers)]
+        for thread in self._threads:
+            thread.start()
 
     def submit(self, *job) -> None:
         """Queue ``job`` for ``fn``; drops the oldest waiting job when ``depth`` already wait."""
@@ -468,7 +488,7 @@ class LatestOnly:
             self.node.drop("superseded by newer ones while the node was busy", self.what)
 
     def call(self, fn) -> None:
-        """Run ``fn()`` on the worker thread, before any waiting job, and return when it is done
+        """Run ``fn()`` on a worker thread, before any waiting job, and return when it is done
         (re-raising what it raised): a warm-up whose per-thread state (numba's thread pool of
         the calling thread) the jobs then find ready."""
         done, raised = threading.Event(), []
@@ -488,6 +508,11 @@ class LatestOnly:
         if raised:
             raise raised[0]
 
+    def in_turn(self):
+        """Context for a job's publishing: entered once every job taken before the calling
+        one has finished (at once with one worker, or outside a job)."""
+        return _Turn(self, getattr(self._local, "turn", None))
+
     def _run(self) -> None:
         while True:
             with self._cond:
@@ -503,23 +528,50 @@ class LatestOnly:
                         self._cond.acquire()
                     continue
                 job = self._jobs.popleft()
+                turn, self._taken = self._taken, self._taken + 1
                 # busy from here on, so that the node never looks idle with a job taken
                 with self.node._idle:
                     self.node._busy += 1
+            self._local.turn = turn
             try:
                 self._fn(*job)
             finally:
+                self._local.turn = None
+                with self._cond:
+                    self._finished.add(turn)
+                    while self._turn in self._finished:
+                        self._finished.discard(self._turn)
+                        self._turn += 1
+                    self._cond.notify_all()
                 with self.node._idle:
                     self.node._busy -= 1
                     self.node._idle.notify_all()
 
     def close(self, timeout_s: float = 30.0) -> None:
-        """Stop after the running job (waiting ones are discarded)."""
+        """Stop after the running jobs (waiting ones are discarded)."""
         with self._cond:
             self._stop = True
-            self._cond.notify()
-        if threading.current_thread() is not self._thread:
-            self._thread.join(timeout_s)
+            self._cond.notify_all()
+        for thread in self._threads:
+            if threading.current_thread() is not thread:
+                thread.join(timeout_s)
+
+
+class _Turn:
+    """:meth:`LatestOnly.in_turn`'s context: waits for the jobs taken before ``turn``."""
+
+    def __init__(self, owner: LatestOnly, turn: int | None):
+        self._owner, self._turn = owner, turn
+
+    def __enter__(self) -> None:
+        if self._turn is None:
+            return
+        owner = self._owner
+        with owner._cond:
+            owner._cond.wait_for(lambda: owner._turn >= self._turn or owner._stop)
+
+    def __exit__(self, *exc) -> None:
+        return None
 
 
 def _header_stamp_ns(msg) -> int | None:
@@ -578,6 +630,46 @@ def spin_until_interrupted(executor, context=None) -> None:
         executor.spin_once(timeout_sec=0.1)
 
 
+#: Executor of a node process (:func:`node_executor`), set by :func:`run_node` before the node is
+#: built: ``events`` or ``single`` (None outside a node executable: tests, ``canopy_graph``).
+_process_executor: str | None = None
+
+
+def events_executor_available() -> bool:
+    """Whether this rclpy has the events executor (``rclpy.experimental.EventsExecutor``)."""
+    try:
+        from rclpy.experimental import EventsExecutor  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def node_executor_kind() -> str:
+    """``events`` or ``single``: the executor a node process spins with. ``CANOPY_STEREO_EXECUTOR``
+    ``events`` (default; ``single`` where this rclpy has no events executor) or ``single``.
+
+    rclpy's events executor (C++, event queue) takes 0.5 ms of CPU per received 640x480 mono
+    image where ``SingleThreadedExecutor``, which rebuilds its wait set in Python for every wait,
+    takes 0.85-1.2 ms (more with more subscriptions, publishers and their event handlers): with a
+    dozen messages per pair across the graph, several ms per pair. It does not hand callbacks
+    rclpy's message info: such nodes take the receive time when the callback runs."""
+    choice = os.environ.get("CANOPY_STEREO_EXECUTOR", "events").strip().lower()
+    if choice not in ("events", "single"):
+        raise CanopyStereoError(f"CANOPY_STEREO_EXECUTOR must be 'events' or 'single', got {choice!r}")
+    return "events" if choice == "events" and events_executor_available() else "single"
+
+
+def node_executor(kind: str):
+    """A new executor of ``kind`` (:func:`node_executor_kind`)."""
+    if kind == "events":
+        from rclpy.experimental import EventsExecutor
+
+        return EventsExecutor()
+    from rclpy.executors import SingleThreadedExecutor
+
+    return SingleThreadedExecutor()
+
+
 def run_node(factory, args=None) -> int:
     """Entry point body of a node executable: init, build, spin until Ctrl-C/SIGTERM.
 
@@ -586,8 +678,6 @@ def run_node(factory, args=None) -> int:
     ``--params-file`` or ``--ros-args``, see :func:`~canopy_stereo.ros.context.init_ros`)
     is printed as one line and gives exit status 2.
     """
-    from rclpy.executors import SingleThreadedExecutor
-
     args = sys.argv if args is None else args
     tune_node_process(args)  # before rclpy.init: the DDS profile for this node's topics
     try:
@@ -597,9 +687,11 @@ def run_node(factory, args=None) -> int:
         return 2
     install_stop_signals()
     node = executor = None
+    global _process_executor
     try:
+        kind = _process_executor = node_executor_kind()
         node = factory()
-        executor = SingleThreadedExecutor()
+        executor = node_executor(kind)
         executor.add_node(node)
         spin_until_interrupted(executor, rclpy.get_default_context())
     except CanopyStereoError as exc:

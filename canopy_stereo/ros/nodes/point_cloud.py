@@ -59,6 +59,7 @@ from canopy_stereo.ros.convert import (
     COLOUR_ENCODINGS,
     camera_info_matrices,
     depth_to_msg,
+    disparity_to_msg,
     is_calibrated,
     msg_to_bgr,
     msg_to_disparity,
@@ -151,6 +152,7 @@ class PointCloudNode(CanopyNode):
                                                          mask=mask, organized=organized)
             records_to_cloud2(records, 1, frame_id="", organized_shape=(h, w) if organized else None)
         depth_to_msg(depth, 1, frame_id="")
+        msg_to_disparity(disparity_to_msg(disp, 500.0, 0.1, 0.0, 64.0))  # the wire conversion's kernel
 
     def _on_geometry(self, msg: String) -> None:
         try:

@@ -65,7 +65,14 @@ from stereo_msgs.msg import DisparityImage
 
 from canopy_stereo.bag.pairing import ExactTimeSynchronizer
 from canopy_stereo.errors import CanopyStereoError
-from canopy_stereo.ros.convert import COLOUR_ENCODINGS, image_to_msg, msg_to_bgr, msg_to_disparity, stamp_to_ns
+from canopy_stereo.ros.convert import (
+    COLOUR_ENCODINGS,
+    disparity_to_msg,
+    image_to_msg,
+    msg_to_bgr,
+    msg_to_disparity,
+    stamp_to_ns,
+)
 from canopy_stereo.ros.limits import SEGMENT_MIN_SIZE, check_disparity_msg, check_image_msg
 from canopy_stereo.ros.nodes.base import WARM_UP_SIZE, CanopyNode, run_node
 from canopy_stereo.segmentation.auto import VIDEO_SEEDER, decode_setting, seeder_fields
@@ -146,6 +153,7 @@ class SegmentNode(CanopyNode):
         for _ in range(2):
             mask = propagator.segment(left, disparity=disparity if self.depth_cue else None)
         image_to_msg(mask, "mono8", stamp_ns=1, frame_id="")
+        msg_to_disparity(disparity_to_msg(disparity, 500.0, 0.1, 0.0, 64.0))  # the wire conversion's kernel
 
     def _settings(self, changes: dict) -> dict:
         """``{"rect": (x, y, w, h) or None, "seeder": SeederSettings}`` of the parameters with
