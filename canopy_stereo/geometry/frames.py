@@ -290,29 +290,41 @@ def reproject_disparity(disp, Q) -> np.ndarray:
 @njit(cache=True, nogil=True, error_model="numpy")
 def _reproject_kernel(disp, mask, Q, T, organized, out, out_bits, rgb_bits):  # pragma: no cover - compiled
     # out: (H * W, C) float32 rows x, y, z[, rgb]; out_bits: the same memory as uint32;
-    # rgb_bits: (H, W) uint32 packed colours copied into column 3, or (0, 0) for none
+    # rgb_bits: (H, W) uint32 packed colours copied into column 3, or (0, 0) for none.
+    # Per row, a branch-free pass the compiler vectorises computes every pixel's point; a
+    # second pass keeps the valid ones (the same arithmetic, in the same order, as one pass).
     h, w = disp.shape
     index = np.empty(h * w, np.int32)
     depth = np.full((h, w), np.nan, np.float32)
     use_mask = mask.shape[0] == h
     with_rgb = rgb_bits.shape[0] == h
+    xs = np.empty(w, np.float32)
+    ys = np.empty(w, np.float32)
+    zs = np.empty(w, np.float32)
+    zo = np.empty(w, np.float64)
+    keep = np.empty(w, np.bool_)
+    q00, q03, q11, q13, q23, q32, q33 = Q[0, 0], Q[0, 3], Q[1, 1], Q[1, 3], Q[2, 3], Q[3, 2], Q[3, 3]
     n = 0
     for v in range(h):
+        yv = q11 * v + q13
         for u in range(w):
             d = disp[v, u]
-            ok = d > 0 and (not use_mask or mask[v, u] != 0)
-            x = y = z = 0.0
+            iw = 1.0 / (q32 * d + q33)
+            x = (q00 * u + q03) * iw
+            y = yv * iw
+            z = q23 * iw
+            zo[u] = z
+            keep[u] = (d > 0) & (z > 0) & (z < np.inf)
+            xs[u] = T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3]
+            ys[u] = T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3]
+            zs[u] = T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3]
+        for u in range(w):
+            ok = keep[u] and (not use_mask or mask[v, u] != 0)
             if ok:
-                iw = 1.0 / (Q[3, 2] * d + Q[3, 3])
-                x = (Q[0, 0] * u + Q[0, 3]) * iw
-                y = (Q[1, 1] * v + Q[1, 3]) * iw
-                z = Q[2, 3] * iw
-                ok = z > 0 and np.isfinite(z)
-            if ok:
-                depth[v, u] = z
-                out[n, 0] = T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3]
-                out[n, 1] = T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3]
-                out[n, 2] = T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3]
+                depth[v, u] = zo[u]
+                out[n, 0] = xs[u]
+                out[n, 1] = ys[u]
+                out[n, 2] = zs[u]
             elif organized:
                 out[n, 0] = out[n, 1] = out[n, 2] = np.nan
             else:
