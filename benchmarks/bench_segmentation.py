@@ -19,6 +19,12 @@ the ELAS disparity as depth cue, as ``segment --auto`` does, and ("cloud") the m
 "seeder" is the current default of the one seeder (segmentation.auto: ExG +
 depth + GrabCut, IMAGE_SEEDER) with the distance map of the same cloud; "plants"
 is segment_plants. Run:  python benchmarks/bench_segmentation.py [--seeds 2]
+
+``--video``: instead, segment_node's own work (MaskPropagator with VIDEO_SEEDER and the
+node's max_pixels) on bench_graph.py's 640x480 frames (Plants drifting, croton; Aloe with
+../shared/data): CPU ms per frame (one OpenCV thread; full cuts and propagated frames
+apart), and the propagated frames' graph cut against OpenCV's own
+``cv2.grabCut(..., GC_EVAL_FREEZE_MODEL)`` of the same seed (CPU per call, pixels that differ).
 """
 from __future__ import annotations
 
@@ -120,10 +126,60 @@ def real_plants(shared: Path) -> None:
         print(f"  Plants 710x496  {label:<7} {cov}{found}  {ms}")
 
 
+def video(scenes, n_frames: int) -> None:
+    """CPU per frame of segment_node's segmentation (see the module docstring)."""
+    import sys
+
+    sys.path.insert(0, str(REPO))
+    from benchmarks.bench_graph import bench_frames
+    from canopy_stereo.segmentation.auto import VIDEO_SEEDER, seed_labels
+    from canopy_stereo.segmentation.colour_model import grabcut_with_models
+    from canopy_stereo.segmentation.propagate import DEFAULT_MAX_PIXELS, MaskPropagator
+
+    cv2.setNumThreads(1)
+    print(f"segment_node's segmentation, {n_frames} frames of 640x480, CPU ms (one OpenCV thread)")
+    for scene in scenes:
+        _, frames = bench_frames(scene, "640x480", n_frames=n_frames)
+        MaskPropagator(settings=VIDEO_SEEDER, max_pixels=DEFAULT_MAX_PIXELS).segment(frames[0][0])  # warm-up
+        prop = MaskPropagator(settings=VIDEO_SEEDER, max_pixels=DEFAULT_MAX_PIXELS)
+        full, propagated = [], []
+        for left, _ in frames:
+            cuts = prop.full_cuts
+            t0 = time.process_time()
+            prop.segment(left)
+            (full if prop.full_cuts > cuts else propagated).append(1e3 * (time.process_time() - t0))
+        ours = opencv = 0.0
+        differ = undecided = 0
+        for left, _ in frames:
+            small = cv2.resize(left, (160, 120), interpolation=cv2.INTER_AREA)
+            seed = seed_labels(small, VIDEO_SEEDER.replace(scale=1.0))
+            t0 = time.process_time()
+            a = grabcut_with_models(small, seed, *prop._models)
+            ours += time.process_time() - t0
+            b = seed.copy()
+            t0 = time.process_time()
+            cv2.grabCut(small, b, None, prop._models[1].grabcut_model(), prop._models[0].grabcut_model(), 1,
+                        cv2.GC_EVAL_FREEZE_MODEL)
+            opencv += time.process_time() - t0
+            differ += int((a != b).sum())
+            undecided += int((seed >= 2).sum())
+        n = len(frames)
+        print(f"  {scene:<7} {np.mean(full + propagated):5.2f} ms/frame ({len(full)} full cuts "
+              f"{np.mean(full):5.1f} ms, {len(propagated)} propagated {np.mean(propagated):4.2f} ms); "
+              f"propagated cut {1e3 * ours / n:4.2f} ms vs cv2.grabCut {1e3 * opencv / n:4.2f} ms, "
+              f"{differ} of {undecided} undecided pixels differ")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=2, help="seeds per distractor scene (default 2)")
+    ap.add_argument("--video", action="store_true", help="segment_node's CPU per frame instead (see above)")
+    ap.add_argument("--frames", type=int, default=60, help="--video: frames per scene (default 60)")
     args = ap.parse_args()
+    if args.video:
+        shared = REPO.parent / "shared" / "data"
+        video(["plants", "croton"] + (["aloe"] if shared.is_dir() else []), args.frames)
+        return
     segment_plants(np.zeros((32, 32, 3), np.uint8), disparity=np.ones((32, 32)))  # warm-up (imports)
     print("simulated scenes, 640x480, depth from reconstruct_pair (ELAS); heights on the exact cloud")
     for name in ("potted_distractors", "pots_side_by_side"):

@@ -37,10 +37,11 @@ from canopy_stereo.elas.grid import candidate_ranks
 from canopy_stereo.elas.parallel import run_row_bands
 from canopy_stereo.elas.simd import (
     DESC_BYTES,
-    OCTO_LANES,
+    GROUP_LANES,
     PRIOR_REGISTER,
     PRIOR_REGISTER_WIDE,
     PSADBW_WIDTH,
+    hexa_first_min,
     octo_first_min,
     quad_first_min,
     sad16,
@@ -50,10 +51,11 @@ from canopy_stereo.elas.simd import (
 MATCH_BORDER = 2
 #: Marks "no candidate yet" in the cost accumulators.
 _NO_COST = np.int32(2147483647)
-#: Eight pixels per call (:func:`~canopy_stereo.elas.simd.octo_first_min`) where the CPU
-#: has 64-byte ``psadbw`` (AVX-512BW); else four (the two candidate SADs would cost four
-#: 32-byte instructions, and the prior would not fit in a register).
-_EIGHT_PIXELS = PSADBW_WIDTH == 64
+#: Sixteen or eight pixels per call (:func:`~canopy_stereo.elas.simd.hexa_first_min`,
+#: :func:`~canopy_stereo.elas.simd.octo_first_min`) where the CPU has 64-byte ``psadbw``
+#: (AVX-512BW); else four (each 64-byte SAD would cost two or four instructions, and the
+#: prior would not fit in a register).
+_GROUPS = PSADBW_WIDTH == 64
 
 
 def prior_table(beta: float, gamma: float, sigma: float, size: int) -> np.ndarray:
@@ -118,8 +120,8 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
     n_ranks = grid_ranks.shape[2]
     lane_best = np.empty(4, np.int64)
     lane_hi = np.empty(4, np.int64)
-    lanes = np.empty(3 * OCTO_LANES, np.int32)     # eight pixels: mu, largest d, prior flag
-    lane_out = np.empty(OCTO_LANES, np.int32)
+    lanes = np.empty(3 * GROUP_LANES, np.int32)    # a group's mu, largest d, prior flag
+    lane_out = np.empty(GROUP_LANES, np.int32)
     # matched columns x = u - sign*d must satisfy MATCH_BORDER <= x < w - MATCH_BORDER
     n_cells = grid_counts.shape[1]
     for r in range(row_start, row_stop):
@@ -140,15 +142,16 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
             u_stop = min((gx + 1) * grid_size, w - MATCH_BORDER)
             u = u_first
             while u < u_stop:
-                # ---- eight pixels u .. u+7 at once (AVX-512): as the four below, with the
-                # lanes' predictions, largest disparities and prior flags in `lanes`
-                if _EIGHT_PIXELS and step == 1 and u + OCTO_LANES <= u_stop and v >= 1 \
-                        and v < h - 1:
+                # ---- sixteen or eight pixels u .. u+n-1 at once (AVX-512): as the four
+                # below, with the pixels' predictions, largest disparities and prior flags in
+                # `lanes` (rows of GROUP_LANES entries)
+                if _GROUPS and step == 1 and u + 8 <= u_stop and v >= 1 and v < h - 1:
+                    n = 16 if u + 16 <= u_stop else 8
                     n_on = 0
                     mu_lo = 2147483647
                     mu_hi = -2147483648
                     hi_max = -1
-                    for k in range(OCTO_LANES):
+                    for k in range(n):
                         t = tri_row[u + k]
                         if t >= 0 and tex_row[u + k] >= match_texture:
                             mu_k = int(planes[t, 0] * (u + k) + planes[t, 1] * v + planes[t, 2])
@@ -159,19 +162,19 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
                                 min(disp_max, w - MATCH_BORDER - 1 - u - k)
                             hi_max = max(hi_max, hi_k)
                             lanes[k] = mu_k
-                            lanes[OCTO_LANES + k] = hi_k
-                            lanes[2 * OCTO_LANES + k] = plane_valid[t]
+                            lanes[GROUP_LANES + k] = hi_k
+                            lanes[2 * GROUP_LANES + k] = plane_valid[t]
                         else:
-                            lanes[OCTO_LANES + k] = -1
-                            lanes[2 * OCTO_LANES + k] = 0
+                            lanes[GROUP_LANES + k] = -1
+                            lanes[2 * GROUP_LANES + k] = 0
                     if n_on == 0:
-                        u += OCTO_LANES     # none of the eight is matched
+                        u += n          # none of them is matched
                         continue
-                    if n_on < OCTO_LANES:
+                    if n_on < n:
                         # a pixel that is not matched takes a prediction of the others
                         # (within [mu_lo, mu_hi]: the union of windows stays as small)
-                        for k in range(OCTO_LANES):
-                            if lanes[OCTO_LANES + k] < 0:
+                        for k in range(n):
+                            if lanes[GROUP_LANES + k] < 0:
                                 lanes[k] = mu_lo
                     first = np.int64(flat_ranks[ranks + min(disp_min, n_ranks - 1)])
                     stop = np.int64(flat_ranks[ranks + min(hi_max + 1, n_ranks - 1)])
@@ -181,19 +184,27 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
                     below = min(max(below, first), stop)
                     above = min(max(above, below), stop)
                     a0 = row + u * DESC_BYTES
-                    octo_first_min(flat_own, a0, flat_other, a0, -sign * DESC_BYTES, flat_lists,
-                                   cell + first, cell + below, cell + above, cell + stop,
-                                   max(mu_lo - radius, disp_min), min(mu_hi + radius, hi_max),
-                                   radius, prior_window, lanes, lane_out)
-                    for k in range(OCTO_LANES):
+                    w_lo = max(mu_lo - radius, disp_min)
+                    w_hi = min(mu_hi + radius, hi_max)
+                    if n == 16:
+                        hexa_first_min(flat_own, a0, flat_other, a0, -sign * DESC_BYTES,
+                                       flat_lists, cell + first, cell + below, cell + above,
+                                       cell + stop, w_lo, w_hi, radius, prior_window, lanes,
+                                       lane_out)
+                    else:
+                        octo_first_min(flat_own, a0, flat_other, a0, -sign * DESC_BYTES,
+                                       flat_lists, cell + first, cell + below, cell + above,
+                                       cell + stop, w_lo, w_hi, radius, prior_window, lanes,
+                                       lane_out)
+                    for k in range(n):
                         best_d = lane_out[k]
                         if best_d >= 0:
                             out_row[u + k] = np.float32(best_d)
                             if subpixel:
                                 _subpixel_offset(flat_own, flat_other, row + (u + k) * DESC_BYTES,
-                                                 sign, best_d, disp_min, lanes[OCTO_LANES + k],
+                                                 sign, best_d, disp_min, lanes[GROUP_LANES + k],
                                                  off_row, u + k)
-                    u += OCTO_LANES
+                    u += n
                     continue
                 # ---- four pixels u .. u+3 at once: every candidate of any of the four is
                 # one 64-byte SAD, each pixel's own candidates unmasked (its window, prior

@@ -325,8 +325,6 @@ def _adaptive_mean_rows(disp, linear, before, after, rows, row_start, row_stop):
         centre = disp[v]
         for u in range(w):
             line[before + u] = centre[u]
-            s[u] = 0.0
-            sw[u] = 0.0
         if not linear:      # sixteen pixels at a time in registers, the rest as below
             done = w - w % MEAN_LANES
             for u in range(0, done, MEAN_LANES):
@@ -334,6 +332,9 @@ def _adaptive_mean_rows(disp, linear, before, after, rows, row_start, row_stop):
             for u in range(done, w):
                 rows[v, u] = _step_mean_pixel(line, u, 1, before + after + 1, centre[u])
             continue
+        for u in range(w):
+            s[u] = 0.0
+            sw[u] = 0.0
         for k in range(before + after + 1):
             tap = line[k:k + w]
             for u in range(w):

@@ -212,6 +212,17 @@ PRIOR_REGISTER = 8
 PRIOR_REGISTER_WIDE = 16
 
 
+def _concat(builder, parts):
+    """One vector of the lanes of ``parts`` (vectors of one type, a power-of-two count), in
+    order, joined pairwise."""
+    while len(parts) > 1:
+        n = parts[0].type.count
+        mask = ir.Constant(ir.VectorType(ir.IntType(32), 2 * n), list(range(2 * n)))
+        parts = [builder.shuffle_vector(parts[k], parts[k + 1], mask)
+                 for k in range(0, len(parts), 2)]
+    return parts[0]
+
+
 def _first_min_body(context, builder, own, other_base, stride, cell_ptr, runs, window, radius,
                     prior_ptr, mu, hi, flag):
     """The candidate loops of :func:`quad_first_min` / :func:`octo_first_min`.
@@ -236,20 +247,23 @@ def _first_min_body(context, builder, own, other_base, stride, cell_ptr, runs, w
     big = ir.Constant(vni32, [2147483647] * n)
     best_e = cgutils.alloca_once_value(builder, big)
     best_d = cgutils.alloca_once_value(builder, ir.Constant(vni32, [-1] * n))
-    # the prior in one register: AVX2 vpermd (8 lanes), AVX-512 vpermd (16 lanes)
-    if n == 8 and PSADBW_WIDTH >= 32:
-        permute, entries = "llvm.x86.avx2.permd", PRIOR_REGISTER
-    elif n == 16 and PSADBW_WIDTH == 64:
-        permute, entries = "llvm.x86.avx512.permvar.si.512", PRIOR_REGISTER_WIDE
+    # the prior in one register: vpermd on 16 lanes at a time (AVX-512) or 8 (AVX2)
+    if n % 16 == 0 and PSADBW_WIDTH == 64:
+        permute, entries, part = "llvm.x86.avx512.permvar.si.512", PRIOR_REGISTER_WIDE, 16
+    elif n == 8 and PSADBW_WIDTH >= 32:
+        permute, entries, part = "llvm.x86.avx2.permd", PRIOR_REGISTER, 8
     else:
-        permute, entries = None, 0
-    permd = None if permute is None else _llvm_function(builder.module, permute, vni32,
-                                                        [vni32, vni32])
+        permute, entries, part = None, 0, 1
+    vpart = ir.VectorType(i32, part)
+    permd = None if permute is None else _llvm_function(builder.module, permute, vpart,
+                                                        [vpart, vpart])
 
     def prior_lookup(index, table):
         """``prior_window[index]`` per lane (``index`` <n x i32>, every lane <= 2r)."""
-        if table is not None:       # one register permute: the table in a register
-            return builder.call(permd, [table, index])
+        if table is not None:       # register permutes: the table in a register
+            return _concat(builder, [builder.call(permd, [table, builder.shuffle_vector(
+                index, ir.Constant(vni32, ir.Undefined),
+                ir.Constant(vpart, list(range(k, k + part))))]) for k in range(0, n, part)])
         bonus = ir.Constant(vni32, ir.Undefined)
         for lane in range(0, n, 2):
             item = builder.sext(builder.extract_element(index, i32(lane)), i64)
@@ -261,13 +275,26 @@ def _first_min_body(context, builder, own, other_base, stride, cell_ptr, runs, w
     def candidate(d64, window, table=None):
         """Fold the costs of disparity ``d64`` (i64) into the running minima."""
         at = builder.gep(other_base, [builder.mul(d64, stride)])
-        sums = None
-        for q, va in enumerate(own):
-            ptr = builder.bitcast(builder.gep(at, [i64(64 * q)]), v64i8.as_pointer())
-            part = _block_sums_paired(builder, va, builder.load(ptr, align=1))
-            sums = part if sums is None else builder.shuffle_vector(
-                sums, part, ir.Constant(ir.VectorType(i32, sums.type.count + 8),
-                                        list(range(sums.type.count + 8))))
+        others = [builder.load(builder.bitcast(builder.gep(at, [i64(64 * q)]),
+                                               v64i8.as_pointer()), align=1)
+                  for q in range(len(own))]
+        halves = [_block_halves(builder, va, vb) for va, vb in zip(own, others)] \
+            if len(own) % 2 == 0 else [None]
+        if halves[0] is not None:
+            # the half-sums' low dwords of two groups in one <16 x i32> (a two-source
+            # permute instead of two truncations and a concatenation), then each pixel's
+            # two halves added pairwise
+            v16i32 = ir.VectorType(i32, 16)
+            low_dwords = ir.Constant(v16i32, [2 * k for k in range(16)])
+            pairs = _concat(builder, [builder.shuffle_vector(
+                builder.bitcast(halves[q], v16i32), builder.bitcast(halves[q + 1], v16i32),
+                low_dwords) for q in range(0, len(halves), 2)])
+            swapped = builder.shuffle_vector(pairs, ir.Constant(vni32, ir.Undefined),
+                                             ir.Constant(vni32, [k ^ 1 for k in range(n)]))
+            sums = builder.add(pairs, swapped)
+        else:
+            sums = _concat(builder, [_block_sums_paired(builder, va, vb)
+                                     for va, vb in zip(own, others)])
         dvec = _splat(builder, builder.trunc(d64, i32), n)
         t = builder.sub(dvec, mu_low)
         beyond = builder.icmp_signed(">", dvec, hi)
@@ -301,7 +328,7 @@ def _first_min_body(context, builder, own, other_base, stride, cell_ptr, runs, w
                                     i64(entries))
         with builder.if_else(small) as (in_register, in_memory):
             with in_register:
-                table = builder.load(builder.bitcast(prior_ptr, vni32.as_pointer()), align=4)
+                table = builder.load(builder.bitcast(prior_ptr, vpart.as_pointer()), align=4)
                 window_loop(table)
             with in_memory:
                 window_loop(None)
@@ -399,59 +426,73 @@ def quad_first_min(typingctx, own, offset_own, other, offset_other, stride, cell
     return sig, codegen
 
 
-#: Pixels per call of :func:`octo_first_min`.
-OCTO_LANES = 8
+#: Entries per row of the ``lanes`` array of :func:`octo_first_min` / :func:`hexa_first_min`.
+GROUP_LANES = 16
 
 
-@intrinsic
-def octo_first_min(typingctx, own, offset_own, other, offset_other, stride, cell, first0, stop0,
-                   first1, stop1, window_lo, window_hi, radius, prior, lanes, best):
-    """:func:`quad_first_min` of eight neighbouring pixels (two groups of four side by
-    side: two 64-byte SADs per candidate, the eight running minima in one 16-lane vector).
+def _group_first_min(pixels: int):
+    """The first-minimum intrinsic of ``pixels`` (8 or 16) neighbouring pixels."""
 
-    Pixel ``k`` (0..7) has the descriptor at ``own[offset_own + 16 k]`` and its match at
-    ``other[offset_other + d * stride + 16 k]``; ``lanes`` (int32, 24 entries) holds the
-    plane predictions ``mu_k`` (entries 0..7), largest disparities ``hi_k`` (8..15, -1:
-    not matched) and prior flags (16..23, non-zero: the prior applies). The candidates,
-    their order and costs are those of :func:`quad_first_min`; each pixel's disparity is
-    written to ``best[k]`` (int32, -1 where it has no candidate). ``prior`` holds at
-    least ``max(2 radius + 1, PRIOR_REGISTER_WIDE)`` entries (with AVX-512 and
-    ``2 radius + 1`` at most :data:`PRIOR_REGISTER_WIDE` it is looked up in a register).
-    No bounds checking.
+    def group_first_min(typingctx, own, offset_own, other, offset_other, stride, cell, first0,
+                        stop0, first1, stop1, window_lo, window_hi, radius, prior, lanes, best):
+        ints = (stride, first0, stop0, first1, stop1, window_lo, window_hi, radius)
+        if not _first_min_types(own, offset_own, other, offset_other, ints,
+                                (cell, prior, lanes, best)):
+            return None
+        sig = types.void(own, offset_own, other, offset_other, stride, cell, first0, stop0,
+                         first1, stop1, window_lo, window_hi, radius, prior, lanes, best)
+
+        def codegen(context, builder, signature, args):
+            i8, i32 = ir.IntType(8), ir.IntType(32)
+            v_pixels, v_lanes = ir.VectorType(i32, pixels), ir.VectorType(i32, 2 * pixels)
+            scalar, data = _first_min_args(context, builder, signature.args, args)
+            own_at = builder.gep(data(0), [scalar(1)])
+            own = [builder.load(builder.bitcast(builder.gep(own_at, [ir.IntType(64)(64 * q)]),
+                                                ir.VectorType(i8, 64).as_pointer()), align=1)
+                   for q in range(pixels // 4)]
+            lane_data = data(14)
+
+            def lane_vector(first):     # pixel k in lanes 2k and 2k + 1
+                at = builder.gep(lane_data, [ir.IntType(64)(first)])
+                vec = builder.load(builder.bitcast(at, v_pixels.as_pointer()), align=4)
+                return builder.shuffle_vector(vec, ir.Constant(v_pixels, ir.Undefined),
+                                              ir.Constant(v_lanes,
+                                                          [k // 2 for k in range(2 * pixels)]))
+
+            runs, window = _run_arguments(scalar)
+            result = _first_min_body(context, builder, own, builder.gep(data(2), [scalar(3)]),
+                                     scalar(4), data(5), runs, window, scalar(12, types.int32),
+                                     data(13), lane_vector(0), lane_vector(GROUP_LANES),
+                                     lane_vector(2 * GROUP_LANES))
+            even = builder.shuffle_vector(result, ir.Constant(v_lanes, ir.Undefined),
+                                          ir.Constant(v_pixels, [2 * k for k in range(pixels)]))
+            builder.store(even, builder.bitcast(data(15), v_pixels.as_pointer()), align=4)
+            return context.get_dummy_value()
+
+        return sig, codegen
+
+    group_first_min.__name__ = group_first_min.__qualname__ = \
+        {8: "octo_first_min", 16: "hexa_first_min"}[pixels]
+    group_first_min.__doc__ = f""":func:`quad_first_min` of {pixels} neighbouring pixels
+    ({pixels // 4} groups of four side by side: {pixels // 4} 64-byte SADs per candidate, the
+    running minima in one {2 * pixels}-lane vector).
+
+    Pixel ``k`` (0..{pixels - 1}) has the descriptor at ``own[offset_own + 16 k]`` and its
+    match at ``other[offset_other + d * stride + 16 k]``; ``lanes`` (int32, 3 x
+    :data:`GROUP_LANES` entries) holds the plane predictions ``mu_k`` (entry ``k``), largest
+    disparities ``hi_k`` (``GROUP_LANES + k``, -1: not matched) and prior flags
+    (``2 GROUP_LANES + k``, non-zero: the prior applies). The candidates, their order and
+    costs are those of :func:`quad_first_min`; each pixel's disparity is written to
+    ``best[k]`` (int32, -1 where it has no candidate). ``prior`` holds at least
+    ``max(2 radius + 1, PRIOR_REGISTER_WIDE)`` entries (with AVX-512 and ``2 radius + 1`` at
+    most :data:`PRIOR_REGISTER_WIDE` it is looked up in a register). No bounds checking.
     """
-    ints = (stride, first0, stop0, first1, stop1, window_lo, window_hi, radius)
-    if not _first_min_types(own, offset_own, other, offset_other, ints,
-                            (cell, prior, lanes, best)):
-        return None
-    sig = types.void(own, offset_own, other, offset_other, stride, cell, first0, stop0, first1,
-                     stop1, window_lo, window_hi, radius, prior, lanes, best)
+    return intrinsic(group_first_min)
 
-    def codegen(context, builder, signature, args):
-        i8, i32 = ir.IntType(8), ir.IntType(32)
-        v8i32, v16i32 = ir.VectorType(i32, 8), ir.VectorType(i32, 16)
-        scalar, data = _first_min_args(context, builder, signature.args, args)
-        own_at = builder.gep(data(0), [scalar(1)])
-        own = [builder.load(builder.bitcast(builder.gep(own_at, [ir.IntType(64)(64 * q)]),
-                                            ir.VectorType(i8, 64).as_pointer()), align=1)
-               for q in range(2)]
-        lane_data = data(14)
 
-        def lane_vector(first):     # pixel k in lanes 2k and 2k + 1
-            at = builder.gep(lane_data, [ir.IntType(64)(first)])
-            vec = builder.load(builder.bitcast(at, v8i32.as_pointer()), align=4)
-            return builder.shuffle_vector(vec, ir.Constant(v8i32, ir.Undefined),
-                                          ir.Constant(v16i32, [k // 2 for k in range(16)]))
-
-        runs, window = _run_arguments(scalar)
-        result = _first_min_body(context, builder, own, builder.gep(data(2), [scalar(3)]),
-                                 scalar(4), data(5), runs, window, scalar(12, types.int32),
-                                 data(13), lane_vector(0), lane_vector(8), lane_vector(16))
-        even = builder.shuffle_vector(result, ir.Constant(v16i32, ir.Undefined),
-                                      ir.Constant(v8i32, [2 * k for k in range(8)]))
-        builder.store(even, builder.bitcast(data(15), v8i32.as_pointer()), align=4)
-        return context.get_dummy_value()
-
-    return sig, codegen
+#: Eight and sixteen pixels per call (see :func:`_group_first_min`).
+octo_first_min = _group_first_min(8)
+hexa_first_min = _group_first_min(16)
 
 
 @intrinsic

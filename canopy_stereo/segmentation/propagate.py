@@ -28,10 +28,11 @@ Measured (``test/test_segmentation_propagate.py``; ``benchmarks/bench_graph.py``
 ``segment`` row): on the bundled scenes the propagated masks stay within IoU 0.95 of a
 full GrabCut of the same frame (croton, 4 frames of breeze: >= 0.98; the real Plants pair
 with sensor noise: >= 0.97; the Plants crop drifting 1.3 px a frame: 0.98 on average,
-0.93 at worst; a rectangle seed, which says nothing about colours, 0.88); CPU per 640x480 frame drops from about 18 ms
-to about 6 ms on propagated
-frames, 8-9 ms on average with ``recut_every`` 10 (a full cut and a model fit cost about
-27 ms).
+0.93 at worst; a rectangle seed, which says nothing about colours, 0.88). CPU per 640x480
+frame (``benchmarks/bench_segmentation.py --video``, loaded): about 2-3 ms on propagated frames,
+4-5 ms on average with ``recut_every`` 10 (a full cut and the model fits cost about 19-21 ms);
+every graph cut is solved on the seed's undecided pixels only
+(:mod:`~canopy_stereo.segmentation.frozen_cut`).
 
 At HD the same ``scale`` would cut 4 to 9 times as many pixels; ``max_pixels`` caps the
 processing resolution instead (:func:`capped_scale`): the node's default, :data:`DEFAULT_MAX_PIXELS`,

@@ -363,13 +363,13 @@ def _reference_first_min():
 
 
 def _first_min_both(pixels):
-    """A fresh (uncached) kernel: quad_first_min (``pixels`` 4) or octo_first_min (8)
-    next to the one-pixel-at-a-time definition, so that it is compiled with the current
-    simd.PSADBW_WIDTH. Row ``i`` of ``groups``: own offset, other offset, stride, -,
-    mu (8), largest d (8), prior flag (8), runs (4), window (2)."""
+    """A fresh (uncached) kernel: quad_first_min (``pixels`` 4), octo_first_min (8) or
+    hexa_first_min (16) next to the one-pixel-at-a-time definition, so that it is compiled
+    with the current simd.PSADBW_WIDTH. Row ``i`` of ``groups``: own offset, other offset,
+    stride, -, mu (16), largest d (16), prior flag (16), runs (4), window (2)."""
     from numba import njit
 
-    from canopy_stereo.elas.simd import octo_first_min, quad_first_min
+    from canopy_stereo.elas.simd import GROUP_LANES, hexa_first_min, octo_first_min, quad_first_min
 
     reference = _reference_first_min()
 
@@ -378,63 +378,71 @@ def _first_min_both(pixels):
         n = groups.shape[0]
         got = np.empty((n, pixels), np.int64)
         ref = np.empty((n, pixels), np.int64)
-        lanes = np.empty(24, np.int32)
-        best = np.empty(8, np.int32)
+        lanes = np.zeros(3 * GROUP_LANES, np.int32)
+        best = np.empty(GROUP_LANES, np.int32)
         for i in range(n):
             a, b, stride = groups[i, 0], groups[i, 1], groups[i, 2]
-            mu, hi, flag = groups[i, 4:12], groups[i, 12:20], groups[i, 20:28]
-            runs = groups[i, 28:32]
-            w_lo, w_hi = groups[i, 32], groups[i, 33]
+            mu, hi, flag = groups[i, 4:20], groups[i, 20:36], groups[i, 36:52]
+            runs = groups[i, 52:56]
+            w_lo, w_hi = groups[i, 56], groups[i, 57]
             if pixels == 4:
                 got[i] = quad_first_min(own, a, other, b, stride, cell, runs[0], runs[1],
                                         runs[2], runs[3], w_lo, w_hi, radius, window_prior,
                                         mu[0], mu[1], mu[2], mu[3], hi[0], hi[1], hi[2], hi[3],
                                         flag[0] != 0, flag[1] != 0, flag[2] != 0, flag[3] != 0)
-            else:
-                lanes[:8] = mu
-                lanes[8:16] = hi
-                lanes[16:] = flag
+                continue
+            for k in range(pixels):
+                lanes[k] = mu[k]
+                lanes[GROUP_LANES + k] = hi[k]
+                lanes[2 * GROUP_LANES + k] = flag[k]
+            if pixels == 8:
                 octo_first_min(own, a, other, b, stride, cell, runs[0], runs[1], runs[2],
                                runs[3], w_lo, w_hi, radius, window_prior, lanes, best)
-                got[i] = best
+            else:
+                hexa_first_min(own, a, other, b, stride, cell, runs[0], runs[1], runs[2],
+                               runs[3], w_lo, w_hi, radius, window_prior, lanes, best)
+            got[i] = best[:pixels]
+        for i in range(n):
+            a, b, stride = groups[i, 0], groups[i, 1], groups[i, 2]
+            runs = groups[i, 52:56]
             for k in range(pixels):
                 ref[i, k] = reference(own, a + 16 * k, other, b + 16 * k, stride, cell, runs,
-                                      w_lo, w_hi, radius, window_prior, mu[k], hi[k],
-                                      flag[k] != 0)
+                                      groups[i, 56], groups[i, 57], radius, window_prior,
+                                      groups[i, 4 + k], groups[i, 20 + k], groups[i, 36 + k] != 0)
         return got, ref
 
     return both
 
 
-@pytest.mark.parametrize("pixels", [4, 8])
+@pytest.mark.parametrize("pixels", [4, 8, 16])
 @pytest.mark.parametrize("width", [64, 32, 16, 0])
-def test_first_min_of_four_and_eight_pixels_equals_one_pixel_at_a_time(rng, monkeypatch, width,
-                                                                       pixels):
-    """Four (eight) pixels' first minima over two runs of grid candidates and a window
-    (own prior, window and largest disparity per pixel, unmatched pixels), ties included,
-    at every psadbw width (0: portable IR), with the prior in a register (small radius,
-    AVX2 / AVX-512) and in memory."""
+def test_first_min_of_four_to_sixteen_pixels_equals_one_pixel_at_a_time(rng, monkeypatch, width,
+                                                                        pixels):
+    """Four (eight, sixteen) pixels' first minima over two runs of grid candidates and a
+    window (own prior, window and largest disparity per pixel, unmatched pixels), ties
+    included, at every psadbw width (0: portable IR), with the prior in a register (small
+    radius, AVX2 / AVX-512) and in memory."""
     from canopy_stereo.elas import simd
 
     if width > simd.PSADBW_WIDTH:
         pytest.skip(f"this CPU has no {width}-byte psadbw")
-    n, span = 400, 40
+    n, span = 300, 40
     levels = 3                                         # few byte values: many equal costs
     own = rng.integers(0, levels, 16 * pixels * n, dtype=np.uint8)
-    other = rng.integers(0, levels, 16 * (4 * span + 16), dtype=np.uint8)
+    other = rng.integers(0, levels, 16 * (4 * span + 24), dtype=np.uint8)
     cell = np.sort(rng.choice(span, 12, replace=False)).astype(np.int32)
-    groups = np.zeros((n, 34), np.int64)
+    groups = np.zeros((n, 58), np.int64)
     groups[:, 0] = 16 * pixels * np.arange(n)
     groups[:, 2] = rng.choice([-16, 16], n)
     groups[:, 1] = np.where(groups[:, 2] < 0, 16 * (span + 2), 16 * (2 * span + 2))
-    groups[:, 4:12] = rng.integers(-5, span + 5, (n, 1)) + rng.integers(-3, 4, (n, 8))
-    groups[:, 12:20] = rng.integers(span // 2, span, (n, 1)) + \
-        np.arange(8) * rng.choice([-1, 1, 0], (n, 1))
-    groups[:, 12:20][rng.random((n, 8)) < 0.1] = -1    # pixels that are not matched
-    groups[:, 20:28] = rng.random((n, 8)) < 0.6
-    groups[:, 28:32] = np.sort(rng.integers(0, len(cell) + 1, (n, 4)), axis=1)   # two runs
-    groups[:, 32] = rng.integers(0, span // 2, n)
-    groups[:, 33] = groups[:, 32] + rng.integers(-1, 12, n)
+    groups[:, 4:20] = rng.integers(-5, span + 5, (n, 1)) + rng.integers(-3, 4, (n, 16))
+    groups[:, 20:36] = rng.integers(span // 2, span, (n, 1)) + \
+        np.arange(16) * rng.choice([-1, 1, 0], (n, 1)) // 2
+    groups[:, 20:36][rng.random((n, 16)) < 0.1] = -1    # pixels that are not matched
+    groups[:, 36:52] = rng.random((n, 16)) < 0.6
+    groups[:, 52:56] = np.sort(rng.integers(0, len(cell) + 1, (n, 4)), axis=1)   # two runs
+    groups[:, 56] = rng.integers(0, span // 2, n)
+    groups[:, 57] = groups[:, 56] + rng.integers(-1, 12, n)
     monkeypatch.setattr(simd, "PSADBW_WIDTH", width)
     kernel = _first_min_both(pixels)
     for radius in (2, 3, 7, 9):

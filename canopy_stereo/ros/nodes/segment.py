@@ -29,7 +29,7 @@ node's parameters, with their ranges (changeable at run time unless noted):
   its values). When the cameras outpace the matcher, the frames it skips get no cloud, and now
   no mask either: the segmentation's CPU goes to the frames that become clouds (a mask then
   comes after its disparity: the cloud's latency grows by the segmentation time, about
-  10 ms at 640x480). Images wait up to ``FOLLOW_QUEUE`` frames for their disparity;
+  4 ms of CPU at 640x480 plus receiving and publishing). Images wait up to ``FOLLOW_QUEUE`` frames for their disparity;
 * ``sure_margin``, ``edge_px``, ``colour_model``, ``refine``, ``min_region``: see
   :class:`~canopy_stereo.segmentation.SeederSettings` (-1 / ``auto`` = its None);
 * ``iterations``: GrabCut iterations;
