@@ -777,6 +777,9 @@ def main(argv=None) -> int:
     p.add_argument("--param", action="append", default=[], metavar="NODE:NAME=VALUE",
                    help="a node parameter for every configuration (repeatable), e.g. "
                         "disparity_node:elas.subsampling=true, segment_node:recut_every=1")
+    p.add_argument("--repeat", type=int, default=1, metavar="N",
+                   help="run every configuration N times (rounds over all of them, so that a passing load "
+                        "spreads over all) and print the median of each figure per configuration")
     p.add_argument("--json", metavar="OUT.json", help="also write the results as JSON")
     p.add_argument("--no-intra-process", action="store_true",
                    help="inprocess: DDS between the nodes too (GraphOptions.intra_process=False)")
@@ -829,7 +832,7 @@ def main(argv=None) -> int:
     print(HEADER, flush=True)
     results = []
     with tempfile.TemporaryDirectory() as tmp:
-        for config in configs:
+        for config in [c for _ in range(max(1, args.repeat)) for c in configs]:
             out = Path(tmp) / f"{str(config).replace(':', '_')}.json"
             cmd = [sys.executable, str(Path(__file__).resolve()), "--one", str(config), "--json", str(out),
                    "--scene", args.scene, "--rate", str(args.rate), "--frames", str(n_frames),
@@ -848,10 +851,33 @@ def main(argv=None) -> int:
             r = json.loads(out.read_text())
             results.append(r)
             print("\n".join(format_result(r)), flush=True)
+    if args.repeat > 1:
+        print(f"median of {args.repeat} runs per configuration:")
+        for line in repeat_summary(results):
+            print(line)
     print(f"load average {os.getloadavg()[0]:.2f} at the end (CPU ms per pair is the load-robust figure)")
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1))
-    return 0 if len(results) == len(configs) else 1
+    return 0 if len(results) == len(configs) * max(1, args.repeat) else 1
+
+
+def repeat_summary(results: list[dict]) -> list[str]:
+    """One line per configuration of ``results`` (several runs each): the median delivered
+    clouds/s (with the runs' range), latency p50 and p95, and CPU ms per offered pair."""
+    import numpy as np
+
+    by_config: dict[str, list[dict]] = {}
+    for r in results:
+        by_config.setdefault(r["config"], []).append(r)
+    lines = []
+    for name, runs in by_config.items():
+        delivered = [r["delivered_per_s"] for r in runs]
+        cpu = [sum(v["cpu_ms_per_pair"] for k, v in r["nodes"].items() if k != "feed") for r in runs]
+        lines.append(f"{name:32s} {np.median([r['offered_per_s'] for r in runs]):7.1f} {np.median(delivered):9.1f} "
+                     f"({min(delivered):.1f}-{max(delivered):.1f}) "
+                     f"{np.median([r['latency_median_ms'] for r in runs]):8.0f} "
+                     f"{np.median([r['latency_p95_ms'] for r in runs]):6.0f}  cpu {np.median(cpu):5.1f} ms/pair")
+    return lines
 
 
 if __name__ == "__main__":

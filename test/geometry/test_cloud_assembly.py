@@ -61,3 +61,71 @@ def test_a_window_of_the_disparity_gives_the_points_of_the_full_image():
     np.testing.assert_allclose(depth, depth_full[rows, cols], rtol=1e-6)
     assert window_slices((0, 0, 0, 0), disp.shape) == (slice(0, 48), slice(0, 64))  # unset: everything
     assert window_slices((60, 40, 30, 30), disp.shape) == (slice(40, 48), slice(60, 64))  # clipped
+
+
+def _naive_records(disp, Q, T, mask, organized, rgb_bits):
+    """The records kernel's arithmetic per pixel in plain numpy (float64, then float32)."""
+    h, w = disp.shape
+    rows, depth = [], np.full((h, w), np.nan, np.float32)
+    for v in range(h):
+        for u in range(w):
+            d = float(disp[v, u])
+            with np.errstate(divide="ignore", invalid="ignore"):
+                iw = np.float64(1.0) / (Q[3, 2] * np.float64(d) + Q[3, 3])
+                x, y, z = (Q[0, 0] * u + Q[0, 3]) * iw, (Q[1, 1] * v + Q[1, 3]) * iw, Q[2, 3] * iw
+            ok = d > 0 and z > 0 and np.isfinite(z) and (mask is None or mask[v, u] != 0)
+            if ok:
+                depth[v, u] = z
+                p = [T[k, 0] * x + T[k, 1] * y + T[k, 2] * z + T[k, 3] for k in range(3)]
+            elif organized:
+                p = [np.nan] * 3
+            else:
+                continue
+            rows.append(np.array(p, np.float32).view(np.uint32).tolist() + [int(rgb_bits[v, u])])
+    return np.array(rows, np.uint32).reshape(-1, 4), depth
+
+
+@pytest.mark.parametrize("organized", [False, True])
+def test_records_kernel_is_the_naive_arithmetic_bit_for_bit(organized):
+    from canopy_stereo.geometry.frames import reproject_disparity_records
+
+    rng = np.random.default_rng(4)
+    for trial in range(6):
+        h, w = (int(v) for v in rng.integers(3, 30, 2))
+        disp = (rng.random((h, w)) * 90 - 5).astype(np.float32)
+        disp[rng.random((h, w)) < 0.2] = np.nan
+        disp[rng.random((h, w)) < 0.03] = np.inf
+        Q = np.array([[1, 0, 0, -w / 2 + rng.random()], [0, 1, 0, -h / 2], [0, 0, 0, 600 + rng.random()],
+                      [0, 0, 1 / 0.12, -3 * rng.random()]])
+        T = np.eye(4)
+        T[:3, :3] = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        T[:3, 3] = rng.normal(size=3)
+        mask = (rng.random((h, w)) > 0.3).astype(np.uint8) * 255 if trial % 2 else None
+        rgb = rng.random((h, w)).astype(np.float32)
+        records, depth = reproject_disparity_records(disp, Q, T=T, rgb=rgb, mask=mask, organized=organized)
+        ref, ref_depth = _naive_records(disp, Q, T, mask, organized, rgb.view(np.uint32))
+        assert np.array_equal(records.view(np.uint32), ref)
+        assert np.array_equal(depth.view(np.uint32), ref_depth.view(np.uint32))
+
+
+def test_records_from_bgr_are_the_records_from_packed_rgb():
+    """``bgr=`` (a window of the colour image, packed for the kept points only) gives the bits
+    of ``rgb=pack_bgr_image(bgr)``."""
+    from canopy_stereo.geometry.frames import reproject_disparity_records
+    from canopy_stereo.ros.convert import pack_bgr_image
+
+    rng = np.random.default_rng(5)
+    disp = (rng.random((40, 50)) * 60).astype(np.float32)
+    disp[rng.random(disp.shape) < 0.3] = np.nan
+    bgr = rng.integers(0, 256, (40, 50, 3), dtype=np.uint8)
+    Q = np.array([[1, 0, 0, -25.0], [0, 1, 0, -20.0], [0, 0, 0, 500.0], [0, 0, 10.0, 0]])
+    rows, cols = slice(3, 37), slice(5, 44)
+    for organized in (False, True):
+        a, da = reproject_disparity_records(disp[rows, cols], Q, bgr=bgr[rows, cols], organized=organized)
+        b, db = reproject_disparity_records(disp[rows, cols], Q, rgb=pack_bgr_image(bgr[rows, cols]),
+                                            organized=organized)
+        assert np.array_equal(a.view(np.uint32), b.view(np.uint32)) and np.array_equal(da, db, equal_nan=True)
+    with pytest.raises(ValueError, match="exactly one"):
+        reproject_disparity_records(disp, Q)
+    with pytest.raises(ValueError, match="uint8"):
+        reproject_disparity_records(disp, Q, bgr=bgr[:, :, :2])

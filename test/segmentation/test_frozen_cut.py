@@ -89,13 +89,15 @@ def test_the_cut_is_opencvs_minimum_cut(seed):
     assert (ours != reference).sum() <= 0.002 * undecided.sum()
 
 
-def test_random_seeds_everywhere_undecided():
-    """A seed with undecided pixels scattered over the whole image (long max-flow paths, few
-    settled pixels): still OpenCV's cut."""
+@pytest.mark.parametrize("undecided", [0.3, 0.7, 0.97])
+def test_random_seeds_everywhere_undecided(undecided):
+    """Seeds with undecided pixels scattered over the whole image (long max-flow paths, search
+    trees cut and re-adopted, few settled pixels): still OpenCV's cut."""
     img, _, bg, fg = _scene(3)
     rng = np.random.default_rng(3)
+    sure = (1.0 - undecided) / 2
     seed_lab = rng.choice(np.array([GC_BGD, GC_FGD, GC_PR_BGD, GC_PR_FGD], np.uint8), size=img.shape[:2],
-                          p=[0.15, 0.15, 0.35, 0.35])
+                          p=[sure, sure, undecided / 2, undecided / 2])
     ours = frozen_model_cut(img, seed_lab, bg, fg)
     reference = _opencv(img, seed_lab, bg, fg)
     assert _grabcut_energy(img, seed_lab, ours, bg, fg) == pytest.approx(

@@ -5,6 +5,7 @@ Hand-checked regions: test/data/plants_regions.json (polygons drawn on the image
 "about"). Coverage of a plant = fraction of its foliage pixels in its regions that the mask
 takes; of an object = fraction of its region's pixels."""
 import json
+import re
 from pathlib import Path
 
 import cv2
@@ -52,7 +53,22 @@ def test_segment_auto_with_disparity_takes_plants_not_can_or_pots(shared_data, t
     assert "plants by shape" in out and (tmp_path / "mask_overlay.png").is_file()
     left = cv2.imread(str(folder / "im0.png"))
     mask = cv2.imread(str(tmp_path / "mask.png"), cv2.IMREAD_GRAYSCALE) > 0
-    check_coverage(coverage(mask, mask.shape, cv2.cvtColor(left, cv2.COLOR_BGR2GRAY)))
+    grey = cv2.cvtColor(left, cv2.COLOR_BGR2GRAY)
+    check_coverage(coverage(mask, mask.shape, grey))
+    # two plants, numbered left to right: the jade plant's taken foliage in plant 1's box, the
+    # silver one's in plant 2's (the boxes overlap where the leaves touch: the centres tell)
+    assert "2 plant(s)" in out, out
+    boxes = {int(m[0]): tuple(int(v) for v in m[1:]) for m in
+             re.findall(r"plant (\d+): \d+ pixels, box x (\d+)\.\.(\d+), y (\d+)\.\.(\d+)", out)}
+    assert sorted(boxes) == [1, 2], out
+    regions = region_masks(grey.shape, grey)
+    for index, name in ((1, "jade"), (2, "silver")):
+        x0, x1, y0, y1 = boxes[index]
+        rows, cols = np.nonzero(regions[name][1] & mask)
+        inside = (cols >= x0) & (cols <= x1) & (rows >= y0) & (rows <= y1)
+        assert inside.mean() >= 0.95, (name, boxes)
+    centre = {k: (b[0] + b[1]) / 2 for k, b in boxes.items()}
+    assert centre[1] < centre[2]
 
 
 @pytest.mark.slow
