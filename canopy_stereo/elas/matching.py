@@ -24,7 +24,10 @@ four neighbouring pixels of one grid cell are matched together
 (their descriptors, and those of their matches at any one ``d``, lie side by side),
 each pixel's own window, prior and largest disparity applied per lane (so pixels with
 different plane predictions, near the left/right border or not matched at all share
-the group) and their first minima kept in one vector; rows run in parallel.
+the group) and their first minima kept in one vector; with AVX-512 sixteen or eight
+pixels (:func:`~canopy_stereo.elas.simd.hexa_first_min`,
+:func:`~canopy_stereo.elas.simd.octo_first_min`: a 20-pixel cell row in two calls);
+rows run in parallel.
 """
 from __future__ import annotations
 
@@ -104,11 +107,11 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
                 disp_max, match_texture, step, subpixel, out, offsets, row_start, row_stop):
     """Output rows ``[row_start, row_stop)`` of :func:`match_job` (arguments there).
 
-    With ``step`` 1, four neighbouring pixels of one grid cell are matched together
-    (:func:`~canopy_stereo.elas.simd.quad_first_min`): each candidate's four costs are
-    four descriptors side by side in both images, and each pixel keeps its own first
-    minimum exactly as when matched alone. (Written out in one function: helpers
-    taking arrays cost reference counting per call.)
+    With ``step`` 1, four (with AVX-512 sixteen or eight) neighbouring pixels of one grid
+    cell are matched together (:func:`~canopy_stereo.elas.simd.quad_first_min` and the
+    wider intrinsics): each candidate's costs are descriptors side by side in both
+    images, and each pixel keeps its own first minimum exactly as when matched alone.
+    (Written out in one function: helpers taking arrays cost reference counting per call.)
     """
     h, w, _ = desc_own.shape
     flat_own = desc_own.reshape(-1)

@@ -288,9 +288,10 @@ def reproject_disparity(disp, Q) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _reproject_kernel(disp, mask, Q, T, organized, out, out_bits, rgb_bits):  # pragma: no cover - compiled
+def _reproject_kernel(disp, mask, Q, T, organized, out, out_bits, rgb_bits, bgr):  # pragma: no cover - compiled
     # out: (H * W, C) float32 rows x, y, z[, rgb]; out_bits: the same memory as uint32;
-    # rgb_bits: (H, W) uint32 packed colours copied into column 3, or (0, 0) for none.
+    # rgb_bits: (H, W) uint32 packed colours copied into column 3, or (0, 0) for none;
+    # bgr: (H, W, 3) uint8 colours packed into column 3 (0x00RRGGBB) instead, or (0, 0, 3).
     # Per row, a branch-free pass the compiler vectorises computes every pixel's point; a
     # second pass keeps the valid ones (the same arithmetic, in the same order, as one pass).
     h, w = disp.shape
@@ -298,6 +299,7 @@ def _reproject_kernel(disp, mask, Q, T, organized, out, out_bits, rgb_bits):  # 
     depth = np.full((h, w), np.nan, np.float32)
     use_mask = mask.shape[0] == h
     with_rgb = rgb_bits.shape[0] == h
+    with_bgr = bgr.shape[0] == h
     xs = np.empty(w, np.float32)
     ys = np.empty(w, np.float32)
     zs = np.empty(w, np.float32)
@@ -331,12 +333,15 @@ def _reproject_kernel(disp, mask, Q, T, organized, out, out_bits, rgb_bits):  # 
                 continue
             if with_rgb:
                 out_bits[n, 3] = rgb_bits[v, u]
+            elif with_bgr:
+                b, g, r = np.uint32(bgr[v, u, 0]), np.uint32(bgr[v, u, 1]), np.uint32(bgr[v, u, 2])
+                out_bits[n, 3] = (r << 16) | (g << 8) | b
             index[n] = v * w + u
             n += 1
     return n, index[:n], depth
 
 
-def _reproject(disp, Q, T, mask, organized, rgb):
+def _reproject(disp, Q, T, mask, organized, rgb, bgr=None):
     d = np.ascontiguousarray(disp, np.float32)
     if d.ndim != 2:
         raise ValueError(f"disparity must be (H, W), got shape {d.shape}")
@@ -349,9 +354,16 @@ def _reproject(disp, Q, T, mask, organized, rgb):
         if bits.shape != d.shape:
             raise ValueError(f"rgb {bits.shape} does not match disparity {d.shape}")
         bits = bits.view(np.uint32)
-    out = np.empty((d.size, 3 if rgb is None else 4), np.float32)
+    if bgr is None:
+        colours = np.zeros((0, 0, 3), np.uint8)
+    else:
+        colours = np.asarray(bgr)
+        if colours.dtype != np.uint8 or colours.shape != (*d.shape, 3):
+            raise ValueError(f"bgr must be uint8 {(*d.shape, 3)}, got {colours.dtype} {colours.shape}")
+    coloured = rgb is not None or bgr is not None
+    out = np.empty((d.size, 4 if coloured else 3), np.float32)
     n, index, depth = _reproject_kernel(d, m, np.asarray(Q, np.float64), T, bool(organized), out,
-                                        out.view(np.uint32), bits)
+                                        out.view(np.uint32), bits, colours)
     return out[:n], index, depth
 
 
@@ -372,7 +384,7 @@ def reproject_disparity_points(disp, Q, *, T=None, mask=None, organized: bool = 
     return _reproject(disp, Q, T, mask, organized, None)
 
 
-def reproject_disparity_records(disp, Q, *, T=None, rgb, mask=None, organized: bool = False):
+def reproject_disparity_records(disp, Q, *, T=None, rgb=None, bgr=None, mask=None, organized: bool = False):
     """:func:`reproject_disparity_points` writing PointCloud2 records directly: each row is
     float32 ``x, y, z`` (metres) and the packed ``rgb`` of its pixel, the layout of
     :func:`canopy_stereo.ros.convert.points_to_cloud2` (no gathering, stacking or copying
@@ -380,13 +392,18 @@ def reproject_disparity_records(disp, Q, *, T=None, rgb, mask=None, organized: b
 
     Args:
         rgb: float32 (H, W) packed colours (:func:`canopy_stereo.ros.convert.pack_bgr_image`),
-            copied bit for bit.
+            copied bit for bit; or
+        bgr: uint8 (H, W, 3) colours (any strides, e.g. a window of the rectified image),
+            packed for the kept points only (the same bits as ``rgb=pack_bgr_image(bgr)``).
+            Exactly one of the two.
         disp, Q, T, mask, organized: as :func:`reproject_disparity_points`.
 
     Returns ``(records, depth)``: float32 (N, 4) (N = H * W when ``organized``, NaN
     coordinates where no point) and the float32 (H, W) depth image.
     """
-    records, _, depth = _reproject(disp, Q, T, mask, organized, rgb)
+    if (rgb is None) == (bgr is None):
+        raise ValueError("give the colours as exactly one of rgb (packed) and bgr (uint8 H x W x 3)")
+    records, _, depth = _reproject(disp, Q, T, mask, organized, rgb, bgr)
     return records, depth
 
 

@@ -106,3 +106,26 @@ def test_records_kernel_is_the_naive_arithmetic_bit_for_bit(organized):
         ref, ref_depth = _naive_records(disp, Q, T, mask, organized, rgb.view(np.uint32))
         assert np.array_equal(records.view(np.uint32), ref)
         assert np.array_equal(depth.view(np.uint32), ref_depth.view(np.uint32))
+
+
+def test_records_from_bgr_are_the_records_from_packed_rgb():
+    """``bgr=`` (a window of the colour image, packed for the kept points only) gives the bits
+    of ``rgb=pack_bgr_image(bgr)``."""
+    from canopy_stereo.geometry.frames import reproject_disparity_records
+    from canopy_stereo.ros.convert import pack_bgr_image
+
+    rng = np.random.default_rng(5)
+    disp = (rng.random((40, 50)) * 60).astype(np.float32)
+    disp[rng.random(disp.shape) < 0.3] = np.nan
+    bgr = rng.integers(0, 256, (40, 50, 3), dtype=np.uint8)
+    Q = np.array([[1, 0, 0, -25.0], [0, 1, 0, -20.0], [0, 0, 0, 500.0], [0, 0, 10.0, 0]])
+    rows, cols = slice(3, 37), slice(5, 44)
+    for organized in (False, True):
+        a, da = reproject_disparity_records(disp[rows, cols], Q, bgr=bgr[rows, cols], organized=organized)
+        b, db = reproject_disparity_records(disp[rows, cols], Q, rgb=pack_bgr_image(bgr[rows, cols]),
+                                            organized=organized)
+        assert np.array_equal(a.view(np.uint32), b.view(np.uint32)) and np.array_equal(da, db, equal_nan=True)
+    with pytest.raises(ValueError, match="exactly one"):
+        reproject_disparity_records(disp, Q)
+    with pytest.raises(ValueError, match="uint8"):
+        reproject_disparity_records(disp, Q, bgr=bgr[:, :, :2])

@@ -148,9 +148,12 @@ class PointCloudNode(CanopyNode):
         Q = np.array([[1.0, 0, 0, -w / 2], [0, 1, 0, -h / 2], [0, 0, 0, 500.0], [0, 0, 10.0, 0]])
         mask = np.full((h, w), 255, np.uint8) if self.use_mask else None
         for organized in (False, True):
-            records, depth = reproject_disparity_records(disp, Q, T=np.eye(4), rgb=pack_bgr_image(bgr),
+            records, depth = reproject_disparity_records(disp, Q, T=np.eye(4), bgr=bgr,
                                                          mask=mask, organized=organized)
             records_to_cloud2(records, 1, frame_id="", organized_shape=(h, w) if organized else None)
+        # a window of the colour image (not contiguous: the kernel's other specialisation)
+        reproject_disparity_records(disp[1:, 1:], Q, T=np.eye(4), bgr=bgr[1:, 1:],
+                                    mask=None if mask is None else mask[1:, 1:])
         depth_to_msg(depth, 1, frame_id="")
         msg_to_disparity(disparity_to_msg(disp, 500.0, 0.1, 0.0, 64.0))  # the wire conversion's kernel
 
@@ -237,9 +240,10 @@ class PointCloudNode(CanopyNode):
             # disparity_node's roi window, or its valid pixels' box), colours packed there only
             rows, cols = (slice(0, h), slice(0, w)) if organized else window_slices(frame.valid_window, (h, w))
             Qc = offset_reprojection(Q, cols.start, rows.start)
-            # x, y, z and rgb written by the kernel into the cloud's rows (one copy into the message)
+            # x, y, z and rgb (packed from the window's BGR for the kept points only) written by the
+            # kernel into the cloud's rows (one copy into the message)
             records, depth_kept = reproject_disparity_records(
-                frame.disparity[rows, cols], Qc, T=T, rgb=pack_bgr_image(bgr[rows, cols]),
+                frame.disparity[rows, cols], Qc, T=T, bgr=bgr[rows, cols],
                 mask=None if mask is None else mask[rows, cols], organized=organized)
             if self._depth_wanted():  # REP 118 depth of the same pixels, when someone reads it
                 depth = depth_kept
