@@ -117,24 +117,28 @@ def _remove_small_segments(disp, sim_threshold, min_size, label, parent, run_siz
         lab = label[v]
         last_above = -1
         last_here = -1
+        r = -1
+        prev = np.float32(-1.0)
         for u in range(w):
             d = row[u]
             if d < 0:
                 lab[u] = -1
+                prev = d
                 continue
-            if u > 0 and d >= 0 and row[u - 1] >= 0 and abs(row[u - 1] - d) <= sim_threshold:
-                r = lab[u - 1]
-                run_size[r] += 1
-            else:
+            # a new run unless joined to the left (branch-free test)
+            join = (prev >= 0) & (abs(prev - d) <= sim_threshold)
+            prev = d
+            if not join:
                 r = n_runs
                 n_runs += 1
                 parent[r] = r
-                run_size[r] = 1
+                run_size[r] = 0
                 run_start[r] = v * w + u
+            run_size[r] += 1
             lab[u] = r
             if v > 0:
                 above = disp[v - 1, u]
-                if above >= 0 and d >= 0 and abs(above - d) <= sim_threshold:
+                if (above >= 0) & (abs(above - d) <= sim_threshold):
                     ra = label[v - 1, u]
                     if ra != last_above or r != last_here:
                         last_above = ra
