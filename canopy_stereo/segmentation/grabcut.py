@@ -12,7 +12,7 @@ import numpy as np
 
 from canopy_stereo.errors import ImageError
 from canopy_stereo.io.images import to_bgr
-from canopy_stereo.segmentation.frozen_cut import frozen_model_cut, learn_models
+from canopy_stereo.segmentation.frozen_cut import GRABCUT_MAX_SHARE, frozen_model_cut, learn_models
 
 #: OpenCV GrabCut labels.
 GC_BGD, GC_FGD, GC_PR_BGD, GC_PR_FGD = cv2.GC_BGD, cv2.GC_FGD, cv2.GC_PR_BGD, cv2.GC_PR_FGD
@@ -69,10 +69,15 @@ def grabcut_labels(image_bgr, labels: np.ndarray, *, iterations: int = 5) -> np.
         return lab  # nothing left to decide
     bgd = np.zeros((1, 65), np.float64)
     fgd = np.zeros((1, 65), np.float64)
-    try:  # OpenCV's start: both colour models from k-means of their side's pixels
-        cv2.grabCut(img, lab, None, bgd, fgd, 0, cv2.GC_INIT_WITH_MASK)
+    # OpenCV's start (both colour models from k-means of their side's pixels), then its iterations
+    # with the cut on the undecided pixels only; many undecided pixels: OpenCV's own (the same)
+    whole = np.count_nonzero(lab >= 2) > GRABCUT_MAX_SHARE * lab.size
+    try:
+        cv2.grabCut(img, lab, None, bgd, fgd, it if whole else 0, cv2.GC_INIT_WITH_MASK)
     except cv2.error as exc:
         raise ImageError(f"GrabCut failed on this seed: {str(exc).strip().splitlines()[-1]}") from None
+    if whole:
+        return lab
     for _ in range(it):  # OpenCV's iterations, the graph cut on the undecided pixels only
         bgd, fgd = learn_models(img, lab, bgd, fgd)
         lab = frozen_model_cut(img, lab, bgd, fgd)

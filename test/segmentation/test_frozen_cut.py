@@ -133,9 +133,38 @@ def test_grabcut_iterations_are_opencvs(seed):
     assert ((ours == GC_PR_FGD) != (seed_lab == GC_PR_FGD)).any()  # the iterations changed something
 
 
-def test_learning_a_side_without_pixels_is_named():
+def test_a_side_without_pixels_learns_an_empty_model_as_opencv_does():
+    """When a GrabCut iteration leaves no pixel on one side, OpenCV's next model of that side has
+    all weights 0 (density 0: an infinite data term) and its cut puts every undecided pixel on
+    the other side; so do learn_models and the cut (no error)."""
     from canopy_stereo.segmentation.frozen_cut import learn_models
 
     img, seed_lab, bg, fg = _scene(0)
-    with pytest.raises(ImageError, match="no pixel"):
-        learn_models(img, np.zeros_like(seed_lab), bg, fg)
+    no_plant = np.where(seed_lab == GC_FGD, GC_BGD, np.where(seed_lab == GC_PR_FGD, GC_PR_BGD, seed_lab))
+    new_bg, new_fg = learn_models(img, no_plant.astype(np.uint8), bg, fg)
+    assert not new_fg.any() and np.isclose(new_bg[0, :5].sum(), 1.0)
+    ours = frozen_model_cut(img, seed_lab, new_bg, new_fg)
+    assert np.array_equal(ours, _opencv(img, seed_lab, new_bg, new_fg))
+    assert not (ours == GC_PR_FGD).any()
+
+
+@pytest.mark.parametrize("share", [0.3, 0.6])
+def test_seeds_mostly_undecided_go_to_opencv_with_the_same_result(share):
+    """A rectangle seed of this share of the image (GrabCut's own interaction): grabcut_labels and
+    the cut hand large undecided blobs to OpenCV (:data:`GRABCUT_MAX_SHARE`,
+    :data:`FROZEN_CUT_MAX_SHARE`); the labels are OpenCV's either way."""
+    from canopy_stereo.segmentation.grabcut import grabcut_labels
+
+    img, _, bg, fg = _scene(1)
+    h, w = img.shape[:2]
+    side = np.sqrt(share)
+    y0, x0 = int(h * (1 - side) / 2), int(w * (1 - side) / 2)
+    seed_lab = np.full((h, w), GC_BGD, np.uint8)
+    seed_lab[y0:h - y0, x0:w - x0] = GC_PR_FGD
+    cv2.setRNGSeed(4)
+    reference = seed_lab.copy()
+    cv2.grabCut(img, reference, None, np.zeros((1, 65)), np.zeros((1, 65)), 3, cv2.GC_INIT_WITH_MASK)
+    cv2.setRNGSeed(4)
+    assert (grabcut_labels(img, seed_lab, iterations=3) != reference).sum() <= 0.002 * (seed_lab >= 2).sum()
+    ours = frozen_model_cut(img, seed_lab, bg, fg)
+    assert (ours != _opencv(img, seed_lab, bg, fg)).sum() <= 0.002 * (seed_lab >= 2).sum()
