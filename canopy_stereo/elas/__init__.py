@@ -14,9 +14,9 @@ Measured with ``benchmarks/bench_elas.py`` (16 Middlebury pairs, 0..255 disparit
   within -1 point on 30 of 32 pair-presets (misses: PlaytableQ middlebury bad>2 +1.7,
   VintageQ robotics density -4.4 with bad>2 4.2 points *better*).
 * Time (``--target``: CPU time of one thread against libelas's, the same load, on the
-  Middlebury 2014 training scenes; loaded machine): robotics 0.24-0.29x on the
-  640x480-class scenes (median 0.25; the small ArtLQ 0.29), middlebury 0.15-0.25x
-  (median 0.22); bad>2 and density within 0.2 points of libelas's (or better) on 8 of 9
+  Middlebury 2014 training scenes; loaded machine): robotics 0.20-0.27x on the
+  640x480-class scenes (median 0.23), middlebury 0.17-0.23x (median 0.19); bad>2 and
+  density within 0.2 points of libelas's (or better) on 8 of 9
   scenes per preset (VintageQ and PlaytableQ as above).
 * Threads: :mod:`.parallel` runs the row kernels in bands and the left/right stages as
   two tasks; the maps are the same bit for bit with any thread count.

@@ -24,9 +24,9 @@ four neighbouring pixels of one grid cell are matched together
 (their descriptors, and those of their matches at any one ``d``, lie side by side),
 each pixel's own window, prior and largest disparity applied per lane (so pixels with
 different plane predictions, near the left/right border or not matched at all share
-the group) and their first minima kept in one vector; with AVX-512 sixteen or eight
-pixels (:func:`~canopy_stereo.elas.simd.hexa_first_min`,
-:func:`~canopy_stereo.elas.simd.octo_first_min`: a 20-pixel cell row in two calls);
+the group) and their first minima kept in one vector; with AVX-512 twenty, sixteen or
+eight pixels (:func:`~canopy_stereo.elas.simd.penta_first_min` and its kin: a 20-pixel
+cell row in one call);
 rows run in parallel.
 """
 from __future__ import annotations
@@ -46,6 +46,7 @@ from canopy_stereo.elas.simd import (
     PSADBW_WIDTH,
     hexa_first_min,
     octo_first_min,
+    penta_first_min,
     quad_first_min,
     sad16,
 )
@@ -54,7 +55,8 @@ from canopy_stereo.elas.simd import (
 MATCH_BORDER = 2
 #: Marks "no candidate yet" in the cost accumulators.
 _NO_COST = np.int32(2147483647)
-#: Sixteen or eight pixels per call (:func:`~canopy_stereo.elas.simd.hexa_first_min`,
+#: Twenty, sixteen or eight pixels per call (:func:`~canopy_stereo.elas.simd.penta_first_min`,
+#: :func:`~canopy_stereo.elas.simd.hexa_first_min`,
 #: :func:`~canopy_stereo.elas.simd.octo_first_min`) where the CPU has 64-byte ``psadbw``
 #: (AVX-512BW); else four (each 64-byte SAD would cost two or four instructions, and the
 #: prior would not fit in a register).
@@ -107,7 +109,7 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
                 disp_max, match_texture, step, subpixel, out, offsets, row_start, row_stop):
     """Output rows ``[row_start, row_stop)`` of :func:`match_job` (arguments there).
 
-    With ``step`` 1, four (with AVX-512 sixteen or eight) neighbouring pixels of one grid
+    With ``step`` 1, four (with AVX-512 up to twenty) neighbouring pixels of one grid
     cell are matched together (:func:`~canopy_stereo.elas.simd.quad_first_min` and the
     wider intrinsics): each candidate's costs are descriptors side by side in both
     images, and each pixel keeps its own first minimum exactly as when matched alone.
@@ -145,11 +147,11 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
             u_stop = min((gx + 1) * grid_size, w - MATCH_BORDER)
             u = u_first
             while u < u_stop:
-                # ---- sixteen or eight pixels u .. u+n-1 at once (AVX-512): as the four
+                # ---- twenty, sixteen or eight pixels u .. u+n-1 at once (AVX-512): as the four
                 # below, with the pixels' predictions, largest disparities and prior flags in
                 # `lanes` (rows of GROUP_LANES entries)
                 if _GROUPS and step == 1 and u + 8 <= u_stop and v >= 1 and v < h - 1:
-                    n = 16 if u + 16 <= u_stop else 8
+                    n = 20 if u + 20 <= u_stop else (16 if u + 16 <= u_stop else 8)
                     n_on = 0
                     mu_lo = 2147483647
                     mu_hi = -2147483648
@@ -189,7 +191,12 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
                     a0 = row + u * DESC_BYTES
                     w_lo = max(mu_lo - radius, disp_min)
                     w_hi = min(mu_hi + radius, hi_max)
-                    if n == 16:
+                    if n == 20:
+                        penta_first_min(flat_own, a0, flat_other, a0, -sign * DESC_BYTES,
+                                        flat_lists, cell + first, cell + below, cell + above,
+                                        cell + stop, w_lo, w_hi, radius, prior_window, lanes,
+                                        lane_out)
+                    elif n == 16:
                         hexa_first_min(flat_own, a0, flat_other, a0, -sign * DESC_BYTES,
                                        flat_lists, cell + first, cell + below, cell + above,
                                        cell + stop, w_lo, w_hi, radius, prior_window, lanes,

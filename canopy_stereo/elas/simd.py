@@ -224,117 +224,129 @@ def _concat(builder, parts):
 
 
 def _first_min_body(context, builder, own, other_base, stride, cell_ptr, runs, window, radius,
-                    prior_ptr, mu, hi, flag):
-    """The candidate loops of :func:`quad_first_min` / :func:`octo_first_min`.
+                    prior_ptr, lane_vectors):
+    """The candidate loops of :func:`quad_first_min` and the wider intrinsics.
 
-    ``own``: one ``<64 x i8>`` vector per group of four pixels (their descriptors);
-    ``other_base``: i8 pointer to the first candidate's match, advanced by ``d * stride``
-    (i64) bytes per disparity ``d``; ``cell_ptr``: i32 pointer to the cell's candidates;
-    ``runs``: i64 ``(first0, stop0, first1, stop1)``; ``window``: i64 ``(lo, hi)``;
-    ``radius``: i32; ``prior_ptr``: i32 pointer to the window prior; ``mu``, ``hi``,
-    ``flag``: ``<n x i32>`` (``n = 8 * len(own)``, pixel ``k`` in lanes ``2k`` and
-    ``2k + 1``, as the paired block sums come). Returns the ``<n x i32>`` first
-    minima's disparities (-1: none), in the same lanes.
+    ``own``: one ``<64 x i8>`` vector per group of four pixels (their descriptors), taken
+    two groups per block (a last odd group alone); ``other_base``: i8 pointer to the first
+    candidate's match, advanced by ``d * stride`` (i64) bytes per disparity ``d``;
+    ``cell_ptr``: i32 pointer to the cell's candidates; ``runs``: i64 ``(first0, stop0,
+    first1, stop1)``; ``window``: i64 ``(lo, hi)``; ``radius``: i32; ``prior_ptr``: i32
+    pointer to the window prior; ``lane_vectors(first, count)``: the ``(mu, hi, flag)``
+    vectors of pixels ``first .. first + count - 1`` (pixel ``k`` in lanes ``2k`` and
+    ``2k + 1``, as the paired block sums come). Returns, per block, the first minima's
+    disparities (-1: none), in the same lanes.
     """
     i8, i32, i64 = ir.IntType(8), ir.IntType(32), ir.IntType(64)
-    n = 8 * len(own)
-    vni32, v64i8 = ir.VectorType(i32, n), ir.VectorType(i8, 64)
-    # t = d - (mu - r): inside the window iff 0 <= t <= 2r, one unsigned compare
-    mu_low = builder.sub(mu, _splat(builder, radius, n))
-    prior_on = builder.icmp_signed("!=", flag, ir.Constant(vni32, [0] * n))
-    span = _splat(builder, builder.mul(radius, i32(2)), n)
-    zero = ir.Constant(vni32, [0] * n)
-    big = ir.Constant(vni32, [2147483647] * n)
-    best_e = cgutils.alloca_once_value(builder, big)
-    best_d = cgutils.alloca_once_value(builder, ir.Constant(vni32, [-1] * n))
-    # the prior in one register: vpermd on 16 lanes at a time (AVX-512) or 8 (AVX2)
-    if n % 16 == 0 and PSADBW_WIDTH == 64:
-        permute, entries, part = "llvm.x86.avx512.permvar.si.512", PRIOR_REGISTER_WIDE, 16
-    elif n == 8 and PSADBW_WIDTH >= 32:
-        permute, entries, part = "llvm.x86.avx2.permd", PRIOR_REGISTER, 8
-    else:
-        permute, entries, part = None, 0, 1
-    vpart = ir.VectorType(i32, part)
-    permd = None if permute is None else _llvm_function(builder.module, permute, vpart,
-                                                        [vpart, vpart])
+    v64i8 = ir.VectorType(i8, 64)
+    blocks = []
+    for q in range(0, len(own), 2):
+        quads = own[q:q + 2]
+        n = 8 * len(quads)
+        vni32 = ir.VectorType(i32, n)
+        mu, hi, flag = lane_vectors(4 * q, 4 * len(quads))
+        blocks.append(dict(
+            quads=quads, first=q, n=n, type=vni32, hi=hi,
+            # t = d - (mu - r): inside the window iff 0 <= t <= 2r, one unsigned compare
+            mu_low=builder.sub(mu, _splat(builder, radius, n)),
+            prior_on=builder.icmp_signed("!=", flag, ir.Constant(vni32, [0] * n)),
+            span=_splat(builder, builder.mul(radius, i32(2)), n),
+            zero=ir.Constant(vni32, [0] * n), big=ir.Constant(vni32, [2147483647] * n),
+            best_e=cgutils.alloca_once_value(builder, ir.Constant(vni32, [2147483647] * n)),
+            best_d=cgutils.alloca_once_value(builder, ir.Constant(vni32, [-1] * n))))
+    # the prior in one register: vpermd on 16 lanes (AVX-512) or 8 (AVX2)
+    entries = None
+    for b in blocks:
+        if b["n"] == 16 and PSADBW_WIDTH == 64:
+            name, size = "llvm.x86.avx512.permvar.si.512", PRIOR_REGISTER_WIDE
+        elif b["n"] == 8 and PSADBW_WIDTH >= 32:
+            name, size = "llvm.x86.avx2.permd", PRIOR_REGISTER
+        else:
+            entries = 0
+            break
+        b["permd"] = _llvm_function(builder.module, name, b["type"], [b["type"], b["type"]])
+        entries = size if entries is None else min(entries, size)
 
-    def prior_lookup(index, table):
-        """``prior_window[index]`` per lane (``index`` <n x i32>, every lane <= 2r)."""
-        if table is not None:       # register permutes: the table in a register
-            return _concat(builder, [builder.call(permd, [table, builder.shuffle_vector(
-                index, ir.Constant(vni32, ir.Undefined),
-                ir.Constant(vpart, list(range(k, k + part))))]) for k in range(0, n, part)])
-        bonus = ir.Constant(vni32, ir.Undefined)
-        for lane in range(0, n, 2):
+    def prior_lookup(b, index, table):
+        """``prior_window[index]`` per lane of block ``b`` (every lane <= 2r)."""
+        if table is not None:       # one register permute: the table in a register
+            return builder.call(b["permd"], [table, index])
+        bonus = ir.Constant(b["type"], ir.Undefined)
+        for lane in range(0, b["n"], 2):
             item = builder.sext(builder.extract_element(index, i32(lane)), i64)
             value = builder.load(builder.gep(prior_ptr, [item]))
             bonus = builder.insert_element(bonus, value, i32(lane))
             bonus = builder.insert_element(bonus, value, i32(lane + 1))
         return bonus
 
-    def candidate(d64, window, table=None):
-        """Fold the costs of disparity ``d64`` (i64) into the running minima."""
-        at = builder.gep(other_base, [builder.mul(d64, stride)])
-        others = [builder.load(builder.bitcast(builder.gep(at, [i64(64 * q)]),
+    def block_sums(b, at):
+        """The block's costs at the match address ``at``: pixel k's SAD in lanes 2k, 2k+1."""
+        others = [builder.load(builder.bitcast(builder.gep(at, [i64(64 * (b["first"] + q))]),
                                                v64i8.as_pointer()), align=1)
-                  for q in range(len(own))]
-        halves = [_block_halves(builder, va, vb) for va, vb in zip(own, others)] \
-            if len(own) % 2 == 0 else [None]
-        if halves[0] is not None:
-            # the half-sums' low dwords of two groups in one <16 x i32> (a two-source
+                  for q in range(len(b["quads"]))]
+        halves = [_block_halves(builder, va, vb) for va, vb in zip(b["quads"], others)]
+        if len(halves) == 2 and halves[0] is not None:
+            # the half-sums' low dwords of both groups in one <16 x i32> (a two-source
             # permute instead of two truncations and a concatenation), then each pixel's
             # two halves added pairwise
             v16i32 = ir.VectorType(i32, 16)
-            low_dwords = ir.Constant(v16i32, [2 * k for k in range(16)])
-            pairs = _concat(builder, [builder.shuffle_vector(
-                builder.bitcast(halves[q], v16i32), builder.bitcast(halves[q + 1], v16i32),
-                low_dwords) for q in range(0, len(halves), 2)])
-            swapped = builder.shuffle_vector(pairs, ir.Constant(vni32, ir.Undefined),
-                                             ir.Constant(vni32, [k ^ 1 for k in range(n)]))
-            sums = builder.add(pairs, swapped)
-        else:
-            sums = _concat(builder, [_block_sums_paired(builder, va, vb)
-                                     for va, vb in zip(own, others)])
-        dvec = _splat(builder, builder.trunc(d64, i32), n)
-        t = builder.sub(dvec, mu_low)
-        beyond = builder.icmp_signed(">", dvec, hi)
-        if window:
-            masked = builder.or_(builder.icmp_unsigned(">", t, span), beyond)
-            bonus = prior_lookup(builder.select(masked, zero, t), table)
-            bonus = builder.select(prior_on, bonus, zero)
-            cost = builder.select(masked, big, builder.add(sums, bonus))
-        else:
-            masked = builder.or_(builder.icmp_unsigned("<=", t, span), beyond)
-            cost = builder.select(masked, big, sums)
-        old = builder.load(best_e)
-        lower = builder.icmp_signed("<", cost, old)
-        builder.store(builder.select(lower, cost, old), best_e)
-        builder.store(builder.select(lower, dvec, builder.load(best_d)), best_d)
+            pairs = builder.shuffle_vector(builder.bitcast(halves[0], v16i32),
+                                           builder.bitcast(halves[1], v16i32),
+                                           ir.Constant(v16i32, [2 * k for k in range(16)]))
+            swapped = builder.shuffle_vector(pairs, ir.Constant(v16i32, ir.Undefined),
+                                             ir.Constant(v16i32, [k ^ 1 for k in range(16)]))
+            return builder.add(pairs, swapped)
+        return _concat(builder, [_block_sums_paired(builder, va, vb)
+                                 for va, vb in zip(b["quads"], others)])
 
+    def candidate(d64, window, tables):
+        """Fold the costs of disparity ``d64`` (i64) into the running minima."""
+        at = builder.gep(other_base, [builder.mul(d64, stride)])
+        d32 = builder.trunc(d64, i32)
+        for b, table in zip(blocks, tables):
+            sums = block_sums(b, at)
+            dvec = _splat(builder, d32, b["n"])
+            t = builder.sub(dvec, b["mu_low"])
+            beyond = builder.icmp_signed(">", dvec, b["hi"])
+            if window:
+                masked = builder.or_(builder.icmp_unsigned(">", t, b["span"]), beyond)
+                bonus = prior_lookup(b, builder.select(masked, b["zero"], t), table)
+                bonus = builder.select(b["prior_on"], bonus, b["zero"])
+                cost = builder.select(masked, b["big"], builder.add(sums, bonus))
+            else:
+                masked = builder.or_(builder.icmp_unsigned("<=", t, b["span"]), beyond)
+                cost = builder.select(masked, b["big"], sums)
+            old = builder.load(b["best_e"])
+            lower = builder.icmp_signed("<", cost, old)
+            builder.store(builder.select(lower, cost, old), b["best_e"])
+            builder.store(builder.select(lower, dvec, builder.load(b["best_d"])), b["best_d"])
+
+    no_tables = [None] * len(blocks)
     for run in (0, 2):
         count = builder.sub(runs[run + 1], runs[run])
         with cgutils.for_range(builder, count) as loop:
             index = builder.add(runs[run], loop.index)
-            candidate(builder.sext(builder.load(builder.gep(cell_ptr, [index])), i64), False)
+            candidate(builder.sext(builder.load(builder.gep(cell_ptr, [index])), i64), False,
+                      no_tables)
     w_lo = window[0]
     count = builder.add(builder.sub(window[1], w_lo), i64(1))
 
-    def window_loop(table):
+    def window_loop(tables):
         with cgutils.for_range(builder, count) as loop:
-            candidate(builder.add(w_lo, loop.index), True, table)
+            candidate(builder.add(w_lo, loop.index), True, tables)
 
-    if permd is not None:           # a window of up to `entries` disparities in a register
+    if entries:                     # a window of up to `entries` disparities in registers
         small = builder.icmp_signed("<", builder.mul(builder.sext(radius, i64), i64(2)),
                                     i64(entries))
         with builder.if_else(small) as (in_register, in_memory):
             with in_register:
-                table = builder.load(builder.bitcast(prior_ptr, vpart.as_pointer()), align=4)
-                window_loop(table)
+                window_loop([builder.load(builder.bitcast(prior_ptr, b["type"].as_pointer()),
+                                          align=4) for b in blocks])
             with in_memory:
-                window_loop(None)
+                window_loop(no_tables)
     else:
-        window_loop(None)
-    return builder.load(best_d)
+        window_loop(no_tables)
+    return [builder.load(b["best_d"]) for b in blocks]
 
 
 def _first_min_types(own, offset_own, other, offset_other, ints, arrays) -> bool:
@@ -417,9 +429,10 @@ def quad_first_min(typingctx, own, offset_own, other, offset_other, stride, cell
         va = builder.load(builder.bitcast(builder.gep(data(0), [scalar(1)]),
                                           ir.VectorType(i8, 64).as_pointer()), align=1)
         runs, window = _run_arguments(scalar)
-        result = _first_min_body(context, builder, [va], builder.gep(data(2), [scalar(3)]),
-                                 scalar(4), data(5), runs, window, scalar(12, types.int32),
-                                 data(13), lane_vector(14), lane_vector(18), lane_vector(22))
+        [result] = _first_min_body(
+            context, builder, [va], builder.gep(data(2), [scalar(3)]), scalar(4), data(5), runs,
+            window, scalar(12, types.int32), data(13),
+            lambda first, count: (lane_vector(14), lane_vector(18), lane_vector(22)))
         items = [builder.sext(builder.extract_element(result, i32(2 * k)), i64) for k in range(4)]
         return context.make_tuple(builder, signature.return_type, items)
 
@@ -427,11 +440,11 @@ def quad_first_min(typingctx, own, offset_own, other, offset_other, stride, cell
 
 
 #: Entries per row of the ``lanes`` array of :func:`octo_first_min` / :func:`hexa_first_min`.
-GROUP_LANES = 16
+GROUP_LANES = 20
 
 
 def _group_first_min(pixels: int):
-    """The first-minimum intrinsic of ``pixels`` (8 or 16) neighbouring pixels."""
+    """The first-minimum intrinsic of ``pixels`` (8, 16 or 20) neighbouring pixels."""
 
     def group_first_min(typingctx, own, offset_own, other, offset_other, stride, cell, first0,
                         stop0, first1, stop1, window_lo, window_hi, radius, prior, lanes, best):
@@ -444,7 +457,6 @@ def _group_first_min(pixels: int):
 
         def codegen(context, builder, signature, args):
             i8, i32 = ir.IntType(8), ir.IntType(32)
-            v_pixels, v_lanes = ir.VectorType(i32, pixels), ir.VectorType(i32, 2 * pixels)
             scalar, data = _first_min_args(context, builder, signature.args, args)
             own_at = builder.gep(data(0), [scalar(1)])
             own = [builder.load(builder.bitcast(builder.gep(own_at, [ir.IntType(64)(64 * q)]),
@@ -452,30 +464,41 @@ def _group_first_min(pixels: int):
                    for q in range(pixels // 4)]
             lane_data = data(14)
 
-            def lane_vector(first):     # pixel k in lanes 2k and 2k + 1
-                at = builder.gep(lane_data, [ir.IntType(64)(first)])
-                vec = builder.load(builder.bitcast(at, v_pixels.as_pointer()), align=4)
-                return builder.shuffle_vector(vec, ir.Constant(v_pixels, ir.Undefined),
-                                              ir.Constant(v_lanes,
-                                                          [k // 2 for k in range(2 * pixels)]))
+            def lane_vectors(first, count):     # pixel k in lanes 2k and 2k + 1
+                v_count = ir.VectorType(i32, count)
+                out = []
+                for row in range(3):
+                    at = builder.gep(lane_data, [ir.IntType(64)(row * GROUP_LANES + first)])
+                    vec = builder.load(builder.bitcast(at, v_count.as_pointer()), align=4)
+                    out.append(builder.shuffle_vector(
+                        vec, ir.Constant(v_count, ir.Undefined),
+                        ir.Constant(ir.VectorType(i32, 2 * count),
+                                    [k // 2 for k in range(2 * count)])))
+                return out
 
             runs, window = _run_arguments(scalar)
-            result = _first_min_body(context, builder, own, builder.gep(data(2), [scalar(3)]),
-                                     scalar(4), data(5), runs, window, scalar(12, types.int32),
-                                     data(13), lane_vector(0), lane_vector(GROUP_LANES),
-                                     lane_vector(2 * GROUP_LANES))
-            even = builder.shuffle_vector(result, ir.Constant(v_lanes, ir.Undefined),
-                                          ir.Constant(v_pixels, [2 * k for k in range(pixels)]))
-            builder.store(even, builder.bitcast(data(15), v_pixels.as_pointer()), align=4)
+            results = _first_min_body(context, builder, own, builder.gep(data(2), [scalar(3)]),
+                                      scalar(4), data(5), runs, window, scalar(12, types.int32),
+                                      data(13), lane_vectors)
+            best_ptr = data(15)
+            done = 0
+            for result in results:
+                count = result.type.count // 2
+                even = builder.shuffle_vector(result, ir.Constant(result.type, ir.Undefined),
+                                              ir.Constant(ir.VectorType(i32, count),
+                                                          [2 * k for k in range(count)]))
+                at = builder.gep(best_ptr, [ir.IntType(64)(done)])
+                builder.store(even, builder.bitcast(at, even.type.as_pointer()), align=4)
+                done += count
             return context.get_dummy_value()
 
         return sig, codegen
 
     group_first_min.__name__ = group_first_min.__qualname__ = \
-        {8: "octo_first_min", 16: "hexa_first_min"}[pixels]
+        {8: "octo_first_min", 16: "hexa_first_min", 20: "penta_first_min"}[pixels]
     group_first_min.__doc__ = f""":func:`quad_first_min` of {pixels} neighbouring pixels
     ({pixels // 4} groups of four side by side: {pixels // 4} 64-byte SADs per candidate, the
-    running minima in one {2 * pixels}-lane vector).
+    running minima of two groups in one 16-lane vector, of a last odd group in an 8-lane one).
 
     Pixel ``k`` (0..{pixels - 1}) has the descriptor at ``own[offset_own + 16 k]`` and its
     match at ``other[offset_other + d * stride + 16 k]``; ``lanes`` (int32, 3 x
@@ -485,14 +508,16 @@ def _group_first_min(pixels: int):
     costs are those of :func:`quad_first_min`; each pixel's disparity is written to
     ``best[k]`` (int32, -1 where it has no candidate). ``prior`` holds at least
     ``max(2 radius + 1, PRIOR_REGISTER_WIDE)`` entries (with AVX-512 and ``2 radius + 1`` at
-    most :data:`PRIOR_REGISTER_WIDE` it is looked up in a register). No bounds checking.
+    most :data:`PRIOR_REGISTER_WIDE`, or :data:`PRIOR_REGISTER` with an odd group, it is
+    looked up in registers). No bounds checking.
     """
     return intrinsic(group_first_min)
 
 
-#: Eight and sixteen pixels per call (see :func:`_group_first_min`).
+#: Eight, sixteen and twenty pixels per call (see :func:`_group_first_min`).
 octo_first_min = _group_first_min(8)
 hexa_first_min = _group_first_min(16)
+penta_first_min = _group_first_min(20)
 
 
 @intrinsic

@@ -363,13 +363,20 @@ def _reference_first_min():
 
 
 def _first_min_both(pixels):
-    """A fresh (uncached) kernel: quad_first_min (``pixels`` 4), octo_first_min (8) or
-    hexa_first_min (16) next to the one-pixel-at-a-time definition, so that it is compiled
-    with the current simd.PSADBW_WIDTH. Row ``i`` of ``groups``: own offset, other offset,
-    stride, -, mu (16), largest d (16), prior flag (16), runs (4), window (2)."""
+    """A fresh (uncached) kernel: quad_first_min (``pixels`` 4), octo_first_min (8),
+    hexa_first_min (16) or penta_first_min (20) next to the one-pixel-at-a-time definition,
+    so that it is compiled with the current simd.PSADBW_WIDTH. Row ``i`` of ``groups``: own
+    offset, other offset, stride, -, mu (20), largest d (20), prior flag (20), runs (4),
+    window (2)."""
     from numba import njit
 
-    from canopy_stereo.elas.simd import GROUP_LANES, hexa_first_min, octo_first_min, quad_first_min
+    from canopy_stereo.elas.simd import (
+        GROUP_LANES,
+        hexa_first_min,
+        octo_first_min,
+        penta_first_min,
+        quad_first_min,
+    )
 
     reference = _reference_first_min()
 
@@ -382,9 +389,9 @@ def _first_min_both(pixels):
         best = np.empty(GROUP_LANES, np.int32)
         for i in range(n):
             a, b, stride = groups[i, 0], groups[i, 1], groups[i, 2]
-            mu, hi, flag = groups[i, 4:20], groups[i, 20:36], groups[i, 36:52]
-            runs = groups[i, 52:56]
-            w_lo, w_hi = groups[i, 56], groups[i, 57]
+            mu, hi, flag = groups[i, 4:24], groups[i, 24:44], groups[i, 44:64]
+            runs = groups[i, 64:68]
+            w_lo, w_hi = groups[i, 68], groups[i, 69]
             if pixels == 4:
                 got[i] = quad_first_min(own, a, other, b, stride, cell, runs[0], runs[1],
                                         runs[2], runs[3], w_lo, w_hi, radius, window_prior,
@@ -398,30 +405,33 @@ def _first_min_both(pixels):
             if pixels == 8:
                 octo_first_min(own, a, other, b, stride, cell, runs[0], runs[1], runs[2],
                                runs[3], w_lo, w_hi, radius, window_prior, lanes, best)
-            else:
+            elif pixels == 16:
                 hexa_first_min(own, a, other, b, stride, cell, runs[0], runs[1], runs[2],
                                runs[3], w_lo, w_hi, radius, window_prior, lanes, best)
+            else:
+                penta_first_min(own, a, other, b, stride, cell, runs[0], runs[1], runs[2],
+                                runs[3], w_lo, w_hi, radius, window_prior, lanes, best)
             got[i] = best[:pixels]
         for i in range(n):
             a, b, stride = groups[i, 0], groups[i, 1], groups[i, 2]
-            runs = groups[i, 52:56]
+            runs = groups[i, 64:68]
             for k in range(pixels):
                 ref[i, k] = reference(own, a + 16 * k, other, b + 16 * k, stride, cell, runs,
-                                      groups[i, 56], groups[i, 57], radius, window_prior,
-                                      groups[i, 4 + k], groups[i, 20 + k], groups[i, 36 + k] != 0)
+                                      groups[i, 68], groups[i, 69], radius, window_prior,
+                                      groups[i, 4 + k], groups[i, 24 + k], groups[i, 44 + k] != 0)
         return got, ref
 
     return both
 
 
-@pytest.mark.parametrize("pixels", [4, 8, 16])
+@pytest.mark.parametrize("pixels", [4, 8, 16, 20])
 @pytest.mark.parametrize("width", [64, 32, 16, 0])
-def test_first_min_of_four_to_sixteen_pixels_equals_one_pixel_at_a_time(rng, monkeypatch, width,
-                                                                        pixels):
-    """Four (eight, sixteen) pixels' first minima over two runs of grid candidates and a
-    window (own prior, window and largest disparity per pixel, unmatched pixels), ties
-    included, at every psadbw width (0: portable IR), with the prior in a register (small
-    radius, AVX2 / AVX-512) and in memory."""
+def test_first_min_of_four_to_twenty_pixels_equals_one_pixel_at_a_time(rng, monkeypatch, width,
+                                                                       pixels):
+    """Four (eight, sixteen, twenty) pixels' first minima over two runs of grid candidates
+    and a window (own prior, window and largest disparity per pixel, unmatched pixels),
+    ties included, at every psadbw width (0: portable IR), with the prior in a register
+    (small radius, AVX2 / AVX-512) and in memory."""
     from canopy_stereo.elas import simd
 
     if width > simd.PSADBW_WIDTH:
@@ -431,21 +441,21 @@ def test_first_min_of_four_to_sixteen_pixels_equals_one_pixel_at_a_time(rng, mon
     own = rng.integers(0, levels, 16 * pixels * n, dtype=np.uint8)
     other = rng.integers(0, levels, 16 * (4 * span + 24), dtype=np.uint8)
     cell = np.sort(rng.choice(span, 12, replace=False)).astype(np.int32)
-    groups = np.zeros((n, 58), np.int64)
+    groups = np.zeros((n, 70), np.int64)
     groups[:, 0] = 16 * pixels * np.arange(n)
     groups[:, 2] = rng.choice([-16, 16], n)
     groups[:, 1] = np.where(groups[:, 2] < 0, 16 * (span + 2), 16 * (2 * span + 2))
-    groups[:, 4:20] = rng.integers(-5, span + 5, (n, 1)) + rng.integers(-3, 4, (n, 16))
-    groups[:, 20:36] = rng.integers(span // 2, span, (n, 1)) + \
-        np.arange(16) * rng.choice([-1, 1, 0], (n, 1)) // 2
-    groups[:, 20:36][rng.random((n, 16)) < 0.1] = -1    # pixels that are not matched
-    groups[:, 36:52] = rng.random((n, 16)) < 0.6
-    groups[:, 52:56] = np.sort(rng.integers(0, len(cell) + 1, (n, 4)), axis=1)   # two runs
-    groups[:, 56] = rng.integers(0, span // 2, n)
-    groups[:, 57] = groups[:, 56] + rng.integers(-1, 12, n)
+    groups[:, 4:24] = rng.integers(-5, span + 5, (n, 1)) + rng.integers(-3, 4, (n, 20))
+    groups[:, 24:44] = rng.integers(span // 2, span, (n, 1)) + \
+        np.arange(20) * rng.choice([-1, 1, 0], (n, 1)) // 3
+    groups[:, 24:44][rng.random((n, 20)) < 0.1] = -1    # pixels that are not matched
+    groups[:, 44:64] = rng.random((n, 20)) < 0.6
+    groups[:, 64:68] = np.sort(rng.integers(0, len(cell) + 1, (n, 4)), axis=1)   # two runs
+    groups[:, 68] = rng.integers(0, span // 2, n)
+    groups[:, 69] = groups[:, 68] + rng.integers(-1, 12, n)
     monkeypatch.setattr(simd, "PSADBW_WIDTH", width)
     kernel = _first_min_both(pixels)
-    for radius in (2, 3, 7, 9):
+    for radius in (2, 3, 5, 7, 9):
         table = matching.prior_table(0.02, 3.0, radius / 2.0, radius + 1)
         got, ref = kernel(own, other, groups, cell, radius, matching.window_prior(table, radius))
         assert np.array_equal(got, ref), f"radius {radius}"
