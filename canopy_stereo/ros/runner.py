@@ -453,8 +453,10 @@ def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, r
                     book.cond.wait(0.05)
             # the last frame's other outputs (depth, camera_info, mask) travel on their own
             # topics and may be taken after its points2: let the graph go quiet before the
-            # recording is closed, so that every output of a completed frame is in the bag
-            wait_for(lambda: graph_idle_for(OUTPUT_DRAIN_S), max(idle_s, OUTPUT_DRAIN_S))
+            # recording is closed, so that every output of a completed frame is in the bag; a node
+            # still working on one (a slow mask) is waited for, up to timeout_s, unless stopped
+            wait_for(lambda: graph_idle_for(OUTPUT_DRAIN_S) or (stop is not None and stop.is_set()),
+                     max(timeout_s, OUTPUT_DRAIN_S))
         finally:
             result.graph_stats = graph.stats()
             graph.shutdown()

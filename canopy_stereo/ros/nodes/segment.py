@@ -76,7 +76,7 @@ from canopy_stereo.ros.convert import (
 from canopy_stereo.ros.limits import SEGMENT_MIN_SIZE, check_disparity_msg, check_image_msg
 from canopy_stereo.ros.nodes.base import WARM_UP_SIZE, CanopyNode, run_node
 from canopy_stereo.segmentation.auto import VIDEO_SEEDER, decode_setting, seeder_fields
-from canopy_stereo.segmentation.grabcut import clip_rect
+from canopy_stereo.segmentation.grabcut import clip_rect, compile_cut_kernels
 from canopy_stereo.segmentation.propagate import DEFAULT_MAX_PIXELS, DEFAULT_RECUT_EVERY, MaskPropagator
 
 #: Streams of the exact-time pairing with ``depth_cue`` or ``follow_disparity``.
@@ -154,6 +154,7 @@ class SegmentNode(CanopyNode):
             mask = propagator.segment(left, disparity=disparity if self.depth_cue else None)
         image_to_msg(mask, "mono8", stamp_ns=1, frame_id="")
         msg_to_disparity(disparity_to_msg(disparity, 500.0, 0.1, 0.0, 64.0))  # the wire conversion's kernel
+        compile_cut_kernels()  # the compiled GrabCut the synthetic frame's seed did not reach
 
     def _settings(self, changes: dict) -> dict:
         """``{"rect": (x, y, w, h) or None, "seeder": SeederSettings}`` of the parameters with
