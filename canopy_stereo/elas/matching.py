@@ -90,6 +90,20 @@ def plane_radius(sigma: float, sradius: float) -> int:
 
 
 @njit(cache=True, inline="always")
+def _candidate_runs(flat_ranks, ranks, n_ranks, disp_min, hi_max, mu_lo, mu_hi, radius):  # pragma: no cover
+    # the grid candidates in [disp_min, hi_max] below and above the window every pixel of a
+    # group shares, [mu_hi - radius, mu_lo + radius]: (first, below, above, stop) positions in
+    # the cell's increasing candidate list, the runs [first, below) and [above, stop)
+    first = np.int64(flat_ranks[ranks + min(disp_min, n_ranks - 1)])
+    stop = np.int64(flat_ranks[ranks + min(hi_max + 1, n_ranks - 1)])
+    below = np.int64(flat_ranks[ranks + min(max(mu_hi - radius, 0), n_ranks - 1)])
+    above = np.int64(flat_ranks[ranks + min(max(mu_lo + radius + 1, 0), n_ranks - 1)])
+    below = min(max(below, first), stop)
+    above = min(max(above, below), stop)
+    return first, below, above, stop
+
+
+@njit(cache=True, inline="always")
 def _subpixel_offset(flat_own, flat_other, a, sign, best_d, d_lo, d_hi, off_row, c):
     """Parabola refinement of output column ``c`` (descriptor at byte ``a``, winner
     ``best_d``), written to ``off_row[c]`` only where the winner is also a local minimum
@@ -181,13 +195,8 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
                         for k in range(n):
                             if lanes[GROUP_LANES + k] < 0:
                                 lanes[k] = mu_lo
-                    first = np.int64(flat_ranks[ranks + min(disp_min, n_ranks - 1)])
-                    stop = np.int64(flat_ranks[ranks + min(hi_max + 1, n_ranks - 1)])
-                    below = np.int64(flat_ranks[ranks + min(max(mu_hi - radius, 0), n_ranks - 1)])
-                    above = np.int64(flat_ranks[ranks + min(max(mu_lo + radius + 1, 0),
-                                                            n_ranks - 1)])
-                    below = min(max(below, first), stop)
-                    above = min(max(above, below), stop)
+                    first, below, above, stop = _candidate_runs(flat_ranks, ranks, n_ranks, disp_min, hi_max,
+                                                                mu_lo, mu_hi, radius)
                     a0 = row + u * DESC_BYTES
                     w_lo = max(mu_lo - radius, disp_min)
                     w_hi = min(mu_hi + radius, hi_max)
@@ -282,13 +291,8 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
                     # the grid candidates in [disp_min, hi_max] below and above the window
                     # every pixel shares, [mu_hi - r, mu_lo + r] (masked for all four, so
                     # not evaluated): two runs of the increasing cell list
-                    first = np.int64(flat_ranks[ranks + min(disp_min, n_ranks - 1)])
-                    stop = np.int64(flat_ranks[ranks + min(hi_max + 1, n_ranks - 1)])
-                    below = np.int64(flat_ranks[ranks + min(max(mu_hi - radius, 0), n_ranks - 1)])
-                    above = np.int64(flat_ranks[ranks + min(max(mu_lo + radius + 1, 0),
-                                                            n_ranks - 1)])
-                    below = min(max(below, first), stop)
-                    above = min(max(above, below), stop)
+                    first, below, above, stop = _candidate_runs(flat_ranks, ranks, n_ranks, disp_min, hi_max,
+                                                                mu_lo, mu_hi, radius)
                     a0 = row + u * DESC_BYTES
                     best0, best1, best2, best3 = quad_first_min(
                         flat_own, a0, flat_other, a0, -sign * DESC_BYTES, flat_lists,
