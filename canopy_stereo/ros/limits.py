@@ -34,6 +34,7 @@ import threading
 
 import numpy as np
 
+from canopy_stereo.disparity.wire import count_nonfinite
 from canopy_stereo.errors import ImageError
 from canopy_stereo.ros.convert import ENCODINGS
 
@@ -138,9 +139,8 @@ def check_disparity_msg(msg, *, expected_size=None, max_pixels: int = MAX_IMAGE_
     dt = np.dtype("f4").newbyteorder(">" if img.is_bigendian else "<")
     rows = np.frombuffer(img.data, dtype=np.uint8).reshape(int(img.height), int(img.step))
     values = rows[:, : int(img.width) * 4].view(dt)
-    finite = np.isfinite(values)
-    if not finite.all():
-        n = int(finite.size - np.count_nonzero(finite))
+    n = count_nonfinite(values)  # one compiled pass over the payload in place
+    if n:
         raise ImageError(f"disparity image holds {n} non-finite value(s) (NaN/inf); invalid pixels "
                          "must be below min_disparity (stereo_msgs/DisparityImage)")
 
