@@ -210,7 +210,8 @@ class SegmentNode(CanopyNode):
                                             "set rect within them, or [0, 0, 0, 0] (automatic)") from None
         else:
             self.count("disparity_received")
-            check_disparity_msg(msg, expected_size=self.expected_size)
+            # follow_disparity alone reads the stamp (and the size) only: no pixel scan
+            check_disparity_msg(msg, expected_size=self.expected_size, pixels=self.depth_cue)
             if self.depth_cue:
                 frame = msg_to_disparity(msg)
                 # message disparities are reduced by the cameras' cx offset: measured from the
