@@ -454,9 +454,11 @@ def parse_node_parameter(text: str) -> tuple[str, str, object]:
 
 def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rate_hz: float = 30.0,
                log_dir: Path, threads: int | None = None, node_parameters: dict | None = None,
-               intra_process: bool = True, jpeg_quality: int = 95) -> dict:
+               intra_process: bool = True, jpeg_quality: int = 95, stages: bool = False) -> dict:
     """Feed the graph of ``config`` ``n_frames`` pairs at ``rate_hz``; the figures (see the module
-    docstring) as a dict. Runs in the calling process (``main`` gives each configuration a fresh one)."""
+    docstring) as a dict. Runs in the calling process (``main`` gives each configuration a fresh one).
+    ``stages``: also the median latency at which each stage's output arrives (:data:`STAGE_TOPICS`;
+    the probe's extra subscriptions cost the publishers a copy each)."""
     import threading
     import time
 
@@ -533,6 +535,25 @@ def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rat
         sub = probe.node.create_subscription(PointCloud2, "points2", on_cloud,
                                              QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE),
                                              raw=True)
+        stage_arrivals: dict[str, dict] = {}
+        if stages:
+            from importlib import import_module
+
+            for stage, (topic, type_name) in STAGE_TOPICS.items():
+                if stage == "mask" and not config.mask:
+                    continue
+                package, _, name = type_name.rpartition(".")
+                seen = stage_arrivals.setdefault(stage, {})
+
+                def on_stage(data, seen=seen):
+                    t = time.time_ns()
+                    stamp = header_stamp_from_cdr(data[:12])
+                    with lock:
+                        seen.setdefault(stamp, t)
+
+                probe.node.create_subscription(getattr(import_module(package), name), topic, on_stage,
+                                               QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE),
+                                               raw=True)
         if not wait_for(lambda: sub.get_publisher_count() >= 1 and pub_l.get_subscription_count() >= 1
                         and pub_r.get_subscription_count() >= 1, 60.0, group=group):
             raise RuntimeError("the graph did not connect" + (":\n" + group.logs() if group else ""))
@@ -563,6 +584,8 @@ def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rat
         time.sleep(2.5)  # drain, and one diagnostics period for the totals
         with lock:
             arrivals.clear()
+            for seen in stage_arrivals.values():
+                seen.clear()
         diag0 = diagnostics.snapshot()
         reasons0 = diagnostics.reason_counts()
 
@@ -599,6 +622,9 @@ def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rat
         with lock:
             got = {s: t for s, t in arrivals.items() if s in wanted}
         lat_ms = np.array([(got[s] - s) / 1e6 for s in sent if s in got])
+        with lock:  # each stage's latency over the pairs that became clouds
+            stage_ms = {stage: float(np.median([(seen[s] - s) / 1e6 for s in got if s in seen]))
+                        for stage, seen in stage_arrivals.items() if any(s in seen for s in got)}
         feed_s = (sent[-1] - sent[0]) / 1e9 if len(sent) > 1 else float("nan")
         span_s = (max(got.values()) - sent[0]) / 1e9 if got else float("nan")
         nodes = {}
@@ -625,6 +651,7 @@ def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rat
             "cpu_window_s": wall1 - wall0,
             "process_rss_peak_mb": proc_peak_rss_mb("self"),
             "nodes": nodes,
+            "stage_latency_ms": stage_ms,
         }
     finally:
         if graph is not None:
@@ -656,12 +683,20 @@ def format_result(r: dict) -> list[str]:
     if r["config"].startswith("inprocess"):
         parts.append(f"process {r['process_rss_peak_mb']:.0f} MB")
     lines.append("    cpu ms per offered pair (per frame output): " + ", ".join(parts))
+    if r.get("stage_latency_ms"):
+        lines.append("    latency p50 of the clouds' pairs at each stage's output: "
+                     + ", ".join(f"{k} {v:.0f} ms" for k, v in r["stage_latency_ms"].items()))
     for name, v in r["nodes"].items():
         top = sorted(v.get("drop_reasons", {}).items(), key=lambda kv: -kv[1])[:3]
         if top:
             lines.append(f"    {_short(name)} drops: " + "; ".join(f"{n}x {k[:90]}" for k, n in top))
     return lines
 
+
+#: ``--stages``: stage -> (topic, message type) whose arrival times the probe records
+STAGE_TOPICS = {"rectify": ("left/image_rect/camera_info", "sensor_msgs.msg.CameraInfo"),
+                "disparity": ("disparity", "stereo_msgs.msg.DisparityImage"),
+                "mask": ("left/mask", "sensor_msgs.msg.Image")}
 
 HEADER = (f"{'configuration':32s} {'offered':>7s} {'delivered':>9s} {'ratio':>6s} {'lat p50':>8s} "
           f"{'p95':>6s}  (clouds/s, ms)")
@@ -781,6 +816,9 @@ def main(argv=None) -> int:
                    help="run every configuration N times (rounds over all of them, so that a passing load "
                         "spreads over all) and print the median of each figure per configuration")
     p.add_argument("--json", metavar="OUT.json", help="also write the results as JSON")
+    p.add_argument("--stages", action="store_true",
+                   help="also the median latency of each stage's output (rectified camera_info, disparity, "
+                        "mask) for the pairs that became clouds; the probe's subscriptions add copies")
     p.add_argument("--no-intra-process", action="store_true",
                    help="inprocess: DDS between the nodes too (GraphOptions.intra_process=False)")
     p.add_argument("--one", metavar="CONFIG", help=argparse.SUPPRESS)  # one configuration, this process
@@ -821,7 +859,8 @@ def main(argv=None) -> int:
         with tempfile.TemporaryDirectory() as tmp:
             result = run_config(configs[0], scene=args.scene, n_frames=n_frames, rate_hz=args.rate,
                                 log_dir=Path(tmp), threads=args.threads, node_parameters=node_parameters,
-                                intra_process=not args.no_intra_process, jpeg_quality=args.jpeg_quality)
+                                intra_process=not args.no_intra_process, jpeg_quality=args.jpeg_quality,
+                                stages=args.stages)
         Path(args.json).write_text(json.dumps(result))
         return 0
     print(f"machine: {os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.2f} at start; "
@@ -841,6 +880,8 @@ def main(argv=None) -> int:
                 cmd += ["--threads", str(args.threads)]
             if args.no_intra_process:
                 cmd.append("--no-intra-process")
+            if args.stages:
+                cmd.append("--stages")
             for text in args.param:
                 cmd += ["--param", text]
             proc = subprocess.run(cmd, capture_output=True, text=True)

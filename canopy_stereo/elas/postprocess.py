@@ -95,32 +95,44 @@ def _find_root(parent, r):
     return r
 
 
+@njit(cache=True, inline="always")
+def _unite(parent, a, b):
+    """Join the trees of runs ``a`` and ``b`` (the smaller root becomes the root)."""
+    x = _find_root(parent, a)
+    y = _find_root(parent, b)
+    if x < y:
+        parent[y] = x
+    elif y < x:
+        parent[x] = y
+
+
 @njit(cache=True, nogil=True)
-def _remove_small_segments(disp, sim_threshold, min_size, label, parent, run_size, run_start,
-                           run_length, out):
-    """Connected segments of row runs with union-find, then one pass that invalidates
-    the pixels of small segments.
+def _segment_band(disp, sim_threshold, label, parent, run_size, run_start, band_end, out,
+                  row_start, row_stop):
+    """Rows ``[row_start, row_stop)`` of :func:`_remove_small_segments`: their row runs,
+    numbered from ``row_start * W`` (a band never has more runs than pixels, so bands
+    number apart), united through the vertical joins inside the band; the rows copied to
+    ``out``; ``band_end[row_start]`` = one past the band's last run.
 
     Two neighbouring pixels are joined when both are valid (>= 0) and differ by at most
     ``sim_threshold`` (a symmetric relation, so the segments are those of a flood fill).
-    A row run is a maximal horizontally joined stretch; runs are united through their
-    vertical joins (consecutive joins between the same two runs are united once). A
-    NaN pixel joins nothing: a segment of its own, as in a flood fill seeded there.
-    ``label`` int32 (H, W), ``parent``, ``run_size``, ``run_start`` and ``run_length``
-    int32 (H*W,) are scratch. The output is a copy of the map with the runs of small
-    segments then invalidated run by run (no per-pixel lookup of its segment).
+    A row run is a maximal horizontally joined stretch (consecutive joins between the same
+    two runs are united once). A NaN pixel joins nothing: a segment of its own, as in a
+    flood fill seeded there.
     """
     h, w = disp.shape
-    n_runs = 0
-    for v in range(h):
+    n_runs = row_start * w
+    for v in range(row_start, row_stop):
         row = disp[v]
         lab = label[v]
+        dst = out[v]
         last_above = -1
         last_here = -1
         r = -1
         prev = np.float32(-1.0)
         for u in range(w):
             d = row[u]
+            dst[u] = d
             if d < 0:
                 lab[u] = -1
                 prev = d
@@ -136,36 +148,83 @@ def _remove_small_segments(disp, sim_threshold, min_size, label, parent, run_siz
                 run_start[r] = v * w + u
             run_size[r] += 1
             lab[u] = r
-            if v > 0:
+            if v > row_start:
                 above = disp[v - 1, u]
                 if (above >= 0) & (abs(above - d) <= sim_threshold):
                     ra = label[v - 1, u]
                     if ra != last_above or r != last_here:
                         last_above = ra
                         last_here = r
-                        x = _find_root(parent, ra)
-                        y = _find_root(parent, r)
-                        if x < y:
-                            parent[y] = x
-                        elif y < x:
-                            parent[x] = y
-    # segment sizes at the roots (each run's own length kept apart)
-    for r in range(n_runs):
-        run_length[r] = run_size[r]
-    for r in range(n_runs):
-        if parent[r] != r:
-            run_size[_find_root(parent, r)] += run_size[r]
-    for v in range(h):
-        row = disp[v]
-        dst = out[v]
+                        _unite(parent, ra, r)
+    band_end[row_start] = n_runs
+
+
+@njit(cache=True, nogil=True)
+def _join_bands(disp, sim_threshold, min_size, label, parent, run_size, run_length, band_end):
+    """The serial middle of :func:`_remove_small_segments`: the vertical joins across band
+    edges (a band starts at each row ``v`` with ``band_end[v] >= 0``), each segment's size
+    at its root, then ``run_length[r]`` = the run's length if its segment is smaller than
+    ``min_size``, else 0 (nothing to invalidate)."""
+    h, w = disp.shape
+    for v in range(1, h):
+        if band_end[v] < 0:
+            continue
+        last_above = -1
+        last_here = -1
         for u in range(w):
-            dst[u] = row[u]
+            d = disp[v, u]
+            above = disp[v - 1, u]
+            if (d >= 0) & (above >= 0) & (abs(above - d) <= sim_threshold):
+                ra = label[v - 1, u]
+                r = label[v, u]
+                if ra != last_above or r != last_here:
+                    last_above = ra
+                    last_here = r
+                    _unite(parent, ra, r)
+    # segment sizes at the roots (each run's own length kept apart)
+    for v in range(h):
+        for r in range(v * w, band_end[v]):
+            run_length[r] = run_size[r]
+    for v in range(h):
+        for r in range(v * w, band_end[v]):
+            if parent[r] != r:
+                run_size[_find_root(parent, r)] += run_size[r]
+    for v in range(h):
+        for r in range(v * w, band_end[v]):
+            if run_size[_find_root(parent, r)] >= min_size:
+                run_length[r] = 0
+
+
+@njit(cache=True, nogil=True)
+def _invalidate_runs(run_start, run_length, band_end, out, row_start, row_stop):
+    """Rows ``[row_start, row_stop)`` (one band of :func:`_segment_band`): the pixels of the
+    band's runs with a nonzero ``run_length`` invalidated (no per-pixel lookup)."""
     flat = out.reshape(-1)
-    for r in range(n_runs):
-        if run_size[_find_root(parent, r)] < min_size:
-            start = run_start[r]
-            for i in range(start, start + run_length[r]):
-                flat[i] = INVALID
+    w = out.shape[1]
+    for r in range(row_start * w, band_end[row_start]):
+        start = run_start[r]
+        for i in range(start, start + run_length[r]):
+            flat[i] = INVALID
+
+
+def _remove_small_segments(disp, sim_threshold, min_size, label, parent, run_size, run_start,
+                           run_length, band_end, out):
+    """Connected segments of row runs with union-find, then the runs of small segments
+    invalidated in a copy of the map (``out``, returned).
+
+    Row bands (:func:`~canopy_stereo.elas.parallel.run_row_bands`) find their runs and
+    unite them inside the band (:func:`_segment_band`); one serial pass unites across the
+    band edges and sizes the segments (:func:`_join_bands`); the bands then invalidate
+    their small segments' runs (:func:`_invalidate_runs`). Segments, and so the output,
+    do not depend on the bands. ``label`` int32 (H, W), ``parent``, ``run_size``,
+    ``run_start`` and ``run_length`` int32 (H*W,), ``band_end`` int32 (H,) are scratch.
+    """
+    h = disp.shape[0]
+    band_end[:] = -1
+    run_row_bands((_segment_band, h, (disp, sim_threshold, label, parent, run_size, run_start,
+                                      band_end, out)))
+    _join_bands(disp, sim_threshold, min_size, label, parent, run_size, run_length, band_end)
+    run_row_bands((_invalidate_runs, h, (run_start, run_length, band_end, out)))
     return out
 
 
@@ -184,13 +243,14 @@ def remove_small_segments(disp: np.ndarray, sim_threshold: float, min_size: int,
     if workspace is None:
         scratch = (np.empty((h, w), np.int32), np.empty(h * w, np.int32),
                    np.empty(h * w, np.int32), np.empty(h * w, np.int32),
-                   np.empty(h * w, np.int32), np.empty_like(disp))
+                   np.empty(h * w, np.int32), np.empty(h, np.int32), np.empty_like(disp))
     else:
         scratch = (workspace.array("segments_label", (h, w), np.int32),
                    workspace.array("segments_parent", (h * w,), np.int32),
                    workspace.array("segments_run_size", (h * w,), np.int32),
                    workspace.array("segments_run_start", (h * w,), np.int32),
                    workspace.array("segments_run_length", (h * w,), np.int32),
+                   workspace.array("segments_band_end", (h,), np.int32),
                    workspace.array("segments", (h, w), np.float32))
     return _remove_small_segments(disp, float(sim_threshold), int(min_size), *scratch)
 
@@ -228,16 +288,18 @@ def _gap_fill(d1, d2, discon):
 
 
 @njit(cache=True, nogil=True)
-def _fill_columns(out, max_gap, discon, extrapolate):
-    """:func:`_fill_line` on every column of ``out`` (H, W) in place, scanning whole rows
-    (contiguous) with one run counter per column instead of transposing the map. Per row,
-    one branch-free (vectorised) pass finds the columns whose gap ends there and updates
-    the counters; the few gaps are filled after it (a fill writes only rows above)."""
-    h, w = out.shape
+def _fill_columns(out, max_gap, discon, extrapolate, col_start, col_stop):
+    """:func:`_fill_line` on columns ``[col_start, col_stop)`` of ``out`` (H, W) in place,
+    scanning rows (contiguous) with one run counter per column instead of transposing the
+    map. Per row, one branch-free (vectorised) pass finds the columns whose gap ends there
+    and updates the counters; the few gaps are filled after it (a fill writes only rows
+    above)."""
+    h = out.shape[0]
+    w = col_stop - col_start
     count = np.zeros(w, dtype=np.int32)
     gap = np.zeros(w, dtype=np.int32)
     for i in range(h):
-        row = out[i]
+        row = out[i, col_start:col_stop]
         # which columns end a fillable gap here (its length in `gap`), the run counters
         ends = 0
         for u in range(w):
@@ -252,11 +314,12 @@ def _fill_columns(out, max_gap, discon, extrapolate):
         for u in range(w):
             n = gap[u]
             if n:
-                fill = _gap_fill(out[i - n - 1, u], row[u], discon)
+                c = col_start + u
+                fill = _gap_fill(out[i - n - 1, c], row[u], discon)
                 for j in range(i - n, i):
-                    out[j, u] = fill
+                    out[j, c] = fill
     if extrapolate:
-        for u in range(w):
+        for u in range(col_start, col_stop):
             for i in range(h):
                 if out[i, u] >= 0:
                     for j in range(max(i - max_gap, 0), i):
@@ -270,15 +333,13 @@ def _fill_columns(out, max_gap, discon, extrapolate):
 
 
 @njit(cache=True, nogil=True)
-def _interpolate_gaps(disp, max_gap, discon, extrapolate, out):
-    h, w = disp.shape
-    for v in range(h):      # (a loop: an array-to-array slice assignment compiles for seconds)
-        for u in range(w):
+def _fill_rows(disp, max_gap, discon, extrapolate, out, row_start, row_stop):
+    """Rows ``[row_start, row_stop)`` of ``disp`` copied to ``out`` and filled along the row."""
+    w = disp.shape[1]
+    for v in range(row_start, row_stop):
+        for u in range(w):   # (a loop: an array-to-array slice assignment compiles for seconds)
             out[v, u] = disp[v, u]
-    for v in range(out.shape[0]):
         _fill_line(out[v], max_gap, discon, extrapolate)
-    _fill_columns(out, max_gap, discon, extrapolate)
-    return out
 
 
 def interpolate_gaps(disp: np.ndarray, max_gap: int, *, extrapolate: bool = False,
@@ -297,7 +358,12 @@ def interpolate_gaps(disp: np.ndarray, max_gap: int, *, extrapolate: bool = Fals
     disp = np.ascontiguousarray(disp, np.float32)
     out = np.empty_like(disp) if workspace is None else \
         workspace.array("interpolated", disp.shape, np.float32)
-    return _interpolate_gaps(disp, int(max_gap), float(discontinuity), bool(extrapolate), out)
+    h, w = disp.shape
+    args = (int(max_gap), float(discontinuity), bool(extrapolate))
+    # rows in row bands, then columns in column bands (each line is filled on its own)
+    run_row_bands((_fill_rows, h, (disp, *args, out)))
+    run_row_bands((_fill_columns, w, (out, *args)))
+    return out
 
 
 @njit(cache=True, inline="always")

@@ -355,13 +355,20 @@ OUTPUT_DRAIN_S = 0.2
 
 def _hold_every_frame(options: GraphOptions, rate: float, max_in_flight: int) -> GraphOptions:
     """As fast as possible (``rate`` 0) the player keeps ``max_in_flight`` frames in the graph and
-    none may be dropped: disparity_node may hold that many waiting (unless set explicitly; its
-    default of 1 is for cameras, which do not wait)."""
-    disparity = options.node_parameters.get("disparity_node", {})
-    if rate != 0 or "waiting_pairs" in disparity:
+    none may be dropped: rectify_node and disparity_node may hold that many waiting (unless set
+    explicitly; their default of 1 is for cameras, which do not wait)."""
+    if rate != 0:
         return options
-    params = {**options.node_parameters, "disparity_node": {**disparity, "waiting_pairs": int(max_in_flight)}}
+    params = dict(options.node_parameters)
+    for name in _WAITING_NODES:
+        values = params.get(name, {})
+        if "waiting_pairs" not in values:
+            params[name] = {**values, "waiting_pairs": int(max_in_flight)}
     return replace(options, node_parameters=params)
+
+
+#: Nodes whose slow stage keeps only the newest ``waiting_pairs`` pairs waiting.
+_WAITING_NODES = ("rectify_node", "disparity_node")
 
 
 def _run(bag, rig, rate, options, domain_id, max_in_flight, idle_s, timeout_s, remap, startup_timeout_s,

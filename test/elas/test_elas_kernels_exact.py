@@ -188,6 +188,31 @@ def test_small_segment_removal_is_exact_on_real_maps(plants):
         assert (got < 0).sum() > (disp < 0).sum()
 
 
+@pytest.mark.parametrize("bands_per_thread", [1, 3, 30])
+def test_segments_and_gaps_do_not_depend_on_the_row_bands(rng, plants, monkeypatch, bands_per_thread):
+    """Small-segment removal and gap interpolation in row bands (and column bands), down to
+    one-row bands: segments spanning many bands, runs joined across band edges, the same
+    maps as the references."""
+    import numba
+
+    from canopy_stereo.elas import parallel
+
+    monkeypatch.setattr(parallel, "BANDS_PER_THREAD", bands_per_thread)
+    before = numba.get_num_threads()
+    maps = [random_disparity(rng, (41, 57), integer=True, hi=4, invalid=0.1), plants["disp"][0]]
+    try:
+        for threads in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
+            numba.set_num_threads(threads)
+            for disp in maps:
+                for min_size in (4, 200):
+                    assert same_bits(postprocess.remove_small_segments(disp, 1.0, min_size),
+                                     reference_remove_small_segments(disp, 1.0, min_size))
+                assert same_bits(postprocess.interpolate_gaps(disp, 5, extrapolate=True),
+                                 reference_interpolate_gaps(disp, 5, True))
+    finally:
+        numba.set_num_threads(before)
+
+
 # -------------------------------------------------------------- support points
 def reference_candidate_grid(desc_l, desc_r, tex_l, tex_r, step, disp_min, disp_max,
                              support_texture, support_threshold, lr_threshold):

@@ -50,6 +50,7 @@ messages, ``right_camera_rect_optical_frame`` in the transforms), ``world_frame`
 ``world_z_up_frame`` ("" = none), ``image_transport`` (``raw``/``compressed``),
 ``left_camera_frame``/``right_camera_frame`` (raw optical frames in the transforms),
 ``zero_stamps``, ``max_stamp_gap``, the mounting parameters above, ``skew_compensation``,
+``waiting_pairs``,
 ``reliability``, ``diagnostic_period``.
 
 Skew compensation (``skew_compensation``, default true): free-running webcams capture
@@ -71,6 +72,13 @@ the receive time (``zero_stamps: restamp``, the default) or dropped (``drop``), 
 ``/diagnostics`` either way; a stamp repeated by the driver is dropped as ``duplicate stamp``
 (and its gap not counted as lost); ``max_stamp_gap`` (s, 0 = off) warns about stamps that far
 from the receive time, naming the gap.
+
+A slow rectification never backs up the input queues (at 1280x720 a pair can take longer
+than a frame period): the callbacks only check stamps and pair the frames' messages; one
+worker decodes, rectifies and publishes the newest complete pair, at most ``waiting_pairs``
+(1) wait while it is busy and older ones are dropped as ``camera pair: superseded``. So a
+rectified pair leaves at most one pair's work after its frames arrived, where a node that
+works through its keep-last queue in order falls ``queue_size`` frames behind.
 
 Frames that never reached the node (overwritten in its keep-last input queue while it
 was busy, or lost upstream) are counted as drops (``left frame: missed ...``, in
@@ -156,6 +164,9 @@ class RectifyNode(CanopyNode):
                             minimum=-1.0, maximum=10.0, read_only=True)
         self.declare_number("queue_size", 5, "frames per camera kept while waiting for a partner",
                             minimum=1, maximum=100, read_only=True)
+        self.declare_number("waiting_pairs", 1, "complete pairs kept waiting while the node rectifies; when "
+                            "more arrive the oldest is dropped (the newest win, latency stays bounded)",
+                            minimum=1, maximum=100, read_only=True)
         for name, (default, desc) in _FRAME_PARAMETERS.items():
             self.declare_text(name, default, desc, read_only=True)
         self.declare_text("image_transport", "raw", "input transport: raw (<side>/image_raw, Image) or "
@@ -167,6 +178,8 @@ class RectifyNode(CanopyNode):
                           "or in wind)", read_only=True)
         self.skew = SkewCompensator(enabled=bool(self.get_parameter("skew_compensation").value))
         self._skew_reasons_logged: set[str] = set()
+        self.rectifying = self.latest_only(self._rectify_pair, "camera pair",
+                                           depth=int(self.get_parameter("waiting_pairs").value))
         self.declare_flag("use_camera_info", False, "take the rig from the drivers' left/camera_info and "
                           "right/camera_info (REP 104, as image_pipeline does) instead of a rig file",
                           read_only=True)
@@ -265,16 +278,19 @@ class RectifyNode(CanopyNode):
         return msg_to_bgr(msg, expected_size=size) if side == 0 else msg_to_mono(msg, expected_size=size)
 
     def _on_image(self, side: int, msg, info: dict | None = None) -> None:
+        """One camera frame: stamp checks and pairing of the message (raw frames checked for
+        size and encoding first); a complete pair goes to the worker (:meth:`_rectify_pair`)."""
         name = ("left", "right")[side]
         self.count(f"{name}_received")
         if self.rig is None:
             self.drop("no rig yet (waiting for left/camera_info and right/camera_info)", f"{name} frame")
             return
-        try:
-            image = self._to_image(side, msg)
-        except Exception as exc:
-            self.drop(str(exc), f"{name} frame")
-            return
+        if isinstance(msg, Image):
+            try:
+                check_image_msg(msg, expected_size=self.rig.image_size, encodings=COLOUR_ENCODINGS)
+            except Exception as exc:
+                self.drop(str(exc), f"{name} frame")
+                return
         stamp = self.checked_stamp(self.stamp_check, side, stamp_to_ns(msg.header.stamp), f"{name} frame",
                                    info=info)
         if stamp is None:  # a duplicate, or a zero stamp with zero_stamps: drop
@@ -283,20 +299,36 @@ class RectifyNode(CanopyNode):
             self._count_missed(stamp)
         if self.period_estimator is not None:
             self._follow_frame_rate(self.period_estimator.observe(side, stamp))
-        pair, dropped = self.pairer.push(side, stamp, image)
+        pair, dropped = self.pairer.push(side, stamp, msg)
         self.drop_unpaired(dropped, ("left frame", "right frame"))
         if pair is not None:
             self.diagnostics.sample("pair offset ms", pair.skew_ns / 1e6)
-            self._publish(pair.stamps_ns[0], self.rectifier.rectify_one(pair.items[0], "left", copy=False),
-                          self._rectified_right(pair))
+            self.count("pairs_complete")
+            self.rectifying.submit(pair)
 
-    def _rectified_right(self, pair) -> np.ndarray:
-        """The pair's right image (grey), rectified: at the left image's instant when the skew
-        compensation can (its shift composed into the rectification map: one interpolation),
-        else as it came, saying why; reported on ``/diagnostics``."""
+    def _rectify_pair(self, pair) -> None:
+        """The worker's job: decode one pair's messages, rectify and publish them; a frame that
+        cannot be decoded drops the pair, naming the reason for it and its partner."""
+        images = []
+        for side, msg in enumerate(pair.items):
+            try:
+                images.append(self._to_image(side, msg))
+            except Exception as exc:
+                name, other = ("left", "right")[side], ("right", "left")[side]
+                self.drop(str(exc), f"{name} frame")
+                self.drop(f"its {name} frame was dropped", f"{other} frame")
+                return
+        left, right = images
+        self._publish(pair.stamps_ns[0], self.rectifier.rectify_one(left, "left", copy=False),
+                      self._rectified_right(right, pair.stamps_ns))
+
+    def _rectified_right(self, right: np.ndarray, stamps_ns: tuple[int, int]) -> np.ndarray:
+        """A pair's right image (grey, ``stamps_ns``: the left and right stamps), rectified: at
+        the left image's instant when the skew compensation can (its shift composed into the
+        rectification map: one interpolation), else as it came, saying why; reported on
+        ``/diagnostics``."""
         t0 = time.perf_counter()
-        right = pair.items[1]
-        shift, rep = self.skew.measure(right, stamp_left_ns=pair.stamps_ns[0], stamp_right_ns=pair.stamps_ns[1])
+        shift, rep = self.skew.measure(right, stamp_left_ns=stamps_ns[0], stamp_right_ns=stamps_ns[1])
         if shift is None:
             self._report_skew(rep)
             return self.rectifier.rectify_one(right, "right", copy=False)
