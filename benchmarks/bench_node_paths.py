@@ -205,8 +205,8 @@ def _time_calls(node, frames, calls, repeat, counter, matcher_cpu=None) -> dict:
         inputs = [[serialize_message(fr[topic]) if getattr(sub, "raw", False) else fr[topic]
                    for topic, sub in calls] for fr in frames]
         t0 = time.process_time()
-        for fr, row in zip(frames, inputs):
-            for (topic, sub), msg in zip(calls, row):
+        for row in inputs:
+            for (_, sub), msg in zip(calls, row):
                 sub.callback(msg)
             if matcher_cpu is not None:  # the matcher runs on the node's worker: wait for it
                 deadline = time.monotonic() + 2
