@@ -226,6 +226,15 @@ DRIFTING_SCENES = ("plants", "aloe")
 DRIFT_PX, DRIFT_PERIOD = (12, 6), 60
 #: Standard deviation of the per-frame sensor noise (grey levels).
 NOISE_SIGMA = 2.0
+#: ``--lens``: how the pre-rectified real pairs (Plants, Aloe) reach the graph: ``webcam`` = as two
+#: webcams would see them (:func:`webcam_lens`: each camera turned by a fraction of a degree, with
+#: a webcam's barrel distortion, so that rectify_node undistorts and rectifies as on a real rig);
+#: ``none`` = as published (identity rectification maps, which rectify_node does not resample).
+LENSES = ("webcam", "none")
+#: :func:`webcam_lens`: each camera's turn (rx, ry, rz in degrees: pitch, yaw, roll) and
+#: distortion (plumb_bob k1, k2, p1, p2, k3 at the frame's own focal length).
+WEBCAM_TURNS_DEG = ((0.4, -0.6, 0.3), (-0.3, 0.5, -0.4))
+WEBCAM_DISTORTION = (-0.08, 0.02, 0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -291,12 +300,56 @@ def scaled_rig(rig, scale: float, crop=(0, 0), size=None):
                rig.D_left, rig.D_right, extra)
 
 
-def bench_frames(scene: str, size: str, n_frames: int = DRIFT_PERIOD, seed: int = 0):
+def webcam_lens(rig) -> tuple:
+    """``(raw_rig, (map_left, map_right))``: ``rig`` (a pre-rectified pair's rig) as two webcams:
+    each camera turned about its centre by :data:`WEBCAM_TURNS_DEG` and given
+    :data:`WEBCAM_DISTORTION`; the maps (float32 (H, W, 2), for ``cv2.remap``) take a frame of
+    ``rig`` to what the turned, distorting camera records (the pixel of each raw ray in the
+    frame). Rectifying the raw frames with ``raw_rig`` gives the frames back (turned by the left
+    camera's pitch: Fusiello keeps the left camera's optical axis in the plane it sets)."""
+    import cv2
+    import numpy as np
+
+    from canopy_stereo.geometry.rig import Rig
+    from canopy_stereo.geometry.rig_rectification import rectification_for_rig
+
+    w, h = rig.image_size
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    pixels = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
+    D = np.array(WEBCAM_DISTORTION)
+    projections, maps = [], []
+    for P, turn in ((rig.P_left, WEBCAM_TURNS_DEG[0]), (rig.P_right, WEBCAM_TURNS_DEG[1])):
+        K, R, C = cv2.decomposeProjectionMatrix(P)[:3]
+        K = K / K[2, 2]
+        C = (C[:3] / C[3]).ravel()
+        Q = cv2.Rodrigues(np.radians(np.array(turn, dtype=np.float64)))[0]
+        projections.append(K @ np.hstack([Q @ R, (-Q @ R @ C)[:, None]]))
+        rays = cv2.undistortPoints(pixels, K, D).reshape(-1, 2)  # the raw camera's ideal rays
+        back = np.hstack([rays, np.ones((rays.shape[0], 1))]) @ Q  # rows: Q^T ray (the frame's camera)
+        uv = back @ K.T
+        maps.append((uv[:, :2] / uv[:, 2:]).reshape(h, w, 2).astype(np.float32))
+    extra = dict(rig.extra)
+    raw = Rig(projections[0], projections[1], rig.image_size, rig.world_unit, D, D, extra)
+    # the frames' rig keeps its rectified principal points apart (doffs); the webcams' rectification
+    # gives both one: the same points' disparities move by the difference
+    shift = rectification_for_rig(raw).doffs - rectification_for_rig(rig).doffs
+    for key in ("disp_min", "disp_max"):
+        if key in extra:
+            extra[key] = max(0, int(np.floor(extra[key] + shift)) if key == "disp_min"
+                             else int(np.ceil(extra[key] + shift)))
+    return raw, tuple(maps)
+
+
+def bench_frames(scene: str, size: str, n_frames: int = DRIFT_PERIOD, seed: int = 0, *, lens: str = "none"):
     """``(rig, frames)``: the rig of ``size`` and ``n_frames`` (left, right) uint8 BGR pairs of
     the bundled ``scene`` (``plants``: the real Middlebury pair, a 640x480 crop drifting by
     :data:`DRIFT_PX`; ``croton``: the four synthetic frames, cycled), resized to ``size``, with
     fresh sensor noise (sigma :data:`NOISE_SIGMA`) in every frame. A 16:9 size (1280x720) sees
-    the middle 640x360 rows of the 640x480 window, scaled (the rig follows: :func:`scaled_rig`)."""
+    the middle 640x360 rows of the 640x480 window, scaled (the rig follows: :func:`scaled_rig`).
+    ``lens`` (:data:`LENSES`): ``webcam`` records the drifting real pairs through
+    :func:`webcam_lens` (the rig is the webcams'), ``none`` leaves them pre-rectified."""
+    if lens not in LENSES:
+        raise ValueError(f"lens must be one of {', '.join(LENSES)}, got {lens!r}")
     import cv2
     import numpy as np
 
@@ -325,6 +378,9 @@ def bench_frames(scene: str, size: str, n_frames: int = DRIFT_PERIOD, seed: int 
         y0 = (rig.image_size[1] - wh) // 2
         rig = scaled_rig(rig, scale, (0, y0), (ww, wh)) if y0 else scaled_rig(rig, scale)
         lefts, rights = [im[y0:y0 + wh] for im in lefts], [im[y0:y0 + wh] for im in rights]
+    lens_maps = None
+    if drifting and lens == "webcam":
+        rig, lens_maps = webcam_lens(rig)
     for k in range(n_frames):
         left, right = lefts[k % len(lefts)], rights[k % len(rights)]
         if drifting:
@@ -333,10 +389,12 @@ def bench_frames(scene: str, size: str, n_frames: int = DRIFT_PERIOD, seed: int 
             y = cy + int(round(dy * np.sin(2 * phase)))
             left, right = left[y:y + wh, x:x + ww], right[y:y + wh, x:x + ww]
         pair = []
-        for img in (left, right):
+        for side, img in enumerate((left, right)):
             if scale != 1:
                 img = cv2.resize(img, rig.image_size, interpolation=cv2.INTER_AREA if scale < 1
                                  else cv2.INTER_LINEAR)
+            if lens_maps is not None:
+                img = cv2.remap(img, lens_maps[side], None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
             noisy = img.astype(np.float32) + rng.normal(0.0, NOISE_SIGMA, img.shape).astype(np.float32)
             pair.append(np.clip(np.rint(noisy), 0, 255).astype(np.uint8))
         frames.append(tuple(pair))
@@ -454,7 +512,8 @@ def parse_node_parameter(text: str) -> tuple[str, str, object]:
 
 def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rate_hz: float = 30.0,
                log_dir: Path, threads: int | None = None, node_parameters: dict | None = None,
-               intra_process: bool = True, jpeg_quality: int = 95, stages: bool = False) -> dict:
+               intra_process: bool = True, jpeg_quality: int = 95, stages: bool = False,
+               lens: str = "webcam") -> dict:
     """Feed the graph of ``config`` ``n_frames`` pairs at ``rate_hz``; the figures (see the module
     docstring) as a dict. Runs in the calling process (``main`` gives each configuration a fresh one).
     ``stages``: also the median latency at which each stage's output arrives (:data:`STAGE_TOPICS`;
@@ -473,7 +532,7 @@ def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rat
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout's test package
     from test.support.ros_harness import Probe, ProcessGroup, wait_for
 
-    rig, frames = bench_frames(scene, config.size)
+    rig, frames = bench_frames(scene, config.size, lens=lens)
     log_dir.mkdir(parents=True, exist_ok=True)
     rig_path = save_rig(rig, log_dir / "rig.yaml")
     domain = private_domain_id()
@@ -642,7 +701,7 @@ def run_config(config: Config, *, scene: str = "plants", n_frames: int = 90, rat
                 row["rss_peak_mb"] = proc_peak_rss_mb(pids[name])
             nodes[name] = row
         return {
-            "config": str(config), "scene": scene, "frames": n_frames, "rate_hz": rate_hz,
+            "config": str(config), "scene": scene, "lens": lens, "frames": n_frames, "rate_hz": rate_hz,
             "offered_per_s": (len(sent) - 1) / feed_s if feed_s > 0 else float("nan"),
             "delivered_per_s": len(got) / span_s if got and span_s > 0 else 0.0,
             "delivered_fraction": len(got) / len(sent),
@@ -816,6 +875,10 @@ def main(argv=None) -> int:
                    help="run every configuration N times (rounds over all of them, so that a passing load "
                         "spreads over all) and print the median of each figure per configuration")
     p.add_argument("--json", metavar="OUT.json", help="also write the results as JSON")
+    p.add_argument("--lens", choices=LENSES, default="webcam",
+                   help="the real pairs (plants, aloe) as two webcams record them (default: turned cameras with "
+                        "barrel distortion, which rectify_node undistorts and rectifies) or pre-rectified "
+                        "(none: identity maps, which rectify_node does not resample)")
     p.add_argument("--stages", action="store_true",
                    help="also the median latency of each stage's output (rectified camera_info, disparity, "
                         "mask) for the pairs that became clouds; the probe's subscriptions add copies")
@@ -860,11 +923,12 @@ def main(argv=None) -> int:
             result = run_config(configs[0], scene=args.scene, n_frames=n_frames, rate_hz=args.rate,
                                 log_dir=Path(tmp), threads=args.threads, node_parameters=node_parameters,
                                 intra_process=not args.no_intra_process, jpeg_quality=args.jpeg_quality,
-                                stages=args.stages)
+                                stages=args.stages, lens=args.lens)
         Path(args.json).write_text(json.dumps(result))
         return 0
     print(f"machine: {os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.2f} at start; "
-          f"{args.scene} frames, {n_frames} pairs per configuration at {args.rate:g} pairs/s"
+          f"{args.scene} frames ({'as webcams record them' if args.lens == 'webcam' else 'pre-rectified'}), "
+          f"{n_frames} pairs per configuration at {args.rate:g} pairs/s"
           + "".join(f"; {t}" for t in args.param) + (f"; disparity threads {args.threads}" if args.threads else "")
           + ("; in-process graph without the intra-process bus" if args.no_intra_process else ""),
           flush=True)
@@ -875,7 +939,7 @@ def main(argv=None) -> int:
             out = Path(tmp) / f"{str(config).replace(':', '_')}.json"
             cmd = [sys.executable, str(Path(__file__).resolve()), "--one", str(config), "--json", str(out),
                    "--scene", args.scene, "--rate", str(args.rate), "--frames", str(n_frames),
-                   "--jpeg-quality", str(args.jpeg_quality)]
+                   "--jpeg-quality", str(args.jpeg_quality), "--lens", args.lens]
             if args.threads:
                 cmd += ["--threads", str(args.threads)]
             if args.no_intra_process:

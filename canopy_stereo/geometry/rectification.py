@@ -326,6 +326,12 @@ class StereoRectifier:
     (one ``cv2.remap`` per image). The maps are fixed point (``cv2.convertMaps`` to
     ``CV_16SC2`` + ``CV_16UC1``: 1/32 pixel, half the memory of float maps and faster to
     apply to colour images; within 0.1 grey level of float maps on average).
+
+    A side whose map is the identity (a camera that delivers rectified images, e.g. a stereo
+    camera that rectifies on board, or a pair rectified already: every rectified pixel is its
+    own raw pixel) is not resampled: :meth:`rectify_one` returns the image's pixels as they
+    are (what the remap gives at integer positions, bit for bit), saving the remap's CPU
+    (4-9 ms per 1280x720 colour image).
     """
 
     def __init__(self, rig, rect: Rectification, interpolation: int = cv2.INTER_LINEAR):
@@ -337,14 +343,22 @@ class StereoRectifier:
             _rectify_map(rig.P_right, rig.D_right, rect.H_right_inv, rect.size, rig.distortion_model),
         ]
         self._coordinates: list[np.ndarray | None] = [None, None]
+        #: per side: the map is the identity (see the class docstring)
+        self.identity = tuple(interpolation in (cv2.INTER_NEAREST, cv2.INTER_LINEAR) and _is_identity_map(*m)
+                              for m in self._maps)
 
     def rectify(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rectified ``(left, right)`` images of size ``rect.size`` (same dtype/channels)."""
         return self.rectify_one(left, "left"), self.rectify_one(right, "right")
 
-    def rectify_one(self, image: np.ndarray, side: str) -> np.ndarray:
-        """Rectify one image; ``side`` is ``"left"`` or ``"right"``."""
-        m1, m2 = self._maps[0 if side == "left" else 1]
+    def rectify_one(self, image: np.ndarray, side: str, *, copy: bool = True) -> np.ndarray:
+        """Rectify one image; ``side`` is ``"left"`` or ``"right"``. With ``copy`` False, a
+        uint8 image of the rectified size on a side whose map is the identity comes back
+        itself (not resampled, not copied: the caller must not write to it)."""
+        i = 0 if side == "left" else 1
+        m1, m2 = self._maps[i]
+        if self.identity[i] and image.dtype == np.uint8 and image.shape[:2] == m2.shape:
+            return np.array(image, copy=True) if copy else image
         return cv2.remap(image, m1, m2, self.interpolation, borderMode=cv2.BORDER_CONSTANT)
 
     def coordinates(self, side: str) -> np.ndarray:
@@ -403,6 +417,15 @@ def _rectify_map(P, D, H_inv, size, model=None):
     mx = q[:, 0].reshape(h, w).astype(np.float32)
     my = q[:, 1].reshape(h, w).astype(np.float32)
     return cv2.convertMaps(mx, my, cv2.CV_16SC2)
+
+
+def _is_identity_map(map_xy: np.ndarray, map_frac: np.ndarray) -> bool:
+    """Whether fixed-point maps (``CV_16SC2`` + ``CV_16UC1``) send every pixel to itself."""
+    h, w = map_frac.shape
+    if map_frac.any():
+        return False
+    return bool((map_xy[..., 0] == np.arange(w, dtype=np.int16)).all()
+                and (map_xy[..., 1] == np.arange(h, dtype=np.int16)[:, None]).all())
 
 
 def rectify_pair(left, right, rig, rect: Rectification):

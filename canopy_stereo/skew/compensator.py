@@ -55,6 +55,21 @@ STILL_PERCENTILE = 99.0
 MIN_TEXTURED = 0.02
 #: Least fraction of the textured pixels the motion must explain (less: a cut).
 MIN_EXPLAINED = 0.5
+#: Widest reduced image (pixels) the motion is computed on by default: the flow scale halves
+#: until the frame fits (0.5 up to 800 px wide, 0.25 for 1280x720): the flow sees the scene at
+#: one resolution whatever the camera's, so its error relative to the disparities stays what it
+#: is at 640x480, at a quarter of the CPU for HD frames.
+FLOW_MAX_WIDTH_PX = 400
+
+
+def default_flow_scale(width: int) -> float:
+    """The flow scale (a power of 1/2, at most 0.5) of :class:`SkewCompensator` for frames
+    ``width`` pixels wide: the largest that keeps the reduced width within
+    :data:`FLOW_MAX_WIDTH_PX`."""
+    scale = 0.5
+    while width * scale > FLOW_MAX_WIDTH_PX and scale > 1 / 64:
+        scale *= 0.5
+    return scale
 
 
 @dataclass(frozen=True)
@@ -109,16 +124,18 @@ class SkewCompensator:
     Args:
         enabled: False: report the skew, change nothing (``skew_compensation`` off).
         flow_scale, flow_preset: resolution and DIS preset of the motion
-            (:func:`~canopy_stereo.skew.motion.image_motion`).
+            (:func:`~canopy_stereo.skew.motion.image_motion`); ``flow_scale`` None (the
+            default): :func:`default_flow_scale` of the frames' width (0.5 for 640x480,
+            0.25 for 1280x720).
         max_interval_s: longest gap between two right frames still followed (s).
     """
 
-    def __init__(self, *, enabled: bool = True, flow_scale: float = 0.5, flow_preset: str = "ultrafast",
+    def __init__(self, *, enabled: bool = True, flow_scale: float | None = None, flow_preset: str = "ultrafast",
                  max_interval_s: float = MAX_INTERVAL_S):
         if not max_interval_s > 0:
             raise CanopyStereoError(f"max_interval_s must be > 0, got {max_interval_s}")
         self.enabled = bool(enabled)
-        self.flow_scale = float(flow_scale)
+        self.flow_scale = None if flow_scale is None else float(flow_scale)
         self.flow_preset = flow_preset
         self.max_interval_s = float(max_interval_s)
         #: (stamp ns, the previous right image, its reduced grey once computed)
@@ -184,12 +201,13 @@ class SkewCompensator:
         if abs(frames) > 1.0:
             return unchanged(f"skew {skew_ms:.1f} ms is longer than the right frame interval "
                              f"({interval_s * 1e3:.1f} ms)")
-        check_frames(prev_right, right, scale=self.flow_scale)
-        if prev_small is None:
-            prev_small = reduced_grey(prev_right, scale=self.flow_scale)
-        small = reduced_grey(right, scale=self.flow_scale)
-        self._previous = (int(stamp_right_ns), right, small)  # the next pair's previous: reduced once
         h, w = right.shape[:2]
+        scale = default_flow_scale(w) if self.flow_scale is None else self.flow_scale
+        check_frames(prev_right, right, scale=scale)
+        if prev_small is None:
+            prev_small = reduced_grey(prev_right, scale=scale)
+        small = reduced_grey(right, scale=scale)
+        self._previous = (int(stamp_right_ns), right, small)  # the next pair's previous: reduced once
         motion = reduced_motion(prev_small, small, size=(w, h), preset=self.flow_preset)
         if motion.textured < MIN_TEXTURED:
             return unchanged(f"too little texture ({100 * motion.textured:.1f} % of the pixels)")

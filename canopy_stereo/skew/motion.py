@@ -64,8 +64,12 @@ class ImageMotion:
 
 def reduced_grey(image: np.ndarray, *, scale: float) -> np.ndarray:
     """uint8 (h, w) grey of a uint8 grey or BGR ``image`` at ``scale`` (area-averaged): what
-    :func:`reduced_motion` takes (compute it once per frame and keep it for the next pair)."""
+    :func:`reduced_motion` takes (compute it once per frame and keep it for the next pair).
+    A power of 1/2 is reached by halving (2x2 means, OpenCV's fast path) as often as needed."""
     grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+    while scale <= 0.5 and math.log2(scale).is_integer():
+        grey = cv2.resize(grey, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+        scale *= 2.0
     if scale != 1.0:
         grey = cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
     return np.ascontiguousarray(grey, dtype=np.uint8)

@@ -157,3 +157,29 @@ def test_fixed_point_maps_resample_as_float_maps(paper_rig, rng, distortion):
         exact = cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT).astype(float)
         assert np.abs(fixed - exact)[inside].mean() <= 1.0
         assert np.abs(fixed - exact)[inside].max() <= 3
+
+
+def test_an_identity_rectification_is_not_resampled(paper_rig, rng):
+    """Issue 28: a pair that comes rectified (the bundled Plants rig: one K, parallel cameras,
+    no distortion) has identity maps; its images come back bit for bit what the remap gives
+    (their own pixels), without it, and with ``copy=False`` as the very input. A real rig's
+    maps (the paper rig: rotated cameras) are resampled as before."""
+    import cv2
+
+    from canopy_stereo.io.rig import load_rig
+    from canopy_stereo.ros.bundled import bundled_rig
+
+    rig = load_rig(bundled_rig("plants"))
+    rectifier = StereoRectifier(rig, fusiello_rectify(rig.P_left, rig.P_right, rig.image_size))
+    assert rectifier.identity == (True, True)
+    w, h = rig.image_size
+    bgr = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    for side, image in (("left", bgr), ("right", bgr[..., 1].copy())):
+        m1, m2 = rectifier._maps[0 if side == "left" else 1]
+        remapped = cv2.remap(image, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        copied = rectifier.rectify_one(image, side)
+        assert np.array_equal(copied, remapped) and copied is not image
+        assert rectifier.rectify_one(image, side, copy=False) is image
+    assert not np.array_equal(rectifier.rectify_one(bgr[:-2], "left"), bgr[:-2])  # another size: remapped
+    paper = StereoRectifier(paper_rig, fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size))
+    assert paper.identity == (False, False)

@@ -69,6 +69,44 @@ def test_bench_frames_and_scaled_rig_agree(size):
     assert rig.extra["disp_min"] <= base.extra["disp_min"] * s <= base.extra["disp_max"] * s <= rig.extra["disp_max"]
 
 
+@pytest.mark.slow
+def test_webcam_lens_frames_rectify_back_to_the_pair():
+    """``--lens webcam`` (the default): the drifting real pair as two turned webcams with barrel
+    distortion record it. rectify_node's rectification of that rig resamples (no identity maps)
+    and brings the frames back to a rectified pair: matched features on one row (as in the
+    pre-rectified pair), at disparities inside the rig's search range, moved by the principal
+    points' difference the rig's range moved by."""
+    import cv2
+
+    from canopy_stereo.geometry.rectification import StereoRectifier
+    from canopy_stereo.geometry.rig_rectification import rectification_for_rig
+
+    rig0, frames0 = bench_graph.bench_frames("plants", "640x480", n_frames=1, lens="none")
+    rig, frames = bench_graph.bench_frames("plants", "640x480", n_frames=1, lens="webcam")
+    assert rig.D_left[0] < 0 and not np.allclose(rig.P_left[:, :3], rig0.P_left[:, :3])
+    rectifier = StereoRectifier(rig, rectification_for_rig(rig))
+    w, h = rig.image_size
+    grid = np.stack(np.meshgrid(np.arange(w), np.arange(h)), axis=-1)
+    assert np.abs(rectifier.coordinates("left") - grid).max() > 10  # really resampled
+    orb = cv2.ORB_create(3000)
+
+    def matches(left, right):
+        kl, dl = orb.detectAndCompute(cv2.cvtColor(left, cv2.COLOR_BGR2GRAY), None)
+        kr, dr = orb.detectAndCompute(cv2.cvtColor(right, cv2.COLOR_BGR2GRAY), None)
+        pairs = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(dl, dr)
+        d = np.array([np.subtract(kl[m.queryIdx].pt, kr[m.trainIdx].pt) for m in pairs])
+        return d[np.abs(d[:, 1]) < 3]  # (dx, dy) of the matches on nearly one row
+
+    raw = matches(*frames[0])
+    assert np.median(np.abs(raw[:, 1])) > 1.0 or len(raw) < 200  # the raw pair is not rectified
+    before, after = matches(*frames0[0]), matches(*rectifier.rectify(*frames[0]))
+    assert len(after) > 300 and np.median(np.abs(after[:, 1])) < 1.0
+    shift = rig.extra["disp_min"] - rig0.extra["disp_min"]
+    assert np.median(after[:, 0]) == pytest.approx(np.median(before[:, 0]) + shift, abs=3.0)
+    assert rig.extra["disp_min"] <= np.percentile(after[:, 0], 10) <= np.percentile(after[:, 0], 90) \
+        <= rig.extra["disp_max"]
+
+
 def test_cpu_accounting_sees_a_busy_thread():
     stop = threading.Event()
 

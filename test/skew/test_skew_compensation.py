@@ -72,6 +72,30 @@ def test_right_image_is_brought_to_the_left_instant(later):
         assert rep.cost_ms > 0
 
 
+def test_hd_frames_take_the_flow_at_the_scene_resolution_of_vga():
+    """Issue 28: the default flow scale keeps the reduced frame within 400 px wide (0.5 for
+    640x480, 0.25 for 1280x720: a quarter of the flow's CPU at HD). An HD view of a scene (the
+    texture of a 640x360 view, seen at twice the resolution) moving 16 px per frame with 10 ms
+    skew is still brought to the left instant within a grey level."""
+    from canopy_stereo.skew.compensator import default_flow_scale
+
+    assert [default_flow_scale(w) for w in (320, 640, 800, 1280, 1920)] == [0.5, 0.5, 0.5, 0.25, 0.125]
+    h, w, margin = 720, 1280, 80
+    tex = cv2.resize(_texture(h=h // 2, w=w // 2, seed=3, margin=margin // 2), None, fx=2, fy=2,
+                     interpolation=cv2.INTER_CUBIC)
+    speed = 16.0 / 33.0  # px per ms
+    comp = SkewCompensator()
+    for k in range(3):
+        t_left, t_right = 33.0 * k, 33.0 * k + 10.0
+        views = [_view(tex, speed * t, 0.3 * speed * t, h=h, w=w, margin=margin) for t in (t_left, t_right)]
+        _, out, rep = comp.compensate(*views, stamp_left_ns=int(t_left * MS), stamp_right_ns=int(t_right * MS))
+    assert rep.applied and rep.shift_px == pytest.approx(16.0 * 10 / 33 * np.hypot(1, 0.3), abs=0.25)
+    truth = views[0]
+    inner = (slice(40, -40), slice(40, -40))
+    assert np.abs(out.astype(float) - truth)[inner].mean() < 1.0
+    assert np.abs(views[1].astype(float) - truth)[inner].mean() > 8.0
+
+
 def test_it_pairs_as_today_and_says_why_when_it_cannot():
     tex = _texture(seed=5)
     a, b = _view(tex, 0, 0), _view(tex, 3, 0)

@@ -319,7 +319,7 @@ class RectifyNode(CanopyNode):
                 self.drop(f"its {name} frame was dropped", f"{other} frame")
                 return
         left, right = images
-        self._publish(pair.stamps_ns[0], self.rectifier.rectify_one(left, "left"),
+        self._publish(pair.stamps_ns[0], self.rectifier.rectify_one(left, "left", copy=False),
                       self._rectified_right(right, pair.stamps_ns))
 
     def _rectified_right(self, right: np.ndarray, stamps_ns: tuple[int, int]) -> np.ndarray:
@@ -331,7 +331,7 @@ class RectifyNode(CanopyNode):
         shift, rep = self.skew.measure(right, stamp_left_ns=stamps_ns[0], stamp_right_ns=stamps_ns[1])
         if shift is None:
             self._report_skew(rep)
-            return self.rectifier.rectify_one(right, "right")
+            return self.rectifier.rectify_one(right, "right", copy=False)
         rectified = shift.apply(right, coords=self.rectifier.coordinates("right"))
         self._report_skew(replace(rep, cost_ms=1e3 * (time.perf_counter() - t0)))
         return rectified
@@ -410,15 +410,26 @@ class RectifyNode(CanopyNode):
             self.get_logger().info(f"frame period {period_s * 1e3:.1f} ms measured from the stamps: "
                                    f"pairing tolerance {slop * 1e3:.1f} ms")
 
+    def _subscribed(self, pub) -> bool:
+        """Whether anyone takes ``pub``'s messages (a DDS subscription, or one on the
+        intra-process bus): image_pipeline's lazy outputs, an image nobody reads is not built."""
+        if pub.get_subscription_count() > 0:
+            return True
+        return self.intra_process is not None and self.intra_process.subscription_count(pub.topic_name) > 0
+
     def _publish(self, stamp_ns: int, left_r: np.ndarray, right_r: np.ndarray) -> None:
-        """Publish a rectified pair: ``left_r`` uint8 BGR, ``right_r`` uint8 grey (H, W)."""
+        """Publish a rectified pair: ``left_r`` uint8 BGR, ``right_r`` uint8 grey (H, W) (the
+        camera infos always, each image when it is subscribed)."""
         info_l, info_r = self.camera_infos(stamp_ns)
         self.pub_info_left.publish(info_l)
         self.pub_info_right.publish(info_r)
         fl, fr = self.message_frames
-        self.pub_color.publish(image_to_msg(left_r, "bgr8", stamp_ns=stamp_ns, frame_id=fl))
-        self.pub_left.publish(image_to_msg(to_gray(left_r), "mono8", stamp_ns=stamp_ns, frame_id=fl))
-        self.pub_right.publish(image_to_msg(right_r, "mono8", stamp_ns=stamp_ns, frame_id=fr))
+        if self._subscribed(self.pub_color):
+            self.pub_color.publish(image_to_msg(left_r, "bgr8", stamp_ns=stamp_ns, frame_id=fl))
+        if self._subscribed(self.pub_left):
+            self.pub_left.publish(image_to_msg(to_gray(left_r), "mono8", stamp_ns=stamp_ns, frame_id=fl))
+        if self._subscribed(self.pub_right):
+            self.pub_right.publish(image_to_msg(right_r, "mono8", stamp_ns=stamp_ns, frame_id=fr))
         self.count("pairs_published")
 
 
