@@ -51,6 +51,26 @@ def from_wire(wire: np.ndarray, *, min_disparity: float, max_disparity: float) -
     return out
 
 
+def count_nonfinite(values: np.ndarray) -> int:
+    """Number of NaN or infinite values of a float32 (H, W) map (any strides, e.g. the rows of a
+    message's payload without their padding), in one pass that allocates nothing."""
+    v = np.asarray(values)
+    if v.ndim != 2 or v.dtype != np.float32 or not v.dtype.isnative:
+        return int(v.size - np.count_nonzero(np.isfinite(v)))
+    return int(_count_nonfinite(v))
+
+
+@njit(cache=True, nogil=True)
+def _count_nonfinite(v):  # pragma: no cover - numba
+    h, w = v.shape
+    n = 0
+    for i in range(h):
+        for j in range(w):
+            x = v[i, j]
+            n += not (x - x == 0)  # NaN - NaN and inf - inf are NaN: not equal to 0
+    return n
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _to_wire(d, lo, hi, doffs, fill, out):  # pragma: no cover - numba
     # branch-free per pixel (selects and min/max reductions the compiler vectorises)

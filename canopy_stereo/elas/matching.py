@@ -394,7 +394,8 @@ def match_job(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_
         integer disparities (-1 = none); ``offset`` the parabola refinement in
         [-0.5, 0.5] (0 where none or ``subpixel`` is off), kept apart so that the
         consistency check and the segment filter see the same integer map with and
-        without refinement.
+        without refinement. With a ``workspace`` and ``subpixel`` off, ``offset`` is an
+        empty (ceil(H/step), 0) array instead (no refinement: nothing to clear per frame).
     """
     h, w = tri_map.shape
     out_shape = ((h + step - 1) // step, (w + step - 1) // step)
@@ -403,9 +404,11 @@ def match_job(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_
         offsets = np.zeros(out_shape, dtype=np.float32)
     else:
         disp = workspace.array("disp", out_shape, np.float32)
-        offsets = workspace.array("offsets", out_shape, np.float32)
         disp.fill(-1.0)
-        offsets.fill(0.0)
+        # without refinement the kernel never writes an offset: empty rows, nothing to clear
+        offsets = workspace.array("offsets", out_shape if subpixel else (out_shape[0], 0), np.float32)
+        if subpixel:
+            offsets.fill(0.0)
     ranks = candidate_ranks(grid_lists, grid_counts, workspace=workspace)
     args = (desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_lists, grid_counts,
             ranks, int(grid_size), prior, window_prior(prior, int(radius)), int(radius),

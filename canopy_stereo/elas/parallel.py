@@ -1,7 +1,9 @@
 """Row-band parallelism for the nogil numba kernels.
 
-The heavy kernels (support candidates, dense matching) compute independent image
-rows. They are compiled with ``nogil=True`` and take a ``[row_start, row_stop)``
+The heavy kernels (support candidates, dense matching, the left-right check and the
+filters: small-segment removal, gap interpolation by rows then by column bands, adaptive
+mean) compute independent image rows (small-segment removal unites its bands' segments
+in one short serial pass). They are compiled with ``nogil=True`` and take a ``[row_start, row_stop)``
 range; :func:`run_row_bands` splits the rows into contiguous bands and runs them
 on a shared thread pool. Each row is computed by exactly one band with the same
 code, so the output does not depend on the number of threads.

@@ -112,7 +112,8 @@ def _segment_band(disp, sim_threshold, label, parent, run_size, run_start, band_
     """Rows ``[row_start, row_stop)`` of :func:`_remove_small_segments`: their row runs,
     numbered from ``row_start * W`` (a band never has more runs than pixels, so bands
     number apart), united through the vertical joins inside the band; the rows copied to
-    ``out``; ``band_end[row_start]`` = one past the band's last run.
+    ``out``; ``band_end[row_start]`` = one past the band's last run. ``label`` is written
+    for valid pixels only (the joins read it only there).
 
     Two neighbouring pixels are joined when both are valid (>= 0) and differ by at most
     ``sim_threshold`` (a symmetric relation, so the segments are those of a flood fill).
@@ -126,27 +127,30 @@ def _segment_band(disp, sim_threshold, label, parent, run_size, run_start, band_
         row = disp[v]
         lab = label[v]
         dst = out[v]
+        for u in range(w):      # (a loop of its own: it vectorises)
+            dst[u] = row[u]
         last_above = -1
         last_here = -1
         r = -1
+        size = 0                # of run r, stored when it ends
         prev = np.float32(-1.0)
         for u in range(w):
             d = row[u]
-            dst[u] = d
-            if d < 0:
-                lab[u] = -1
+            if d < 0:           # (the label of an invalid pixel is never read)
                 prev = d
                 continue
             # a new run unless joined to the left (branch-free test)
             join = (prev >= 0) & (abs(prev - d) <= sim_threshold)
             prev = d
             if not join:
+                if r >= 0:
+                    run_size[r] = size
                 r = n_runs
                 n_runs += 1
                 parent[r] = r
-                run_size[r] = 0
+                size = 0
                 run_start[r] = v * w + u
-            run_size[r] += 1
+            size += 1
             lab[u] = r
             if v > row_start:
                 above = disp[v - 1, u]
@@ -156,6 +160,8 @@ def _segment_band(disp, sim_threshold, label, parent, run_size, run_start, band_
                         last_above = ra
                         last_here = r
                         _unite(parent, ra, r)
+        if r >= 0:
+            run_size[r] = size
     band_end[row_start] = n_runs
 
 

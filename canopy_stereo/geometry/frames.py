@@ -288,64 +288,70 @@ def reproject_disparity(disp, Q) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _reproject_kernel(disp, mask, Q, T, organized, out, out_bits, rgb_bits, bgr):  # pragma: no cover - compiled
-    # out: (H * W, C) float32 rows x, y, z[, rgb]; out_bits: the same memory as uint32;
-    # rgb_bits: (H, W) uint32 packed colours copied into column 3, or (0, 0) for none;
-    # bgr: (H, W, 3) uint8 colours packed into column 3 (0x00RRGGBB) instead, or (0, 0, 3).
-    # Per row, a branch-free pass the compiler vectorises computes every pixel's point; a
-    # second pass keeps the valid ones (the same arithmetic, in the same order, as one pass).
+def _reproject_kernel(disp, mask, Q, T, organized, out, out_bits, rgb_bits, bgr, depth,
+                      index):  # pragma: no cover - compiled
+    # disp: (H, W) float32, any strides (a window of the message's map); mask: (H, W) uint8, any
+    # strides, or (0, 0) for none; out: (H * W, C) float32 rows x, y, z[, rgb]; out_bits: the
+    # same memory as uint32; rgb_bits: (H, W) uint32 packed colours copied into column 3, or
+    # (0, 0); bgr: (H, W, 3) uint8 colours packed into column 3 (0x00RRGGBB) instead, or
+    # (0, 0, 3); depth: (H, W) float32 filled with Z (NaN where no point), or (0, 0) for none;
+    # index: (H * W,) int32 flat pixel indices of the rows, or (0,) for none.
+    # Only the pixels that can hold a point are computed: outside the mask and where the
+    # disparity is invalid nothing is (the arithmetic of a kept point is the same as before).
     h, w = disp.shape
-    index = np.empty(h * w, np.int32)
-    depth = np.full((h, w), np.nan, np.float32)
     use_mask = mask.shape[0] == h
     with_rgb = rgb_bits.shape[0] == h
     with_bgr = bgr.shape[0] == h
-    xs = np.empty(w, np.float32)
-    ys = np.empty(w, np.float32)
-    zs = np.empty(w, np.float32)
-    zo = np.empty(w, np.float64)
-    keep = np.empty(w, np.bool_)
+    with_depth = depth.shape[0] == h
+    with_index = index.shape[0] > 0
     q00, q03, q11, q13, q23, q32, q33 = Q[0, 0], Q[0, 3], Q[1, 1], Q[1, 3], Q[2, 3], Q[3, 2], Q[3, 3]
+    t00, t01, t02, t03 = T[0, 0], T[0, 1], T[0, 2], T[0, 3]
+    t10, t11, t12, t13 = T[1, 0], T[1, 1], T[1, 2], T[1, 3]
+    t20, t21, t22, t23 = T[2, 0], T[2, 1], T[2, 2], T[2, 3]
+    nan = np.float32(np.nan)
     n = 0
     for v in range(h):
         yv = q11 * v + q13
         for u in range(w):
+            ok = not use_mask or mask[v, u] != 0
             d = disp[v, u]
-            iw = 1.0 / (q32 * d + q33)
-            x = (q00 * u + q03) * iw
-            y = yv * iw
-            z = q23 * iw
-            zo[u] = z
-            keep[u] = (d > 0) & (z > 0) & (z < np.inf)
-            xs[u] = T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3]
-            ys[u] = T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3]
-            zs[u] = T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3]
-        for u in range(w):
-            ok = keep[u] and (not use_mask or mask[v, u] != 0)
+            ok = ok and d > 0
             if ok:
-                depth[v, u] = zo[u]
-                out[n, 0] = xs[u]
-                out[n, 1] = ys[u]
-                out[n, 2] = zs[u]
-            elif organized:
-                out[n, 0] = out[n, 1] = out[n, 2] = np.nan
-            else:
-                continue
+                iw = 1.0 / (q32 * d + q33)
+                z = q23 * iw
+                ok = z > 0 and z < np.inf
+                if ok:
+                    x = (q00 * u + q03) * iw
+                    y = yv * iw
+                    if with_depth:
+                        depth[v, u] = z
+                    out[n, 0] = t00 * x + t01 * y + t02 * z + t03
+                    out[n, 1] = t10 * x + t11 * y + t12 * z + t13
+                    out[n, 2] = t20 * x + t21 * y + t22 * z + t23
+            if not ok:
+                if with_depth:
+                    depth[v, u] = nan
+                if not organized:
+                    continue
+                out[n, 0] = out[n, 1] = out[n, 2] = nan
             if with_rgb:
                 out_bits[n, 3] = rgb_bits[v, u]
             elif with_bgr:
                 b, g, r = np.uint32(bgr[v, u, 0]), np.uint32(bgr[v, u, 1]), np.uint32(bgr[v, u, 2])
                 out_bits[n, 3] = (r << 16) | (g << 8) | b
-            index[n] = v * w + u
+            if with_index:
+                index[n] = v * w + u
             n += 1
-    return n, index[:n], depth
+    return n
 
 
-def _reproject(disp, Q, T, mask, organized, rgb, bgr=None):
-    d = np.ascontiguousarray(disp, np.float32)
+def _reproject(disp, Q, T, mask, organized, rgb, bgr=None, *, with_depth=True, with_index=True):
+    d = np.asarray(disp)
     if d.ndim != 2:
         raise ValueError(f"disparity must be (H, W), got shape {d.shape}")
-    m = kernel_mask(mask, d.shape)
+    if d.dtype != np.float32:
+        d = d.astype(np.float32)
+    m = kernel_mask(mask, d.shape, contiguous=False)
     T = np.eye(4) if T is None else np.asarray(T, np.float64)
     if rgb is None:
         bits = np.zeros((0, 0), np.uint32)
@@ -362,9 +368,11 @@ def _reproject(disp, Q, T, mask, organized, rgb, bgr=None):
             raise ValueError(f"bgr must be uint8 {(*d.shape, 3)}, got {colours.dtype} {colours.shape}")
     coloured = rgb is not None or bgr is not None
     out = np.empty((d.size, 4 if coloured else 3), np.float32)
-    n, index, depth = _reproject_kernel(d, m, np.asarray(Q, np.float64), T, bool(organized), out,
-                                        out.view(np.uint32), bits, colours)
-    return out[:n], index, depth
+    depth = np.empty(d.shape if with_depth else (0, 0), np.float32)
+    index = np.empty(d.size if with_index else 0, np.int32)
+    n = _reproject_kernel(d, m, np.asarray(Q, np.float64), T, bool(organized), out, out.view(np.uint32), bits,
+                          colours, depth, index)
+    return out[:n], (index[:n] if with_index else None), (depth if with_depth else None)
 
 
 def reproject_disparity_points(disp, Q, *, T=None, mask=None, organized: bool = False):
@@ -384,7 +392,8 @@ def reproject_disparity_points(disp, Q, *, T=None, mask=None, organized: bool = 
     return _reproject(disp, Q, T, mask, organized, None)
 
 
-def reproject_disparity_records(disp, Q, *, T=None, rgb=None, bgr=None, mask=None, organized: bool = False):
+def reproject_disparity_records(disp, Q, *, T=None, rgb=None, bgr=None, mask=None, organized: bool = False,
+                                depth: bool = True):
     """:func:`reproject_disparity_points` writing PointCloud2 records directly: each row is
     float32 ``x, y, z`` (metres) and the packed ``rgb`` of its pixel, the layout of
     :func:`canopy_stereo.ros.convert.points_to_cloud2` (no gathering, stacking or copying
@@ -396,15 +405,22 @@ def reproject_disparity_records(disp, Q, *, T=None, rgb=None, bgr=None, mask=Non
         bgr: uint8 (H, W, 3) colours (any strides, e.g. a window of the rectified image),
             packed for the kept points only (the same bits as ``rgb=pack_bgr_image(bgr)``).
             Exactly one of the two.
-        disp, Q, T, mask, organized: as :func:`reproject_disparity_points`.
+        disp, Q, T, mask, organized: as :func:`reproject_disparity_points` (``disp`` and
+            ``mask`` may be windows of larger arrays: they are read in place).
+        depth: also build the depth image (False: None is returned in its place, and the
+            pixels without a point cost nothing but their test).
+
+    Only the pixels that can hold a point are computed: outside ``mask`` and where the
+    disparity is invalid, a pixel is tested and skipped.
 
     Returns ``(records, depth)``: float32 (N, 4) (N = H * W when ``organized``, NaN
-    coordinates where no point) and the float32 (H, W) depth image.
+    coordinates where no point) and the float32 (H, W) depth image (or None).
     """
     if (rgb is None) == (bgr is None):
         raise ValueError("give the colours as exactly one of rgb (packed) and bgr (uint8 H x W x 3)")
-    records, _, depth = _reproject(disp, Q, T, mask, organized, rgb, bgr)
-    return records, depth
+    records, _, depth_image = _reproject(disp, Q, T, mask, organized, rgb, bgr, with_depth=bool(depth),
+                                         with_index=False)
+    return records, depth_image
 
 
 @dataclass(frozen=True)

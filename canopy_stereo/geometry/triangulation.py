@@ -179,12 +179,13 @@ def _rectified_points_kernel(disp, mask, Hl_inv, Hr_inv, P1, P2, scale, organize
     return pts[:n], index[:n]
 
 
-def kernel_mask(mask, shape) -> np.ndarray:
+def kernel_mask(mask, shape, *, contiguous: bool = True) -> np.ndarray:
     """``mask`` as the compiled kernels take it: uint8 of ``shape`` (non-zero = keep), or an
-    empty (0, 0) array for "no mask". Raises ValueError when the shapes differ."""
+    empty (0, 0) array for "no mask" (``contiguous`` False: a uint8 window of a larger mask is
+    passed as it is, not copied). Raises ValueError when the shapes differ."""
     if mask is None:
         return np.zeros((0, 0), np.uint8)
-    m = np.ascontiguousarray(mask)
+    m = np.ascontiguousarray(mask) if contiguous else np.asarray(mask)
     if m.shape != tuple(shape):
         raise ValueError(f"mask {m.shape} does not match disparity {tuple(shape)}")
     return m if m.dtype == np.uint8 else (m != 0).astype(np.uint8)

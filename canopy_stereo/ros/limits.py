@@ -34,6 +34,7 @@ import threading
 
 import numpy as np
 
+from canopy_stereo.disparity.wire import count_nonfinite
 from canopy_stereo.errors import ImageError
 from canopy_stereo.ros.convert import ENCODINGS
 
@@ -117,12 +118,13 @@ def _check_image(msg, expected_size, encodings, min_size, max_pixels, max_bytes)
 
 
 def check_disparity_msg(msg, *, expected_size=None, max_pixels: int = MAX_IMAGE_PIXELS,
-                        max_bytes: int = MAX_IMAGE_BYTES) -> None:
+                        max_bytes: int = MAX_IMAGE_BYTES, pixels: bool = True) -> None:
     """Refuse a ``stereo_msgs/DisparityImage``: its image as :func:`check_image_msg` (32FC1),
-    then non-finite or inconsistent scalar fields, then non-finite pixels.
+    then non-finite or inconsistent scalar fields, then (``pixels``) non-finite pixels.
 
     The pixel scan reads the payload in place (a view, no copy) and runs only once the
-    size is known to be the expected one.
+    size is known to be the expected one; ``pixels`` False skips it, for a node that uses
+    the message's header and size only (segment_node's ``follow_disparity``).
     """
     check_image_msg(msg.image, expected_size=expected_size, encodings=("32FC1",),
                     max_pixels=max_pixels, max_bytes=max_bytes)
@@ -134,13 +136,14 @@ def check_disparity_msg(msg, *, expected_size=None, max_pixels: int = MAX_IMAGE_
     if not fields["min_disparity"] < fields["max_disparity"]:
         raise ImageError(f"disparity message has min_disparity {fields['min_disparity']:g} >= "
                          f"max_disparity {fields['max_disparity']:g}")
+    if not pixels:
+        return
     img = msg.image
     dt = np.dtype("f4").newbyteorder(">" if img.is_bigendian else "<")
     rows = np.frombuffer(img.data, dtype=np.uint8).reshape(int(img.height), int(img.step))
     values = rows[:, : int(img.width) * 4].view(dt)
-    finite = np.isfinite(values)
-    if not finite.all():
-        n = int(finite.size - np.count_nonzero(finite))
+    n = count_nonfinite(values)  # one compiled pass over the payload in place
+    if n:
         raise ImageError(f"disparity image holds {n} non-finite value(s) (NaN/inf); invalid pixels "
                          "must be below min_disparity (stereo_msgs/DisparityImage)")
 

@@ -62,3 +62,19 @@ def test_non_contiguous_and_float64_inputs():
     assert np.array_equal(out, ref) and box == ref_box
     with pytest.raises(ValueError, match=r"\(H, W\)"):
         to_wire(np.zeros(5, np.float32), valid_min=0, valid_max=1, doffs=0, fill=-1)
+
+
+def test_count_nonfinite_is_numpys_count_on_strided_rows():
+    """The compiled count of NaN/inf values equals numpy's, on padded rows read in place and on
+    a byte-swapped map (numpy's path)."""
+    from canopy_stereo.disparity.wire import count_nonfinite
+
+    rng = np.random.default_rng(3)
+    padded = (rng.random((31, 47)) * 100).astype(np.float32)
+    padded[rng.random(padded.shape) < 0.1] = np.nan
+    padded[rng.random(padded.shape) < 0.05] = np.inf
+    padded[rng.random(padded.shape) < 0.05] = -np.inf
+    padded[0, 0] = np.float32(3.4e38)  # the largest finite floats stay finite
+    for values in (padded, padded[:, :40], padded[3:, 5:], padded.astype(">f4")):
+        assert count_nonfinite(values) == values.size - np.count_nonzero(np.isfinite(values))
+    assert count_nonfinite(np.zeros((5, 5), np.float32)) == 0

@@ -108,6 +108,37 @@ def test_records_kernel_is_the_naive_arithmetic_bit_for_bit(organized):
         assert np.array_equal(depth.view(np.uint32), ref_depth.view(np.uint32))
 
 
+@pytest.mark.parametrize("organized", [False, True])
+def test_records_kernel_reads_windows_in_place_and_skips_the_depth_on_request(organized):
+    """Windows of the disparity and the mask (not contiguous, as point_cloud_node passes its
+    valid_window) give the naive arithmetic's records bit for bit, with or without depth."""
+    from canopy_stereo.geometry.frames import reproject_disparity_records
+
+    rng = np.random.default_rng(6)
+    h, w = 37, 53
+    disp = (rng.random((h, w)) * 80 - 5).astype(np.float32)
+    disp[rng.random((h, w)) < 0.25] = np.nan
+    mask = (rng.random((h, w)) > 0.6).astype(np.uint8) * 255
+    rgb = rng.random((h, w)).astype(np.float32)
+    Q = np.array([[1, 0, 0, -20.5], [0, 1, 0, -15.0], [0, 0, 0, 610.0], [0, 0, 1 / 0.1, -1.5]])
+    T = np.eye(4)
+    T[:3, :3] = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    T[:3, 3] = rng.normal(size=3)
+    rows, cols = slice(4, 31), slice(7, 45)
+    ref, ref_depth = _naive_records(np.ascontiguousarray(disp[rows, cols]), Q, T,
+                                    np.ascontiguousarray(mask[rows, cols]), organized,
+                                    np.ascontiguousarray(rgb[rows, cols]).view(np.uint32))
+    for depth in (True, False):
+        records, depth_image = reproject_disparity_records(disp[rows, cols], Q, T=T, rgb=rgb[rows, cols],
+                                                           mask=mask[rows, cols], organized=organized,
+                                                           depth=depth)
+        assert np.array_equal(records.view(np.uint32), ref)
+        if depth:
+            assert np.array_equal(depth_image.view(np.uint32), ref_depth.view(np.uint32))
+        else:
+            assert depth_image is None
+
+
 def test_records_from_bgr_are_the_records_from_packed_rgb():
     """``bgr=`` (a window of the colour image, packed for the kept points only) gives the bits
     of ``rgb=pack_bgr_image(bgr)``."""

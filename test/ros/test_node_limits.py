@@ -101,6 +101,11 @@ def test_check_disparity_msg_refuses_non_finite_values(values, fields, words):
         return
     with pytest.raises(ImageError, match=words):
         limits.check_disparity_msg(msg, expected_size=(64, 48))
+    if "non-finite value" in words:  # pixels=False: the header and scalars only
+        limits.check_disparity_msg(msg, expected_size=(64, 48), pixels=False)
+    else:
+        with pytest.raises(ImageError, match=words):
+            limits.check_disparity_msg(msg, expected_size=(64, 48), pixels=False)
 
 
 def test_check_cloud_msg():

@@ -151,11 +151,14 @@ class PointCloudNode(CanopyNode):
             records, depth = reproject_disparity_records(disp, Q, T=np.eye(4), bgr=bgr,
                                                          mask=mask, organized=organized)
             records_to_cloud2(records, 1, frame_id="", organized_shape=(h, w) if organized else None)
-        # a window of the colour image (not contiguous: the kernel's other specialisation)
-        reproject_disparity_records(disp[1:, 1:], Q, T=np.eye(4), bgr=bgr[1:, 1:],
-                                    mask=None if mask is None else mask[1:, 1:])
+        # windows of the maps (not contiguous: the kernel's other specialisations), with and without depth
+        for depth_wanted in (False, True):
+            reproject_disparity_records(disp[1:, 1:], Q, T=np.eye(4), bgr=bgr[1:, 1:],
+                                        mask=None if mask is None else mask[1:, 1:], depth=depth_wanted)
         depth_to_msg(depth, 1, frame_id="")
-        msg_to_disparity(disparity_to_msg(disp, 500.0, 0.1, 0.0, 64.0))  # the wire conversion's kernel
+        wire = disparity_to_msg(disp, 500.0, 0.1, 0.0, 64.0)
+        check_disparity_msg(wire)  # the limits' and the wire conversion's kernels
+        msg_to_disparity(wire)
 
     def _on_geometry(self, msg: String) -> None:
         try:
@@ -242,10 +245,12 @@ class PointCloudNode(CanopyNode):
             Qc = offset_reprojection(Q, cols.start, rows.start)
             # x, y, z and rgb (packed from the window's BGR for the kept points only) written by the
             # kernel into the cloud's rows (one copy into the message)
+            # (the windows are read in place; the depth image only built when someone reads it)
+            depth_wanted = self._depth_wanted()
             records, depth_kept = reproject_disparity_records(
                 frame.disparity[rows, cols], Qc, T=T, bgr=bgr[rows, cols],
-                mask=None if mask is None else mask[rows, cols], organized=organized)
-            if self._depth_wanted():  # REP 118 depth of the same pixels, when someone reads it
+                mask=None if mask is None else mask[rows, cols], organized=organized, depth=depth_wanted)
+            if depth_wanted:  # REP 118 depth of the same pixels, when someone reads it
                 depth = depth_kept
                 if depth.shape != (h, w):
                     depth = np.full((h, w), np.nan, np.float32)

@@ -153,7 +153,9 @@ class SegmentNode(CanopyNode):
         for _ in range(2):
             mask = propagator.segment(left, disparity=disparity if self.depth_cue else None)
         image_to_msg(mask, "mono8", stamp_ns=1, frame_id="")
-        msg_to_disparity(disparity_to_msg(disparity, 500.0, 0.1, 0.0, 64.0))  # the wire conversion's kernel
+        wire = disparity_to_msg(disparity, 500.0, 0.1, 0.0, 64.0)
+        check_disparity_msg(wire)  # the limits' and the wire conversion's kernels
+        msg_to_disparity(wire)
         compile_cut_kernels()  # the compiled GrabCut the synthetic frame's seed did not reach
 
     def _settings(self, changes: dict) -> dict:
@@ -208,7 +210,8 @@ class SegmentNode(CanopyNode):
                                             "set rect within them, or [0, 0, 0, 0] (automatic)") from None
         else:
             self.count("disparity_received")
-            check_disparity_msg(msg, expected_size=self.expected_size)
+            # follow_disparity alone reads the stamp (and the size) only: no pixel scan
+            check_disparity_msg(msg, expected_size=self.expected_size, pixels=self.depth_cue)
             if self.depth_cue:
                 frame = msg_to_disparity(msg)
                 # message disparities are reduced by the cameras' cx offset: measured from the
