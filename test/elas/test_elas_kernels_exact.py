@@ -881,10 +881,11 @@ def test_matching_only_the_given_cells_gives_the_same_disparities_there(plants, 
         assert (disp[~on] == INVALID).all() and (full_d[~on] >= 0).mean() > 0.3
 
 
-def test_elas_run_with_match_cells(plants, rng):
+def test_elas_run_with_match_cells(plants, rng, monkeypatch):
     """Every cell: the maps of the whole pair bit for bit. Some cells, filters off: the left
     map of the whole pair in those cells (the right map is matched wherever the left-right
     check reads it), invalid elsewhere. A grid of the wrong shape is refused."""
+    from canopy_stereo.elas import core
     from canopy_stereo.errors import ImageError
 
     left, right = plants["left"], plants["right"]
@@ -893,14 +894,34 @@ def test_elas_run_with_match_cells(plants, rng):
     whole = elas_run(left, right, p, want_right=False)
     every = elas_run(left, right, p, want_right=False, match_cells=np.ones((gh, gw), bool))
     assert same_bits(every.disp_left, whole.disp_left)
-    raw = make_params("robotics", disp_min=0, disp_max=120, speckle_size=0, ipol_gap_width=0,
-                      filter_adaptive_mean=False, filter_median=False)
     cells = rng.random((gh, gw)) < 0.4
     cells[:, -3:] = True                          # right-hand cells: partners far to the left
-    full = elas_run(left, right, raw, want_right=False).disp_left
-    some = elas_run(left, right, raw, want_right=False, match_cells=cells).disp_left
-    on = _cell_pixels(cells, p.grid_size, some.shape, 1)
-    assert same_bits(some[on], full[on]) and (full[on] >= 0).mean() > 0.5
-    assert (some[~on] == INVALID).all()
+    # gap interpolation off (subsampled maps fill one-pixel gaps whatever ipol_gap_width says)
+    monkeypatch.setattr(core, "interpolate_gaps", lambda disp, *args, **kwargs: disp)
+    for subsampling in (False, True):
+        raw = make_params("robotics", disp_min=0, disp_max=120, speckle_size=0, ipol_gap_width=0,
+                          filter_adaptive_mean=False, filter_median=False, subsampling=subsampling)
+        full = elas_run(left, right, raw, want_right=False).disp_left
+        # want_right=False: the right map in its partners' cells; True: the swept cells
+        for want_right in (False, True):
+            some = elas_run(left, right, raw, want_right=want_right, match_cells=cells).disp_left
+            on = _cell_pixels(cells, p.grid_size, some.shape, 2 if subsampling else 1)
+            assert same_bits(some[on], full[on]) and (full[on] >= 0).mean() > 0.5
+            assert (some[~on] == INVALID).all()
     with pytest.raises(ImageError, match="match_cells"):
         elas_run(left, right, p, match_cells=np.ones((gh + 1, gw), bool))
+
+
+def test_partner_cells_are_the_cells_the_left_right_check_reads(plants, rng):
+    """postprocess.partner_cells against its definition: the cell of round(u - d) for every
+    valid left pixel (rows/columns ``step`` apart, rounding half up)."""
+    g = 20
+    for step in (1, 2):
+        disp = random_disparity(rng, (240 // step, 320 // step), integer=True, hi=90, invalid=0.995)
+        ref = np.zeros((12, 16), np.uint8)
+        for r, c in zip(*np.nonzero(disp >= 0)):
+            c2 = int(np.floor((c * step - disp[r, c]) / step + 0.5))
+            if 0 <= c2 < disp.shape[1]:
+                ref[(r * step) // g, (c2 * step) // g] = 1
+        got = postprocess.partner_cells(disp, step=step, grid_size=g, image_size=(320, 240))
+        assert same_bits(got, ref) and 0 < ref.mean() < 1
