@@ -8,15 +8,18 @@ from canopy_stereo.elas.params import DEFAULT_PRESET, make_params
 
 
 def elas_matcher(left: np.ndarray, right: np.ndarray, *, disp_min: int = 0, disp_max: int = 255,
-                 preset: str = DEFAULT_PRESET, **params) -> np.ndarray:
+                 preset: str = DEFAULT_PRESET, match_cells: np.ndarray | None = None,
+                 **params) -> np.ndarray:
     """Left ELAS disparity, float32 (H, W) in pixels, invalid = -1.
 
-    ``preset`` and ``**params`` are those of :func:`canopy_stereo.elas.elas_disparity`.
+    ``preset`` and ``**params`` are those of :func:`canopy_stereo.elas.elas_disparity`;
+    ``match_cells`` (grid cells of the left image to match, None = all) that of
+    :func:`~canopy_stereo.elas.core.elas_run`.
     Subsampled maps (``subsampling=True``) are returned at full size, each computed
     value repeated over its 2x2 block, so that the map stays on the input's pixel grid.
     """
     p = make_params(preset, disp_min=int(disp_min), disp_max=int(disp_max), **params)
-    disp = elas_run(left, right, p, want_right=False).disp_left
+    disp = elas_run(left, right, p, want_right=False, match_cells=match_cells).disp_left
     if p.subsampling:
         h, w = np.asarray(left).shape[:2]
         disp = np.repeat(np.repeat(disp, 2, axis=0), 2, axis=1)[:h, :w]

@@ -50,6 +50,7 @@ from canopy_stereo.elas.simd import (
     quad_first_min,
     sad16,
 )
+from canopy_stereo.errors import CanopyStereoError
 
 #: Pixels closer than this to the left/right border are not matched.
 MATCH_BORDER = 2
@@ -120,7 +121,7 @@ def _subpixel_offset(flat_own, flat_other, a, sign, best_d, d_lo, d_hi, off_row,
 @njit(cache=True, nogil=True)
 def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_lists,
                 grid_counts, grid_ranks, grid_size, prior, prior_window, radius, sign, disp_min,
-                disp_max, match_texture, step, subpixel, out, offsets, row_start, row_stop):
+                disp_max, match_texture, step, subpixel, cells, out, offsets, row_start, row_stop):
     """Output rows ``[row_start, row_stop)`` of :func:`match_job` (arguments there).
 
     With ``step`` 1, four (with AVX-512 up to twenty) neighbouring pixels of one grid
@@ -151,7 +152,10 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
         tex_row = tex_own[v]
         out_row = out[r]
         off_row = offsets[r]
+        cells_row = cells[gy]
         for gx in range(n_cells):
+            if cells_row[gx] == 0:
+                continue                            # a cell not to match: left invalid
             cell = (gy * n_cells + gx) * n_disp     # the cell's candidates start here
             n_grid = grid_counts[gy, gx]
             # its candidates below d: flat_ranks[ranks + clip(d, 0, n_ranks - 1)]
@@ -366,7 +370,7 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
 
 def match_job(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_lists,
               grid_counts, grid_size, prior, radius, sign, disp_min, disp_max, match_texture,
-              step, subpixel, *, workspace=None):
+              step, subpixel, *, cells=None, workspace=None):
     """Dense matching of one image as a row job for
     :func:`~canopy_stereo.elas.parallel.run_row_bands`: returns ``(job, disp, offset)``;
     the outputs are filled when the job has run.
@@ -386,6 +390,8 @@ def match_job(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_
         match_texture: minimum texture of a matched pixel.
         step: 1, or 2 for subsampling (every second row and column).
         subpixel: compute the parabola refinement.
+        cells: uint8 or bool (gh, gw), the shape of ``grid_counts``: grid cells to match
+            (nonzero); the pixels of the other cells stay invalid (-1). None: every cell.
         workspace: a :class:`~canopy_stereo.elas.workspace.Workspace` to take the two
             output maps from (overwritten by its next use); fresh arrays when None.
 
@@ -409,11 +415,17 @@ def match_job(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_
         offsets = workspace.array("offsets", out_shape if subpixel else (out_shape[0], 0), np.float32)
         if subpixel:
             offsets.fill(0.0)
+    if cells is None:
+        cells = np.ones(grid_counts.shape, np.uint8)
+    cells = np.ascontiguousarray(np.asarray(cells) != 0).view(np.uint8)
+    if cells.shape != grid_counts.shape:
+        raise CanopyStereoError(f"the cells to match must have the disparity grid's shape "
+                                f"{grid_counts.shape}, got {cells.shape}")
     ranks = candidate_ranks(grid_lists, grid_counts, workspace=workspace)
     args = (desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_lists, grid_counts,
             ranks, int(grid_size), prior, window_prior(prior, int(radius)), int(radius),
             int(sign), int(disp_min), int(disp_max), int(match_texture), int(step),
-            bool(subpixel), disp, offsets)
+            bool(subpixel), cells, disp, offsets)
     return (_match_rows, out_shape[0], args), disp, offsets
 
 

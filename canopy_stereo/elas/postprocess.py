@@ -86,6 +86,35 @@ def left_right_check(d_left: np.ndarray, d_right: np.ndarray, threshold: float,
     return out_l, (out_r if want_right else None)
 
 
+@njit(cache=True, nogil=True)
+def _partner_cells(d_left, step, grid_size, width, cells):
+    """Mark in ``cells`` (uint8 (gh, gw), zeroed by the caller) the grid cell of every right
+    pixel the left-right check reads for ``d_left`` (:func:`_lr_check`'s partner column)."""
+    rows, w = d_left.shape
+    inv_step = 1.0 / step
+    for r in range(rows):
+        row = d_left[r]
+        cell_row = cells[(r * step) // grid_size]
+        for c in range(w):
+            d = row[c]
+            if d >= 0:
+                x = (c * step - d) * inv_step + 0.5
+                c2 = int(x) if x >= 0 else -1
+                if 0 <= c2 < w and c2 * step < width:
+                    cell_row[(c2 * step) // grid_size] = 1
+
+
+def partner_cells(d_left: np.ndarray, *, step: int, grid_size: int, image_size: tuple[int, int]) -> np.ndarray:
+    """uint8 (ceil(H / grid_size), ceil(W / grid_size)): 1 for the grid cells of the right
+    image that hold a pixel :func:`left_right_check` reads for the left map ``d_left``
+    (float32, rows/columns ``step`` pixels apart; ``image_size`` ``(W, H)`` full-resolution
+    pixels). Only these cells of the right map decide the checked left map."""
+    w, h = (int(v) for v in image_size)
+    cells = np.zeros((-(-h // grid_size), -(-w // grid_size)), np.uint8)
+    _partner_cells(np.ascontiguousarray(d_left, np.float32), int(step), int(grid_size), w, cells)
+    return cells
+
+
 @njit(cache=True, inline="always")
 def _find_root(parent, r):
     """Root of ``r`` in the union-find forest ``parent``, halving the path on the way."""

@@ -853,3 +853,75 @@ def test_support_search_by_eight_disparities_equals_one_at_a_time(rng):
                                              dmax)
             got = support._lowest_two_chunks(own_chunks, other_chunks, u, sign, dmin, dmax)
             assert tuple(int(x) for x in got) == tuple(int(x) for x in ref)
+
+
+# ------------------------------------------------------------ cells to match
+def _cell_pixels(cells, grid_size, shape, step):
+    """Per output pixel (rows/columns ``step`` apart): whether its grid cell is on."""
+    rows = np.arange(0, shape[0] * step, step)[:shape[0]] // grid_size
+    cols = np.arange(0, shape[1] * step, step)[:shape[1]] // grid_size
+    return cells[np.ix_(rows, cols)] != 0
+
+
+@pytest.mark.parametrize("step", [1, 2])
+def test_matching_only_the_given_cells_gives_the_same_disparities_there(plants, rng, step):
+    """Dense matching restricted to grid cells: the same disparities and offsets as the whole
+    image in those cells, invalid elsewhere."""
+    from canopy_stereo.elas.parallel import run_row_bands
+
+    p = plants["params"]
+    for right_image, sign in ((False, 1), (True, -1)):
+        args = _match_args(plants["maps"][right_image], p, sign, step, True)
+        full_d, full_o = matching.dense_match(*args)
+        cells = rng.random(plants["maps"][right_image]["counts"].shape) < 0.5
+        job, disp, off = matching.match_job(*args, cells=cells)
+        run_row_bands(job)
+        on = _cell_pixels(cells, p.grid_size, disp.shape, step)
+        assert same_bits(disp[on], full_d[on]) and same_bits(off[on], full_o[on])
+        assert (disp[~on] == INVALID).all() and (full_d[~on] >= 0).mean() > 0.3
+
+
+def test_elas_run_with_match_cells(plants, rng, monkeypatch):
+    """Every cell: the maps of the whole pair bit for bit. Some cells, filters off: the left
+    map of the whole pair in those cells (the right map is matched wherever the left-right
+    check reads it), invalid elsewhere. A grid of the wrong shape is refused."""
+    from canopy_stereo.elas import core
+    from canopy_stereo.errors import ImageError
+
+    left, right = plants["left"], plants["right"]
+    p = make_params("robotics", disp_min=0, disp_max=120)
+    gh, gw = -(-left.shape[0] // p.grid_size), -(-left.shape[1] // p.grid_size)
+    whole = elas_run(left, right, p, want_right=False)
+    every = elas_run(left, right, p, want_right=False, match_cells=np.ones((gh, gw), bool))
+    assert same_bits(every.disp_left, whole.disp_left)
+    cells = rng.random((gh, gw)) < 0.4
+    cells[:, -3:] = True                          # right-hand cells: partners far to the left
+    # gap interpolation off (subsampled maps fill one-pixel gaps whatever ipol_gap_width says)
+    monkeypatch.setattr(core, "interpolate_gaps", lambda disp, *args, **kwargs: disp)
+    for subsampling in (False, True):
+        raw = make_params("robotics", disp_min=0, disp_max=120, speckle_size=0, ipol_gap_width=0,
+                          filter_adaptive_mean=False, filter_median=False, subsampling=subsampling)
+        full = elas_run(left, right, raw, want_right=False).disp_left
+        # want_right=False: the right map in its partners' cells; True: the swept cells
+        for want_right in (False, True):
+            some = elas_run(left, right, raw, want_right=want_right, match_cells=cells).disp_left
+            on = _cell_pixels(cells, p.grid_size, some.shape, 2 if subsampling else 1)
+            assert same_bits(some[on], full[on]) and (full[on] >= 0).mean() > 0.5
+            assert (some[~on] == INVALID).all()
+    with pytest.raises(ImageError, match="match_cells"):
+        elas_run(left, right, p, match_cells=np.ones((gh + 1, gw), bool))
+
+
+def test_partner_cells_are_the_cells_the_left_right_check_reads(plants, rng):
+    """postprocess.partner_cells against its definition: the cell of round(u - d) for every
+    valid left pixel (rows/columns ``step`` apart, rounding half up)."""
+    g = 20
+    for step in (1, 2):
+        disp = random_disparity(rng, (240 // step, 320 // step), integer=True, hi=90, invalid=0.995)
+        ref = np.zeros((12, 16), np.uint8)
+        for r, c in zip(*np.nonzero(disp >= 0)):
+            c2 = int(np.floor((c * step - disp[r, c]) / step + 0.5))
+            if 0 <= c2 < disp.shape[1]:
+                ref[(r * step) // g, (c2 * step) // g] = 1
+        got = postprocess.partner_cells(disp, step=step, grid_size=g, image_size=(320, 240))
+        assert same_bits(got, ref) and 0 < ref.mean() < 1
