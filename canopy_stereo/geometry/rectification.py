@@ -351,14 +351,21 @@ class StereoRectifier:
         """Rectified ``(left, right)`` images of size ``rect.size`` (same dtype/channels)."""
         return self.rectify_one(left, "left"), self.rectify_one(right, "right")
 
-    def rectify_one(self, image: np.ndarray, side: str, *, copy: bool = True) -> np.ndarray:
+    def rectify_one(self, image: np.ndarray, side: str, *, copy: bool = True,
+                    out: np.ndarray | None = None) -> np.ndarray:
         """Rectify one image; ``side`` is ``"left"`` or ``"right"``. With ``copy`` False, a
         uint8 image of the rectified size on a side whose map is the identity comes back
-        itself (not resampled, not copied: the caller must not write to it)."""
+        itself (not resampled, not copied: the caller must not write to it). ``out``: an array
+        of the result's shape and dtype to write it into (e.g. a message's buffer), returned."""
         i = 0 if side == "left" else 1
         m1, m2 = self._maps[i]
         if self.identity[i] and image.dtype == np.uint8 and image.shape[:2] == m2.shape:
+            if out is not None:
+                np.copyto(out, image)
+                return out
             return np.array(image, copy=True) if copy else image
+        if out is not None:
+            return cv2.remap(image, m1, m2, self.interpolation, dst=out, borderMode=cv2.BORDER_CONSTANT)
         return cv2.remap(image, m1, m2, self.interpolation, borderMode=cv2.BORDER_CONSTANT)
 
     def coordinates(self, side: str) -> np.ndarray:

@@ -215,17 +215,52 @@ def sample_moved(image: np.ndarray, motion: ImageMotion, frames: float, *, coord
     sh, sw = motion.flow_reduced.shape[:2]
     k = sw / w  # reduced pixels per full pixel (square pixels: one ratio)
     oh, ow = coords.shape[:2]
-    flow_at = cv2.remap(motion.flow_reduced, _reduced_points(coords, k=k, size=(w, h), reduced=(sw, sh)), None,
-                        cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    flow_at = cv2.resize(flow_at, (ow, oh), interpolation=cv2.INTER_LINEAR)
-    moved = cv2.scaleAdd(flow_at, float(frames) / k, coords)  # flow in full pixels, times frames
+    grid = _output_grid(coords, k=k, size=(w, h), reduced=(sw, sh))
+    flow_at = cv2.remap(motion.flow_reduced, grid.points, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    # composed on the coarse grid (flow in full pixels, times frames), then upsampled once: the
+    # map is smooth, its bilinear upsampling its own positions (within 1/64 pixel, the fixed
+    # map's step) but at the borders, where the upsampling clamps and the map's own are put back
+    moved = cv2.resize(cv2.scaleAdd(flow_at, float(frames) / k, grid.coarse), (ow, oh),
+                       interpolation=cv2.INTER_LINEAR)
+    grid.restore_borders(moved)
     # float maps as they are: converting them to fixed point per frame costs what it saves
     return cv2.remap(image, moved, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
 
-def _reduced_points(coords: np.ndarray, *, k: float, size: tuple[int, int], reduced: tuple[int, int]) -> np.ndarray:
-    """float32 (h', w', 2): ``coords`` (H', W', 2) on the output grid at the flow's resolution,
-    in reduced pixels (centres: ``u_reduced = (u + 0.5) k - 0.5``); kept per coordinate map (a
+@dataclass(frozen=True)
+class _OutputGrid:
+    """A coordinate map (H', W', 2) on the output grid at the flow's resolution (h', w').
+
+    Attributes:
+        coarse: float32 (h', w', 2) the map there, in full-resolution pixels (sample centres:
+            output pixel ``(u + 0.5) W' / w' - 0.5``).
+        points: float32 (h', w', 2) the same positions in reduced pixels
+            (``u_reduced = (u + 0.5) k - 0.5``): where the flow is read.
+        band: border width (output pixels) where upsampling ``coarse`` clamps.
+        top, bottom, left, right: float32 corrections ``map - upsampled coarse`` on the border
+            bands (rows: the full width; columns: between the row bands).
+    """
+
+    coarse: np.ndarray
+    points: np.ndarray
+    band: int
+    top: np.ndarray
+    bottom: np.ndarray
+    left: np.ndarray
+    right: np.ndarray
+
+    def restore_borders(self, moved: np.ndarray) -> None:
+        """Add the border corrections to ``moved`` (H', W', 2), an upsampled coarse map, in place."""
+        b = self.band
+        moved[:b] += self.top
+        moved[-b:] += self.bottom
+        moved[b:-b, :b] += self.left
+        moved[b:-b, -b:] += self.right
+
+
+def _output_grid(coords: np.ndarray, *, k: float, size: tuple[int, int], reduced: tuple[int, int]) -> _OutputGrid:
+    """The :class:`_OutputGrid` of ``coords`` (H', W', 2) for a flow ``reduced`` ``(w, h)`` of
+    images ``size`` ``(W, H)``, ``k`` reduced pixels per pixel; kept per coordinate map (a
     rectifier's, read-only: the same every frame)."""
     key = (id(coords), coords.shape, k, size, reduced)
     hit = _points_cache.get(key)
@@ -234,10 +269,15 @@ def _reduced_points(coords: np.ndarray, *, k: float, size: tuple[int, int], redu
     w, h = size
     sw, sh = reduced
     oh, ow = coords.shape[:2]
-    at = cv2.resize(coords, (max(1, round(ow * sw / w)), max(1, round(oh * sh / h))), interpolation=cv2.INTER_LINEAR)
-    at = at * np.float32(k) + np.float32(0.5 * k - 0.5)
+    small = (max(1, round(ow * sw / w)), max(1, round(oh * sh / h)))
+    coarse = cv2.resize(coords, small, interpolation=cv2.INTER_LINEAR)
+    band = min(int(math.ceil(max(ow / small[0], oh / small[1]))) + 1, min(ow, oh) // 2)
+    missing = coords - cv2.resize(coarse, (ow, oh), interpolation=cv2.INTER_LINEAR)
+    grid = _OutputGrid(coarse=coarse, points=coarse * np.float32(k) + np.float32(0.5 * k - 0.5), band=band,
+                       top=missing[:band].copy(), bottom=missing[-band:].copy(),
+                       left=missing[band:-band, :band].copy(), right=missing[band:-band, -band:].copy())
     if not coords.flags.writeable:  # a fixed map: keep it (and the map, so that its id stays its own)
         if len(_points_cache) > 4:
             _points_cache.clear()
-        _points_cache[key] = (coords, at)
-    return at
+        _points_cache[key] = (coords, grid)
+    return grid

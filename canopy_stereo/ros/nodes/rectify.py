@@ -95,10 +95,12 @@ longer than 2 s are pauses, not losses.
 """
 from __future__ import annotations
 
+import array
 import threading
 import time
 from dataclasses import replace
 
+import cv2
 import numpy as np
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Header, String
@@ -119,6 +121,7 @@ from canopy_stereo.ros.compressed import TRANSPORTS, compressed_msg_to_bgr, inpu
 from canopy_stereo.ros.convert import (
     COLOUR_ENCODINGS,
     image_to_msg,
+    make_header,
     msg_to_bgr,
     msg_to_mono,
     rectified_camera_info,
@@ -231,6 +234,7 @@ class RectifyNode(CanopyNode):
         self.pub_left = self.make_publisher(Image, "left/image_rect")
         self.pub_right = self.make_publisher(Image, "right/image_rect")
         self.pub_color = self.make_publisher(Image, "left/image_rect_color")
+        self._message_buffers: dict[str, array.array] = {}  # topic -> its image messages' data
         self.pub_info_left = self.make_publisher(CameraInfo, RECT_INFO_TOPICS[0])
         self.pub_info_right = self.make_publisher(CameraInfo, RECT_INFO_TOPICS[1])
         self.pub_geometry = self.create_publisher(String, STEREO_GEOMETRY_TOPIC, latched_qos())
@@ -343,8 +347,7 @@ class RectifyNode(CanopyNode):
                 self.drop(f"its {name} frame was dropped", f"{other} frame")
                 return
         left, right = images
-        self._publish(pair.stamps_ns[0], self.rectifier.rectify_one(left, "left", copy=False),
-                      self._rectified_right(right, pair.stamps_ns))
+        self._publish(pair.stamps_ns[0], left, self._rectified_right(right, pair.stamps_ns))
 
     def _on_matching(self, msg) -> None:
         """``disparity/matching``: the matcher took the pair stamped ``msg.stamp``."""
@@ -468,19 +471,51 @@ class RectifyNode(CanopyNode):
             return True
         return self.intra_process is not None and self.intra_process.subscription_count(pub.topic_name) > 0
 
-    def _publish(self, stamp_ns: int, left_r: np.ndarray, right_r: np.ndarray) -> None:
-        """Publish a rectified pair: ``left_r`` uint8 BGR, ``right_r`` uint8 grey (H, W) (the
-        camera infos always, each image when it is subscribed)."""
+    def _image_message(self, pub, encoding: str, shape: tuple[int, ...], stamp_ns: int,
+                       frame_id: str) -> tuple[Image, np.ndarray]:
+        """An ``Image`` for ``pub`` and a writable uint8 view of ``shape`` on its data: the
+        rectified image is written straight into the message (no copy between the remap and
+        the publisher). rclpy serialises a message inside ``publish``, so each topic reuses
+        its buffer frame after frame; a topic with subscriptions on the intra-process bus
+        (which hands over the message object itself) gets a new one every time."""
+        n = int(np.prod(shape))
+        shared = self.intra_process is not None and self.intra_process.subscription_count(pub.topic_name) > 0
+        buf = None if shared else self._message_buffers.get(pub.topic_name)
+        if buf is None or len(buf) != n:
+            buf = array.array("B", bytes(n))
+            if not shared:
+                self._message_buffers[pub.topic_name] = buf
+        # check_fields: the setter keeps an array.array('B') as it is (else it copies it)
+        msg = Image(header=make_header(stamp_ns, frame_id), height=shape[0], width=shape[1],
+                    encoding=encoding, is_bigendian=0, step=n // shape[0], check_fields=True)
+        msg.data = buf
+        return msg, np.frombuffer(buf, np.uint8).reshape(shape)
+
+    def _publish(self, stamp_ns: int, left: np.ndarray, right_r: np.ndarray) -> None:
+        """Rectify ``left`` (uint8 BGR, raw) and publish the pair with ``right_r`` (uint8 grey
+        (H, W), rectified): the camera infos always, each image when it is subscribed, each
+        written into its message's buffer."""
         info_l, info_r = self.camera_infos(stamp_ns)
         self.pub_info_left.publish(info_l)
         self.pub_info_right.publish(info_r)
         fl, fr = self.message_frames
+        h, w = right_r.shape
+        colour = None
         if self._subscribed(self.pub_color):
-            self.pub_color.publish(image_to_msg(left_r, "bgr8", stamp_ns=stamp_ns, frame_id=fl))
+            colour, view = self._image_message(self.pub_color, "bgr8", (h, w, 3), stamp_ns, fl)
+            left_r = self.rectifier.rectify_one(left, "left", out=view)
+        else:
+            left_r = self.rectifier.rectify_one(left, "left", copy=False)
+        if colour is not None:
+            self.pub_color.publish(colour)
         if self._subscribed(self.pub_left):
-            self.pub_left.publish(image_to_msg(to_gray(left_r), "mono8", stamp_ns=stamp_ns, frame_id=fl))
+            mono, view = self._image_message(self.pub_left, "mono8", (h, w), stamp_ns, fl)
+            cv2.cvtColor(left_r, cv2.COLOR_BGR2GRAY, dst=view)
+            self.pub_left.publish(mono)
         if self._subscribed(self.pub_right):
-            self.pub_right.publish(image_to_msg(right_r, "mono8", stamp_ns=stamp_ns, frame_id=fr))
+            mono, view = self._image_message(self.pub_right, "mono8", (h, w), stamp_ns, fr)
+            np.copyto(view, right_r)
+            self.pub_right.publish(mono)
         with self._matcher:
             self._published_ns = stamp_ns
         self.count("pairs_published")
