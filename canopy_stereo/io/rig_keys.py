@@ -35,6 +35,7 @@ NODE_KEYS = frozenset({
     # rectify_node
     "frame_id", "right_frame_id", "world_frame", "world_z_up_frame", "left_camera_frame", "right_camera_frame",
     "fps", "sync_slop", "image_transport", "skew_compensation", "use_camera_info", "max_stamp_gap", "zero_stamps",
+    "follow_matcher",
     "stamp_latency", "fixed_frame", "tf_timeout",
     # disparity_node
     "matcher", "preset", "threads", "waiting_pairs", "parallel_pairs", "roi",

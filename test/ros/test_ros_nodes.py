@@ -111,6 +111,39 @@ def test_rectify_node_rectifies_the_newest_pairs_when_frames_come_faster(harness
     assert node.stats()["drops"].get(reason, 0) >= 1  # 8 pairs at once: some were overtaken
 
 
+def test_rectify_node_rectifies_only_what_the_matcher_can_take(harness, paper_rig):
+    """follow_matcher: while the matcher (``disparity/matching``) has not taken the last pair
+    published, pairs that come are not rectified; the newest is, once it is taken or after
+    MATCHER_WAIT_S; the ones in between are dropped as superseded."""
+    from std_msgs.msg import Header
+
+    from canopy_stereo.ros.nodes.rectify import MATCHING_TOPIC, RectifyNode
+
+    node = harness.add(RectifyNode(**node_kwargs(harness, paper_rig, sync_slop=0.01)))
+    color = harness.collect(Image, "left/image_rect_color")
+    pl, pr = harness.publisher(Image, "left/image_raw"), harness.publisher(Image, "right/image_raw")
+    matching = harness.publisher(Header, MATCHING_TOPIC)
+    harness.connect(pl, pr)
+    assert wait_for(lambda: node.sub_matching.get_publisher_count() == 1, TIMEOUT)
+    left, right = textured_pair(paper_rig)
+
+    def send(t):
+        pl.publish(convert.image_to_msg(left, "bgr8", stamp_ns=t, frame_id="left_camera"))
+        pr.publish(convert.image_to_msg(right, "bgr8", stamp_ns=t + 4_000_000, frame_id="right_camera"))
+
+    a, b, c, d = (T0 + k * 33_000_000 for k in range(4))
+    send(a)
+    assert wait_for(lambda: len(color) == 1, TIMEOUT)
+    send(b)  # a is not taken: b waits, c comes and is the newest
+    send(c)
+    assert wait_for(lambda: len(color) == 2, TIMEOUT)
+    matching.publish(convert.make_header(c, "left_camera_rect_optical_frame"))
+    send(d)  # c was taken: d goes at once
+    assert wait_for(lambda: len(color) == 3, TIMEOUT)
+    assert [convert.stamp_to_ns(m.header.stamp) for m in color] == [a, c, d]
+    assert node.stats()["drops"] == {"camera pair: superseded by newer ones while the node was busy": 1}
+
+
 def test_rectify_node_drops_bad_input_and_keeps_running(harness, paper_rig):
     from canopy_stereo.ros.nodes.rectify import RectifyNode
 

@@ -500,6 +500,11 @@ class LatestOnly:
         for _ in range(superseded):
             self.node.drop("superseded by newer ones while the node was busy", self.what)
 
+    def waiting(self) -> int:
+        """Jobs submitted and not taken by a worker yet."""
+        with self._cond:
+            return len(self._jobs)
+
     def call(self, fn) -> None:
         """Run ``fn()`` on a worker thread, before any waiting job, and return when it is done
         (re-raising what it raised): a warm-up whose per-thread state (numba's thread pool of

@@ -12,6 +12,9 @@ valid pixels; invalid pixels are ``min_disparity - 1``. As the message definitio
 asks, values (and the range) are reduced by ``cx_left - cx_right`` of the two
 ``P`` (0 for the package's Fusiello rectification), so depth is ``Z = f t / d``.
 An uncalibrated (Hartley) camera pair gives ``f = t = 0``. This node holds no rig.
+It also publishes ``disparity/matching`` (``std_msgs/Header``, a few bytes): the stamp and frame
+of each pair as the matcher takes it, by which ``rectify_node`` (``follow_matcher``) rectifies
+only the pairs the matcher can take.
 
 Parameters (changeable at run time unless marked read-only):
 
@@ -66,6 +69,7 @@ import threading
 
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import Header
 from stereo_msgs.msg import DisparityImage
 
 from canopy_stereo.bag.pairing import ExactTimeSynchronizer
@@ -92,13 +96,14 @@ from canopy_stereo.ros.convert import (
     camera_info_matrices,
     disparity_to_msg,
     is_calibrated,
+    make_header,
     msg_to_image,
     msg_to_mono,
     stamp_to_ns,
 )
 from canopy_stereo.ros.limits import check_image_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
-from canopy_stereo.ros.nodes.rectify import RECT_INFO_TOPICS
+from canopy_stereo.ros.nodes.rectify import MATCHING_TOPIC, RECT_INFO_TOPICS
 from canopy_stereo.ros.params import number_descriptor
 
 _RANGE = ("disp_min", "disp_max")
@@ -198,6 +203,8 @@ class DisparityNode(CanopyNode):
         self.sync = ExactTimeSynchronizer(4, int(self.get_parameter("queue_size").value),
                                           on_jump=self.time_jump_handler(_STREAMS))
         self.pub = self.make_publisher(DisparityImage, "disparity")
+        #: the stamp of each pair as the matcher takes it (rectify_node's follow_matcher paces itself by it)
+        self.pub_matching = self.make_publisher(Header, MATCHING_TOPIC)
         w, h = self.warm_up_size()
         self.matching = self.latest_only(self._match, "rectified pair",
                                          depth=int(self.get_parameter("waiting_pairs").value),
@@ -337,6 +344,7 @@ class DisparityNode(CanopyNode):
         disparity_to_msg(disp, 500.0, 0.1, lo, hi, delta_d=c["delta_d"], stamp_ns=1, frame_id="")
 
     def _match(self, stamp_ns: int, frame_id: str, left, right, info_l, info_r) -> None:
+        self.pub_matching.publish(make_header(stamp_ns, frame_id))
         with self._config_lock:
             c = self.config
         if left.shape != right.shape:
