@@ -537,7 +537,7 @@ def plant_mask(image_bgr, settings: SeederSettings = IMAGE_SEEDER, *, disparity=
     mask = labels_to_mask(labels)
     if mask.shape != (h, w):
         mask = cv2.resize(mask, (w, h), interpolation=cv2.INTER_LINEAR)
-        mask = cv2.threshold(mask, 127, 255, cv2.THRESH_BINARY)[1]  # >= 128: 255, else 0
+        cv2.threshold(mask, 127, 255, cv2.THRESH_BINARY, dst=mask)  # in place: >= 128: 255, else 0
     min_region = settings.min_region
     if min_region is None:
         min_region = max(1, int(0.0005 * mask.size))

@@ -157,7 +157,7 @@ class MaskPropagator:
         self.propagated += 1
         if plant.shape != (h, w):
             plant = cv2.resize(plant, (w, h), interpolation=cv2.INTER_LINEAR)
-            plant = cv2.threshold(plant, 127, 255, cv2.THRESH_BINARY)[1]  # >= 128: 255, else 0
+            cv2.threshold(plant, 127, 255, cv2.THRESH_BINARY, dst=plant)  # in place: >= 128: 255, else 0
         return plant
 
     __call__ = segment
