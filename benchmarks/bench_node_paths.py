@@ -6,7 +6,9 @@ rectified, matched by ELAS and segmented once beforehand) by direct calls of the
 subscription callbacks (no executor, no other process: the figures are the nodes' own
 Python/numba work plus rclpy's publish; a publish has no subscriber here). ``take`` is
 rclpy's deserialisation of the node's input messages (what its executor does before the
-callbacks: ``rclpy.serialization.deserialize_message``), reported apart.
+callbacks: ``rclpy.serialization.deserialize_message``), reported apart; inputs a node reads
+as views of the serialized message (``raw`` subscriptions) are given as bytes, their
+parsing counted in the callbacks.
 
     .venv/bin/python benchmarks/bench_node_paths.py --size 1280x720 --frames 30
 
@@ -69,7 +71,8 @@ def build_messages(size: str, n: int):
 
 
 def take_ms(frames, topics) -> float:
-    """CPU ms per frame rclpy spends deserialising ``topics`` of each frame."""
+    """CPU ms per frame rclpy spends deserialising ``topics`` of each frame (a node's raw
+    subscriptions are left out by the callers: their parsing is in the callbacks' figure)."""
     from rclpy.serialization import deserialize_message, serialize_message
 
     blobs = [[(type(fr[t]), serialize_message(fr[t])) for t in topics] for fr in frames]
@@ -108,12 +111,14 @@ def bench(size: str, n: int, repeat: int, cache: str | None = None) -> None:
     import rclpy
     from rclpy.parameter import Parameter
 
-    from canopy_stereo.ros.context import private_domain_id
+    from canopy_stereo.ros.context import private_domain_id, tune_memory_allocator, tune_opencv_threads
     from canopy_stereo.ros.nodes import disparity as disparity_module
     from canopy_stereo.ros.nodes.disparity import DisparityNode
     from canopy_stereo.ros.nodes.point_cloud import PointCloudNode
     from canopy_stereo.ros.nodes.segment import SegmentNode
 
+    tune_memory_allocator()  # as in a node process (run_node)
+    tune_opencv_threads()
     frames, geometry = cached_messages(size, n, cache)
     w, h = frames[0]["colour"].width, frames[0]["colour"].height
     context = rclpy.Context()
@@ -127,13 +132,13 @@ def bench(size: str, n: int, repeat: int, cache: str | None = None) -> None:
         calls = (("disparity", node.sub_disp), ("colour", node.sub_color), ("info_l", node.sub_info),
                  ("mask", node.sub_mask))
         results["point_cloud_node"] = _time_calls(node, frames, calls, repeat, "clouds_published")
-        results["point_cloud_node"]["take"] = take_ms(frames, [t for t, _ in calls])
+        results["point_cloud_node"]["take"] = take_ms(frames, [t for t, s in calls if not s.raw])
         node.destroy_node()
         # ---- segment_node (follow_disparity, as in the masked graph)
         node = SegmentNode(context=context, parameter_overrides=[Parameter("follow_disparity", value=True)])
         calls = (("colour", node.sub), ("disparity", node.sub_disp))
         results["segment_node"] = _time_calls(node, frames, calls, repeat, "masks_published")
-        results["segment_node"]["take"] = take_ms(frames, [t for t, _ in calls])
+        results["segment_node"]["take"] = take_ms(frames, [t for t, s in calls if not s.raw])
         node.destroy_node()
         # ---- disparity_node (roi), the matcher's CPU subtracted
         matcher_cpu = [0.0]
@@ -157,7 +162,7 @@ def bench(size: str, n: int, repeat: int, cache: str | None = None) -> None:
                      ("left", node.sub_left), ("right", node.sub_right))
             matcher_cpu[0] = 0.0
             r = _time_calls(node, frames, calls, repeat, "disparities_published", matcher_cpu=matcher_cpu)
-            r["take"] = take_ms(frames, [t for t, _ in calls])
+            r["take"] = take_ms(frames, [t for t, s in calls if not s.raw])
             results["disparity_node"] = r
             node.destroy_node()
         finally:
@@ -177,6 +182,8 @@ _ROUND = [0]  # rounds so far (stamps only go forward, across nodes too)
 
 def _time_calls(node, frames, calls, repeat, counter, matcher_cpu=None) -> dict:
     """Stamps are shifted per repeat so every round is new to the synchronizers."""
+    from rclpy.serialization import serialize_message
+
     from canopy_stereo.ros.convert import ns_to_stamp
 
     def restamp(msg, stamp):
@@ -194,10 +201,13 @@ def _time_calls(node, frames, calls, repeat, counter, matcher_cpu=None) -> dict:
             for topic, _ in calls:
                 restamp(fr[topic], node_round[0] * span + (i + 1) * 33_333_333)
         node_round[0] += 1
+        # a raw subscription (the node reads views of the serialized message) gets the bytes
+        inputs = [[serialize_message(fr[topic]) if getattr(sub, "raw", False) else fr[topic]
+                   for topic, sub in calls] for fr in frames]
         t0 = time.process_time()
-        for fr in frames:
-            for topic, sub in calls:
-                sub.callback(fr[topic])
+        for row in inputs:
+            for (_, sub), msg in zip(calls, row):
+                sub.callback(msg)
             if matcher_cpu is not None:  # the matcher runs on the node's worker: wait for it
                 deadline = time.monotonic() + 2
                 target = node.counts[counter] + 1

@@ -15,7 +15,7 @@ from numba import njit
 
 
 def to_wire(disp: np.ndarray, *, valid_min: float, valid_max: float, doffs: float,
-            fill: float) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+            fill: float, out: np.ndarray | None = None) -> tuple[np.ndarray, tuple[int, int, int, int]]:
     """``(wire, (x, y, w, h))``: the message values of a disparity map and the bounding box
     of its valid pixels.
 
@@ -25,6 +25,8 @@ def to_wire(disp: np.ndarray, *, valid_min: float, valid_max: float, doffs: floa
             (NaN never is; +inf is above any range).
         doffs: subtracted from the valid values (float32 arithmetic); 0 leaves them bit for bit.
         fill: the value written for invalid pixels.
+        out: float32 (H, W) array the values are written into (e.g. a view of a message's
+            buffer); default a new one.
 
     Returns float32 (H, W) ``d - doffs`` where valid, ``fill`` elsewhere, and the valid
     pixels' box ``(x, y, width, height)`` (zeros when none is valid).
@@ -32,7 +34,10 @@ def to_wire(disp: np.ndarray, *, valid_min: float, valid_max: float, doffs: floa
     d = np.ascontiguousarray(disp, dtype=np.float32)
     if d.ndim != 2:
         raise ValueError(f"a disparity map must be (H, W), got shape {d.shape}")
-    out = np.empty_like(d)
+    if out is None:
+        out = np.empty_like(d)
+    elif out.shape != d.shape or out.dtype != np.float32:
+        raise ValueError(f"out must be float32 {d.shape}, got {out.dtype} {out.shape}")
     x0, y0, x1, y1 = _to_wire(d, np.float32(valid_min), np.float32(valid_max), np.float32(doffs),
                               np.float32(fill), out)
     if x1 < x0:

@@ -261,12 +261,21 @@ def disparity_to_msg(disp: np.ndarray, f: float, t: float, min_disparity: float,
     if d.ndim != 2:
         raise ImageError(f"a disparity map must be (H, W), got shape {d.shape}")
     lo, hi = float(min_disparity) - float(doffs), float(max_disparity) - float(doffs)
+    rows, cols = d.shape
+    # the wire values are written straight into the message's (little-endian) data buffer
+    data = _zeroed_bytes(rows * cols * 4) if np.little_endian else None
+    wire = None if data is None else np.frombuffer(data, np.float32).reshape(rows, cols)
     # valid: finite, >= 0 and inside the range (NaN compares false; +inf is above the range)
     out, (x, y, w, h) = to_wire(d, valid_min=max(0.0, float(min_disparity)), valid_max=float(max_disparity),
-                                doffs=float(doffs), fill=lo - 1.0)
+                                doffs=float(doffs), fill=lo - 1.0, out=wire)
     msg = DisparityImage()
     msg.header = make_header(stamp_ns, frame_id)
-    msg.image = image_to_msg(out, "32FC1", stamp_ns=stamp_ns, frame_id=frame_id)
+    if data is None:
+        msg.image = image_to_msg(out, "32FC1", stamp_ns=stamp_ns, frame_id=frame_id)
+    else:
+        msg.image = Image(header=make_header(stamp_ns, frame_id), height=rows, width=cols, encoding="32FC1",
+                          is_bigendian=0, step=cols * 4)
+        msg.image.data = data
     msg.f = _wire_float32(f)
     msg.t = _wire_float32(t)
     msg.valid_window = RegionOfInterest(x_offset=x, y_offset=y, width=w, height=h,
@@ -275,6 +284,15 @@ def disparity_to_msg(disp: np.ndarray, f: float, t: float, min_disparity: float,
     msg.max_disparity = _wire_float32(hi)
     msg.delta_d = _wire_float32(delta_d)
     return msg
+
+
+def _zeroed_bytes(n: int) -> array.array:
+    """A zeroed ``array.array('B')`` of ``n`` bytes (for a message's ``uint8[]`` field, written
+    in place through a numpy view): one fill instead of a temporary array and a copy."""
+    return _ZERO_BYTE * int(n)
+
+
+_ZERO_BYTE = array.array("B", [0])
 
 
 def _wire_float32(value: float) -> float:

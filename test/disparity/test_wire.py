@@ -78,3 +78,24 @@ def test_count_nonfinite_is_numpys_count_on_strided_rows():
     for values in (padded, padded[:, :40], padded[3:, 5:], padded.astype(">f4")):
         assert count_nonfinite(values) == values.size - np.count_nonzero(np.isfinite(values))
     assert count_nonfinite(np.zeros((5, 5), np.float32)) == 0
+
+
+def test_to_wire_into_a_given_buffer_and_the_message_built_in_place():
+    """``out=`` (a view of a message's buffer) gets the same values and box; disparity_to_msg's
+    data, written in place, are the bytes of the wire map as image_to_msg would copy them."""
+    pytest.importorskip("rclpy")
+    from canopy_stereo.ros.convert import disparity_to_msg, image_to_msg
+
+    for d, lo, hi, doffs in _maps(2):
+        ref, ref_box = to_wire(d, valid_min=max(0.0, lo), valid_max=hi, doffs=doffs, fill=lo - doffs - 1.0)
+        out = np.full(d.shape, 7.0, np.float32)
+        got, box = to_wire(d, valid_min=max(0.0, lo), valid_max=hi, doffs=doffs, fill=lo - doffs - 1.0, out=out)
+        assert got is out and box == ref_box and np.array_equal(out.view(np.uint32), ref.view(np.uint32))
+        msg = disparity_to_msg(d, 500.0, 0.1, lo, hi, doffs=doffs, stamp_ns=3, frame_id="f")
+        expected = image_to_msg(ref, "32FC1", stamp_ns=3, frame_id="f")
+        for name in ("height", "width", "encoding", "is_bigendian", "step", "data"):
+            assert getattr(msg.image, name) == getattr(expected, name), name
+        assert msg.image.header == expected.header
+    with pytest.raises(ValueError, match="out must be"):
+        to_wire(np.zeros((3, 4), np.float32), valid_min=0, valid_max=1, doffs=0, fill=-1,
+                out=np.zeros((4, 3), np.float32))

@@ -180,7 +180,7 @@ class CanopyNode(Node):
         return _CountedPublisher(pub, self.diagnostics, self.intra_process)
 
     def make_subscription(self, msg_type, topic: str, callback, *, depth: int | None = None,
-                          sensor_data: bool = False, with_info: bool = False, **kwargs):
+                          sensor_data: bool = False, with_info: bool = False, parse=None, **kwargs):
         """Reliable keep-last subscription (:func:`~canopy_stereo.ros.qos.subscription_qos`)
         whose callback is :meth:`guarded` and counted in the node's diagnostics.
         ``sensor_data``: REP 2003's sensor-data QoS instead (best effort, keep last), for
@@ -196,6 +196,11 @@ class CanopyNode(Node):
         With an intra-process bus, a topic that another node of the bus publishes is
         received from the bus instead (a :class:`~canopy_stereo.ros.intra_process.LocalSubscription`
         with the same keep-last depth; its QoS overrides do not apply).
+
+        ``parse``: over DDS, take the serialized message (rclpy's ``raw``) and give the callback
+        ``parse(data)``, a read-only view with the message's fields (:mod:`canopy_stereo.ros.cdr_views`:
+        large arrays are read in place instead of being deserialised and copied); messages of an
+        intra-process bus are given as they are.
         """
         diagnostics = self.diagnostics
         name = topic
@@ -214,7 +219,15 @@ class CanopyNode(Node):
                 self.local_subscriptions.append(sub)
                 return sub
         qos = sensor_data_qos(depth) if sensor_data else subscription_qos(depth)
-        guarded = self.guarded(counted)
+        if parse is not None:
+            kwargs["raw"] = True
+
+            def parsed(data, info=None):
+                return counted(parse(data), info)
+
+            guarded = self.guarded(parsed)
+        else:
+            guarded = self.guarded(counted)
         subscribed = guarded
         # rclpy passes the message info to callbacks of exactly two arguments; its events executor
         # has none to pass (the callback gets None: the time of the call is the receive time)

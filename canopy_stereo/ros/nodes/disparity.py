@@ -90,6 +90,7 @@ from canopy_stereo.disparity.roi import (
 )
 from canopy_stereo.elas.parallel import AUTO_THREADS, budget_threads
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.ros.cdr_views import image_view
 from canopy_stereo.ros.convert import (
     COLOUR_ENCODINGS,
     camera_info_matrices,
@@ -219,7 +220,8 @@ class DisparityNode(CanopyNode):
         self._roi_lock = threading.Lock()
         self.roi_planner = self._make_planner({})
         if self.roi:
-            self.sub_mask = self.make_subscription(Image, "left/mask", self._on_mask)
+            # read in place from the serialized message (cdr_views: no deserialisation)
+            self.sub_mask = self.make_subscription(Image, "left/mask", self._on_mask, parse=image_view)
         self.camera = None  # (f, t, doffs) of the latest camera_info pair, for the log
         self.expected_size = None  # (width, height) of the latest rectified camera_info
         c = self.config

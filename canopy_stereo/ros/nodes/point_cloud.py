@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.serialization import serialize_message
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import String
 from stereo_msgs.msg import DisparityImage
@@ -55,11 +56,13 @@ from canopy_stereo.geometry.cloud_assembly import (
 )
 from canopy_stereo.geometry.frames import reproject_disparity_records
 from canopy_stereo.geometry.transforms import transform_points
+from canopy_stereo.ros.cdr_views import disparity_view, image_view
 from canopy_stereo.ros.convert import (
     COLOUR_ENCODINGS,
     camera_info_matrices,
     depth_to_msg,
     disparity_to_msg,
+    image_to_msg,
     is_calibrated,
     msg_to_bgr,
     msg_to_disparity,
@@ -121,11 +124,14 @@ class PointCloudNode(CanopyNode):
                                                      self.guarded(self._on_geometry), latched_qos())
         w, h = self.warm_up_size()
         self.warm_up(f"reprojection of {w}x{h} disparities", self._warm_up)
-        self.sub_disp = self.make_subscription(DisparityImage, "disparity", lambda m: self._on(0, m))
-        self.sub_color = self.make_subscription(Image, "left/image_rect_color", lambda m: self._on(1, m))
+        # the large inputs are read in place from the serialized messages (cdr_views: no deserialisation)
+        self.sub_disp = self.make_subscription(DisparityImage, "disparity", lambda m: self._on(0, m),
+                                               parse=disparity_view)
+        self.sub_color = self.make_subscription(Image, "left/image_rect_color", lambda m: self._on(1, m),
+                                                parse=image_view)
         self.sub_info = self.make_subscription(CameraInfo, RECT_INFO_TOPICS[0], lambda m: self._on(2, m))
         if self.use_mask:
-            self.sub_mask = self.make_subscription(Image, "left/mask", lambda m: self._on(3, m))
+            self.sub_mask = self.make_subscription(Image, "left/mask", lambda m: self._on(3, m), parse=image_view)
         self.get_logger().info(f"points2 in the {self.get_parameter('cloud_frame').value} frame "
                                f"({'masked' if self.use_mask else 'unmasked'})")
 
@@ -139,26 +145,32 @@ class PointCloudNode(CanopyNode):
 
     def _warm_up(self) -> None:
         """A disparity of the rig's size through conversion and reprojection into cloud and
-        depth messages (the kernel loaded or compiled, the buffers allocated), nothing published."""
+        depth messages (the kernel loaded or compiled, the buffers allocated), nothing published;
+        as messages (an intra-process bus) and as views of serialized ones (read-only arrays)."""
         w, h = self.warm_up_size()
         rng = np.random.default_rng(0)
         disp = rng.uniform(10.0, 40.0, (h, w)).astype(np.float32)
         disp[::7] = np.nan
-        bgr = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
         Q = np.array([[1.0, 0, 0, -w / 2], [0, 1, 0, -h / 2], [0, 0, 0, 500.0], [0, 0, 10.0, 0]])
-        mask = np.full((h, w), 255, np.uint8) if self.use_mask else None
-        for organized in (False, True):
-            records, depth = reproject_disparity_records(disp, Q, T=np.eye(4), bgr=bgr,
-                                                         mask=mask, organized=organized)
-            records_to_cloud2(records, 1, frame_id="", organized_shape=(h, w) if organized else None)
-        # windows of the maps (not contiguous: the kernel's other specialisations), with and without depth
-        for depth_wanted in (False, True):
-            reproject_disparity_records(disp[1:, 1:], Q, T=np.eye(4), bgr=bgr[1:, 1:],
-                                        mask=None if mask is None else mask[1:, 1:], depth=depth_wanted)
+        messages = (disparity_to_msg(disp, 500.0, 0.1, 0.0, 64.0),
+                    image_to_msg(rng.integers(0, 256, (h, w, 3), dtype=np.uint8), "bgr8"),
+                    image_to_msg(np.full((h, w), 255, np.uint8), "mono8"))
+        views = (disparity_view(serialize_message(messages[0])), image_view(serialize_message(messages[1])),
+                 image_view(serialize_message(messages[2])))
+        for wire, colour, mask_msg in (messages, views):
+            check_disparity_msg(wire)  # the limits' and the wire conversion's kernels
+            frame = msg_to_disparity(wire)
+            bgr = msg_to_bgr(colour)
+            mask = msg_to_image(mask_msg) if self.use_mask else None
+            for organized in (False, True):
+                records, depth = reproject_disparity_records(frame.disparity, Q, T=np.eye(4), bgr=bgr,
+                                                             mask=mask, organized=organized)
+                records_to_cloud2(records, 1, frame_id="", organized_shape=(h, w) if organized else None)
+            # windows of the maps (not contiguous: the kernel's other specialisations), with and without depth
+            for depth_wanted in (False, True):
+                reproject_disparity_records(frame.disparity[1:, 1:], Q, T=np.eye(4), bgr=bgr[1:, 1:],
+                                            mask=None if mask is None else mask[1:, 1:], depth=depth_wanted)
         depth_to_msg(depth, 1, frame_id="")
-        wire = disparity_to_msg(disp, 500.0, 0.1, 0.0, 64.0)
-        check_disparity_msg(wire)  # the limits' and the wire conversion's kernels
-        msg_to_disparity(wire)
 
     def _on_geometry(self, msg: String) -> None:
         try:

@@ -60,11 +60,13 @@ from __future__ import annotations
 
 import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Image
 from stereo_msgs.msg import DisparityImage
 
 from canopy_stereo.bag.pairing import ExactTimeSynchronizer
 from canopy_stereo.errors import CanopyStereoError
+from canopy_stereo.ros.cdr_views import disparity_view, image_view
 from canopy_stereo.ros.convert import (
     COLOUR_ENCODINGS,
     disparity_to_msg,
@@ -136,11 +138,12 @@ class SegmentNode(CanopyNode):
             waiting = max(depth, FOLLOW_QUEUE if self.follow_disparity else 5)
             self.sync = ExactTimeSynchronizer(2, waiting, on_jump=self.time_jump_handler(_STREAMS))
             self.sub_disp = self.make_subscription(DisparityImage, "disparity", lambda m: self._on(1, m),
-                                                   depth=depth)
+                                                   depth=depth, parse=disparity_view)
         w, h = self.expected_size or WARM_UP_SIZE
         self.warm_up(f"segmentation of {w}x{h} images", self._warm_up)
+        # both inputs are read in place from the serialized messages (cdr_views: no deserialisation)
         self.sub = self.make_subscription(Image, "left/image_rect_color", lambda m: self._on(0, m),
-                                          depth=depth)
+                                          depth=depth, parse=image_view)
 
     def _warm_up(self) -> None:
         """A full cut and a propagated frame on a synthetic image of the rig's size, with a
@@ -149,13 +152,16 @@ class SegmentNode(CanopyNode):
 
         w, h = self.expected_size or WARM_UP_SIZE
         left, _, disparity = synthetic_pair(w, h, plane=(0.0, 0.0, 20.0), texture="blocks", colour=True)
-        propagator = self._settings({})["propagator"]
-        for _ in range(2):
-            mask = propagator.segment(left, disparity=disparity if self.depth_cue else None)
-        image_to_msg(mask, "mono8", stamp_ns=1, frame_id="")
         wire = disparity_to_msg(disparity, 500.0, 0.1, 0.0, 64.0)
-        check_disparity_msg(wire)  # the limits' and the wire conversion's kernels
-        msg_to_disparity(wire)
+        # as messages (an intra-process bus) and as views of serialized ones (read-only arrays)
+        for image, disparity_msg in ((left, wire), (msg_to_bgr(image_view(serialize_message(image_to_msg(left)))),
+                                                    disparity_view(serialize_message(wire)))):
+            check_disparity_msg(disparity_msg)  # the limits' and the wire conversion's kernels
+            frame = msg_to_disparity(disparity_msg)
+            propagator = self._settings({})["propagator"]
+            for _ in range(2):
+                mask = propagator.segment(image, disparity=frame.disparity if self.depth_cue else None)
+        image_to_msg(mask, "mono8", stamp_ns=1, frame_id="")
         compile_cut_kernels()  # the compiled GrabCut the synthetic frame's seed did not reach
 
     def _settings(self, changes: dict) -> dict:
