@@ -85,7 +85,9 @@ Paced by the matcher (``follow_matcher``, default true): rectifying pairs that
 quarter of two cores). ``disparity_node`` publishes ``disparity/matching`` (``std_msgs/Header``)
 as it takes each pair; while the last pair this node published has not been taken, the worker
 waits (at most :data:`MATCHER_WAIT_S`) and then rectifies the newest pair. Without a publisher
-on ``disparity/matching`` (another matcher, or none) every pair is rectified.
+on ``disparity/matching`` (another matcher, or none), or while the matcher takes a pair about every
+frame period (median take interval at most :data:`KEEPS_UP_PERIODS` periods: waiting would only
+delay the pairs), every pair is rectified.
 
 Frames that never reached the node (overwritten in its keep-last input queue while it
 was busy, or lost upstream) are counted as drops (``left frame: missed ...``, in
@@ -98,6 +100,7 @@ from __future__ import annotations
 import array
 import threading
 import time
+from collections import deque
 from dataclasses import replace
 
 import cv2
@@ -140,6 +143,10 @@ from canopy_stereo.skew import SkewCompensator
 MATCHING_TOPIC = "disparity/matching"
 #: Longest wait (s) for the matcher to take the last published pair (``follow_matcher``).
 MATCHER_WAIT_S = 0.25
+#: ``follow_matcher`` waits only for a matcher slower than this many frame periods per pair
+#: (the median of its last :data:`TAKE_INTERVALS` take intervals).
+KEEPS_UP_PERIODS = 1.5
+TAKE_INTERVALS = 8
 
 #: Rectified CameraInfo topics (beside their images; ``<side>/camera_info`` is the raw camera's).
 RECT_INFO_TOPICS = ("left/image_rect/camera_info", "right/image_rect/camera_info")
@@ -202,6 +209,8 @@ class RectifyNode(CanopyNode):
         self._matcher = threading.Condition()
         self._published_ns: int | None = None  # the last pair published
         self._taken_ns: int | None = None  # the last pair the matcher took
+        self._take_times: deque[float] = deque(maxlen=TAKE_INTERVALS + 1)  # monotonic s of recent takes
+        self._frame_period_s: float | None = None  # the cameras' frame period, measured from the stamps
         self.sub_matching = (self.make_subscription(Header, MATCHING_TOPIC, self._on_matching)
                              if self.get_parameter("follow_matcher").value else None)
         self.declare_flag("use_camera_info", False, "take the rig from the drivers' left/camera_info and "
@@ -353,14 +362,27 @@ class RectifyNode(CanopyNode):
         """``disparity/matching``: the matcher took the pair stamped ``msg.stamp``."""
         with self._matcher:
             self._taken_ns = stamp_to_ns(msg.stamp)
+            self._take_times.append(time.monotonic())
             self._matcher.notify_all()
+
+    def _matcher_keeps_up(self) -> bool:
+        """True when the matcher takes a pair about every frame period (median of its last
+        :data:`TAKE_INTERVALS` take intervals at most :data:`KEEPS_UP_PERIODS` frame periods):
+        then waiting for it would only delay pairs (each would wait for a take that comes
+        anyway), so the node rectifies every pair."""
+        with self._matcher:
+            times = list(self._take_times)
+        period = self._frame_period_s
+        if period is None or len(times) <= TAKE_INTERVALS:
+            return False
+        return float(np.median(np.diff(times))) <= KEEPS_UP_PERIODS * period
 
     def _matcher_ready(self) -> bool:
         """Wait (at most :data:`MATCHER_WAIT_S`) until the matcher has taken the last pair
         published; False when a newer pair came meanwhile and fills the waiting places
         (``waiting_pairs``): the worker takes that one instead. A pair not taken in that time
         (lost, or a restarted matcher) is not waited for again."""
-        if self.sub_matching is None or self.sub_matching.get_publisher_count() == 0:
+        if self.sub_matching is None or self.sub_matching.get_publisher_count() == 0 or self._matcher_keeps_up():
             return True
         t0 = time.monotonic()
         deadline = t0 + MATCHER_WAIT_S
@@ -431,6 +453,8 @@ class RectifyNode(CanopyNode):
     def _count_missed(self, stamp_ns: int) -> None:
         """Count the left frames missing between the previous left stamp and ``stamp_ns``."""
         period_s = self.left_gaps.observe(0, stamp_ns)
+        if period_s is not None:
+            self._frame_period_s = period_s
         last, self._last_left_ns = self._last_left_ns, stamp_ns
         duplicates = self.stamp_check.take_duplicates(0)  # sent, with a repeated stamp: not lost
         if period_s is None or last is None:
