@@ -307,6 +307,8 @@ def webcam_lens(rig) -> tuple:
     ``rig`` to what the turned, distorting camera records (the pixel of each raw ray in the
     frame). Rectifying the raw frames with ``raw_rig`` gives the frames back (turned by the left
     camera's pitch: Fusiello keeps the left camera's optical axis in the plane it sets)."""
+    import dataclasses
+
     import cv2
     import numpy as np
 
@@ -328,16 +330,16 @@ def webcam_lens(rig) -> tuple:
         back = np.hstack([rays, np.ones((rays.shape[0], 1))]) @ Q  # rows: Q^T ray (the frame's camera)
         uv = back @ K.T
         maps.append((uv[:, :2] / uv[:, 2:]).reshape(h, w, 2).astype(np.float32))
-    extra = dict(rig.extra)
-    raw = Rig(projections[0], projections[1], rig.image_size, rig.world_unit, D, D, extra)
+    raw = Rig(projections[0], projections[1], rig.image_size, rig.world_unit, D, D, dict(rig.extra))
     # the frames' rig keeps its rectified principal points apart (doffs); the webcams' rectification
     # gives both one: the same points' disparities move by the difference
     shift = rectification_for_rig(raw).doffs - rectification_for_rig(rig).doffs
-    for key in ("disp_min", "disp_max"):
-        if key in extra:
-            extra[key] = max(0, int(np.floor(extra[key] + shift)) if key == "disp_min"
-                             else int(np.ceil(extra[key] + shift)))
-    return raw, tuple(maps)
+    extra = dict(rig.extra)
+    if "disp_min" in extra:
+        extra["disp_min"] = max(0, int(np.floor(extra["disp_min"] + shift)))
+    if "disp_max" in extra:
+        extra["disp_max"] = int(np.ceil(extra["disp_max"] + shift))
+    return dataclasses.replace(raw, extra=extra), tuple(maps)
 
 
 def bench_frames(scene: str, size: str, n_frames: int = DRIFT_PERIOD, seed: int = 0, *, lens: str = "none"):
