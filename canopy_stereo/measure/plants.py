@@ -252,22 +252,28 @@ def _trimmed(organized, finite, mask, P):
     groups, n = ndimage.label(far, np.ones((3, 3), bool))
     around = ndimage.grey_dilation(groups, size=(2 * FAR_RING_PX + 1,) * 2)  # a ring pixel: one group's
     ring = (groups == 0) & (around > 0)
-    index = np.arange(1, n + 1)
-
-    def median_of(pixels):  # (n,) median distance of each group's ring pixels of a kind (NaN: none)
-        labels = np.where(pixels, around, 0)
-        out = np.full(n, np.nan)
-        has = np.bincount(labels.ravel(), minlength=n + 1)[1:] > 0
-        if has.any():
-            out[has] = ndimage.median(dist, labels, index[has])
-        return out
-
-    own = np.asarray(ndimage.median(dist, groups, index), np.float64)
-    near, behind = median_of(ring & plant & ~far), median_of(ring & finite & ~mask)
+    own = _group_medians(dist, groups, n)
+    near = _group_medians(dist, np.where(ring & plant & ~far, around, 0), n)
+    behind = _group_medians(dist, np.where(ring & finite & ~mask, around, 0), n)
     with np.errstate(invalid="ignore"):
         debris = np.abs(behind - own) <= (1.0 / FAR_SIDE_SHARE - 1.0) * np.abs(own - near)
     keep = np.concatenate([[False], np.isfinite(near) & ~debris])
     return mask & ~(far & ~keep[groups])
+
+
+def _group_medians(values: np.ndarray, labels: np.ndarray, n: int) -> np.ndarray:
+    """(n,) median of ``values`` over the pixels of each label 1..n of ``labels`` (same shape,
+    0 = none); NaN for a label without pixels."""
+    sel = labels > 0
+    v, g = values[sel], labels[sel]
+    order = np.lexsort((v, g))
+    v = v[order]
+    counts = np.bincount(g, minlength=n + 1)[1:]
+    starts = np.cumsum(counts) - counts
+    out = np.full(n, np.nan)
+    has = counts > 0
+    out[has] = 0.5 * (v[starts[has] + (counts[has] - 1) // 2] + v[starts[has] + counts[has] // 2])
+    return out
 
 
 def _measure_cropped(organized, mask, P, *, ground, **options):

@@ -96,3 +96,16 @@ def test_trim_keeps_the_far_side_and_drops_background_on_the_rim():
     assert not kept[debris].any() and not kept[blend].any()
     assert (kept == (mask & ~debris & ~blend)).all()
     assert (trimmed_mask(organized, mask, camera=None) == mask).all()
+
+
+def test_group_medians_match_numpy_per_label():
+    from canopy_stereo.measure.plants import _group_medians
+
+    rng = np.random.default_rng(3)
+    values = rng.normal(size=(40, 50))
+    labels = rng.integers(0, 7, size=(40, 50))
+    labels[labels == 5] = 0  # label 5 without pixels
+    out = _group_medians(values, labels, 6)
+    for k in range(1, 7):
+        expected = np.median(values[labels == k]) if (labels == k).any() else np.nan
+        np.testing.assert_allclose(out[k - 1], expected, equal_nan=True)
