@@ -363,17 +363,17 @@ class ExactTimeSynchronizer:
                             if k[0] < self._epoch and slots[stream] is None]:
                     dropped += self._drop_set(key, "time jumped back: queued before the jump", after_jump=True)
             epoch = self._stream_epoch[stream]
-            key = self._set_waiting_for(stream, stamp_ns)
-            if key is None:
+            waiting = self._set_waiting_for(stream, stamp_ns)
+            if waiting is None:
                 last = self._last_emitted.get(epoch)
                 if last is not None and stamp_ns <= last:
                     return None, dropped + [Dropped(stream, stamp_ns, "older than the last emitted set")]
-                key = (epoch, stamp_ns)
-            elif key[0] > epoch:  # the others' time line, reached without a step back: joined
-                self._stream_epoch[stream] = key[0]
-                if key[0] == self._epoch:
+                waiting = (epoch, stamp_ns)
+            elif waiting[0] > epoch:  # the others' time line, reached without a step back: joined
+                self._stream_epoch[stream] = waiting[0]
+                if waiting[0] == self._epoch:
                     self._guard.following.discard(stream)
-            epoch = key[0]
+            epoch, key = waiting[0], waiting
             slots = self._pending.setdefault(key, [None] * self.n_streams)
             if slots[stream] is not None:
                 dropped.append(Dropped(stream, stamp_ns, "duplicate stamp (replaced)"))
