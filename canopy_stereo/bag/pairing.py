@@ -302,7 +302,11 @@ class ExactTimeSynchronizer:
 
     Time lines: a backwards jump opens a new *epoch*; a stream belongs to the new epoch
     from its own first message after the jump (streams follow at their own pace: the
-    slow stream's messages from before the jump still complete their sets). A set
+    slow stream's messages from before the jump still complete their sets). A message
+    whose stamp a pending set of another epoch lacks completes that set, the stream joining
+    a newer epoch so: a stream that never saw the jump (it started after it, or skipped from
+    one pass of a looping source into the next without stepping back, and then gets one
+    frame again and again) would otherwise wait in its own epoch forever. A set
     completed in the newest epoch drops every set left from older epochs.
 
     Args:
@@ -359,10 +363,17 @@ class ExactTimeSynchronizer:
                             if k[0] < self._epoch and slots[stream] is None]:
                     dropped += self._drop_set(key, "time jumped back: queued before the jump", after_jump=True)
             epoch = self._stream_epoch[stream]
-            last = self._last_emitted.get(epoch)
-            if last is not None and stamp_ns <= last:
-                return None, dropped + [Dropped(stream, stamp_ns, "older than the last emitted set")]
-            key = (epoch, stamp_ns)
+            waiting = self._set_waiting_for(stream, stamp_ns)
+            if waiting is None:
+                last = self._last_emitted.get(epoch)
+                if last is not None and stamp_ns <= last:
+                    return None, dropped + [Dropped(stream, stamp_ns, "older than the last emitted set")]
+                waiting = (epoch, stamp_ns)
+            elif waiting[0] > epoch:  # the others' time line, reached without a step back: joined
+                self._stream_epoch[stream] = waiting[0]
+                if waiting[0] == self._epoch:
+                    self._guard.following.discard(stream)
+            epoch, key = waiting[0], waiting
             slots = self._pending.setdefault(key, [None] * self.n_streams)
             if slots[stream] is not None:
                 dropped.append(Dropped(stream, stamp_ns, "duplicate stamp (replaced)"))
@@ -382,6 +393,15 @@ class ExactTimeSynchronizer:
             while len(self._pending) > self.queue_size:
                 dropped += self._drop_set(next(iter(self._pending)), f"incomplete (queue of {self.queue_size} full)")
             return None, dropped
+
+    def _set_waiting_for(self, stream: int, stamp_ns: int) -> tuple[int, int] | None:
+        """The key of the pending set stamped ``stamp_ns`` that lacks ``stream``'s message: the
+        one of the stream's own time line, else the newest (None: no such set). A stream whose
+        stamps step forward across a jump (a looping source whose frames it partly skipped) never
+        sees the jump; the others' set of its stamp is the one it completes."""
+        keys = [k for k, slots in self._pending.items() if k[1] == stamp_ns and slots[stream] is None]
+        own = (self._stream_epoch[stream], stamp_ns)
+        return own if own in keys else max(keys, default=None)
 
     def _drop_set(self, key: tuple[int, int], reason: str, *, after_jump: bool = False) -> list[Dropped]:
         slots = self._pending.pop(key)

@@ -28,8 +28,15 @@ MAX_SOIL_TILT_DEG = 20.0
 #: Width (pixels) of the ring around the plants that is not taken for their container.
 RING_PX = 4
 #: A plant pixel whose point lies farther from the camera than the plant's median distance
-#: plus this fraction of it is background seen through the mask's edge (dropped).
+#: plus this fraction of it is suspect: background seen through the mask's edge, unless
+#: :func:`_trimmed` finds it continuing the canopy (far-side leaves).
 MAX_BEHIND_FRACTION = 0.2
+#: Width (pixels) of the ring around a group of suspect pixels whose plant and background
+#: distances the group is compared with.
+FAR_RING_PX = 2
+#: A group of suspect pixels is the plant's far side when it lies less than this share of the
+#: way from the plant's distance around it to the background's (else: matching debris).
+FAR_SIDE_SHARE = 1.0 / 3.0
 
 
 def reference_surface(organized: np.ndarray, plant: np.ndarray, others: np.ndarray, frame: MeasuringFrame,
@@ -144,9 +151,8 @@ def measure_plants(organized, instances, *, ground="auto", unit: str = "mm", cam
     ``canopy["height"]`` is the top of the plant above the reference surface (world
     units) and ``canopy["extent_height"]`` the plant's own vertical extent. With
     ``ground="auto"`` the ground plane is found once for the scene; each plant is measured
-    on the part of the cloud around it, without the pixels whose points lie more than
-    :data:`MAX_BEHIND_FRACTION` beyond its median distance (background seen through the
-    mask's edge). A plant that cannot be measured gets ``{"plant_index", "error"}``.
+    on the part of the cloud around it, without the background seen through the mask's edge
+    (:func:`trimmed_mask`). A plant that cannot be measured gets ``{"plant_index", "error"}``.
     Raises :class:`CanopyStereoError` when the image has no plant.
     """
     organized = check_organized(organized)
@@ -207,23 +213,67 @@ def _scene_ground(organized, finite, plants, P):
 
 
 def trimmed_mask(organized: np.ndarray, mask: np.ndarray, *, camera) -> np.ndarray:
-    """(H, W) bool: a plant's ``mask`` without the pixels whose points lie more than
-    :data:`MAX_BEHIND_FRACTION` beyond the plant's median distance from the ``camera``
-    (``P`` (3, 4), or None: the mask as it is): background seen through the mask's edge,
-    which is not the plant (how :func:`measure_plants` measures each plant; the one
-    measuring pipeline measures a lone plant so too)."""
+    """(H, W) bool: a plant's ``mask`` without the background seen through its edge
+    (:func:`_trimmed`; ``camera``: ``P`` (3, 4), or None: the mask as it is). This is how
+    :func:`measure_plants` measures each plant; the one measuring pipeline measures a
+    lone plant so too."""
     organized = np.asarray(organized, np.float64)
     return _trimmed(organized, np.all(np.isfinite(organized), axis=-1), np.asarray(mask, bool), camera)
 
 
 def _trimmed(organized, finite, mask, P):
-    """``mask`` without pixels whose points lie far behind the plant (background at its edges)."""
+    """``mask`` (H, W) bool without the pixels whose points are background seen through the
+    plant's edge (``organized`` (H, W, 3) world points, ``finite`` their (H, W) validity,
+    ``P`` (3, 4) the camera, or None: ``mask`` as it is).
+
+    Suspect pixels lie farther from the camera centre than :data:`MAX_BEHIND_FRACTION`
+    beyond the plant's median distance. They are grouped (8-connected) and each group is
+    compared, by median distances, with the plant pixels that are not suspect and with the
+    finite pixels outside the mask in a ring :data:`FAR_RING_PX` wide around it. A group is
+    kept when it has plant pixels around it and lies less than :data:`FAR_SIDE_SHARE` of the
+    way from their distance to the background's (or has no background around it): the far
+    side of the canopy seen through a gap, which the matcher puts a little farther than it is
+    (croton, 640x480: leaves 770-800 mm away measured 820-840 mm, plant around them 780-795,
+    background 950-980). The others are dropped: leaf edges the matcher gave the
+    background's depth or a blend of the leaf's and the background's (their distance near
+    the background's, or between the two).
+    """
     if P is None or not (mask & finite).any():
         return mask
+    from scipy import ndimage
+
     dist = np.linalg.norm(organized - camera_centre(P), axis=-1)
-    med = float(np.median(dist[mask & finite]))
+    plant = mask & finite
+    med = float(np.median(dist[plant]))
     with np.errstate(invalid="ignore"):
-        return mask & ~(dist > (1.0 + MAX_BEHIND_FRACTION) * med)
+        far = plant & (dist > (1.0 + MAX_BEHIND_FRACTION) * med)
+    if not far.any():
+        return mask
+    groups, n = ndimage.label(far, np.ones((3, 3), bool))
+    around = ndimage.grey_dilation(groups, size=(2 * FAR_RING_PX + 1,) * 2)  # a ring pixel: one group's
+    ring = (groups == 0) & (around > 0)
+    own = _group_medians(dist, groups, n)
+    near = _group_medians(dist, np.where(ring & plant & ~far, around, 0), n)
+    behind = _group_medians(dist, np.where(ring & finite & ~mask, around, 0), n)
+    with np.errstate(invalid="ignore"):
+        debris = np.abs(behind - own) <= (1.0 / FAR_SIDE_SHARE - 1.0) * np.abs(own - near)
+    keep = np.concatenate([[False], np.isfinite(near) & ~debris])
+    return mask & ~(far & ~keep[groups])
+
+
+def _group_medians(values: np.ndarray, labels: np.ndarray, n: int) -> np.ndarray:
+    """(n,) median of ``values`` over the pixels of each label 1..n of ``labels`` (same shape,
+    0 = none); NaN for a label without pixels."""
+    sel = labels > 0
+    v, g = values[sel], labels[sel]
+    order = np.lexsort((v, g))
+    v = v[order]
+    counts = np.bincount(g, minlength=n + 1)[1:]
+    starts = np.cumsum(counts) - counts
+    out = np.full(n, np.nan)
+    has = counts > 0
+    out[has] = 0.5 * (v[starts[has] + (counts[has] - 1) // 2] + v[starts[has] + counts[has] // 2])
+    return out
 
 
 def _measure_cropped(organized, mask, P, *, ground, **options):

@@ -240,3 +240,29 @@ def test_drops_of_a_time_jump_say_so_and_others_do_not():
     s.push(0, 10, "c")                                # back in time: the old set may still finish
     _, jumped = s.push(1, 10, "d")                    # a set of the new time line completes
     assert [(d.stamp_ns, d.after_jump) for d in jumped] == [(300, True)]
+
+
+def test_a_stream_that_starts_after_a_jump_completes_the_sets_of_the_new_time_line():
+    """disparity_node on a looping bag: rectify_node's camera_infos (streams 2, 3) arrive before
+    its images (published once subscribed) and wrap around (a jump); then the same frame
+    comes again and again (follow_matcher: the matcher took nothing yet). The images' first
+    messages never stepped back, yet they belong with the infos: a set every pass."""
+    s = ExactTimeSynchronizer(4, queue_size=5)
+    for t in (200, 304, 100):
+        s.push(2, t * MS, t)
+        s.push(3, t * MS, t)
+    sets = [s.push(stream, 100 * MS, stream)[0] for _ in range(3) for stream in (2, 3, 0, 1)]
+    assert [x for x in sets if x is not None] == [[0, 1, 2, 3]] * 3
+
+
+def test_a_stream_stepping_forward_across_a_jump_completes_the_sets_of_the_new_time_line():
+    """point_cloud_node on a looping bag: the disparities (stream 0) are a later, sparser choice
+    of the colour images' frames (streams 1, 2); they skip from frame 200 of one pass to frame
+    304 of the next without stepping back, and then frame 304 comes again and again."""
+    s = ExactTimeSynchronizer(3, queue_size=15)
+    for stream in (1, 2, 0):
+        s.push(stream, 200 * MS, stream)
+    for stream in (1, 2):  # the next pass: 200 again (a jump), then 304
+        s.push(stream, 200 * MS, stream)
+    sets = [s.push(stream, 304 * MS, stream)[0] for _ in range(3) for stream in (1, 2, 0)]
+    assert [x for x in sets if x is not None] == [[0, 1, 2]] * 3

@@ -62,3 +62,50 @@ def test_seedling_heights_above_the_tray_from_a_top_view(paper_rig):
             errors[k] = rep["canopy"]["height"] / truth - 1.0
     assert len(errors) > 25
     assert max(abs(e) for e in errors.values()) <= 0.02, errors
+
+
+def test_trim_keeps_the_far_side_and_drops_background_on_the_rim():
+    """trimmed_mask on rays of a pinhole camera (exact distances, mm): a plant at 600 mm keeps,
+    beyond 1.2 x its median distance but much nearer it than the backdrop at 1000 mm, a leaf
+    750 mm away seen through a gap and the far end of a leaf receding to 770 mm at its right rim;
+    the plant's rim given the backdrop's depth (the matcher's debris) or a blend nearer it
+    (900 mm) is dropped."""
+    from canopy_stereo.measure.plants import trimmed_mask
+
+    h = w = 120
+    K = np.array([[300.0, 0, w / 2], [0, 300.0, h / 2], [0, 0, 1]])
+    P = K @ np.hstack([np.eye(3), np.zeros((3, 1))])
+    v, u = np.mgrid[0:h, 0:w]
+    rays = np.stack([(u - w / 2) / 300.0, (v - h / 2) / 300.0, np.ones((h, w))], axis=-1)
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    r = np.hypot(u - w / 2, v - h / 2)
+    mask = r <= 40
+    dist = np.full((h, w), 1000.0)  # the backdrop
+    dist[mask] = 600.0
+    gap = np.hypot(u - 70, v - 60) <= 6  # the far leaf seen through a gap in the canopy
+    dist[gap] = 750.0
+    receding = mask & (u >= 90)
+    dist[receding] = 600.0 + (u[receding] - 90) * 17.0  # 736-770 mm at u 98-100
+    debris = mask & (r > 38) & (u < 50)  # the left rim at the backdrop's depth
+    dist[debris] = 1000.0
+    blend = mask & (r > 38) & (v < 40) & (u >= 50) & (u < 80)  # the top rim: a leaf/backdrop blend
+    dist[blend] = 900.0
+    organized = rays * dist[..., None]
+    kept = trimmed_mask(organized, mask, camera=P)
+    assert kept[gap].all() and kept[receding].all() and (dist[receding] > 720).sum() >= 9
+    assert not kept[debris].any() and not kept[blend].any()
+    assert (kept == (mask & ~debris & ~blend)).all()
+    assert (trimmed_mask(organized, mask, camera=None) == mask).all()
+
+
+def test_group_medians_match_numpy_per_label():
+    from canopy_stereo.measure.plants import _group_medians
+
+    rng = np.random.default_rng(3)
+    values = rng.normal(size=(40, 50))
+    labels = rng.integers(0, 7, size=(40, 50))
+    labels[labels == 5] = 0  # label 5 without pixels
+    out = _group_medians(values, labels, 6)
+    for k in range(1, 7):
+        expected = np.median(values[labels == k]) if (labels == k).any() else np.nan
+        np.testing.assert_allclose(out[k - 1], expected, equal_nan=True)

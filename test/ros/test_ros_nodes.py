@@ -252,6 +252,33 @@ def test_disparity_node_fields_match_the_rig(harness, paper_rig):
     assert node.stats()["counts"]["disparities_published"] == 1
 
 
+def test_disparity_node_matches_a_looping_bag_whose_images_start_after_a_wrap(harness, paper_rig):
+    """A looping bag at start-up: rectify_node's camera_infos reach disparity_node before its
+    images (published once the subscription is matched) and wrap around; then the same frame
+    comes again and again (rectify_node's follow_matcher, while nothing is taken yet). The
+    images belong with the infos of the wrapped time line: matched at once."""
+    from canopy_stereo.ros.nodes.disparity import DisparityNode
+
+    node = harness.add(DisparityNode(**node_kwargs(harness, paper_rig, matcher="sgbm", disp_min=16, disp_max=48)))
+    out = harness.collect(DisparityImage, "disparity")
+    pl, pr = harness.publisher(Image, "left/image_rect"), harness.publisher(Image, "right/image_rect")
+    il, ir = rect_info_publishers(harness)
+    harness.connect(pl, pr, il, ir)
+    rect = fusiello_rectify(paper_rig.P_left, paper_rig.P_right, paper_rig.image_size)
+    frame = T0 + 100_000_000
+    for stamp in (T0 + 200_000_000, T0 + 304_000_000, frame):  # the infos wrap around
+        publish_rect_infos(il, ir, paper_rig, rect, stamp)
+    assert wait_for(lambda: node.stats()["counts"].get("right_camera_info_received") == 3, TIMEOUT)
+    gl, gr = (cv2.cvtColor(im, cv2.COLOR_BGR2GRAY) for im in textured_pair(paper_rig, 30))
+    for k in range(3):  # the same frame on every pass
+        if k:
+            publish_rect_infos(il, ir, paper_rig, rect, frame)
+        pl.publish(convert.image_to_msg(gl, "mono8", stamp_ns=frame, frame_id="rect"))
+        pr.publish(convert.image_to_msg(gr, "mono8", stamp_ns=frame, frame_id="rect"))
+        assert wait_for(lambda n=k + 1: len(out) == n, TIMEOUT), node.stats()["drops"]
+    assert {convert.stamp_to_ns(m.header.stamp) for m in out} == {frame}
+
+
 def test_disparity_node_parameters_change_at_run_time_and_are_validated(harness, paper_rig):
     pytest.importorskip("canopy_stereo.elas.params")
     from canopy_stereo.ros.nodes.disparity import DisparityNode
