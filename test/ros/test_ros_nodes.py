@@ -111,16 +111,22 @@ def test_rectify_node_rectifies_the_newest_pairs_when_frames_come_faster(harness
     assert node.stats()["drops"].get(reason, 0) >= 1  # 8 pairs at once: some were overtaken
 
 
-def test_rectify_node_rectifies_only_what_the_matcher_can_take(harness, paper_rig):
+@pytest.mark.parametrize("matcher_reads", [True, False], ids=["matcher-reads", "nobody-reads-mono"])
+def test_rectify_node_rectifies_only_what_the_matcher_can_take(harness, paper_rig, matcher_reads):
     """follow_matcher: while the matcher (``disparity/matching``) has not taken the last pair
     published, pairs that come are not rectified; the newest is, once it is taken or after
-    MATCHER_WAIT_S; the ones in between are dropped as superseded."""
+    MATCHER_WAIT_S; the ones in between are dropped as superseded. A pair whose mono images
+    went to nobody (the matcher's readers not matched yet) is not waited for."""
     from std_msgs.msg import Header
 
     from canopy_stereo.ros.nodes.rectify import MATCHING_TOPIC, RectifyNode
 
     node = harness.add(RectifyNode(**node_kwargs(harness, paper_rig, sync_slop=0.01)))
     color = harness.collect(Image, "left/image_rect_color")
+    if matcher_reads:
+        harness.collect(Image, "left/image_rect"), harness.collect(Image, "right/image_rect")
+        assert wait_for(lambda: node.pub_left.get_subscription_count() and node.pub_right.get_subscription_count(),
+                        TIMEOUT)
     pl, pr = harness.publisher(Image, "left/image_raw"), harness.publisher(Image, "right/image_raw")
     matching = harness.publisher(Header, MATCHING_TOPIC)
     harness.connect(pl, pr)
@@ -135,13 +141,21 @@ def test_rectify_node_rectifies_only_what_the_matcher_can_take(harness, paper_ri
     send(a)
     assert wait_for(lambda: len(color) == 1, TIMEOUT)
     send(b)  # a is not taken: b waits, c comes and is the newest
+    if not matcher_reads:  # a went to nobody: b goes at once
+        assert wait_for(lambda: len(color) == 2, TIMEOUT)
     send(c)
-    assert wait_for(lambda: len(color) == 2, TIMEOUT)
+    assert wait_for(lambda: len(color) == 2 + (not matcher_reads), TIMEOUT)
     matching.publish(convert.make_header(c, "left_camera_rect_optical_frame"))
     send(d)  # c was taken: d goes at once
-    assert wait_for(lambda: len(color) == 3, TIMEOUT)
-    assert [convert.stamp_to_ns(m.header.stamp) for m in color] == [a, c, d]
-    assert node.stats()["drops"] == {"camera pair: superseded by newer ones while the node was busy": 1}
+    assert wait_for(lambda: len(color) == 3 + (not matcher_reads), TIMEOUT)
+    out = [convert.stamp_to_ns(m.header.stamp) for m in color]
+    if matcher_reads:
+        assert out == [a, c, d]
+        assert node.stats()["drops"] == {"camera pair: superseded by newer ones while the node was busy": 1}
+    else:
+        assert out == [a, b, c, d] and node.stats()["drops"] == {}
+        values = {kv.key for kv in node.diagnostics.status(reset=False).values}
+        assert "matcher wait ms max" not in values  # no pair waited for a take that cannot come
 
 
 def test_rectify_node_drops_bad_input_and_keeps_running(harness, paper_rig):

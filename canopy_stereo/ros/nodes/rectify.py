@@ -532,16 +532,19 @@ class RectifyNode(CanopyNode):
             left_r = self.rectifier.rectify_one(left, "left", copy=False)
         if colour is not None:
             self.pub_color.publish(colour)
-        if self._subscribed(self.pub_left):
+        sent_left = self._subscribed(self.pub_left)
+        if sent_left:
             mono, view = self._image_message(self.pub_left, "mono8", (h, w), stamp_ns, fl)
             cv2.cvtColor(left_r, cv2.COLOR_BGR2GRAY, dst=view)
             self.pub_left.publish(mono)
-        if self._subscribed(self.pub_right):
+        sent_right = self._subscribed(self.pub_right)
+        if sent_right:
             mono, view = self._image_message(self.pub_right, "mono8", (h, w), stamp_ns, fr)
             np.copyto(view, right_r)
             self.pub_right.publish(mono)
-        with self._matcher:
-            self._published_ns = stamp_ns
+        if sent_left and sent_right:  # a pair the matcher can take (else the next pair must not wait for it)
+            with self._matcher:
+                self._published_ns = stamp_ns
         self.count("pairs_published")
 
 
