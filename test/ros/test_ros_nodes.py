@@ -158,6 +158,34 @@ def test_rectify_node_rectifies_only_what_the_matcher_can_take(harness, paper_ri
         assert "matcher wait ms max" not in values  # no pair waited for a take that cannot come
 
 
+def test_rectify_node_starts_a_pair_just_in_time_for_a_slow_matcher():
+    """matcher_start_delay against a model of the graph: a matcher busy ``match`` s per pair,
+    this node ``work`` s per pair, ``transport`` s between them. The pair is started
+    match - work - margin after the take (frames that much fresher than at the take) and
+    waits about the margin in the matcher's queue; a transport longer than the margin leaves
+    the matcher idle that much longer per pair, a constant, never growing (the match time is
+    the matcher's own, not the take interval a late start lengthens)."""
+    from canopy_stereo.ros.nodes.rectify import START_MARGIN_S, matcher_start_delay
+
+    assert matcher_start_delay(since_take_s=0.0, match_s=0.09, work_s=0.04) == pytest.approx(0.03)
+    assert matcher_start_delay(since_take_s=0.05, match_s=0.09, work_s=0.04) == 0.0
+
+    def intervals(match, work, transport, pairs=20):
+        take, out = 0.0, []
+        for _ in range(pairs):
+            start = take + matcher_start_delay(since_take_s=0.0, match_s=match, work_s=work)
+            arrival = start + work + transport
+            nxt = max(take + match, arrival)  # the matcher is free, and the pair is there
+            out.append((nxt - take, nxt - arrival))  # take interval, the pair's wait in the queue
+            take = nxt
+        return out
+
+    for interval, wait in intervals(match=0.09, work=0.04, transport=0.005):
+        assert interval == pytest.approx(0.09) and wait == pytest.approx(START_MARGIN_S - 0.005)
+    late = intervals(match=0.09, work=0.04, transport=0.03)
+    assert [i for i, _ in late] == pytest.approx([0.1] * 20)  # 10 ms idle per pair, not growing
+
+
 def test_rectify_node_drops_bad_input_and_keeps_running(harness, paper_rig):
     from canopy_stereo.ros.nodes.rectify import RectifyNode
 
@@ -215,9 +243,14 @@ def test_rectify_node_counts_frames_it_never_received(harness, paper_rig):
 def test_disparity_node_fields_match_the_rig(harness, paper_rig):
     from canopy_stereo.ros.nodes.disparity import DisparityNode
 
+    from std_msgs.msg import Header
+
+    from canopy_stereo.ros.nodes.rectify import MATCHED_TOPIC, MATCHING_TOPIC
+
     node = harness.add(DisparityNode(**node_kwargs(harness, paper_rig, matcher="sgbm",
                                                    disp_min=16, disp_max=48)))
     out = harness.collect(DisparityImage, "disparity")
+    pacing = harness.collect(Header, MATCHING_TOPIC), harness.collect(Header, MATCHED_TOPIC)
     pl, pr = harness.publisher(Image, "left/image_rect"), harness.publisher(Image, "right/image_rect")
     il, ir = rect_info_publishers(harness)
     harness.connect(pl, pr, il, ir)
@@ -250,6 +283,9 @@ def test_disparity_node_fields_match_the_rig(harness, paper_rig):
     assert (x, y, x + w - 1, y + h - 1) == (cols.min(), rows.min(), cols.max(), rows.max())
     assert convert.stamp_to_ns(msg.header.stamp) == T0 and msg.header.frame_id == "rect"
     assert node.stats()["counts"]["disparities_published"] == 1
+    # the pacing stamps of rectify_node's follow_matcher: the pair taken, then done with
+    assert wait_for(lambda: all(pacing), TIMEOUT)
+    assert [[(convert.stamp_to_ns(h.stamp), h.frame_id) for h in got] for got in pacing] == [[(T0, "rect")]] * 2
 
 
 def test_disparity_node_matches_a_looping_bag_whose_images_start_after_a_wrap(harness, paper_rig):
