@@ -274,7 +274,7 @@ def process_bag(path, options: BatchOptions | None = None) -> list[dict]:
             continue
         n_frames += 1
         for index, traits in plants.items():
-            if traits[ERROR_COLUMN]:
+            if traits.get(ERROR_COLUMN):
                 plant_failures.setdefault(index, []).append(f"frame {k}: {traits[ERROR_COLUMN]}")
             else:
                 per_plant.setdefault(index, []).append(traits)
