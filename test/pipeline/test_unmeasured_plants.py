@@ -98,3 +98,21 @@ def test_batch_rows_name_the_plants_not_measured(tray, measured, tmp_path):
     for k, c in cells.items():
         failed = want[k]["error"] is not None
         assert (c["canopy_height_mm"] == "") == failed and (c[ERROR_COLUMN] != "") == failed
+
+
+def test_reconstruct_measure_exits_0_and_names_each_plant_not_measured(tray, measured, tmp_path, cli):
+    from canopy_stereo.io.images import write_image
+    from canopy_stereo.io.rig import save_rig
+
+    write_image(tmp_path / "l.png", tray.left)
+    write_image(tmp_path / "r.png", tray.right)
+    rig = save_rig(tray.rig, tmp_path / "rig.yaml")
+    code, out, err = cli("reconstruct", tmp_path / "l.png", tmp_path / "r.png", "--rig", rig,
+                         "-o", tmp_path / "c.ply", "--measure", "--report", tmp_path / "REPORT.json")
+    assert code == 0, err
+    failed = [p for p in measured.report["plants"] if p["error"] is not None]
+    assert f"{len(failed)} not measured)" in out
+    for p in failed:
+        assert out.count(f"plant {p['plant_index']}: not measured: {p['error']}\n") == 1
+    written = json.loads((tmp_path / "REPORT.json").read_text())
+    assert written["n_plants_not_measured"] == len(failed)
