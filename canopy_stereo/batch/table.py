@@ -13,7 +13,10 @@
   (pairs measured), ``frames_failed``;
 * the traits of :data:`~canopy_stereo.batch.work.TRAITS` with their units in
   their names (medians over the frames; empty = not measurable), ``height_reference``
-  (the surface the height is measured from: ``pot_rim``, ``soil``, ``ground``, ``none``);
+  (the surface the height is measured from: ``pot_rim``, ``soil``, ``ground``, ``none``),
+  ``plant_error`` (why the plant could not be measured in a frame it was found in: ``frame K:
+  <reason>`` of the first such frame, counted in ``frames_failed``; empty when none; a plant
+  measured in no frame has empty traits);
 * ``rig`` (``bag``, the ``rig.yaml`` beside the bag or the ``--rig`` file), ``canopy_stereo_version``.
 
 Rows are sorted by ``source`` and ``plant_index``. ``errors.csv``: ``source, reason`` (one line).
@@ -29,7 +32,7 @@ import os
 import tempfile
 from pathlib import Path
 
-from canopy_stereo.batch.work import REFERENCE_COLUMN, TRAITS
+from canopy_stereo.batch.work import ERROR_COLUMN, REFERENCE_COLUMN, TRAITS
 
 PLANTS_CSV = "plants.csv"
 PLANTS_PARQUET = "plants.parquet"
@@ -38,7 +41,8 @@ ERRORS_CSV = "errors.csv"
 #: Metadata keys placed first, in this order, when present.
 PREFERRED_KEYS = ("plant_id", "plot", "treatment", "date")
 HEAD = ("source", "plant_index")
-TAIL = ("recorded_at", "frames", "frames_failed", *TRAITS, REFERENCE_COLUMN, "rig", "canopy_stereo_version")
+TAIL = ("recorded_at", "frames", "frames_failed", *TRAITS, REFERENCE_COLUMN, ERROR_COLUMN, "rig",
+        "canopy_stereo_version")
 FIXED = frozenset(HEAD + TAIL)
 INTEGER_COLUMNS = ("plant_index", "frames", "frames_failed")
 NUMERIC_COLUMNS = INTEGER_COLUMNS + tuple(TRAITS)

@@ -42,6 +42,9 @@ TRAITS = {
 }
 #: Text columns of a row beside the traits: the surface the height is measured from.
 REFERENCE_COLUMN = "height_reference"
+#: ... and why the plant could not be measured in some frames (``frame K: <reason>``, the
+#: first such frame; empty when it was measured in every frame it was found in).
+ERROR_COLUMN = "plant_error"
 
 
 @dataclass(frozen=True)
@@ -106,7 +109,8 @@ def measure_frame_plants(left_bgr, right_bgr, rig, *, index: str = DEFAULT_COLOU
                          matcher: str = DEFAULT_MATCHER, voxel_size_mm: float = DEFAULT_VOXEL_SIZE_MM) -> dict:
     """``{plant_index: traits}`` of one stereo pair, one entry per plant the measuring
     pipeline finds (``report["plants"]``: 1..N left to right; 0 for a plant measured as the
-    scene), with :data:`REFERENCE_COLUMN`."""
+    scene), with :data:`REFERENCE_COLUMN` and :data:`ERROR_COLUMN` (:func:`plant_traits`; a
+    plant that could not be measured is there too, with its reason)."""
     from canopy_stereo.pipeline.plant import measure_stereo_pair
 
     _, res = measure_stereo_pair(left_bgr, right_bgr, rig, matcher=matcher, index=index, voxel_size_mm=voxel_size_mm)
@@ -120,8 +124,14 @@ def measure_frame_plants(left_bgr, right_bgr, rig, *, index: str = DEFAULT_COLOU
 
 
 def plant_traits(plant: dict, *, plant_fraction: float = float("nan")) -> dict:
-    """The :data:`TRAITS` (and :data:`REFERENCE_COLUMN`) of one entry of a measurement
-    report's ``plants`` (:func:`~canopy_stereo.measure.plant.measure_plant`; mm, cm^2, cm^3)."""
+    """The :data:`TRAITS` (and :data:`REFERENCE_COLUMN`, :data:`ERROR_COLUMN`) of one entry of
+    a measurement report's ``plants`` (:func:`~canopy_stereo.measure.plant.measure_plant`; mm,
+    cm^2, cm^3). A plant that could not be measured (its ``error``, see
+    :func:`~canopy_stereo.measure.plant.plant_summary`) has every trait but ``plant_fraction``
+    NaN (the tables' empty cell), no reference and its reason in :data:`ERROR_COLUMN`."""
+    if plant.get("error") is not None:
+        return {**{name: float("nan") for name in TRAITS}, "plant_fraction": float(plant_fraction),
+                REFERENCE_COLUMN: "", ERROR_COLUMN: str(plant["error"])}
     c = plant["canopy"]
 
     def num(v):
@@ -138,7 +148,7 @@ def plant_traits(plant: dict, *, plant_fraction: float = float("nan")) -> dict:
         "mean_leaf_width_mm": num(plant.get("mean_leaf_width")),
         "leaf_area_density_cm-1": area / hull_cm3 if hull_cm3 > 0 else float("nan"),
         "plant_fraction": float(plant_fraction),
-        REFERENCE_COLUMN: (plant.get("reference") or {}).get("kind", ""),
+        REFERENCE_COLUMN: (plant.get("reference") or {}).get("kind", ""), ERROR_COLUMN: "",
     }
 
 
@@ -210,12 +220,14 @@ def process_bag(path, options: BatchOptions | None = None) -> list[dict]:
     """Measure every stereo pair of the bag at ``path`` and aggregate them into one row per plant.
 
     Returns rows ``{"source", "plant_index", "metadata": {...}, "recorded_at", "frames",
-    "frames_failed", "rig", "canopy_stereo_version", <TRAITS>, height_reference}``, one per
-    plant the measuring pipeline numbers (1..N left to right; the frames' values of a plant
-    aggregated by their median). Raises :class:`Skipped` when the bag's metadata does not
-    match ``options.select``, :class:`CanopyStereoError` (one-line message) when it cannot
-    be read (missing, not MCAP, truncated), has no rig (:func:`resolve_rig`), no stereo pair,
-    or no frame could be measured.
+    "frames_failed", "rig", "canopy_stereo_version", <TRAITS>, height_reference, plant_error}``,
+    one per plant the measuring pipeline numbers (1..N left to right; the frames' values of a
+    plant aggregated by their median over the frames it was measured in, ``frames``; a frame
+    where it could not be measured counts in ``frames_failed`` and the first such frame's
+    reason is its ``plant_error``: a plant measured in no frame has a row of empty traits).
+    Raises :class:`Skipped` when the bag's metadata does not match ``options.select``,
+    :class:`CanopyStereoError` (one-line message) when it cannot be read (missing, not MCAP,
+    truncated), has no rig (:func:`resolve_rig`), no stereo pair, or no frame could be measured.
     """
     from canopy_stereo import __version__
     from canopy_stereo.bag import BagReader
@@ -238,6 +250,7 @@ def process_bag(path, options: BatchOptions | None = None) -> list[dict]:
     keep = _spread(n_pairs, options.max_frames)
     last = max(keep, default=0)
     per_plant: dict[int, list[dict]] = {}
+    plant_failures: dict[int, list[str]] = {}  # plant_index -> "frame K: reason" of the frames it failed in
     n_frames, failures, first_stamp = 0, [], None
     skew = SkewCompensator(enabled=options.skew_compensation)
     for k, (stamp, left, right) in enumerate(raw_stereo_pairs(bag, left_topic, right_topic=right_topic,
@@ -261,16 +274,25 @@ def process_bag(path, options: BatchOptions | None = None) -> list[dict]:
             continue
         n_frames += 1
         for index, traits in plants.items():
-            per_plant.setdefault(index, []).append(traits)
+            if traits.get(ERROR_COLUMN):
+                plant_failures.setdefault(index, []).append(f"frame {k}: {traits[ERROR_COLUMN]}")
+            else:
+                per_plant.setdefault(index, []).append(traits)
     if first_stamp is None:
         raise CanopyStereoError(f"no stereo pair on {options.left_topic} and {options.right_topic} "
                                 f"within {options.sync_slop_s:g} s")
     if not per_plant:
-        raise CanopyStereoError(f"no frame could be measured ({len(failures)} tried; {failures[0]})")
-    return [{"source": str(path), "plant_index": index, "metadata": meta, "recorded_at": _iso_utc(first_stamp),
-             "frames": len(frames), "frames_failed": len(failures) + n_frames - len(frames), **aggregate(frames),
-             "rig": rig_source, "canopy_stereo_version": __version__}
-            for index, frames in sorted(per_plant.items())]
+        why = failures + [f"plant {i} {r}" for i, rs in sorted(plant_failures.items()) for r in rs]
+        raise CanopyStereoError(f"no frame could be measured ({len(failures) + n_frames} tried; {why[0]})")
+    rows = []
+    for index in sorted(set(per_plant) | set(plant_failures)):
+        frames = per_plant.get(index, [])
+        rows.append({"source": str(path), "plant_index": index, "metadata": meta,
+                     "recorded_at": _iso_utc(first_stamp), "frames": len(frames),
+                     "frames_failed": len(failures) + n_frames - len(frames), **aggregate(frames),
+                     ERROR_COLUMN: (plant_failures.get(index) or [""])[0],
+                     "rig": rig_source, "canopy_stereo_version": __version__})
+    return rows
 
 
 def one_line(exc: BaseException) -> str:

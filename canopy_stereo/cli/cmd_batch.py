@@ -5,18 +5,19 @@ import sys
 
 COMMAND = "batch"
 HELP = "measure every bag of a season into one trait table (Dask: this machine or a cluster)"
-DESCRIPTION = """Reconstruct and measure each stereo pair of each bag with the package's one
-measuring pipeline (as `reconstruct --measure`, `demo` and `view`: automatic plant mask,
-canopy extents and volumes, leaves), aggregate a bag's frames by their median and write
+DESCRIPTION = """Reconstruct and measure each stereo pair of each bag with the package's one measuring
+pipeline (as `reconstruct --measure`, `demo` and `view`: automatic plant mask, canopy
+extents and volumes, leaves), aggregate a bag's frames by their median and write
 OUT/plants.csv (one row per plant of each bag: source, plant_index 1..N left to right, the
 bag's metadata keys, frames, traits with their units in the column names, the height's
-reference surface, package version), OUT/plants.parquet (with pyarrow),
-OUT/plots/<plant>.png and OUT/errors.csv. The rig: --rig, else the bag's own record, else a
-rig.yaml beside the bag. Metadata: the bag's record, the file name (--name-pattern) and a
-table keyed by file name (--metadata). Each failed bag is printed as one line as it
-happens. Runs on an embedded Dask LocalCluster of --workers processes, or on a running
-cluster (--scheduler). Exit status 1 when any bag failed, 2 for a usage error, 130 when
-interrupted (Ctrl-C or SIGTERM: one line, the rows finished so far kept)."""
+reference surface, why a plant could not be measured in a frame (plant_error), package
+version), OUT/plants.parquet (with pyarrow), OUT/plots/<plant>.png and OUT/errors.csv. The
+rig: --rig, else the bag's own record, else a rig.yaml beside the bag. Metadata: the bag's
+record, the file name (--name-pattern) and a table keyed by file name (--metadata). Each
+failed bag is printed as one line as it happens. Runs on an embedded Dask LocalCluster of
+--workers processes, or on a running cluster (--scheduler). Exit status 1 when any bag
+failed, 2 for a usage error, 130 when interrupted (Ctrl-C or SIGTERM: one line, the rows
+finished so far kept)."""
 
 
 def add_arguments(p):

@@ -60,9 +60,11 @@ class PlantMeasurement:
     ``report["plants"]``: one entry per plant (``plant_index`` 1..N left to right for the
     automatic mask, 0 for a given mask or the whole scene): its ``reference`` surface (pot
     rim, soil, ground; None for a lone plant measured as the scene), ``canopy`` (height above
-    that reference), ``n_leaves``, ``leaf_area`` (cm^2), ``mean_leaf_length``/``width`` (mm).
-    With several plants each is measured on its own as well as all together (the top-level
-    ``canopy`` and ``leaves``).
+    that reference), ``n_leaves``, ``leaf_area`` (cm^2), ``mean_leaf_length``/``width`` (mm),
+    ``error`` (None; for a plant that could not be measured the one-line reason, and its figures
+    None: :func:`plant_summary`). ``report["n_plants"]`` counts the entries,
+    ``report["n_plants_not_measured"]`` those with an ``error``. With several plants each is
+    measured on its own as well as all together (the top-level ``canopy`` and ``leaves``).
     """
 
     report: dict
@@ -228,6 +230,8 @@ def measure_plant(left_bgr, disparity, rig, *, rectification: Rectification, mas
     if not plants:  # one plant (or the mask/scene as one): the whole report is that plant's
         plants = [{"plant_index": 1 if n_plants else 0, **report}]
     report["plants"] = [plant_summary(p) for p in plants]
+    report["n_plants"] = len(report["plants"])
+    report["n_plants_not_measured"] = sum(p["error"] is not None for p in report["plants"])
     return PlantMeasurement(report=report, scene=scene, mask=plant, mask_source=source, organized_mm=organized,
                             instances=instances)
 
@@ -249,9 +253,19 @@ def _reference_of(scene, organized, plant, camera_mm) -> dict:
 
 def plant_summary(p: dict) -> dict:
     """One plant's entry of ``report["plants"]`` from its report (lab units): its index,
-    reference surface, canopy, leaf count, leaf area (cm^2), mean leaf length and width (mm)."""
-    return {"plant_index": int(p.get("plant_index", 0)), "reference": p.get("reference"),
-            "at_image_border": p.get("at_image_border"),
+    ``error`` (None), reference surface, canopy, leaf count, leaf area (cm^2), mean leaf length
+    and width (mm).
+
+    A plant that could not be measured (``p["error"]``: the one-line reason, as
+    :func:`~canopy_stereo.measure.plants.measure_plants` gives it) keeps its index, its
+    ``at_image_border`` and that ``error``; its ``reference``, ``canopy``, ``n_leaves``,
+    ``leaf_area`` and mean leaf sizes are None (not measured: REPORT.json's ``null``)."""
+    index, border = int(p.get("plant_index", 0)), p.get("at_image_border")
+    if p.get("error") is not None:
+        return {"plant_index": index, "error": str(p["error"]), "reference": None, "at_image_border": border,
+                "canopy": None, "n_leaves": None, "leaf_area": None, "mean_leaf_length": None,
+                "mean_leaf_width": None}
+    return {"plant_index": index, "error": None, "reference": p.get("reference"), "at_image_border": border,
             "canopy": p["canopy"], "n_leaves": len(p.get("leaves", [])),
             "leaf_area": float(sum(lf["area"] for lf in p.get("leaves", []))),
             "mean_leaf_length": float(np.mean([lf["length"] for lf in p["leaves"]])) if p.get("leaves") else None,
@@ -265,14 +279,16 @@ _MASK_WORDS = {"given": "the given mask", "automatic": "the automatic plant mask
 
 def measurement_lines(report: dict, *, max_leaves: int = 8) -> list[str]:
     """Summary lines of a :func:`measure_plant` report, in the one unit set (mm, cm^2, cm^3):
-    what was measured, the canopy, each plant when there are several, the leaves (the first
-    ``max_leaves``)."""
+    what was measured, the canopy, each plant when there are several (one that could not be
+    measured: ``plant K: not measured: <reason>``), the leaves (the first ``max_leaves``)."""
     c = report["canopy"]
     plants = report.get("plants", [])
+    failed = sum(p.get("error") is not None for p in plants)
     ref = report.get("reference") or {}
     reference = ref.get("kind") or report.get("frame", {}).get("kind", "?")
     what = _MASK_WORDS.get(report["source"].get("mask"), report["source"].get("mask"))
-    lines = [f"measured: {what}" + (f" ({len(plants)} plants)" if len(plants) > 1 else "")
+    counted = f"{len(plants)} plants" + (f", {failed} not measured" if failed else "")
+    lines = [f"measured: {what}" + (f" ({counted})" if len(plants) > 1 or failed else "")
              + f"; reference: {reference}; voxels {c['voxel_size']:g} mm",
              f"canopy: height {c['height']:.0f} mm, width {c['width']:.0f} mm, depth {c['depth']:.0f} mm"
              + (f", top {c['top_above_ground']:.0f} mm above the ground"
@@ -280,8 +296,11 @@ def measurement_lines(report: dict, *, max_leaves: int = 8) -> list[str]:
              f"  volumes: convex hull {c['hull_volume']:.0f} cm^3, voxels {c['voxel_volume']:.0f} cm^3; "
              f"leaves measured: {c.get('n_leaves', 0)}"
              + (f", leaf area {c['leaf_area']:.0f} cm^2" if c.get("leaf_area") else "")]
-    if len(plants) > 1:
+    if len(plants) > 1 or failed:
         for p in plants:
+            if p.get("error") is not None:
+                lines.append(f"  plant {p['plant_index']}: not measured: {p['error']}")
+                continue
             pc, pref = p["canopy"], (p.get("reference") or {}).get("kind", "?")
             lines.append(f"  plant {p['plant_index']}: height {pc['height']:.0f} mm above its {pref}, "
                          f"width {pc['width']:.0f} mm, hull {pc['hull_volume']:.0f} cm^3, leaves {p['n_leaves']}")

@@ -152,7 +152,9 @@ def measure_plants(organized, instances, *, ground="auto", unit: str = "mm", cam
     units) and ``canopy["extent_height"]`` the plant's own vertical extent. With
     ``ground="auto"`` the ground plane is found once for the scene; each plant is measured
     on the part of the cloud around it, without the background seen through the mask's edge
-    (:func:`trimmed_mask`). A plant that cannot be measured gets ``{"plant_index", "error"}``.
+    (:func:`trimmed_mask`). A plant that cannot be measured gets ``{"plant_index", "error"
+    (the one-line reason), "at_image_border"}`` and the others are measured as ever
+    (:func:`~canopy_stereo.measure.plant.plant_summary` makes it the report's entry).
     Raises :class:`CanopyStereoError` when the image has no plant.
     """
     organized = check_organized(organized)
@@ -177,7 +179,7 @@ def measure_plants(organized, instances, *, ground="auto", unit: str = "mm", cam
             res = _measure_cropped(organized, mask, P, ground=plane, unit=unit, voxel_size=voxel_size,
                                    **options)
         except CanopyStereoError as exc:
-            plants.append({"plant_index": k, "error": str(exc)})
+            plants.append({"plant_index": k, "error": str(exc), "at_image_border": _at_border(inst == k)})
             continue
         if P is not None:
             scale = float(np.median(np.linalg.norm(res.canopy_points - camera_centre(P), axis=1)))

@@ -104,3 +104,65 @@ def test_live_traits_equal_reconstruct_measure(ros_processes, tmp_path, cli):
         cube = next(m for m in arr.markers if m.type == Marker.CUBE)
         assert cube.header.frame_id == "canopy_world" and 0.4 < cube.pose.position.z < 1.2
         assert np.all(np.array([cube.scale.x, cube.scale.y, cube.scale.z]) > 0.05)
+
+
+def test_a_plant_that_cannot_be_measured_does_not_drop_the_frame(harness, paper_rig):
+    """In-process: the simulated seedling tray (320x240) has seedlings in the band along the
+    left border the right camera does not see (no 3D point on them). The frame is measured
+    and published all the same: those plants carry their reason, the others their numbers,
+    the report counts them, and the node counts and warns them."""
+    from stereo_msgs.msg import DisparityImage
+
+    from canopy_stereo.pipeline.reconstruct import reconstruct_pair
+    from canopy_stereo.ros import convert
+    from canopy_stereo.ros.context import wait_for as ros_wait_for
+    from canopy_stereo.ros.nodes.traits import TraitsNode
+    from canopy_stereo.sim import render_scene, rig_at_resolution
+    from test.support.nodes import node_kwargs
+
+    tray = render_scene("seedling_tray", rig_at_resolution(paper_rig, 0.5))
+    rec = reconstruct_pair(tray.left, tray.right, tray.rig)  # disparity_node's output for the pair
+    node = harness.add(TraitsNode(**node_kwargs(harness, tray.rig, max_rate=0.0)))
+    traits, markers = harness.collect(String, "traits"), harness.collect(MarkerArray, "traits/markers")
+    pub_image, pub_disp = harness.publisher(Image, "left/image_raw"), harness.publisher(DisparityImage, "disparity")
+    harness.connect(pub_image, pub_disp)
+    rect = rec.rectification
+    pub_disp.publish(convert.disparity_to_msg(rec.disparity, rect.focal_length, rect.baseline * 1e-3, 0.0,
+                                              float(np.nanmax(rec.disparity)) + 1.0, stamp_ns=T0, doffs=rect.doffs))
+    pub_image.publish(convert.image_to_msg(tray.left, "bgr8", stamp_ns=T0))
+    assert ros_wait_for(lambda: len(traits) == 1 and len(markers) == 1, 120.0), dict(node.drops)
+    report = json.loads(traits[0].data)["report"]
+    failed = [p for p in report["plants"] if p["error"] is not None]
+    ok = [p for p in report["plants"] if p["error"] is None]
+    assert failed and len(ok) > 20 and report["n_plants_not_measured"] == len(failed)
+    assert report["n_plants"] == len(report["plants"])
+    for p in failed:
+        assert "0 valid 3D points" in p["error"] and p["canopy"] is None
+    for p in ok:
+        assert p["canopy"]["height"] > 0 and p["canopy"]["hull_volume"] > 0
+    assert node.counts["frames_measured"] == 1 and node.counts["plants_not_measured"] == len(failed)
+    assert any(key.startswith("plant: plant not measured: ") for key in node.warnings)
+    # a box and a label per plant with points (the failed ones have none)
+    cubes = [m for m in markers[0].markers if m.type == Marker.CUBE]
+    labels = [m.text for m in markers[0].markers if m.type == Marker.TEXT_VIEW_FACING]
+    assert len(cubes) == len(labels) == len(ok)
+
+
+def test_markers_label_a_plant_not_measured_with_its_reason():
+    from canopy_stereo.measure.plant import PlantMeasurement, plant_summary
+    from canopy_stereo.ros.nodes.traits import traits_markers
+
+    pts = np.full((4, 6, 3), np.nan)
+    pts[:, :3] = [100.0, 0.0, 800.0]
+    pts[:, 3:] = [300.0, 50.0, 900.0]
+    instances = np.zeros((4, 6), np.int32)
+    instances[:, :3], instances[:, 3:] = 1, 2
+    canopy = {"height": 120.0, "width": 80.0, "hull_volume": 250.0}
+    plants = [plant_summary({"plant_index": 1, "canopy": canopy, "leaves": []}),
+              plant_summary({"plant_index": 2, "error": "the reason", "at_image_border": False})]
+    measured = PlantMeasurement(report={"plants": plants}, scene=None, mask=instances > 0, mask_source="automatic",
+                                organized_mm=pts, instances=instances)
+    labels = [m.text for m in traits_markers(measured, T0, "canopy_world").markers
+              if m.type == Marker.TEXT_VIEW_FACING]
+    assert labels == ["plant 1: height 120 mm, width 80 mm\nhull 250 cm^3, 0 leaves",
+                      "plant 2: not measured\nthe reason"]

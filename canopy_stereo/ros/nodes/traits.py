@@ -20,7 +20,12 @@ Publishes, stamped with the frame's stamp (readable without this package):
 * ``traits/markers`` (``visualization_msgs/MarkerArray``, for RViz and Foxglove): a
   DELETEALL, then per measured plant (``report["plants"]``) a translucent box around its
   points (axis-aligned in ``frame_id``, metres) and a text label with its index, height,
-  width, hull volume and leaf count.
+  width, hull volume and leaf count (a plant that could not be measured: ``plant K: not
+  measured`` and its reason).
+
+A plant of the frame that could not be measured does not drop the frame: the report carries it
+with its ``error`` and ``n_plants_not_measured`` counts it (as ``reconstruct --measure``
+reports it); the node counts ``plants_not_measured`` and warns with the reason on ``/diagnostics``.
 
 The rig comes from the rig parameters (``--params-file RIG.yaml``, as for ``rectify_node``):
 the measuring pipeline needs its world-frame ``P`` and rectification. Parameters:
@@ -92,7 +97,7 @@ def traits_markers(measured, stamp_ns: int, frame_id: str) -> MarkerArray:
         if box_mm is None:
             continue
         lo, hi = box_mm
-        c = plant.get("canopy", {})
+        c = plant.get("canopy") or {}
         box = Marker(header=header, ns="plant_box", id=k, type=Marker.CUBE, action=Marker.ADD)
         box.pose.position.x, box.pose.position.y, box.pose.position.z = (float(v) for v in (lo + hi) / 2)
         box.pose.orientation.w = 1.0
@@ -103,9 +108,12 @@ def traits_markers(measured, stamp_ns: int, frame_id: str) -> MarkerArray:
         text.pose.orientation.w = 1.0
         text.scale.z = 0.02
         text.color.r = text.color.g = text.color.b = text.color.a = 1.0
-        text.text = (f"plant {plant.get('plant_index', 0)}: height {c.get('height', float('nan')):.0f} mm, "
-                     f"width {c.get('width', float('nan')):.0f} mm\nhull {c.get('hull_volume', float('nan')):.0f} "
-                     f"cm^3, {plant.get('n_leaves', 0)} leaves")
+        if plant.get("error") is not None:
+            text.text = f"plant {plant.get('plant_index', 0)}: not measured\n{plant['error']}"
+        else:
+            text.text = (f"plant {plant.get('plant_index', 0)}: height {c.get('height', float('nan')):.0f} mm, "
+                         f"width {c.get('width', float('nan')):.0f} mm\nhull "
+                         f"{c.get('hull_volume', float('nan')):.0f} cm^3, {plant.get('n_leaves', 0)} leaves")
         markers += [box, text]
     return MarkerArray(markers=markers)
 
@@ -180,6 +188,10 @@ class TraitsNode(CanopyNode):
         except CanopyStereoError as exc:
             self.drop(f"not measured: {exc}", "frame")
             return
+        for plant in measured.report.get("plants", []):
+            if plant.get("error") is not None:
+                self.count("plants_not_measured")
+                self.warn(f"plant not measured: {plant['error']}", "plant")
         frame_id = self.get_parameter("frame_id").value or self.world_frame or "canopy_world"
         self.pub.publish(String(data=traits_json(measured.report, stamp_ns, frame_id)))
         self.pub_markers.publish(traits_markers(measured, stamp_ns, frame_id))
