@@ -241,10 +241,9 @@ def test_rectify_node_counts_frames_it_never_received(harness, paper_rig):
 
 
 def test_disparity_node_fields_match_the_rig(harness, paper_rig):
-    from canopy_stereo.ros.nodes.disparity import DisparityNode
-
     from std_msgs.msg import Header
 
+    from canopy_stereo.ros.nodes.disparity import DisparityNode
     from canopy_stereo.ros.nodes.rectify import MATCHED_TOPIC, MATCHING_TOPIC
 
     node = harness.add(DisparityNode(**node_kwargs(harness, paper_rig, matcher="sgbm",
