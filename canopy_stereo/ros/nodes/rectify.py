@@ -230,6 +230,7 @@ class RectifyNode(CanopyNode):
         self._taken_ns: int | None = None  # the last pair the matcher took
         self._take_times: deque[float] = deque(maxlen=TAKE_INTERVALS + 1)  # monotonic s of recent takes
         self._match_times: deque[float] = deque(maxlen=TAKE_INTERVALS)  # s from a take to its "matched"
+        self._takes: deque[tuple[int, float]] = deque(maxlen=4)  # (stamp ns, monotonic s) of recent takes
         self._work_times: deque[float] = deque(maxlen=TAKE_INTERVALS)  # s per rectified pair (the worker's)
         self._frame_period_s: float | None = None  # the cameras' frame period, measured from the stamps
         follow = bool(self.get_parameter("follow_matcher").value)
@@ -384,18 +385,23 @@ class RectifyNode(CanopyNode):
 
     def _on_matching(self, msg) -> None:
         """``disparity/matching``: the matcher took the pair stamped ``msg.stamp``."""
+        now = time.monotonic()
         with self._matcher:
             self._taken_ns = stamp_to_ns(msg.stamp)
-            self._take_times.append(time.monotonic())
+            self._take_times.append(now)
+            self._takes.append((self._taken_ns, now))
             self._matcher.notify_all()
 
     def _on_matched(self, msg) -> None:
         """``disparity/matched``: the matcher is done with the pair stamped ``msg.stamp``; the
-        time since its take is a match time (both messages a few bytes: their transport cancels)."""
-        now = time.monotonic()
+        time since its take is a match time (both messages a few bytes: their transport cancels).
+        The next pair's take may come first (the matcher takes it at once): takes are looked up
+        by stamp."""
+        now, stamp = time.monotonic(), stamp_to_ns(msg.stamp)
         with self._matcher:
-            if self._take_times and stamp_to_ns(msg.stamp) == self._taken_ns:
-                self._match_times.append(now - self._take_times[-1])
+            took = next((t for s, t in self._takes if s == stamp), None)
+            if took is not None:
+                self._match_times.append(now - took)
 
     def _matcher_keeps_up(self) -> bool:
         """True when the matcher takes a pair about every frame period (median of its last
@@ -423,6 +429,7 @@ class RectifyNode(CanopyNode):
             if delay <= 0:
                 return
             self.diagnostics.sample("start delay ms", delay * 1e3)
+            self.count("pairs_started_just_in_time")
             until = min(deadline, time.monotonic() + delay)
             while (remaining := until - time.monotonic()) > 0:
                 self._matcher.wait(remaining)
