@@ -153,6 +153,13 @@ def test_rectify_node_rectifies_only_what_the_matcher_can_take(harness, paper_ri
     if matcher_reads:
         assert out == [a, c, d]
         assert node.stats()["drops"] == {"camera pair: superseded by newer ones while the node was busy": 1}
+        # d is never taken (a matcher warming up, or a looping bag's repeated frame): e waits, goes,
+        # and no pair waits again until the matcher takes one
+        e = T0 + 4 * 33_000_000
+        send(e)
+        assert wait_for(lambda: len(color) == 4 and node._matcher_silent, TIMEOUT)
+        matching.publish(convert.make_header(e, "left_camera_rect_optical_frame"))
+        assert wait_for(lambda: not node._matcher_silent, TIMEOUT)
     else:
         assert out == [a, b, c, d] and node.stats()["drops"] == {}
         values = {kv.key for kv in node.diagnostics.status(reset=False).values}

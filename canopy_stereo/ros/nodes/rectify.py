@@ -228,6 +228,7 @@ class RectifyNode(CanopyNode):
         self._matcher = threading.Condition()
         self._published_ns: int | None = None  # the last pair published
         self._taken_ns: int | None = None  # the last pair the matcher took
+        self._matcher_silent = False  # a wait timed out and no take came since: do not wait
         self._take_times: deque[float] = deque(maxlen=TAKE_INTERVALS + 1)  # monotonic s of recent takes
         self._match_times: deque[float] = deque(maxlen=TAKE_INTERVALS)  # s from a take to its "matched"
         self._takes: deque[tuple[int, float]] = deque(maxlen=4)  # (stamp ns, monotonic s) of recent takes
@@ -388,6 +389,7 @@ class RectifyNode(CanopyNode):
         now = time.monotonic()
         with self._matcher:
             self._taken_ns = stamp_to_ns(msg.stamp)
+            self._matcher_silent = False
             self._take_times.append(now)
             self._takes.append((self._taken_ns, now))
             self._matcher.notify_all()
@@ -438,17 +440,20 @@ class RectifyNode(CanopyNode):
         """Wait (at most :data:`MATCHER_WAIT_S`) until the matcher has taken the last pair
         published; False when a newer pair came meanwhile and fills the waiting places
         (``waiting_pairs``): the worker takes that one instead. A pair not taken in that time
-        (lost, or a restarted matcher) is not waited for again."""
+        (lost, a restarted matcher, or one warming up) is not waited for again, and no pair is
+        until the matcher takes one (a looping bag would otherwise freeze on one frame: each
+        wait times out, and the same frame of the next pass comes again)."""
         if self.sub_matching is None or self.sub_matching.get_publisher_count() == 0 or self._matcher_keeps_up():
             return True
         t0 = time.monotonic()
         deadline = t0 + MATCHER_WAIT_S
         taken = True
         with self._matcher:
-            while self._published_ns is not None and (self._taken_ns is None or self._taken_ns < self._published_ns):
+            while (not self._matcher_silent and self._published_ns is not None
+                   and (self._taken_ns is None or self._taken_ns < self._published_ns)):
                 remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    self._published_ns, taken = None, False
+                if remaining <= 0:  # lost, or a matcher that takes nothing (warming up): no more waits until it does
+                    self._published_ns, taken, self._matcher_silent = None, False, True
                     break
                 self._matcher.wait(remaining)
         if taken:
