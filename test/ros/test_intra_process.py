@@ -83,7 +83,8 @@ def test_internal_topics_skip_dds_and_outputs_stay_on_dds(croton):
                 assert not topics & {s.topic_name for s in node.subscriptions}, name
             # and disparity_node's pacing stamps (a few bytes; rectify_node is made first)
             assert {s.topic_name for s in graph.nodes["rectify_node"].subscriptions} == {
-                "/stereo/left/image_raw", "/stereo/right/image_raw", "/stereo/disparity/matching"}
+                "/stereo/left/image_raw", "/stereo/right/image_raw", "/stereo/disparity/matching",
+                "/stereo/disparity/matched"}
             assert graph.nodes["disparity_node"].local_subscriptions[0].get_publisher_count() == 1
 
             probe = CanopyNode("probe", context=ctx, namespace="/stereo")

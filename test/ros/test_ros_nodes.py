@@ -1,4 +1,5 @@
 """The nodes, one at a time, in-process on a private DDS domain (numbers against the core)."""
+import threading
 import time
 
 import cv2
@@ -152,10 +153,111 @@ def test_rectify_node_rectifies_only_what_the_matcher_can_take(harness, paper_ri
     if matcher_reads:
         assert out == [a, c, d]
         assert node.stats()["drops"] == {"camera pair: superseded by newer ones while the node was busy": 1}
+        # d is never taken (a matcher warming up, or a looping bag's repeated frame): e waits, goes,
+        # and no pair waits again until the matcher takes one
+        e = T0 + 4 * 33_000_000
+        send(e)
+        assert wait_for(lambda: len(color) == 4 and node._matcher_silent, TIMEOUT)
+        matching.publish(convert.make_header(e, "left_camera_rect_optical_frame"))
+        assert wait_for(lambda: not node._matcher_silent, TIMEOUT)
     else:
         assert out == [a, b, c, d] and node.stats()["drops"] == {}
         values = {kv.key for kv in node.diagnostics.status(reset=False).values}
         assert "matcher wait ms max" not in values  # no pair waited for a take that cannot come
+
+
+def test_rectify_node_starts_a_pair_just_in_time_for_a_slow_matcher():
+    """matcher_start_delay against a model of the graph: a matcher busy ``match`` s per pair,
+    this node ``work`` s per pair, ``transport`` s between them. The pair is started
+    match - work - margin after the take (frames that much fresher than at the take) and
+    waits about the margin in the matcher's queue; a transport longer than the margin leaves
+    the matcher idle that much longer per pair, a constant, never growing (the match time is
+    the matcher's own, not the take interval a late start lengthens)."""
+    from canopy_stereo.ros.nodes.rectify import START_MARGIN_S, matcher_start_delay
+
+    assert matcher_start_delay(since_take_s=0.0, match_s=0.09, work_s=0.04) == pytest.approx(0.03)
+    assert matcher_start_delay(since_take_s=0.05, match_s=0.09, work_s=0.04) == 0.0
+
+    def intervals(match, work, transport, pairs=20):
+        take, out = 0.0, []
+        for _ in range(pairs):
+            start = take + matcher_start_delay(since_take_s=0.0, match_s=match, work_s=work)
+            arrival = start + work + transport
+            nxt = max(take + match, arrival)  # the matcher is free, and the pair is there
+            out.append((nxt - take, nxt - arrival))  # take interval, the pair's wait in the queue
+            take = nxt
+        return out
+
+    for interval, wait in intervals(match=0.09, work=0.04, transport=0.005):
+        assert interval == pytest.approx(0.09) and wait == pytest.approx(START_MARGIN_S - 0.005)
+    late = intervals(match=0.09, work=0.04, transport=0.03)
+    assert [i for i, _ in late] == pytest.approx([0.1] * 20)  # 10 ms idle per pair, not growing
+
+
+@pytest.mark.slow
+def test_rectify_node_starts_pairs_late_for_a_slow_matcher(harness, paper_rig):
+    """In the node: a matcher busy 0.25 s per pair (``disparity/matching`` at each take,
+    ``disparity/matched`` when done) and frames at 30 Hz. Once the take intervals and match
+    times are known, the node waits after each take (counted, and ``start delay ms`` on
+    /diagnostics) and
+    publishes the next pair shortly before the matcher is free (0.23 s after the take), not
+    its own time per pair after the take."""
+    from std_msgs.msg import Header
+
+    from canopy_stereo.ros.nodes.rectify import MATCHED_TOPIC, MATCHING_TOPIC, RectifyNode
+    from canopy_stereo.ros.qos import recording_qos
+
+    node = harness.add(RectifyNode(**node_kwargs(harness, paper_rig, sync_slop=0.01)))
+    arrivals = []  # (monotonic s, header) of each rectified pair
+    harness.collect(Image, "left/image_rect")
+    harness.helper.create_subscription(Image, "right/image_rect",
+                                       lambda m: arrivals.append((time.monotonic(), m.header)), recording_qos())
+    pl, pr = harness.publisher(Image, "left/image_raw"), harness.publisher(Image, "right/image_raw")
+    taking, done = harness.publisher(Header, MATCHING_TOPIC), harness.publisher(Header, MATCHED_TOPIC)
+    harness.connect(pl, pr)
+    assert wait_for(lambda: node.sub_matching.get_publisher_count() == 1 and node.sub_matched.get_publisher_count()
+                    == 1 and node.pub_right.get_subscription_count() == 1, TIMEOUT)
+    left, right = textured_pair(paper_rig)
+    ml = convert.image_to_msg(left, "bgr8", stamp_ns=T0, frame_id="left_camera")
+    mr = convert.image_to_msg(right, "bgr8", stamp_ns=T0, frame_id="right_camera")
+    stop = threading.Event()
+
+    def camera():  # 30 frames/s
+        k, t0 = 0, time.monotonic()
+        while not stop.is_set():
+            ml.header.stamp.sec, ml.header.stamp.nanosec = divmod(T0 + k * 33_333_333, 10**9)
+            mr.header.stamp.sec, mr.header.stamp.nanosec = divmod(T0 + k * 33_333_333 + 4_000_000, 10**9)
+            pl.publish(ml)
+            pr.publish(mr)
+            k += 1
+            time.sleep(max(0.0, t0 + k / 30 - time.monotonic()))
+
+    gaps = []  # s from a take to the arrival of the next pair
+    thread = threading.Thread(target=camera, daemon=True)
+    thread.start()
+    try:
+        takes, deadline = 0, time.monotonic() + 20.0
+        while len(gaps) < 8 and time.monotonic() < deadline:
+            n = len(arrivals)
+            if n == 0:
+                time.sleep(0.002)
+                continue
+            header = arrivals[-1][1]
+            taking.publish(header)  # the matcher takes the newest pair and is busy 0.25 s
+            took, takes = time.monotonic(), takes + 1
+            time.sleep(0.25)
+            done.publish(header)
+            while len(arrivals) == n and time.monotonic() < deadline:
+                time.sleep(0.002)
+            if takes > 12 and len(arrivals) > n:  # the take intervals and match times known
+                gaps.append(arrivals[n][0] - took)
+    finally:
+        stop.set()
+        thread.join(5)
+    assert len(gaps) == 8, (gaps, node.stats())
+    assert node.stats()["counts"].get("pairs_started_just_in_time", 0) >= 8
+    assert 0.24 <= np.median(node._match_times) < 0.5  # the matcher's time (its next take may come first)
+    assert np.median(gaps) >= 0.15, gaps  # 0.23 s planned; the node's own time per pair is ~0.02 s
 
 
 def test_rectify_node_drops_bad_input_and_keeps_running(harness, paper_rig):
@@ -213,11 +315,15 @@ def test_rectify_node_counts_frames_it_never_received(harness, paper_rig):
 
 
 def test_disparity_node_fields_match_the_rig(harness, paper_rig):
+    from std_msgs.msg import Header
+
     from canopy_stereo.ros.nodes.disparity import DisparityNode
+    from canopy_stereo.ros.nodes.rectify import MATCHED_TOPIC, MATCHING_TOPIC
 
     node = harness.add(DisparityNode(**node_kwargs(harness, paper_rig, matcher="sgbm",
                                                    disp_min=16, disp_max=48)))
     out = harness.collect(DisparityImage, "disparity")
+    pacing = harness.collect(Header, MATCHING_TOPIC), harness.collect(Header, MATCHED_TOPIC)
     pl, pr = harness.publisher(Image, "left/image_rect"), harness.publisher(Image, "right/image_rect")
     il, ir = rect_info_publishers(harness)
     harness.connect(pl, pr, il, ir)
@@ -250,6 +356,9 @@ def test_disparity_node_fields_match_the_rig(harness, paper_rig):
     assert (x, y, x + w - 1, y + h - 1) == (cols.min(), rows.min(), cols.max(), rows.max())
     assert convert.stamp_to_ns(msg.header.stamp) == T0 and msg.header.frame_id == "rect"
     assert node.stats()["counts"]["disparities_published"] == 1
+    # the pacing stamps of rectify_node's follow_matcher: the pair taken, then done with
+    assert wait_for(lambda: all(pacing), TIMEOUT)
+    assert [[(convert.stamp_to_ns(h.stamp), h.frame_id) for h in got] for got in pacing] == [[(T0, "rect")]] * 2
 
 
 def test_disparity_node_matches_a_looping_bag_whose_images_start_after_a_wrap(harness, paper_rig):

@@ -12,9 +12,10 @@ valid pixels; invalid pixels are ``min_disparity - 1``. As the message definitio
 asks, values (and the range) are reduced by ``cx_left - cx_right`` of the two
 ``P`` (0 for the package's Fusiello rectification), so depth is ``Z = f t / d``.
 An uncalibrated (Hartley) camera pair gives ``f = t = 0``. This node holds no rig.
-It also publishes ``disparity/matching`` (``std_msgs/Header``, a few bytes): the stamp and frame
-of each pair as the matcher takes it, by which ``rectify_node`` (``follow_matcher``) rectifies
-only the pairs the matcher can take.
+It also publishes ``disparity/matching`` and ``disparity/matched`` (``std_msgs/Header``, a few
+bytes): the stamp and frame of each pair as the matcher takes it and as it is done with it, by
+which ``rectify_node`` (``follow_matcher``) rectifies only the pairs the matcher can take, just in
+time.
 
 Parameters (changeable at run time unless marked read-only):
 
@@ -103,7 +104,7 @@ from canopy_stereo.ros.convert import (
 )
 from canopy_stereo.ros.limits import check_image_msg
 from canopy_stereo.ros.nodes.base import CanopyNode, run_node
-from canopy_stereo.ros.nodes.rectify import MATCHING_TOPIC, RECT_INFO_TOPICS
+from canopy_stereo.ros.nodes.rectify import MATCHED_TOPIC, MATCHING_TOPIC, RECT_INFO_TOPICS
 from canopy_stereo.ros.params import number_descriptor
 
 _RANGE = ("disp_min", "disp_max")
@@ -205,6 +206,7 @@ class DisparityNode(CanopyNode):
         self.pub = self.make_publisher(DisparityImage, "disparity")
         #: the stamp of each pair as the matcher takes it (rectify_node's follow_matcher paces itself by it)
         self.pub_matching = self.make_publisher(Header, MATCHING_TOPIC)
+        self.pub_matched = self.make_publisher(Header, MATCHED_TOPIC)
         w, h = self.warm_up_size()
         self.matching = self.latest_only(self._match, "rectified pair",
                                          depth=int(self.get_parameter("waiting_pairs").value),
@@ -344,7 +346,14 @@ class DisparityNode(CanopyNode):
         disparity_to_msg(disp, 500.0, 0.1, lo, hi, delta_d=c["delta_d"], stamp_ns=1, frame_id="")
 
     def _match(self, stamp_ns: int, frame_id: str, left, right, info_l, info_r) -> None:
+        """One pair, between its ``disparity/matching`` and ``disparity/matched`` headers."""
         self.pub_matching.publish(make_header(stamp_ns, frame_id))
+        try:
+            self._match_pair(stamp_ns, frame_id, left, right, info_l, info_r)
+        finally:
+            self.pub_matched.publish(make_header(stamp_ns, frame_id))
+
+    def _match_pair(self, stamp_ns: int, frame_id: str, left, right, info_l, info_r) -> None:
         with self._config_lock:
             c = self.config
         if left.shape != right.shape:

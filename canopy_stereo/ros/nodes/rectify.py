@@ -87,7 +87,11 @@ as it takes each pair; while the last pair this node published has not been take
 waits (at most :data:`MATCHER_WAIT_S`) and then rectifies the newest pair. Without a publisher
 on ``disparity/matching`` (another matcher, or none), or while the matcher takes a pair about every
 frame period (median take interval at most :data:`KEEPS_UP_PERIODS` periods: waiting would only
-delay the pairs), every pair is rectified.
+delay the pairs), every pair is rectified. For a slower matcher the worker also starts the next
+pair just in time (:func:`matcher_start_delay`): rectified right after the take, it would wait in
+the matcher's queue for the whole match while newer frames come. The match time comes from the
+matcher (``disparity/matched``: the stamp of each pair it is done with), not from the intervals
+between takes, which a late start would lengthen.
 
 Frames that never reached the node (overwritten in its keep-last input queue while it
 was busy, or lost upstream) are counted as drops (``left frame: missed ...``, in
@@ -141,12 +145,27 @@ from canopy_stereo.skew import SkewCompensator
 
 #: ``disparity_node``'s pacing topic: the stamp of each pair as its matcher takes it.
 MATCHING_TOPIC = "disparity/matching"
+#: ``disparity_node``'s pacing topic: the stamp of each pair as its matcher is done with it.
+MATCHED_TOPIC = "disparity/matched"
 #: Longest wait (s) for the matcher to take the last published pair (``follow_matcher``).
 MATCHER_WAIT_S = 0.25
 #: ``follow_matcher`` waits only for a matcher slower than this many frame periods per pair
 #: (the median of its last :data:`TAKE_INTERVALS` take intervals).
 KEEPS_UP_PERIODS = 1.5
 TAKE_INTERVALS = 8
+#: A pair started just in time is ready this long (s) before the matcher is expected to be done
+#: (the transport of its images, the spread of match times).
+START_MARGIN_S = 0.02
+
+
+def matcher_start_delay(*, since_take_s: float, match_s: float, work_s: float,
+                        margin_s: float = START_MARGIN_S) -> float:
+    """How long (s, >= 0) to wait before rectifying the next pair when the matcher took the
+    last one ``since_take_s`` ago and takes ``match_s`` per pair, and rectifying and publishing
+    a pair takes this node ``work_s``: the pair is then ready ``margin_s`` before the matcher
+    is free, the newest pair of that moment instead of one that waited in the matcher's queue
+    for the whole match. 0 when that moment has passed."""
+    return max(0.0, match_s - work_s - margin_s - since_take_s)
 
 #: Rectified CameraInfo topics (beside their images; ``<side>/camera_info`` is the raw camera's).
 RECT_INFO_TOPICS = ("left/image_rect/camera_info", "right/image_rect/camera_info")
@@ -209,10 +228,15 @@ class RectifyNode(CanopyNode):
         self._matcher = threading.Condition()
         self._published_ns: int | None = None  # the last pair published
         self._taken_ns: int | None = None  # the last pair the matcher took
+        self._matcher_silent = False  # a wait timed out and no take came since: do not wait
         self._take_times: deque[float] = deque(maxlen=TAKE_INTERVALS + 1)  # monotonic s of recent takes
+        self._match_times: deque[float] = deque(maxlen=TAKE_INTERVALS)  # s from a take to its "matched"
+        self._takes: deque[tuple[int, float]] = deque(maxlen=4)  # (stamp ns, monotonic s) of recent takes
+        self._work_times: deque[float] = deque(maxlen=TAKE_INTERVALS)  # s per rectified pair (the worker's)
         self._frame_period_s: float | None = None  # the cameras' frame period, measured from the stamps
-        self.sub_matching = (self.make_subscription(Header, MATCHING_TOPIC, self._on_matching)
-                             if self.get_parameter("follow_matcher").value else None)
+        follow = bool(self.get_parameter("follow_matcher").value)
+        self.sub_matching = self.make_subscription(Header, MATCHING_TOPIC, self._on_matching) if follow else None
+        self.sub_matched = self.make_subscription(Header, MATCHED_TOPIC, self._on_matched) if follow else None
         self.declare_flag("use_camera_info", False, "take the rig from the drivers' left/camera_info and "
                           "right/camera_info (REP 104, as image_pipeline does) instead of a rig file",
                           read_only=True)
@@ -346,6 +370,7 @@ class RectifyNode(CanopyNode):
         if not self._matcher_ready():
             self.drop("superseded by newer ones while the node was busy", "camera pair")
             return
+        t0 = time.monotonic()
         images = []
         for side, msg in enumerate(pair.items):
             try:
@@ -357,13 +382,28 @@ class RectifyNode(CanopyNode):
                 return
         left, right = images
         self._publish(pair.stamps_ns[0], left, self._rectified_right(right, pair.stamps_ns))
+        self._work_times.append(time.monotonic() - t0)
 
     def _on_matching(self, msg) -> None:
         """``disparity/matching``: the matcher took the pair stamped ``msg.stamp``."""
+        now = time.monotonic()
         with self._matcher:
             self._taken_ns = stamp_to_ns(msg.stamp)
-            self._take_times.append(time.monotonic())
+            self._matcher_silent = False
+            self._take_times.append(now)
+            self._takes.append((self._taken_ns, now))
             self._matcher.notify_all()
+
+    def _on_matched(self, msg) -> None:
+        """``disparity/matched``: the matcher is done with the pair stamped ``msg.stamp``; the
+        time since its take is a match time (both messages a few bytes: their transport cancels).
+        The next pair's take may come first (the matcher takes it at once): takes are looked up
+        by stamp."""
+        now, stamp = time.monotonic(), stamp_to_ns(msg.stamp)
+        with self._matcher:
+            took = next((t for s, t in self._takes if s == stamp), None)
+            if took is not None:
+                self._match_times.append(now - took)
 
     def _matcher_keeps_up(self) -> bool:
         """True when the matcher takes a pair about every frame period (median of its last
@@ -377,22 +417,47 @@ class RectifyNode(CanopyNode):
             return False
         return float(np.median(np.diff(times))) <= KEEPS_UP_PERIODS * period
 
+    def _start_just_in_time(self, deadline: float) -> None:
+        """Once the matcher took the last pair: wait (until ``deadline`` at most, monotonic s)
+        for the moment from which this node's work on the next pair ends just before the
+        matcher is done (:func:`matcher_start_delay`, from the medians of the recent match times
+        and of this node's times per pair); at once while either is unknown."""
+        with self._matcher:
+            if not self._take_times or not self._match_times or not self._work_times:
+                return
+            delay = matcher_start_delay(since_take_s=time.monotonic() - self._take_times[-1],
+                                        match_s=float(np.median(self._match_times)),
+                                        work_s=float(np.median(self._work_times)))
+            if delay <= 0:
+                return
+            self.diagnostics.sample("start delay ms", delay * 1e3)
+            self.count("pairs_started_just_in_time")
+            until = min(deadline, time.monotonic() + delay)
+            while (remaining := until - time.monotonic()) > 0:
+                self._matcher.wait(remaining)
+
     def _matcher_ready(self) -> bool:
         """Wait (at most :data:`MATCHER_WAIT_S`) until the matcher has taken the last pair
         published; False when a newer pair came meanwhile and fills the waiting places
         (``waiting_pairs``): the worker takes that one instead. A pair not taken in that time
-        (lost, or a restarted matcher) is not waited for again."""
+        (lost, a restarted matcher, or one warming up) is not waited for again, and no pair is
+        until the matcher takes one (a looping bag would otherwise freeze on one frame: each
+        wait times out, and the same frame of the next pass comes again)."""
         if self.sub_matching is None or self.sub_matching.get_publisher_count() == 0 or self._matcher_keeps_up():
             return True
         t0 = time.monotonic()
         deadline = t0 + MATCHER_WAIT_S
+        taken = True
         with self._matcher:
-            while self._published_ns is not None and (self._taken_ns is None or self._taken_ns < self._published_ns):
+            while (not self._matcher_silent and self._published_ns is not None
+                   and (self._taken_ns is None or self._taken_ns < self._published_ns)):
                 remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    self._published_ns = None
+                if remaining <= 0:  # lost, or a matcher that takes nothing (warming up): no more waits until it does
+                    self._published_ns, taken, self._matcher_silent = None, False, True
                     break
                 self._matcher.wait(remaining)
+        if taken:
+            self._start_just_in_time(deadline)
         waited_s = time.monotonic() - t0
         if waited_s > 1e-3:
             self.diagnostics.sample("matcher wait ms", waited_s * 1e3)
