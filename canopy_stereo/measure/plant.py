@@ -262,9 +262,9 @@ def plant_summary(p: dict) -> dict:
     ``leaf_area`` and mean leaf sizes are None (not measured: REPORT.json's ``null``)."""
     index, border = int(p.get("plant_index", 0)), p.get("at_image_border")
     if p.get("error") is not None:
-        return {"plant_index": index, "error": str(p["error"]), "reference": None, "at_image_border": border,
-                "canopy": None, "n_leaves": None, "leaf_area": None, "mean_leaf_length": None,
-                "mean_leaf_width": None}
+        return {"plant_index": index, "error": str(p["error"]), "at_image_border": border,
+                **dict.fromkeys(("reference", "canopy", "n_leaves", "leaf_area", "mean_leaf_length",
+                                 "mean_leaf_width"))}
     return {"plant_index": index, "error": None, "reference": p.get("reference"), "at_image_border": border,
             "canopy": p["canopy"], "n_leaves": len(p.get("leaves", [])),
             "leaf_area": float(sum(lf["area"] for lf in p.get("leaves", []))),

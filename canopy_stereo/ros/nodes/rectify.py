@@ -229,9 +229,8 @@ class RectifyNode(CanopyNode):
         self._published_ns: int | None = None  # the last pair published
         self._taken_ns: int | None = None  # the last pair the matcher took
         self._matcher_silent = False  # a wait timed out and no take came since: do not wait
-        self._take_times: deque[float] = deque(maxlen=TAKE_INTERVALS + 1)  # monotonic s of recent takes
         self._match_times: deque[float] = deque(maxlen=TAKE_INTERVALS)  # s from a take to its "matched"
-        self._takes: deque[tuple[int, float]] = deque(maxlen=4)  # (stamp ns, monotonic s) of recent takes
+        self._takes: deque[tuple[int, float]] = deque(maxlen=TAKE_INTERVALS + 1)  # (stamp ns, monotonic s)
         self._work_times: deque[float] = deque(maxlen=TAKE_INTERVALS)  # s per rectified pair (the worker's)
         self._frame_period_s: float | None = None  # the cameras' frame period, measured from the stamps
         follow = bool(self.get_parameter("follow_matcher").value)
@@ -390,7 +389,6 @@ class RectifyNode(CanopyNode):
         with self._matcher:
             self._taken_ns = stamp_to_ns(msg.stamp)
             self._matcher_silent = False
-            self._take_times.append(now)
             self._takes.append((self._taken_ns, now))
             self._matcher.notify_all()
 
@@ -401,7 +399,7 @@ class RectifyNode(CanopyNode):
         by stamp."""
         now, stamp = time.monotonic(), stamp_to_ns(msg.stamp)
         with self._matcher:
-            took = next((t for s, t in self._takes if s == stamp), None)
+            took = next((t for s, t in reversed(self._takes) if s == stamp), None)
             if took is not None:
                 self._match_times.append(now - took)
 
@@ -411,7 +409,7 @@ class RectifyNode(CanopyNode):
         then waiting for it would only delay pairs (each would wait for a take that comes
         anyway), so the node rectifies every pair."""
         with self._matcher:
-            times = list(self._take_times)
+            times = [t for _, t in self._takes]
         period = self._frame_period_s
         if period is None or len(times) <= TAKE_INTERVALS:
             return False
@@ -423,9 +421,9 @@ class RectifyNode(CanopyNode):
         matcher is done (:func:`matcher_start_delay`, from the medians of the recent match times
         and of this node's times per pair); at once while either is unknown."""
         with self._matcher:
-            if not self._take_times or not self._match_times or not self._work_times:
+            if not self._takes or not self._match_times or not self._work_times:
                 return
-            delay = matcher_start_delay(since_take_s=time.monotonic() - self._take_times[-1],
+            delay = matcher_start_delay(since_take_s=time.monotonic() - self._takes[-1][1],
                                         match_s=float(np.median(self._match_times)),
                                         work_s=float(np.median(self._work_times)))
             if delay <= 0:
