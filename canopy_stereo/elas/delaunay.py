@@ -97,20 +97,22 @@ def triangle_planes(points: np.ndarray, right_image: bool):
 
 
 @njit(cache=True, inline="always")
-def _edge_span(x0, y0, x1, y1, vmin, vmax, lo, hi, eps):
+def _edge_span(x0, y0, x1, y1, vmin, vmax, lo, hi, eps, row_step):
     """Widen the row spans ``lo[v - vmin]``, ``hi[v - vmin]`` by edge (x0, y0) -> (x1, y1)
-    on every row ``v`` in ``[vmin, vmax]`` whose centre line meets it (within ``eps``)."""
+    on every row ``v`` in ``[vmin, vmax]``, a multiple of ``row_step``, whose centre line
+    meets it (within ``eps``)."""
     if y0 == y1:
         # a horizontal edge counts on the rows within eps of it, with both end points
         for v in range(max(vmin, int(np.floor(y0)) - 1), min(vmax, int(np.ceil(y0)) + 1) + 1):
-            if abs(float(v) - y0) <= eps:
+            if abs(float(v) - y0) <= eps and v % row_step == 0:
                 lo[v - vmin] = min(lo[v - vmin], x0, x1)
                 hi[v - vmin] = max(hi[v - vmin], x0, x1)
         return
     # rows v with min(y0, y1) - eps <= v <= max(y0, y1) + eps (v integer: ceil / floor)
     first = max(vmin, int(np.ceil(min(y0, y1) - eps)))
     last = min(vmax, int(np.floor(max(y0, y1) + eps)))
-    for v in range(first, last + 1):
+    first = -(-first // row_step) * row_step
+    for v in range(first, last + 1, row_step):
         y = float(v)
         x = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
         lo[v - vmin] = min(lo[v - vmin], x)
@@ -130,11 +132,14 @@ def rasterize_triangles(vertices, triangles, height, width):
 
 
 @njit(cache=True, nogil=True)
-def rasterize_triangles_into(vertices, triangles, tri_map):
+def rasterize_triangles_into(vertices, triangles, tri_map, row_step=1):
     """:func:`rasterize_triangles` into an existing int32 (height, width) map (its
-    previous contents are overwritten)."""
+    previous contents are overwritten), on the rows ``v`` that are a multiple of
+    ``row_step`` (subsampled matching reads only those; the other rows are left as they
+    were)."""
     height, width = tri_map.shape
-    tri_map[:, :] = -1
+    for v in range(0, height, row_step):
+        tri_map[v, :] = -1
     eps = 1e-9
     lo = np.empty(height, dtype=np.float64)
     hi = np.empty(height, dtype=np.float64)
@@ -154,10 +159,10 @@ def rasterize_triangles_into(vertices, triangles, tri_map):
         for k in range(vmax - vmin + 1):
             lo[k] = np.inf
             hi[k] = -np.inf
-        _edge_span(ax, ay, bx, by, vmin, vmax, lo, hi, eps)
-        _edge_span(bx, by, cx, cy, vmin, vmax, lo, hi, eps)
-        _edge_span(cx, cy, ax, ay, vmin, vmax, lo, hi, eps)
-        for v in range(vmin, vmax + 1):
+        _edge_span(ax, ay, bx, by, vmin, vmax, lo, hi, eps, row_step)
+        _edge_span(bx, by, cx, cy, vmin, vmax, lo, hi, eps, row_step)
+        _edge_span(cx, cy, ax, ay, vmin, vmax, lo, hi, eps, row_step)
+        for v in range(-(-vmin // row_step) * row_step, vmax + 1, row_step):
             if lo[v - vmin] > hi[v - vmin]:
                 continue
             u0 = max(int(np.ceil(lo[v - vmin] - eps)), 0)

@@ -451,7 +451,8 @@ def match_job(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_
     Args:
         desc_own, desc_other: uint8 (H, W, 16) descriptors.
         tex_own: int32 (H, W) descriptor texture of the own image.
-        tri_map: int32 (H, W) triangle index per pixel (-1 outside the hull).
+        tri_map: int32 (H, W) triangle index per pixel (-1 outside the hull); only the
+            rows ``0, step, 2 step, ..`` are read.
         planes: float32 (T, 3) plane ``(a, b, c)`` per triangle, own coordinates.
         plane_valid: bool (T,) whether the plane's prior applies.
         grid_lists, grid_counts: the disparity grid of the own image.
