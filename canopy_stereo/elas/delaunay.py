@@ -111,7 +111,7 @@ def _edge_span(x0, y0, x1, y1, vmin, vmax, lo, hi, eps, row_step):
     # rows v with min(y0, y1) - eps <= v <= max(y0, y1) + eps (v integer: ceil / floor)
     first = max(vmin, int(np.ceil(min(y0, y1) - eps)))
     last = min(vmax, int(np.floor(max(y0, y1) + eps)))
-    first = -(-first // row_step) * row_step
+    first = (first + row_step - 1) // row_step * row_step     # (first >= vmin >= 0)
     for v in range(first, last + 1, row_step):
         y = float(v)
         x = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
@@ -137,6 +137,16 @@ def rasterize_triangles_into(vertices, triangles, tri_map, row_step=1):
     previous contents are overwritten), on the rows ``v`` that are a multiple of
     ``row_step`` (subsampled matching reads only those; the other rows are left as they
     were)."""
+    if row_step == 1:       # (a constant step: the loops compiled for it, as fast as before)
+        _rasterize_rows(vertices, triangles, tri_map, 1)
+    else:
+        _rasterize_rows(vertices, triangles, tri_map, row_step)
+
+
+@njit(cache=True, inline="always")
+def _rasterize_rows(vertices, triangles, tri_map, row_step):
+    """The body of :func:`rasterize_triangles_into` (inlined, so that a constant
+    ``row_step`` is compiled in)."""
     height, width = tri_map.shape
     for v in range(0, height, row_step):
         tri_map[v, :] = -1
@@ -156,13 +166,14 @@ def rasterize_triangles_into(vertices, triangles, tri_map, row_step=1):
         vmax = min(vmax, height - 1)
         if vmin > vmax:
             continue
-        for k in range(vmax - vmin + 1):
+        first = (vmin + row_step - 1) // row_step * row_step
+        for k in range(first - vmin, vmax - vmin + 1, row_step):
             lo[k] = np.inf
             hi[k] = -np.inf
         _edge_span(ax, ay, bx, by, vmin, vmax, lo, hi, eps, row_step)
         _edge_span(bx, by, cx, cy, vmin, vmax, lo, hi, eps, row_step)
         _edge_span(cx, cy, ax, ay, vmin, vmax, lo, hi, eps, row_step)
-        for v in range(-(-vmin // row_step) * row_step, vmax + 1, row_step):
+        for v in range(first, vmax + 1, row_step):
             if lo[v - vmin] > hi[v - vmin]:
                 continue
             u0 = max(int(np.ceil(lo[v - vmin] - eps)), 0)
