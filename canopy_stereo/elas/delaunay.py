@@ -127,16 +127,22 @@ def rasterize_triangles(vertices, triangles, height, width):
     visits only the rows it crosses), so the work is proportional to the covered area.
     """
     tri_map = np.empty((height, width), dtype=np.int32)
-    rasterize_triangles_into(vertices, triangles, tri_map)
+    _rasterize_into(vertices, triangles, tri_map, 1)
     return tri_map
 
 
-@njit(cache=True, nogil=True)
-def rasterize_triangles_into(vertices, triangles, tri_map, row_step=1):
+def rasterize_triangles_into(vertices, triangles, tri_map, *, row_step: int = 1) -> None:
     """:func:`rasterize_triangles` into an existing int32 (height, width) map (its
     previous contents are overwritten), on the rows ``v`` that are a multiple of
     ``row_step`` (subsampled matching reads only those; the other rows are left as they
     were)."""
+    _rasterize_into(vertices, triangles, tri_map, int(row_step))
+
+
+@njit(cache=True, nogil=True)
+def _rasterize_into(vertices, triangles, tri_map, row_step):
+    """:func:`rasterize_triangles_into`: float64 (N, 2) ``vertices``, int32 (T, 3)
+    ``triangles``, int32 (H, W) ``tri_map`` written on rows ``0, row_step, ..``."""
     if row_step == 1:       # (a constant step: the loops compiled for it, as fast as before)
         _rasterize_rows(vertices, triangles, tri_map, 1)
     else:

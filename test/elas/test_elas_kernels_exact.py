@@ -59,7 +59,7 @@ def _intermediates(gl, gr, p, row_step=1):
         lists, counts = grid.disparity_grid(pts, (gl.shape[1], gl.shape[0]), p.grid_size,
                                             p.disp_min, p.disp_max, right_image=right_image)
         tri_map = np.full(gl.shape, -1, np.int32)
-        delaunay.rasterize_triangles_into(vert, tri, tri_map, row_step)
+        delaunay.rasterize_triangles_into(vert, tri, tri_map, row_step=row_step)
         radius = matching.plane_radius(p.sigma, p.sradius)
         prior = matching.prior_table(p.beta, p.gamma, p.sigma, radius + 1)
         maps[right_image] = dict(desc_own=own, desc_other=other, tex_own=tex, tri_map=tri_map,
@@ -798,7 +798,7 @@ def _assert_rasterised_rows(vertices, triangles, h, w, ref):
     """Every row, and (subsampled matching) every second row with the others untouched."""
     assert same_bits(delaunay.rasterize_triangles(vertices, triangles, h, w), ref)
     some = np.full((h, w), 12345, np.int32)
-    delaunay.rasterize_triangles_into(vertices, triangles, some, 2)
+    delaunay.rasterize_triangles_into(vertices, triangles, some, row_step=2)
     assert same_bits(some[::2], ref[::2]) and (some[1::2] == 12345).all()
 
 
