@@ -18,6 +18,8 @@ elsewhere. :func:`sad_reference` is the plain-loop computation, for tests.
 from __future__ import annotations
 
 import platform
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from llvmlite import binding as llvm_binding
@@ -529,19 +531,17 @@ def _group_first_min(pixels: int, spread: int = 1, rows: int = 1):
 
         return sig, codegen
 
-    if rows == 1:
-        def group_first_min(typingctx, own, offset_own, other, offset_other, stride, cell, first0,
-                            stop0, first1, stop1, window_lo, window_hi, radius, prior, lanes,
-                            best):
-            return typer(own, offset_own, other, offset_other, stride, cell, first0, stop0,
-                         first1, stop1, window_lo, window_hi, radius, prior, lanes, best)
-    else:
-        def group_first_min(typingctx, own, offset_own, other, offset_other, stride, cell, first0,
-                            stop0, first1, stop1, window_lo, window_hi, radius, prior, lanes,
-                            best, row_bytes):
-            return typer(own, offset_own, other, offset_other, stride, cell, first0, stop0,
-                         first1, stop1, window_lo, window_hi, radius, prior, lanes, best,
-                         row_bytes)
+    def one_row(typingctx, own, offset_own, other, offset_other, stride, cell, first0, stop0,
+                first1, stop1, window_lo, window_hi, radius, prior, lanes, best):
+        return typer(own, offset_own, other, offset_other, stride, cell, first0, stop0, first1,
+                     stop1, window_lo, window_hi, radius, prior, lanes, best)
+
+    def two_rows(typingctx, own, offset_own, other, offset_other, stride, cell, first0, stop0,
+                 first1, stop1, window_lo, window_hi, radius, prior, lanes, best, row_bytes):
+        return typer(own, offset_own, other, offset_other, stride, cell, first0, stop0, first1,
+                     stop1, window_lo, window_hi, radius, prior, lanes, best, row_bytes)
+
+    group_first_min: Callable[..., Any] = one_row if rows == 1 else two_rows
 
     name = {4: "quad", 8: "octo", 12: "dodeca", 16: "hexa", 20: "penta"}[pixels]
     name = f"{name}_first_min" if spread == 1 else f"{name}_first_min_spread{spread}"
