@@ -14,6 +14,7 @@ Usage:
     python benchmarks/bench_elas.py --stages [--left L.png --right R.png | --pairs tsukuba]
                                     [--preset robotics] [--disp-min 84 --disp-max 167]
                                     [--scale 2] [--threads 1,2] [--right-map] [--reps 20]
+                                    [--subsampling]
 
     python benchmarks/bench_elas.py --target [--reps 5] [--pyelas /path/to/python]
 
@@ -257,11 +258,13 @@ def stages_main(args) -> int:
     if args.scale != 1.0:
         size = (int(round(left.shape[1] * args.scale)), int(round(left.shape[0] * args.scale)))
         left, right = cv2.resize(left, size), cv2.resize(right, size)
-    params = make_params(args.preset, disp_min=args.disp_min, disp_max=args.disp_max)
+    params = make_params(args.preset, disp_min=args.disp_min, disp_max=args.disp_max,
+                         subsampling=args.subsampling)
     threads = [int(t) for t in args.threads.split(",")]
     threads = [t for t in threads if 1 <= t <= numba.config.NUMBA_NUM_THREADS] or [1]
     print(f"ELAS stages: {name} {left.shape[1]}x{left.shape[0]}, preset {args.preset}, "
-          f"disparities {params.disp_min}..{params.disp_max}, right map "
+          f"disparities {params.disp_min}..{params.disp_max}, "
+          f"{'subsampling, ' if args.subsampling else ''}right map "
           f"{'on' if args.right_map else 'off'}, median of {args.reps} calls after a warm-up, "
           f"{os.cpu_count()} CPU(s)")
     results = {t: stage_times(left, right, params, reps=args.reps, threads=t,
@@ -376,6 +379,8 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", default="1,2", help="--stages: numba thread counts to time")
     ap.add_argument("--right-map", action="store_true",
                     help="--stages: also post-process the right map (want_right)")
+    ap.add_argument("--subsampling", action="store_true",
+                    help="--stages: ELAS's subsampling (maps at every second row and column)")
     ap.add_argument("--target", action="store_true",
                     help="issue 28's targets: CPU ms against libelas on the MiddEval3 training "
                          "scenes (ratio, bad>2, density), 1280x720 on one and two threads")

@@ -137,7 +137,8 @@ def _image_priors(support: np.ndarray, p: ElasParams, size: tuple[int, int], rig
                           right_image=right_image, workspace=workspace)
     t2 = time.perf_counter()
     tri_map = workspace.array("triangle_map", (h, w), np.int32)
-    rasterize_triangles_into(vertices, triangles, tri_map)
+    # subsampled matching reads every second row only
+    rasterize_triangles_into(vertices, triangles, tri_map, row_step=2 if p.subsampling else 1)
     return triangles, planes, valid, grid, tri_map, (t1 - t0, t2 - t1, time.perf_counter() - t2)
 
 

@@ -97,20 +97,22 @@ def triangle_planes(points: np.ndarray, right_image: bool):
 
 
 @njit(cache=True, inline="always")
-def _edge_span(x0, y0, x1, y1, vmin, vmax, lo, hi, eps):
+def _edge_span(x0, y0, x1, y1, vmin, vmax, lo, hi, eps, row_step):
     """Widen the row spans ``lo[v - vmin]``, ``hi[v - vmin]`` by edge (x0, y0) -> (x1, y1)
-    on every row ``v`` in ``[vmin, vmax]`` whose centre line meets it (within ``eps``)."""
+    on every row ``v`` in ``[vmin, vmax]``, a multiple of ``row_step``, whose centre line
+    meets it (within ``eps``)."""
     if y0 == y1:
         # a horizontal edge counts on the rows within eps of it, with both end points
         for v in range(max(vmin, int(np.floor(y0)) - 1), min(vmax, int(np.ceil(y0)) + 1) + 1):
-            if abs(float(v) - y0) <= eps:
+            if abs(float(v) - y0) <= eps and v % row_step == 0:
                 lo[v - vmin] = min(lo[v - vmin], x0, x1)
                 hi[v - vmin] = max(hi[v - vmin], x0, x1)
         return
     # rows v with min(y0, y1) - eps <= v <= max(y0, y1) + eps (v integer: ceil / floor)
     first = max(vmin, int(np.ceil(min(y0, y1) - eps)))
     last = min(vmax, int(np.floor(max(y0, y1) + eps)))
-    for v in range(first, last + 1):
+    first = (first + row_step - 1) // row_step * row_step     # (first >= vmin >= 0)
+    for v in range(first, last + 1, row_step):
         y = float(v)
         x = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
         lo[v - vmin] = min(lo[v - vmin], x)
@@ -125,16 +127,35 @@ def rasterize_triangles(vertices, triangles, height, width):
     visits only the rows it crosses), so the work is proportional to the covered area.
     """
     tri_map = np.empty((height, width), dtype=np.int32)
-    rasterize_triangles_into(vertices, triangles, tri_map)
+    _rasterize_into(vertices, triangles, tri_map, 1)
     return tri_map
 
 
-@njit(cache=True, nogil=True)
-def rasterize_triangles_into(vertices, triangles, tri_map):
+def rasterize_triangles_into(vertices, triangles, tri_map, *, row_step: int = 1) -> None:
     """:func:`rasterize_triangles` into an existing int32 (height, width) map (its
-    previous contents are overwritten)."""
+    previous contents are overwritten), on the rows ``v`` that are a multiple of
+    ``row_step`` (subsampled matching reads only those; the other rows are left as they
+    were)."""
+    _rasterize_into(vertices, triangles, tri_map, int(row_step))
+
+
+@njit(cache=True, nogil=True)
+def _rasterize_into(vertices, triangles, tri_map, row_step):
+    """:func:`rasterize_triangles_into`: float64 (N, 2) ``vertices``, int32 (T, 3)
+    ``triangles``, int32 (H, W) ``tri_map`` written on rows ``0, row_step, ..``."""
+    if row_step == 1:       # (a constant step: the loops compiled for it, as fast as before)
+        _rasterize_rows(vertices, triangles, tri_map, 1)
+    else:
+        _rasterize_rows(vertices, triangles, tri_map, row_step)
+
+
+@njit(cache=True, inline="always")
+def _rasterize_rows(vertices, triangles, tri_map, row_step):
+    """The body of :func:`rasterize_triangles_into` (inlined, so that a constant
+    ``row_step`` is compiled in)."""
     height, width = tri_map.shape
-    tri_map[:, :] = -1
+    for v in range(0, height, row_step):
+        tri_map[v, :] = -1
     eps = 1e-9
     lo = np.empty(height, dtype=np.float64)
     hi = np.empty(height, dtype=np.float64)
@@ -151,13 +172,14 @@ def rasterize_triangles_into(vertices, triangles, tri_map):
         vmax = min(vmax, height - 1)
         if vmin > vmax:
             continue
-        for k in range(vmax - vmin + 1):
+        first = (vmin + row_step - 1) // row_step * row_step
+        for k in range(first - vmin, vmax - vmin + 1, row_step):
             lo[k] = np.inf
             hi[k] = -np.inf
-        _edge_span(ax, ay, bx, by, vmin, vmax, lo, hi, eps)
-        _edge_span(bx, by, cx, cy, vmin, vmax, lo, hi, eps)
-        _edge_span(cx, cy, ax, ay, vmin, vmax, lo, hi, eps)
-        for v in range(vmin, vmax + 1):
+        _edge_span(ax, ay, bx, by, vmin, vmax, lo, hi, eps, row_step)
+        _edge_span(bx, by, cx, cy, vmin, vmax, lo, hi, eps, row_step)
+        _edge_span(cx, cy, ax, ay, vmin, vmax, lo, hi, eps, row_step)
+        for v in range(first, vmax + 1, row_step):
             if lo[v - vmin] > hi[v - vmin]:
                 continue
             u0 = max(int(np.ceil(lo[v - vmin] - eps)), 0)

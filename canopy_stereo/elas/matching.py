@@ -44,9 +44,12 @@ from canopy_stereo.elas.simd import (
     PRIOR_REGISTER,
     PRIOR_REGISTER_WIDE,
     PSADBW_WIDTH,
+    dodeca_first_min_spread2,
     hexa_first_min,
     octo_first_min,
+    octo_first_min_spread2,
     penta_first_min,
+    penta_first_min_spread2,
     quad_first_min,
     sad16,
 )
@@ -62,6 +65,10 @@ _NO_COST = np.int32(2147483647)
 #: (AVX-512BW); else four (each 64-byte SAD would cost two or four instructions, and the
 #: prior would not fit in a register).
 _GROUPS = PSADBW_WIDTH == 64
+#: Narrowest image matched by the subsampled group path: a group of twenty pixels every second
+#: column, and its matches, read up to forty columns beyond its row (rows 1 .. H-2 only: the
+#: neighbouring rows hold them).
+_SPREAD_MIN_WIDTH = 64
 
 
 def prior_table(beta: float, gamma: float, sigma: float, size: int) -> np.ndarray:
@@ -229,6 +236,72 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
                                                  off_row, u + k)
                     u += n
                     continue
+                # ---- subsampling (AVX-512): up to twenty pixels u, u+2, .. of the cell row
+                # at once (eight, twelve or twenty lanes, those beyond the cell not matched),
+                # as the twenty above; each 64-byte SAD takes the descriptors of every second
+                # column (two loads and one shuffle per group of four)
+                if _GROUPS and step == 2 and v >= 1 and v < h - 1 and w >= _SPREAD_MIN_WIDTH:
+                    m = (u_stop - u + 1) // 2       # pixels u, u+2, .. below u_stop
+                    n = 8 if m <= 8 else (12 if m <= 12 else 20)
+                    m = min(m, n)
+                    n_on = 0
+                    mu_lo = 2147483647
+                    mu_hi = -2147483648
+                    hi_max = -1
+                    for k in range(n):
+                        uk = u + 2 * k
+                        t = tri_row[uk] if k < m else -1
+                        if t >= 0 and tex_row[uk] >= match_texture:
+                            mu_k = int(planes[t, 0] * uk + planes[t, 1] * v + planes[t, 2])
+                            n_on += 1
+                            mu_lo = min(mu_lo, mu_k)
+                            mu_hi = max(mu_hi, mu_k)
+                            hi_k = min(disp_max, uk - MATCH_BORDER) if sign > 0 else \
+                                min(disp_max, w - MATCH_BORDER - 1 - uk)
+                            hi_max = max(hi_max, hi_k)
+                            lanes[k] = mu_k
+                            lanes[GROUP_LANES + k] = hi_k
+                            lanes[2 * GROUP_LANES + k] = plane_valid[t]
+                        else:
+                            lanes[GROUP_LANES + k] = -1
+                            lanes[2 * GROUP_LANES + k] = 0
+                    if n_on == 0:
+                        u += 2 * m
+                        continue
+                    for k in range(n):
+                        if lanes[GROUP_LANES + k] < 0:
+                            lanes[k] = mu_lo
+                    first, below, above, stop = _candidate_runs(flat_ranks, ranks, n_ranks, disp_min, hi_max,
+                                                                mu_lo, mu_hi, radius)
+                    a0 = row + u * DESC_BYTES
+                    w_lo = max(mu_lo - radius, disp_min)
+                    w_hi = min(mu_hi + radius, hi_max)
+                    if n == 20:
+                        penta_first_min_spread2(flat_own, a0, flat_other, a0, -sign * DESC_BYTES,
+                                                flat_lists, cell + first, cell + below,
+                                                cell + above, cell + stop, w_lo, w_hi, radius,
+                                                prior_window, lanes, lane_out)
+                    elif n == 12:
+                        dodeca_first_min_spread2(flat_own, a0, flat_other, a0, -sign * DESC_BYTES,
+                                                 flat_lists, cell + first, cell + below,
+                                                 cell + above, cell + stop, w_lo, w_hi, radius,
+                                                 prior_window, lanes, lane_out)
+                    else:
+                        octo_first_min_spread2(flat_own, a0, flat_other, a0, -sign * DESC_BYTES,
+                                               flat_lists, cell + first, cell + below,
+                                               cell + above, cell + stop, w_lo, w_hi, radius,
+                                               prior_window, lanes, lane_out)
+                    c0 = u // 2
+                    for k in range(m):
+                        best_d = lane_out[k]
+                        if best_d >= 0:
+                            out_row[c0 + k] = np.float32(best_d)
+                            if subpixel:
+                                _subpixel_offset(flat_own, flat_other, row + (u + 2 * k) * DESC_BYTES,
+                                                 sign, best_d, disp_min, lanes[GROUP_LANES + k],
+                                                 off_row, c0 + k)
+                    u += 2 * m
+                    continue
                 # ---- four pixels u .. u+3 at once: every candidate of any of the four is
                 # one 64-byte SAD, each pixel's own candidates unmasked (its window, prior
                 # and largest disparity; a pixel that is not matched has every candidate
@@ -378,7 +451,8 @@ def match_job(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_
     Args:
         desc_own, desc_other: uint8 (H, W, 16) descriptors.
         tex_own: int32 (H, W) descriptor texture of the own image.
-        tri_map: int32 (H, W) triangle index per pixel (-1 outside the hull).
+        tri_map: int32 (H, W) triangle index per pixel (-1 outside the hull); only the
+            rows ``0, step, 2 step, ..`` are read.
         planes: float32 (T, 3) plane ``(a, b, c)`` per triangle, own coordinates.
         plane_valid: bool (T,) whether the plane's prior applies.
         grid_lists, grid_counts: the disparity grid of the own image.

@@ -223,8 +223,27 @@ def _concat(builder, parts):
     return parts[0]
 
 
+def _load_quad(builder, base, offset, spread):
+    """``<64 x i8>``: the four 16-byte descriptors at i8 pointer ``base`` + ``offset`` bytes
+    (i64 constant) + ``16 spread k``, ``k = 0..3``: one load (``spread`` 1), or (``spread`` 2)
+    two 64-byte loads and one shuffle keeping their 16-byte blocks 0 and 2 (one x86
+    ``vshufi64x2``: the descriptors of every second column)."""
+    i64 = ir.IntType(64)
+    v64i8 = ir.VectorType(ir.IntType(8), 64)
+
+    def load(at):
+        return builder.load(builder.bitcast(builder.gep(base, [i64(at)]), v64i8.as_pointer()),
+                            align=1)
+
+    if spread == 1:
+        return load(offset)
+    mask = [32 * block + k for block in range(4) for k in range(16)]
+    return builder.shuffle_vector(load(offset), load(offset + 64),
+                                  ir.Constant(ir.VectorType(ir.IntType(32), 64), mask))
+
+
 def _first_min_body(context, builder, own, other_base, stride, cell_ptr, runs, window, radius,
-                    prior_ptr, lane_vectors):
+                    prior_ptr, lane_vectors, spread=1):
     """The candidate loops of :func:`quad_first_min` and the wider intrinsics.
 
     ``own``: one ``<64 x i8>`` vector per group of four pixels (their descriptors), taken
@@ -234,11 +253,12 @@ def _first_min_body(context, builder, own, other_base, stride, cell_ptr, runs, w
     first1, stop1)``; ``window``: i64 ``(lo, hi)``; ``radius``: i32; ``prior_ptr``: i32
     pointer to the window prior; ``lane_vectors(first, count)``: the ``(mu, hi, flag)``
     vectors of pixels ``first .. first + count - 1`` (pixel ``k`` in lanes ``2k`` and
-    ``2k + 1``, as the paired block sums come). Returns, per block, the first minima's
-    disparities (-1: none), in the same lanes.
+    ``2k + 1``, as the paired block sums come); ``spread``: 1, or 2 when the pixels are
+    every second column (pixel ``k``'s match at ``other_base + d * stride + 16 spread k``,
+    :func:`_load_quad`). Returns, per block, the first minima's disparities (-1: none), in
+    the same lanes.
     """
-    i8, i32, i64 = ir.IntType(8), ir.IntType(32), ir.IntType(64)
-    v64i8 = ir.VectorType(i8, 64)
+    i32, i64 = ir.IntType(32), ir.IntType(64)
     blocks = []
     for q in range(0, len(own), 2):
         quads = own[q:q + 2]
@@ -281,8 +301,7 @@ def _first_min_body(context, builder, own, other_base, stride, cell_ptr, runs, w
 
     def block_sums(b, at):
         """The block's costs at the match address ``at``: pixel k's SAD in lanes 2k, 2k+1."""
-        others = [builder.load(builder.bitcast(builder.gep(at, [i64(64 * (b["first"] + q))]),
-                                               v64i8.as_pointer()), align=1)
+        others = [_load_quad(builder, at, 64 * spread * (b["first"] + q), spread)
                   for q in range(len(b["quads"]))]
         halves = [_block_halves(builder, va, vb) for va, vb in zip(b["quads"], others)]
         if len(halves) == 2 and halves[0] is not None:
@@ -443,8 +462,9 @@ def quad_first_min(typingctx, own, offset_own, other, offset_other, stride, cell
 GROUP_LANES = 20
 
 
-def _group_first_min(pixels: int):
-    """The first-minimum intrinsic of ``pixels`` (8, 16 or 20) neighbouring pixels."""
+def _group_first_min(pixels: int, spread: int = 1):
+    """The first-minimum intrinsic of ``pixels`` (a multiple of 4, at most 20) pixels,
+    ``spread`` (1 or 2) columns apart."""
 
     def group_first_min(typingctx, own, offset_own, other, offset_other, stride, cell, first0,
                         stop0, first1, stop1, window_lo, window_hi, radius, prior, lanes, best):
@@ -456,12 +476,10 @@ def _group_first_min(pixels: int):
                          first1, stop1, window_lo, window_hi, radius, prior, lanes, best)
 
         def codegen(context, builder, signature, args):
-            i8, i32 = ir.IntType(8), ir.IntType(32)
+            i32 = ir.IntType(32)
             scalar, data = _first_min_args(context, builder, signature.args, args)
             own_at = builder.gep(data(0), [scalar(1)])
-            own = [builder.load(builder.bitcast(builder.gep(own_at, [ir.IntType(64)(64 * q)]),
-                                                ir.VectorType(i8, 64).as_pointer()), align=1)
-                   for q in range(pixels // 4)]
+            own = [_load_quad(builder, own_at, 64 * spread * q, spread) for q in range(pixels // 4)]
             lane_data = data(14)
 
             def lane_vectors(first, count):     # pixel k in lanes 2k and 2k + 1
@@ -479,7 +497,7 @@ def _group_first_min(pixels: int):
             runs, window = _run_arguments(scalar)
             results = _first_min_body(context, builder, own, builder.gep(data(2), [scalar(3)]),
                                       scalar(4), data(5), runs, window, scalar(12, types.int32),
-                                      data(13), lane_vectors)
+                                      data(13), lane_vectors, spread)
             best_ptr = data(15)
             done = 0
             for result in results:
@@ -494,14 +512,18 @@ def _group_first_min(pixels: int):
 
         return sig, codegen
 
-    group_first_min.__name__ = group_first_min.__qualname__ = \
-        {8: "octo_first_min", 16: "hexa_first_min", 20: "penta_first_min"}[pixels]
-    group_first_min.__doc__ = f""":func:`quad_first_min` of {pixels} neighbouring pixels
-    ({pixels // 4} groups of four side by side: {pixels // 4} 64-byte SADs per candidate, the
+    name = {4: "quad", 8: "octo", 12: "dodeca", 16: "hexa", 20: "penta"}[pixels]
+    name = f"{name}_first_min" if spread == 1 else f"{name}_first_min_spread{spread}"
+    group_first_min.__name__ = group_first_min.__qualname__ = name
+    apart = "neighbouring pixels" if spread == 1 else f"pixels {spread} columns apart"
+    gather = "" if spread == 1 else (" (each group's descriptors and matches: two 64-byte "
+                                     "loads and one shuffle, :func:`_load_quad`)")
+    group_first_min.__doc__ = f""":func:`quad_first_min` of {pixels} {apart}
+    ({pixels // 4} groups of four: {pixels // 4} 64-byte SADs per candidate{gather}, the
     running minima of two groups in one 16-lane vector, of a last odd group in an 8-lane one).
 
-    Pixel ``k`` (0..{pixels - 1}) has the descriptor at ``own[offset_own + 16 k]`` and its
-    match at ``other[offset_other + d * stride + 16 k]``; ``lanes`` (int32, 3 x
+    Pixel ``k`` (0..{pixels - 1}) has the descriptor at ``own[offset_own + {16 * spread} k]``
+    and its match at ``other[offset_other + d * stride + {16 * spread} k]``; ``lanes`` (int32, 3 x
     :data:`GROUP_LANES` entries) holds the plane predictions ``mu_k`` (entry ``k``), largest
     disparities ``hi_k`` (``GROUP_LANES + k``, -1: not matched) and prior flags
     (``2 GROUP_LANES + k``, non-zero: the prior applies). The candidates, their order and
@@ -518,6 +540,11 @@ def _group_first_min(pixels: int):
 octo_first_min = _group_first_min(8)
 hexa_first_min = _group_first_min(16)
 penta_first_min = _group_first_min(20)
+#: Eight, twelve and twenty pixels every second column per call (subsampled matching: a
+#: 20-pixel grid cell row holds ten).
+octo_first_min_spread2 = _group_first_min(8, 2)
+dodeca_first_min_spread2 = _group_first_min(12, 2)
+penta_first_min_spread2 = _group_first_min(20, 2)
 
 
 @intrinsic

@@ -38,6 +38,17 @@ def plants():
     gl = np.ascontiguousarray(left[120:360, 240:560])
     gr = np.ascontiguousarray(right[120:360, 240:560])
     p = make_params("robotics", disp_min=0, disp_max=120)
+    desc, tex, pts, maps = _intermediates(gl, gr, p)
+    disp_l, _ = matching.dense_match(*_match_args(maps[False], p, 1, 1, False))
+    disp_r, _ = matching.dense_match(*_match_args(maps[True], p, -1, 1, False))
+    return dict(left=gl, right=gr, params=p, desc=desc, tex=tex, support=pts, maps=maps,
+                disp=(disp_l, disp_r))
+
+
+def _intermediates(gl, gr, p, row_step=1):
+    """ELAS's maps of a grey pair before dense matching: ``(desc, tex, support, maps)``,
+    ``maps[right_image]`` the arguments of matching.dense_match (triangle map rasterised on
+    every ``row_step``-th row, as ELAS does with subsampling)."""
     desc_l, tex_l = descriptor.compute_descriptors(gl)
     desc_r, tex_r = descriptor.compute_descriptors(gr)
     pts = support.support_points(desc_l, desc_r, tex_l, tex_r, p)
@@ -47,16 +58,14 @@ def plants():
         vert, tri, planes, valid = delaunay.triangle_planes(pts, right_image=right_image)
         lists, counts = grid.disparity_grid(pts, (gl.shape[1], gl.shape[0]), p.grid_size,
                                             p.disp_min, p.disp_max, right_image=right_image)
-        tri_map = delaunay.rasterize_triangles(vert, tri, *gl.shape)
+        tri_map = np.full(gl.shape, -1, np.int32)
+        delaunay.rasterize_triangles_into(vert, tri, tri_map, row_step=row_step)
         radius = matching.plane_radius(p.sigma, p.sradius)
         prior = matching.prior_table(p.beta, p.gamma, p.sigma, radius + 1)
         maps[right_image] = dict(desc_own=own, desc_other=other, tex_own=tex, tri_map=tri_map,
                                  planes=planes, valid=valid, lists=lists, counts=counts,
                                  prior=prior, radius=radius, vertices=vert, triangles=tri)
-    disp_l, _ = matching.dense_match(*_match_args(maps[False], p, 1, 1, False))
-    disp_r, _ = matching.dense_match(*_match_args(maps[True], p, -1, 1, False))
-    return dict(left=gl, right=gr, params=p, desc=(desc_l, desc_r), tex=(tex_l, tex_r),
-                support=pts, maps=maps, disp=(disp_l, disp_r))
+    return (desc_l, desc_r), (tex_l, tex_r), pts, maps
 
 
 def _match_args(m, p, sign, step, subpixel):
@@ -345,11 +354,7 @@ def test_elas_run_is_deterministic_across_thread_counts(plants, preset, extra):
 def test_elas_run_at_1280x720_is_the_same_with_two_threads():
     """HD (the bundled Plants pair resized to 1280x720, disparities to about 140 px): the
     two-thread run (row bands, left/right tasks) gives the one-thread maps bit for bit."""
-    import cv2
-
-    size = (1280, 720)
-    left = cv2.resize(read_image(REPO / "examples" / "plants" / "left.png", color=False), size)
-    right = cv2.resize(read_image(REPO / "examples" / "plants" / "right.png", color=False), size)
+    left, right = _hd_plants()
     runs = _runs_with_one_and_two_threads(left, right, make_params("robotics", disp_max=255))
     _assert_same_runs(runs)
     assert (runs[0].disp_left >= 0).mean() > 0.5
@@ -387,22 +392,21 @@ def _reference_first_min():
     return first_min
 
 
-def _first_min_both(pixels):
+def _first_min_both(pixels, spread):
     """A fresh (uncached) kernel: quad_first_min (``pixels`` 4), octo_first_min (8),
-    hexa_first_min (16) or penta_first_min (20) next to the one-pixel-at-a-time definition,
-    so that it is compiled with the current simd.PSADBW_WIDTH. Row ``i`` of ``groups``: own
-    offset, other offset, stride, -, mu (20), largest d (20), prior flag (20), runs (4),
-    window (2)."""
+    hexa_first_min (16) or penta_first_min (20), or (``spread`` 2: pixels every second
+    column) octo/dodeca/penta_first_min_spread2 (8, 12, 20), next to the one-pixel-at-a-time
+    definition, so that it is compiled with the current simd.PSADBW_WIDTH. Row ``i`` of
+    ``groups``: own offset, other offset, stride, -, mu (20), largest d (20), prior flag
+    (20), runs (4), window (2)."""
     from numba import njit
 
-    from canopy_stereo.elas.simd import (
-        GROUP_LANES,
-        hexa_first_min,
-        octo_first_min,
-        penta_first_min,
-        quad_first_min,
-    )
+    from canopy_stereo.elas import simd
+    from canopy_stereo.elas.simd import GROUP_LANES, quad_first_min
 
+    names = {4: "octo", 8: "octo", 12: "dodeca", 16: "hexa", 20: "penta"}   # (4: not called)
+    group = getattr(simd, names[pixels] + ("_first_min" if spread == 1 else "_first_min_spread2"))
+    lane_bytes = 16 * spread
     reference = _reference_first_min()
 
     @njit
@@ -427,21 +431,15 @@ def _first_min_both(pixels):
                 lanes[k] = mu[k]
                 lanes[GROUP_LANES + k] = hi[k]
                 lanes[2 * GROUP_LANES + k] = flag[k]
-            if pixels == 8:
-                octo_first_min(own, a, other, b, stride, cell, runs[0], runs[1], runs[2],
-                               runs[3], w_lo, w_hi, radius, window_prior, lanes, best)
-            elif pixels == 16:
-                hexa_first_min(own, a, other, b, stride, cell, runs[0], runs[1], runs[2],
-                               runs[3], w_lo, w_hi, radius, window_prior, lanes, best)
-            else:
-                penta_first_min(own, a, other, b, stride, cell, runs[0], runs[1], runs[2],
-                                runs[3], w_lo, w_hi, radius, window_prior, lanes, best)
+            group(own, a, other, b, stride, cell, runs[0], runs[1], runs[2], runs[3], w_lo,
+                  w_hi, radius, window_prior, lanes, best)
             got[i] = best[:pixels]
         for i in range(n):
             a, b, stride = groups[i, 0], groups[i, 1], groups[i, 2]
             runs = groups[i, 64:68]
             for k in range(pixels):
-                ref[i, k] = reference(own, a + 16 * k, other, b + 16 * k, stride, cell, runs,
+                ref[i, k] = reference(own, a + lane_bytes * k, other, b + lane_bytes * k, stride,
+                                      cell, runs,
                                       groups[i, 68], groups[i, 69], radius, window_prior,
                                       groups[i, 4 + k], groups[i, 24 + k], groups[i, 44 + k] != 0)
         return got, ref
@@ -449,25 +447,27 @@ def _first_min_both(pixels):
     return both
 
 
-@pytest.mark.parametrize("pixels", [4, 8, 16, 20])
+@pytest.mark.parametrize("pixels,spread", [(4, 1), (8, 1), (16, 1), (20, 1), (8, 2), (12, 2),
+                                           (20, 2)])
 @pytest.mark.parametrize("width", [64, 32, 16, 0])
 def test_first_min_of_four_to_twenty_pixels_equals_one_pixel_at_a_time(rng, monkeypatch, width,
-                                                                       pixels):
+                                                                       pixels, spread):
     """Four (eight, sixteen, twenty) pixels' first minima over two runs of grid candidates
     and a window (own prior, window and largest disparity per pixel, unmatched pixels),
     ties included, at every psadbw width (0: portable IR), with the prior in a register
-    (small radius, AVX2 / AVX-512) and in memory."""
+    (small radius, AVX2 / AVX-512) and in memory; neighbouring pixels and (subsampling)
+    pixels every second column."""
     from canopy_stereo.elas import simd
 
     if width > simd.PSADBW_WIDTH:
         pytest.skip(f"this CPU has no {width}-byte psadbw")
     n, span = 300, 40
     levels = 3                                         # few byte values: many equal costs
-    own = rng.integers(0, levels, 16 * pixels * n, dtype=np.uint8)
-    other = rng.integers(0, levels, 16 * (4 * span + 24), dtype=np.uint8)
+    own = rng.integers(0, levels, 16 * spread * pixels * n + 64, dtype=np.uint8)
+    other = rng.integers(0, levels, 16 * (4 * span + 24 + 24 * spread), dtype=np.uint8)
     cell = np.sort(rng.choice(span, 12, replace=False)).astype(np.int32)
     groups = np.zeros((n, 70), np.int64)
-    groups[:, 0] = 16 * pixels * np.arange(n)
+    groups[:, 0] = 16 * spread * pixels * np.arange(n)
     groups[:, 2] = rng.choice([-16, 16], n)
     groups[:, 1] = np.where(groups[:, 2] < 0, 16 * (span + 2), 16 * (2 * span + 2))
     groups[:, 4:24] = rng.integers(-5, span + 5, (n, 1)) + rng.integers(-3, 4, (n, 20))
@@ -479,7 +479,7 @@ def test_first_min_of_four_to_twenty_pixels_equals_one_pixel_at_a_time(rng, monk
     groups[:, 68] = rng.integers(0, span // 2, n)
     groups[:, 69] = groups[:, 68] + rng.integers(-1, 12, n)
     monkeypatch.setattr(simd, "PSADBW_WIDTH", width)
-    kernel = _first_min_both(pixels)
+    kernel = _first_min_both(pixels, spread)
     for radius in (2, 3, 5, 7, 9):
         table = matching.prior_table(0.02, 3.0, radius / 2.0, radius + 1)
         got, ref = kernel(own, other, groups, cell, radius, matching.window_prior(table, radius))
@@ -572,6 +572,42 @@ def test_dense_matching_is_exact_on_real_images(plants, subpixel, step):
         assert (ref[0] >= 0).mean() > 0.3
 
 
+def _hd_plants():
+    """The bundled Plants pair resized to 1280x720 (disparities to about 140 px), grey."""
+    import cv2
+
+    size = (1280, 720)
+    return tuple(cv2.resize(read_image(REPO / "examples" / "plants" / f"{side}.png", color=False),
+                            size) for side in ("left", "right"))
+
+
+def _assert_subsampled_matching_is_exact(gl, gr, preset):
+    """Subsampled dense matching of both images (triangle map on the matched rows only) equals
+    the one-pixel-at-a-time definition, refinement included."""
+    reference = _reference_match_kernel()
+    p = make_params(preset, disp_min=0, disp_max=255, subsampling=True)
+    _, _, _, maps = _intermediates(gl, gr, p, row_step=2)
+    for right_image, sign in ((False, 1), (True, -1)):
+        args = _match_args(maps[right_image], p, sign, 2, True)
+        ref = reference(*args)
+        got = matching.dense_match(*args)
+        assert same_bits(got[0], ref[0]) and same_bits(got[1], ref[1])
+        assert (ref[0] >= 0).mean() > 0.3
+
+
+@pytest.mark.slow
+def test_subsampled_matching_at_1280x720_is_exact():
+    _assert_subsampled_matching_is_exact(*_hd_plants(), "robotics")
+
+
+@pytest.mark.slow
+@pytest.mark.shared
+def test_subsampled_matching_on_middlebury_is_exact(shared_data):
+    base = shared_data / "middlebury_MiddEval3_trainingQ" / "Adirondack"
+    gl, gr = (read_image(base / name, color=False) for name in ("im0.png", "im1.png"))
+    _assert_subsampled_matching_is_exact(gl, gr, "middlebury")
+
+
 def test_dense_matching_is_exact_with_steep_random_planes(plants, rng):
     """Random planes: neighbouring pixels get different predictions and prior flags
     (the four-pixel path masks each pixel's own window), also near the borders."""
@@ -588,10 +624,11 @@ def test_dense_matching_is_exact_with_steep_random_planes(plants, rng):
     for sign, own in ((1, False), (-1, True)):
         mm = dict(m, desc_own=plants["maps"][own]["desc_own"],
                   desc_other=plants["maps"][own]["desc_other"])
-        args = _match_args(mm, p, sign, 1, True)
-        ref = reference(*args)
-        got = matching.dense_match(*args)
-        assert same_bits(got[0], ref[0]) and same_bits(got[1], ref[1])
+        for step in (1, 2):
+            args = _match_args(mm, p, sign, step, True)
+            ref = reference(*args)
+            got = matching.dense_match(*args)
+            assert same_bits(got[0], ref[0]) and same_bits(got[1], ref[1])
 
 
 # ---------------------------------------------------------- gap interpolation
@@ -757,17 +794,27 @@ def reference_rasterize(vertices, triangles, height, width):
     return tri_map
 
 
+def _assert_rasterised_rows(vertices, triangles, h, w, ref):
+    """Every row, and (subsampled matching) every second row with the others untouched."""
+    assert same_bits(delaunay.rasterize_triangles(vertices, triangles, h, w), ref)
+    some = np.full((h, w), 12345, np.int32)
+    delaunay.rasterize_triangles_into(vertices, triangles, some, row_step=2)
+    assert same_bits(some[::2], ref[::2]) and (some[1::2] == 12345).all()
+
+
 def test_rasterisation_is_exact(rng, plants):
     for right_image in (False, True):
         m = plants["maps"][right_image]
         h, w = plants["left"].shape
         ref = reference_rasterize(m["vertices"], m["triangles"], h, w)
-        assert same_bits(delaunay.rasterize_triangles(m["vertices"], m["triangles"], h, w), ref)
-    # non-integer vertices, horizontal edges, triangles leaving the image
-    vertices = np.vstack([rng.uniform(-10, 70, (30, 2)), [[5.0, 7.0], [25.0, 7.0], [15.0, 20.5]]])
-    triangles = np.vstack([rng.integers(0, 30, (40, 3)), [[30, 31, 32]]]).astype(np.int32)
+        _assert_rasterised_rows(m["vertices"], m["triangles"], h, w, ref)
+    # non-integer vertices, horizontal edges (on even and odd rows), triangles leaving the image
+    vertices = np.vstack([rng.uniform(-10, 70, (30, 2)), [[5.0, 7.0], [25.0, 7.0], [15.0, 20.5],
+                                                         [8.0, 12.0], [30.0, 12.0]]])
+    triangles = np.vstack([rng.integers(0, 30, (40, 3)),
+                           [[30, 31, 32], [33, 34, 32]]]).astype(np.int32)
     ref = reference_rasterize(vertices, triangles, 50, 60)
-    assert same_bits(delaunay.rasterize_triangles(vertices, triangles, 50, 60), ref)
+    _assert_rasterised_rows(vertices, triangles, 50, 60, ref)
 
 
 def test_stable_argsort_equals_numpys_stable_sort(rng):
