@@ -599,11 +599,11 @@ def _hd_plants():
                             size) for side in ("left", "right"))
 
 
-def _assert_subsampled_matching_is_exact(gl, gr, preset):
+def _assert_subsampled_matching_is_exact(gl, gr, preset, **params):
     """Subsampled dense matching of both images (triangle map on the matched rows only) equals
     the one-pixel-at-a-time definition, refinement included."""
     reference = _reference_match_kernel()
-    p = make_params(preset, disp_min=0, disp_max=255, subsampling=True)
+    p = make_params(preset, **{"disp_min": 0, "disp_max": 255, "subsampling": True, **params})
     _, _, _, maps = _intermediates(gl, gr, p, row_step=2)
     for right_image, sign in ((False, 1), (True, -1)):
         args = _match_args(maps[right_image], p, sign, 2, True)
@@ -611,6 +611,12 @@ def _assert_subsampled_matching_is_exact(gl, gr, preset):
         got = matching.dense_match(*args)
         assert same_bits(got[0], ref[0]) and same_bits(got[1], ref[1])
         assert (ref[0] >= 0).mean() > 0.3
+
+
+def test_subsampled_matching_with_wide_grid_cells_is_exact(plants):
+    """Grid cells of 36 pixels (eighteen matched pixels per cell row: ten, then eight)."""
+    _assert_subsampled_matching_is_exact(plants["left"], plants["right"], "robotics",
+                                         grid_size=36, disp_max=120)
 
 
 @pytest.mark.slow
