@@ -50,6 +50,7 @@ from canopy_stereo.elas.simd import (
     octo_first_min_spread2,
     penta_first_min,
     penta_first_min_spread2,
+    penta_first_min_spread2_two_rows,
     quad_first_min,
     sad16,
 )
@@ -441,6 +442,111 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
                 u = stop
 
 
+@njit(cache=True, nogil=True)
+def _match_row_pairs(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_lists,
+                     grid_counts, grid_ranks, grid_size, prior, prior_window, radius, sign,
+                     disp_min, disp_max, match_texture, step, subpixel, cells, out, offsets,
+                     row_start, row_stop):
+    """:func:`_match_rows` with subsampling (``step`` 2, AVX-512, ``grid_size`` <= 20): two
+    matched rows of one grid cell row at once, a cell's (at most) ten pixels of each in one
+    twenty-lane call (:func:`~canopy_stereo.elas.simd.penta_first_min_spread2_two_rows`; the
+    cell's candidates are the same on both rows); a row without a partner (the first and last
+    rows, a band or cell row boundary) goes through :func:`_match_rows`. Arguments and
+    outputs as there: ``desc_*`` uint8 (H, W, 16), ``tex_own`` int32 (H, W), ``tri_map``
+    int32 (H, W) (even rows read), ``out``/``offsets`` float32 (ceil(H/2), ceil(W/2)) (or
+    (ceil(H/2), 0) offsets without ``subpixel``)."""
+    h, w, _ = desc_own.shape
+    flat_own = desc_own.reshape(-1)
+    flat_other = desc_other.reshape(-1)
+    flat_lists = grid_lists.reshape(-1)
+    flat_ranks = grid_ranks.reshape(-1)
+    flat_tri = tri_map.reshape(-1)
+    flat_tex = tex_own.reshape(-1)
+    n_disp = grid_lists.shape[2]
+    n_ranks = grid_ranks.shape[2]
+    n_cells = grid_counts.shape[1]
+    lanes = np.empty(3 * GROUP_LANES, np.int32)
+    lane_out = np.empty(GROUP_LANES, np.int32)
+    half = GROUP_LANES // 2                 # lanes per row
+    row_bytes = 2 * w * DESC_BYTES          # from one matched row to the next
+    r = row_start
+    while r < row_stop:
+        v = 2 * r
+        if r + 1 >= row_stop or v < 1 or v + 2 >= h - 1 or w < _SPREAD_MIN_WIDTH or \
+                v // grid_size != (v + 2) // grid_size:
+            _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_lists,
+                        grid_counts, grid_ranks, grid_size, prior, prior_window, radius, sign,
+                        disp_min, disp_max, match_texture, step, subpixel, cells, out, offsets,
+                        r, r + 1)
+            r += 1
+            continue
+        gy = v // grid_size
+        row = v * w * DESC_BYTES
+        cells_row = cells[gy]
+        for gx in range(n_cells):
+            if cells_row[gx] == 0:
+                continue
+            cell = (gy * n_cells + gx) * n_disp
+            ranks = (gy * n_cells + gx) * n_ranks
+            u = max(gx * grid_size, MATCH_BORDER)
+            u = ((u + 1) // 2) * 2
+            m = (min((gx + 1) * grid_size, w - MATCH_BORDER) - u + 1) // 2   # <= 10 per row
+            if m <= 0:
+                continue
+            n_on = 0
+            mu_lo = 2147483647
+            mu_hi = -2147483648
+            hi_max = -1
+            for k in range(GROUP_LANES):
+                lanes[GROUP_LANES + k] = -1     # not matched unless set below
+                lanes[2 * GROUP_LANES + k] = 0
+            for second in range(2):
+                vk = v + 2 * second
+                at = vk * w + u                 # pixel (u, vk) in the flat maps
+                for j in range(m):
+                    t = flat_tri[at + 2 * j]
+                    if t < 0 or flat_tex[at + 2 * j] < match_texture:
+                        continue
+                    uk = u + 2 * j
+                    k = second * half + j
+                    mu_k = int(planes[t, 0] * uk + planes[t, 1] * vk + planes[t, 2])
+                    n_on += 1
+                    mu_lo = min(mu_lo, mu_k)
+                    mu_hi = max(mu_hi, mu_k)
+                    hi_k = min(disp_max, uk - MATCH_BORDER) if sign > 0 else \
+                        min(disp_max, w - MATCH_BORDER - 1 - uk)
+                    hi_max = max(hi_max, hi_k)
+                    lanes[k] = mu_k
+                    lanes[GROUP_LANES + k] = hi_k
+                    lanes[2 * GROUP_LANES + k] = plane_valid[t]
+            if n_on == 0:
+                continue
+            for k in range(GROUP_LANES):
+                if lanes[GROUP_LANES + k] < 0:
+                    lanes[k] = mu_lo
+            first, below, above, stop = _candidate_runs(flat_ranks, ranks, n_ranks, disp_min, hi_max,
+                                                        mu_lo, mu_hi, radius)
+            a0 = row + u * DESC_BYTES
+            penta_first_min_spread2_two_rows(
+                flat_own, a0, flat_other, a0, -sign * DESC_BYTES, flat_lists, cell + first,
+                cell + below, cell + above, cell + stop, max(mu_lo - radius, disp_min),
+                min(mu_hi + radius, hi_max), radius, prior_window, lanes, lane_out, row_bytes)
+            c0 = u // 2
+            for second in range(2):
+                out_row = out[r + second]
+                for j in range(m):
+                    k = second * half + j
+                    best_d = lane_out[k]
+                    if best_d >= 0:
+                        out_row[c0 + j] = np.float32(best_d)
+                        if subpixel:
+                            _subpixel_offset(flat_own, flat_other,
+                                             row + second * row_bytes + (u + 2 * j) * DESC_BYTES,
+                                             sign, best_d, disp_min, lanes[GROUP_LANES + k],
+                                             offsets[r + second], c0 + j)
+        r += 2
+
+
 def match_job(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_lists,
               grid_counts, grid_size, prior, radius, sign, disp_min, disp_max, match_texture,
               step, subpixel, *, cells=None, workspace=None):
@@ -500,7 +606,10 @@ def match_job(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_
             ranks, int(grid_size), prior, window_prior(prior, int(radius)), int(radius),
             int(sign), int(disp_min), int(disp_max), int(match_texture), int(step),
             bool(subpixel), cells, disp, offsets)
-    return (_match_rows, out_shape[0], args), disp, offsets
+    # two rows per call: a cell row of at most GROUP_LANES pixels has half of them matched
+    kernel = _match_row_pairs if _GROUPS and step == 2 and grid_size <= GROUP_LANES \
+        else _match_rows
+    return (kernel, out_shape[0], args), disp, offsets
 
 
 def dense_match(*args):

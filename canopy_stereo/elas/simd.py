@@ -18,6 +18,8 @@ elsewhere. :func:`sad_reference` is the plain-loop computation, for tests.
 from __future__ import annotations
 
 import platform
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from llvmlite import binding as llvm_binding
@@ -223,27 +225,41 @@ def _concat(builder, parts):
     return parts[0]
 
 
-def _load_quad(builder, base, offset, spread):
-    """``<64 x i8>``: the four 16-byte descriptors at i8 pointer ``base`` + ``offset`` bytes
-    (i64 constant) + ``16 spread k``, ``k = 0..3``: one load (``spread`` 1), or (``spread`` 2)
-    two 64-byte loads and one shuffle keeping their 16-byte blocks 0 and 2 (one x86
-    ``vshufi64x2``: the descriptors of every second column)."""
+def _load_halves(builder, first, second):
+    """``<64 x i8>``: 16-byte blocks 0 and 2 of the 64 bytes at i8 pointer ``first``, then
+    of those at ``second`` (two loads and one x86 ``vshufi64x2``)."""
+    v64i8 = ir.VectorType(ir.IntType(8), 64)
+    a, b = (builder.load(builder.bitcast(ptr, v64i8.as_pointer()), align=1)
+            for ptr in (first, second))
+    mask = [32 * block + k for block in range(4) for k in range(16)]
+    return builder.shuffle_vector(a, b, ir.Constant(ir.VectorType(ir.IntType(32), 64), mask))
+
+
+def _quad_loader(builder, spread, per_row=0, row_bytes=None):
+    """``load(base, q)``: the ``<64 x i8>`` descriptors of pixels ``4q .. 4q + 3`` of a
+    group at i8 pointer ``base``. ``spread`` 1: pixel ``k`` at byte ``16 k`` (one load);
+    ``spread`` 2: at ``32 k`` (every second column, :func:`_load_halves`), and with
+    ``per_row`` > 0 the pixels ``2 per_row ..`` start ``row_bytes`` (i64) further (the
+    group's second row) instead."""
     i64 = ir.IntType(64)
     v64i8 = ir.VectorType(ir.IntType(8), 64)
 
-    def load(at):
-        return builder.load(builder.bitcast(builder.gep(base, [i64(at)]), v64i8.as_pointer()),
-                            align=1)
+    def pair(base, j):              # pixels 2j and 2j + 1 (spread 2): one 64-byte load
+        if per_row and j >= per_row:
+            return builder.gep(builder.gep(base, [row_bytes]), [i64(64 * (j - per_row))])
+        return builder.gep(base, [i64(64 * j)])
 
-    if spread == 1:
-        return load(offset)
-    mask = [32 * block + k for block in range(4) for k in range(16)]
-    return builder.shuffle_vector(load(offset), load(offset + 64),
-                                  ir.Constant(ir.VectorType(ir.IntType(32), 64), mask))
+    def load(base, q):
+        if spread == 1:
+            return builder.load(builder.bitcast(builder.gep(base, [i64(64 * q)]),
+                                                v64i8.as_pointer()), align=1)
+        return _load_halves(builder, pair(base, 2 * q), pair(base, 2 * q + 1))
+
+    return load
 
 
 def _first_min_body(context, builder, own, other_base, stride, cell_ptr, runs, window, radius,
-                    prior_ptr, lane_vectors, spread=1):
+                    prior_ptr, lane_vectors, load_quad):
     """The candidate loops of :func:`quad_first_min` and the wider intrinsics.
 
     ``own``: one ``<64 x i8>`` vector per group of four pixels (their descriptors), taken
@@ -253,10 +269,9 @@ def _first_min_body(context, builder, own, other_base, stride, cell_ptr, runs, w
     first1, stop1)``; ``window``: i64 ``(lo, hi)``; ``radius``: i32; ``prior_ptr``: i32
     pointer to the window prior; ``lane_vectors(first, count)``: the ``(mu, hi, flag)``
     vectors of pixels ``first .. first + count - 1`` (pixel ``k`` in lanes ``2k`` and
-    ``2k + 1``, as the paired block sums come); ``spread``: 1, or 2 when the pixels are
-    every second column (pixel ``k``'s match at ``other_base + d * stride + 16 spread k``,
-    :func:`_load_quad`). Returns, per block, the first minima's disparities (-1: none), in
-    the same lanes.
+    ``2k + 1``, as the paired block sums come); ``load_quad(base, q)``: the matches of group
+    ``q`` when the group's first pixel's match is at ``base`` (:func:`_quad_loader`).
+    Returns, per block, the first minima's disparities (-1: none), in the same lanes.
     """
     i32, i64 = ir.IntType(32), ir.IntType(64)
     blocks = []
@@ -301,8 +316,7 @@ def _first_min_body(context, builder, own, other_base, stride, cell_ptr, runs, w
 
     def block_sums(b, at):
         """The block's costs at the match address ``at``: pixel k's SAD in lanes 2k, 2k+1."""
-        others = [_load_quad(builder, at, 64 * spread * (b["first"] + q), spread)
-                  for q in range(len(b["quads"]))]
+        others = [load_quad(at, b["first"] + q) for q in range(len(b["quads"]))]
         halves = [_block_halves(builder, va, vb) for va, vb in zip(b["quads"], others)]
         if len(halves) == 2 and halves[0] is not None:
             # the half-sums' low dwords of both groups in one <16 x i32> (a two-source
@@ -451,7 +465,8 @@ def quad_first_min(typingctx, own, offset_own, other, offset_other, stride, cell
         [result] = _first_min_body(
             context, builder, [va], builder.gep(data(2), [scalar(3)]), scalar(4), data(5), runs,
             window, scalar(12, types.int32), data(13),
-            lambda first, count: (lane_vector(14), lane_vector(18), lane_vector(22)))
+            lambda first, count: (lane_vector(14), lane_vector(18), lane_vector(22)),
+            _quad_loader(builder, 1))
         items = [builder.sext(builder.extract_element(result, i32(2 * k)), i64) for k in range(4)]
         return context.make_tuple(builder, signature.return_type, items)
 
@@ -462,24 +477,28 @@ def quad_first_min(typingctx, own, offset_own, other, offset_other, stride, cell
 GROUP_LANES = 20
 
 
-def _group_first_min(pixels: int, spread: int = 1):
+def _group_first_min(pixels: int, spread: int = 1, rows: int = 1):
     """The first-minimum intrinsic of ``pixels`` (a multiple of 4, at most 20) pixels,
-    ``spread`` (1 or 2) columns apart."""
+    ``spread`` (1 or 2) columns apart; ``rows`` 2 (with ``spread`` 2): half of them on a
+    second row, ``row_bytes`` (a last argument) further in both images."""
+    per_row = pixels // 4 if rows == 2 else 0      # spread-2 load pairs per row
 
-    def group_first_min(typingctx, own, offset_own, other, offset_other, stride, cell, first0,
-                        stop0, first1, stop1, window_lo, window_hi, radius, prior, lanes, best):
-        ints = (stride, first0, stop0, first1, stop1, window_lo, window_hi, radius)
+    def typer(own, offset_own, other, offset_other, stride, cell, first0, stop0, first1, stop1,
+              window_lo, window_hi, radius, prior, lanes, best, *extra):
+        ints = (stride, first0, stop0, first1, stop1, window_lo, window_hi, radius) + extra
         if not _first_min_types(own, offset_own, other, offset_other, ints,
                                 (cell, prior, lanes, best)):
             return None
         sig = types.void(own, offset_own, other, offset_other, stride, cell, first0, stop0,
-                         first1, stop1, window_lo, window_hi, radius, prior, lanes, best)
+                         first1, stop1, window_lo, window_hi, radius, prior, lanes, best, *extra)
 
         def codegen(context, builder, signature, args):
             i32 = ir.IntType(32)
             scalar, data = _first_min_args(context, builder, signature.args, args)
+            load_quad = _quad_loader(builder, spread, per_row,
+                                     scalar(16, types.int64) if rows == 2 else None)
             own_at = builder.gep(data(0), [scalar(1)])
-            own = [_load_quad(builder, own_at, 64 * spread * q, spread) for q in range(pixels // 4)]
+            own = [load_quad(own_at, q) for q in range(pixels // 4)]
             lane_data = data(14)
 
             def lane_vectors(first, count):     # pixel k in lanes 2k and 2k + 1
@@ -497,7 +516,7 @@ def _group_first_min(pixels: int, spread: int = 1):
             runs, window = _run_arguments(scalar)
             results = _first_min_body(context, builder, own, builder.gep(data(2), [scalar(3)]),
                                       scalar(4), data(5), runs, window, scalar(12, types.int32),
-                                      data(13), lane_vectors, spread)
+                                      data(13), lane_vectors, load_quad)
             best_ptr = data(15)
             done = 0
             for result in results:
@@ -512,9 +531,24 @@ def _group_first_min(pixels: int, spread: int = 1):
 
         return sig, codegen
 
+    def one_row(typingctx, own, offset_own, other, offset_other, stride, cell, first0, stop0,
+                first1, stop1, window_lo, window_hi, radius, prior, lanes, best):
+        return typer(own, offset_own, other, offset_other, stride, cell, first0, stop0, first1,
+                     stop1, window_lo, window_hi, radius, prior, lanes, best)
+
+    def two_rows(typingctx, own, offset_own, other, offset_other, stride, cell, first0, stop0,
+                 first1, stop1, window_lo, window_hi, radius, prior, lanes, best, row_bytes):
+        return typer(own, offset_own, other, offset_other, stride, cell, first0, stop0, first1,
+                     stop1, window_lo, window_hi, radius, prior, lanes, best, row_bytes)
+
+    group_first_min: Callable[..., Any] = one_row if rows == 1 else two_rows
+
     name = {4: "quad", 8: "octo", 12: "dodeca", 16: "hexa", 20: "penta"}[pixels]
     name = f"{name}_first_min" if spread == 1 else f"{name}_first_min_spread{spread}"
+    name += "_two_rows" if rows == 2 else ""
     group_first_min.__name__ = group_first_min.__qualname__ = name
+    second = "" if rows == 1 else (f" (pixels {pixels // 2}.. on the second row: "
+                                   f"``{16 * spread} (k - {pixels // 2}) + row_bytes`` instead)")
     apart = "neighbouring pixels" if spread == 1 else f"pixels {spread} columns apart"
     gather = "" if spread == 1 else (" (each group's descriptors and matches: two 64-byte "
                                      "loads and one shuffle, :func:`_load_quad`)")
@@ -523,7 +557,7 @@ def _group_first_min(pixels: int, spread: int = 1):
     running minima of two groups in one 16-lane vector, of a last odd group in an 8-lane one).
 
     Pixel ``k`` (0..{pixels - 1}) has the descriptor at ``own[offset_own + {16 * spread} k]``
-    and its match at ``other[offset_other + d * stride + {16 * spread} k]``; ``lanes`` (int32, 3 x
+    and its match at ``other[offset_other + d * stride + {16 * spread} k]``{second}; ``lanes`` (int32, 3 x
     :data:`GROUP_LANES` entries) holds the plane predictions ``mu_k`` (entry ``k``), largest
     disparities ``hi_k`` (``GROUP_LANES + k``, -1: not matched) and prior flags
     (``2 GROUP_LANES + k``, non-zero: the prior applies). The candidates, their order and
@@ -545,6 +579,9 @@ penta_first_min = _group_first_min(20)
 octo_first_min_spread2 = _group_first_min(8, 2)
 dodeca_first_min_spread2 = _group_first_min(12, 2)
 penta_first_min_spread2 = _group_first_min(20, 2)
+#: Ten pixels every second column on each of two rows per call (subsampling: a 20-pixel grid
+#: cell's row and its next matched row).
+penta_first_min_spread2_two_rows = _group_first_min(20, 2, 2)
 
 
 @intrinsic

@@ -392,22 +392,38 @@ def _reference_first_min():
     return first_min
 
 
-def _first_min_both(pixels, spread):
+def _first_min_both(pixels, spread, row_bytes=0):
     """A fresh (uncached) kernel: quad_first_min (``pixels`` 4), octo_first_min (8),
     hexa_first_min (16) or penta_first_min (20), or (``spread`` 2: pixels every second
-    column) octo/dodeca/penta_first_min_spread2 (8, 12, 20), next to the one-pixel-at-a-time
-    definition, so that it is compiled with the current simd.PSADBW_WIDTH. Row ``i`` of
-    ``groups``: own offset, other offset, stride, -, mu (20), largest d (20), prior flag
-    (20), runs (4), window (2)."""
+    column) octo/dodeca/penta_first_min_spread2 (8, 12, 20), or (``row_bytes`` > 0) the
+    second half of twenty on a second row, penta_first_min_spread2_two_rows, next to the
+    one-pixel-at-a-time definition, so that it is compiled with the current
+    simd.PSADBW_WIDTH. Row ``i`` of ``groups``: own offset, other offset, stride, -, mu (20),
+    largest d (20), prior flag (20), runs (4), window (2)."""
     from numba import njit
 
     from canopy_stereo.elas import simd
     from canopy_stereo.elas.simd import GROUP_LANES, quad_first_min
 
     names = {4: "octo", 8: "octo", 12: "dodeca", 16: "hexa", 20: "penta"}   # (4: not called)
-    group = getattr(simd, names[pixels] + ("_first_min" if spread == 1 else "_first_min_spread2"))
+    group = getattr(simd, names[pixels] + ("_first_min" if spread == 1 else "_first_min_spread2")
+                    + ("_two_rows" if row_bytes else ""))
     lane_bytes = 16 * spread
+    per_row = pixels // 2 if row_bytes else pixels
     reference = _reference_first_min()
+
+    if row_bytes:
+        @njit
+        def call(own, a, other, b, stride, cell, runs, w_lo, w_hi, radius, window_prior, lanes,
+                 best):
+            group(own, a, other, b, stride, cell, runs[0], runs[1], runs[2], runs[3], w_lo, w_hi,
+                  radius, window_prior, lanes, best, row_bytes)
+    else:
+        @njit
+        def call(own, a, other, b, stride, cell, runs, w_lo, w_hi, radius, window_prior, lanes,
+                 best):
+            group(own, a, other, b, stride, cell, runs[0], runs[1], runs[2], runs[3], w_lo, w_hi,
+                  radius, window_prior, lanes, best)
 
     @njit
     def both(own, other, groups, cell, radius, window_prior):
@@ -431,15 +447,15 @@ def _first_min_both(pixels, spread):
                 lanes[k] = mu[k]
                 lanes[GROUP_LANES + k] = hi[k]
                 lanes[2 * GROUP_LANES + k] = flag[k]
-            group(own, a, other, b, stride, cell, runs[0], runs[1], runs[2], runs[3], w_lo,
-                  w_hi, radius, window_prior, lanes, best)
+            call(own, a, other, b, stride, cell, runs, w_lo, w_hi, radius, window_prior, lanes,
+                 best)
             got[i] = best[:pixels]
         for i in range(n):
             a, b, stride = groups[i, 0], groups[i, 1], groups[i, 2]
             runs = groups[i, 64:68]
             for k in range(pixels):
-                ref[i, k] = reference(own, a + lane_bytes * k, other, b + lane_bytes * k, stride,
-                                      cell, runs,
+                at = lane_bytes * (k % per_row) + row_bytes * (k // per_row)
+                ref[i, k] = reference(own, a + at, other, b + at, stride, cell, runs,
                                       groups[i, 68], groups[i, 69], radius, window_prior,
                                       groups[i, 4 + k], groups[i, 24 + k], groups[i, 44 + k] != 0)
         return got, ref
@@ -447,24 +463,28 @@ def _first_min_both(pixels, spread):
     return both
 
 
-@pytest.mark.parametrize("pixels,spread", [(4, 1), (8, 1), (16, 1), (20, 1), (8, 2), (12, 2),
-                                           (20, 2)])
+@pytest.mark.parametrize("pixels,spread,row_bytes", [(4, 1, 0), (8, 1, 0), (16, 1, 0), (20, 1, 0),
+                                                     (8, 2, 0), (12, 2, 0), (20, 2, 0),
+                                                     (20, 2, 352)])
 @pytest.mark.parametrize("width", [64, 32, 16, 0])
 def test_first_min_of_four_to_twenty_pixels_equals_one_pixel_at_a_time(rng, monkeypatch, width,
-                                                                       pixels, spread):
+                                                                       pixels, spread, row_bytes):
     """Four (eight, sixteen, twenty) pixels' first minima over two runs of grid candidates
     and a window (own prior, window and largest disparity per pixel, unmatched pixels),
     ties included, at every psadbw width (0: portable IR), with the prior in a register
     (small radius, AVX2 / AVX-512) and in memory; neighbouring pixels and (subsampling)
-    pixels every second column."""
+    pixels every second column, also on two rows ``row_bytes`` apart."""
     from canopy_stereo.elas import simd
 
     if width > simd.PSADBW_WIDTH:
         pytest.skip(f"this CPU has no {width}-byte psadbw")
+    if spread == 2 and width in (16, 32):
+        pytest.skip("every second column: the loads do not depend on the psadbw width (the "
+                    "64-byte and portable sums are tested)")
     n, span = 300, 40
     levels = 3                                         # few byte values: many equal costs
-    own = rng.integers(0, levels, 16 * spread * pixels * n + 64, dtype=np.uint8)
-    other = rng.integers(0, levels, 16 * (4 * span + 24 + 24 * spread), dtype=np.uint8)
+    own = rng.integers(0, levels, 16 * spread * pixels * n + 64 + row_bytes, dtype=np.uint8)
+    other = rng.integers(0, levels, 16 * (4 * span + 24 + 24 * spread) + row_bytes, dtype=np.uint8)
     cell = np.sort(rng.choice(span, 12, replace=False)).astype(np.int32)
     groups = np.zeros((n, 70), np.int64)
     groups[:, 0] = 16 * spread * pixels * np.arange(n)
@@ -479,7 +499,7 @@ def test_first_min_of_four_to_twenty_pixels_equals_one_pixel_at_a_time(rng, monk
     groups[:, 68] = rng.integers(0, span // 2, n)
     groups[:, 69] = groups[:, 68] + rng.integers(-1, 12, n)
     monkeypatch.setattr(simd, "PSADBW_WIDTH", width)
-    kernel = _first_min_both(pixels, spread)
+    kernel = _first_min_both(pixels, spread, row_bytes)
     for radius in (2, 3, 5, 7, 9):
         table = matching.prior_table(0.02, 3.0, radius / 2.0, radius + 1)
         got, ref = kernel(own, other, groups, cell, radius, matching.window_prior(table, radius))
