@@ -478,9 +478,6 @@ def test_first_min_of_four_to_twenty_pixels_equals_one_pixel_at_a_time(rng, monk
 
     if width > simd.PSADBW_WIDTH:
         pytest.skip(f"this CPU has no {width}-byte psadbw")
-    if spread == 2 and width in (16, 32):
-        pytest.skip("every second column: the loads do not depend on the psadbw width (the "
-                    "64-byte and portable sums are tested)")
     n, span = 300, 40
     levels = 3                                         # few byte values: many equal costs
     own = rng.integers(0, levels, 16 * spread * pixels * n + 64 + row_bytes, dtype=np.uint8)
