@@ -26,7 +26,8 @@ each pixel's own window, prior and largest disparity applied per lane (so pixels
 different plane predictions, near the left/right border or not matched at all share
 the group) and their first minima kept in one vector; with AVX-512 twenty, sixteen or
 eight pixels (:func:`~canopy_stereo.elas.simd.penta_first_min` and its kin: a 20-pixel
-cell row in one call);
+cell row in one call), and with subsampling the ten matched pixels of a cell row on two
+matched rows (:func:`~canopy_stereo.elas.simd.penta_first_min_spread2_two_rows`);
 rows run in parallel.
 """
 from __future__ import annotations
@@ -44,12 +45,9 @@ from canopy_stereo.elas.simd import (
     PRIOR_REGISTER,
     PRIOR_REGISTER_WIDE,
     PSADBW_WIDTH,
-    dodeca_first_min_spread2,
     hexa_first_min,
     octo_first_min,
-    octo_first_min_spread2,
     penta_first_min,
-    penta_first_min_spread2,
     penta_first_min_spread2_two_rows,
     quad_first_min,
     sad16,
@@ -66,9 +64,9 @@ _NO_COST = np.int32(2147483647)
 #: (AVX-512BW); else four (each 64-byte SAD would cost two or four instructions, and the
 #: prior would not fit in a register).
 _GROUPS = PSADBW_WIDTH == 64
-#: Narrowest image matched by the subsampled group path: a group of twenty pixels every second
-#: column, and its matches, read up to forty columns beyond its row (rows 1 .. H-2 only: the
-#: neighbouring rows hold them).
+#: Narrowest image matched by the subsampled group path (:func:`_match_row_pairs`): ten pixels
+#: every second column, and their matches, are read up to forty columns beyond their row (rows
+#: 1 .. H-2 only: the neighbouring rows hold them).
 _SPREAD_MIN_WIDTH = 64
 
 
@@ -113,6 +111,15 @@ def _candidate_runs(flat_ranks, ranks, n_ranks, disp_min, hi_max, mu_lo, mu_hi, 
 
 
 @njit(cache=True, inline="always")
+def _flat_views(desc_own, desc_other, grid_lists, grid_ranks):
+    """The descriptors (uint8 (H, W, 16)) and the grid's candidate lists and ranks (int32
+    (gh, gw, n)) as 1-D views: positions are offsets into them (a view per cell or pixel
+    would cost reference counting)."""
+    return desc_own.reshape(-1), desc_other.reshape(-1), grid_lists.reshape(-1), \
+        grid_ranks.reshape(-1)
+
+
+@njit(cache=True, inline="always")
 def _subpixel_offset(flat_own, flat_other, a, sign, best_d, d_lo, d_hi, off_row, c):
     """Parabola refinement of output column ``c`` (descriptor at byte ``a``, winner
     ``best_d``), written to ``off_row[c]`` only where the winner is also a local minimum
@@ -136,14 +143,13 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
     cell are matched together (:func:`~canopy_stereo.elas.simd.quad_first_min` and the
     wider intrinsics): each candidate's costs are descriptors side by side in both
     images, and each pixel keeps its own first minimum exactly as when matched alone.
+    With ``step`` 2 one pixel at a time (with AVX-512 :func:`_match_row_pairs` takes
+    all but the first and last rows).
     (Written out in one function: helpers taking arrays cost reference counting per call.)
     """
     h, w, _ = desc_own.shape
-    flat_own = desc_own.reshape(-1)
-    flat_other = desc_other.reshape(-1)
-    # the grid's cells as offsets into flat arrays (a view per cell costs reference counting)
-    flat_lists = grid_lists.reshape(-1)
-    flat_ranks = grid_ranks.reshape(-1)
+    flat_own, flat_other, flat_lists, flat_ranks = _flat_views(desc_own, desc_other, grid_lists,
+                                                               grid_ranks)
     n_disp = grid_lists.shape[2]
     n_ranks = grid_ranks.shape[2]
     lane_best = np.empty(4, np.int64)
@@ -236,72 +242,6 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
                                                  sign, best_d, disp_min, lanes[GROUP_LANES + k],
                                                  off_row, u + k)
                     u += n
-                    continue
-                # ---- subsampling (AVX-512): up to twenty pixels u, u+2, .. of the cell row
-                # at once (eight, twelve or twenty lanes, those beyond the cell not matched),
-                # as the twenty above; each 64-byte SAD takes the descriptors of every second
-                # column (two loads and one shuffle per group of four)
-                if _GROUPS and step == 2 and v >= 1 and v < h - 1 and w >= _SPREAD_MIN_WIDTH:
-                    m = (u_stop - u + 1) // 2       # pixels u, u+2, .. below u_stop
-                    n = 8 if m <= 8 else (12 if m <= 12 else 20)
-                    m = min(m, n)
-                    n_on = 0
-                    mu_lo = 2147483647
-                    mu_hi = -2147483648
-                    hi_max = -1
-                    for k in range(n):
-                        uk = u + 2 * k
-                        t = tri_row[uk] if k < m else -1
-                        if t >= 0 and tex_row[uk] >= match_texture:
-                            mu_k = int(planes[t, 0] * uk + planes[t, 1] * v + planes[t, 2])
-                            n_on += 1
-                            mu_lo = min(mu_lo, mu_k)
-                            mu_hi = max(mu_hi, mu_k)
-                            hi_k = min(disp_max, uk - MATCH_BORDER) if sign > 0 else \
-                                min(disp_max, w - MATCH_BORDER - 1 - uk)
-                            hi_max = max(hi_max, hi_k)
-                            lanes[k] = mu_k
-                            lanes[GROUP_LANES + k] = hi_k
-                            lanes[2 * GROUP_LANES + k] = plane_valid[t]
-                        else:
-                            lanes[GROUP_LANES + k] = -1
-                            lanes[2 * GROUP_LANES + k] = 0
-                    if n_on == 0:
-                        u += 2 * m
-                        continue
-                    for k in range(n):
-                        if lanes[GROUP_LANES + k] < 0:
-                            lanes[k] = mu_lo
-                    first, below, above, stop = _candidate_runs(flat_ranks, ranks, n_ranks, disp_min, hi_max,
-                                                                mu_lo, mu_hi, radius)
-                    a0 = row + u * DESC_BYTES
-                    w_lo = max(mu_lo - radius, disp_min)
-                    w_hi = min(mu_hi + radius, hi_max)
-                    if n == 20:
-                        penta_first_min_spread2(flat_own, a0, flat_other, a0, -sign * DESC_BYTES,
-                                                flat_lists, cell + first, cell + below,
-                                                cell + above, cell + stop, w_lo, w_hi, radius,
-                                                prior_window, lanes, lane_out)
-                    elif n == 12:
-                        dodeca_first_min_spread2(flat_own, a0, flat_other, a0, -sign * DESC_BYTES,
-                                                 flat_lists, cell + first, cell + below,
-                                                 cell + above, cell + stop, w_lo, w_hi, radius,
-                                                 prior_window, lanes, lane_out)
-                    else:
-                        octo_first_min_spread2(flat_own, a0, flat_other, a0, -sign * DESC_BYTES,
-                                               flat_lists, cell + first, cell + below,
-                                               cell + above, cell + stop, w_lo, w_hi, radius,
-                                               prior_window, lanes, lane_out)
-                    c0 = u // 2
-                    for k in range(m):
-                        best_d = lane_out[k]
-                        if best_d >= 0:
-                            out_row[c0 + k] = np.float32(best_d)
-                            if subpixel:
-                                _subpixel_offset(flat_own, flat_other, row + (u + 2 * k) * DESC_BYTES,
-                                                 sign, best_d, disp_min, lanes[GROUP_LANES + k],
-                                                 off_row, c0 + k)
-                    u += 2 * m
                     continue
                 # ---- four pixels u .. u+3 at once: every candidate of any of the four is
                 # one 64-byte SAD, each pixel's own candidates unmasked (its window, prior
@@ -447,19 +387,18 @@ def _match_row_pairs(desc_own, desc_other, tex_own, tri_map, planes, plane_valid
                      grid_counts, grid_ranks, grid_size, prior, prior_window, radius, sign,
                      disp_min, disp_max, match_texture, step, subpixel, cells, out, offsets,
                      row_start, row_stop):
-    """:func:`_match_rows` with subsampling (``step`` 2, AVX-512, ``grid_size`` <= 20): two
-    matched rows of one grid cell row at once, a cell's (at most) ten pixels of each in one
-    twenty-lane call (:func:`~canopy_stereo.elas.simd.penta_first_min_spread2_two_rows`; the
-    cell's candidates are the same on both rows); a row without a partner (the first and last
-    rows, a band or cell row boundary) goes through :func:`_match_rows`. Arguments and
-    outputs as there: ``desc_*`` uint8 (H, W, 16), ``tex_own`` int32 (H, W), ``tri_map``
-    int32 (H, W) (even rows read), ``out``/``offsets`` float32 (ceil(H/2), ceil(W/2)) (or
-    (ceil(H/2), 0) offsets without ``subpixel``)."""
+    """:func:`_match_rows` with subsampling (``step`` 2) and AVX-512: two matched rows of one
+    grid cell row at once, ten pixels (every second column) of each in one twenty-lane call
+    (:func:`~canopy_stereo.elas.simd.penta_first_min_spread2_two_rows`; a cell's candidates
+    are the same on both rows). A row without a partner in its cell row or band takes the
+    same call with the second row's lanes unmatched; the first and last rows and images
+    narrower than :data:`_SPREAD_MIN_WIDTH` go through :func:`_match_rows` (one pixel at a
+    time). Arguments and outputs as there: ``desc_*`` uint8 (H, W, 16), ``tex_own`` int32
+    (H, W), ``tri_map`` int32 (H, W) (even rows read), ``out``/``offsets`` float32
+    (ceil(H/2), ceil(W/2)) (offsets (ceil(H/2), 0) without ``subpixel``)."""
     h, w, _ = desc_own.shape
-    flat_own = desc_own.reshape(-1)
-    flat_other = desc_other.reshape(-1)
-    flat_lists = grid_lists.reshape(-1)
-    flat_ranks = grid_ranks.reshape(-1)
+    flat_own, flat_other, flat_lists, flat_ranks = _flat_views(desc_own, desc_other, grid_lists,
+                                                               grid_ranks)
     flat_tri = tri_map.reshape(-1)
     flat_tex = tex_own.reshape(-1)
     n_disp = grid_lists.shape[2]
@@ -472,14 +411,17 @@ def _match_row_pairs(desc_own, desc_other, tex_own, tri_map, planes, plane_valid
     r = row_start
     while r < row_stop:
         v = 2 * r
-        if r + 1 >= row_stop or v < 1 or v + 2 >= h - 1 or w < _SPREAD_MIN_WIDTH or \
-                v // grid_size != (v + 2) // grid_size:
+        if v < 1 or v >= h - 1 or w < _SPREAD_MIN_WIDTH:
             _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_lists,
                         grid_counts, grid_ranks, grid_size, prior, prior_window, radius, sign,
                         disp_min, disp_max, match_texture, step, subpixel, cells, out, offsets,
                         r, r + 1)
             r += 1
             continue
+        # the next matched row too when it is in this band and cell row (and not the last)
+        rows = 2 if r + 1 < row_stop and v + 2 < h - 1 and \
+            v // grid_size == (v + 2) // grid_size else 1
+        second_at = row_bytes if rows == 2 else 0   # (one row: its lanes read it again)
         gy = v // grid_size
         row = v * w * DESC_BYTES
         cells_row = cells[gy]
@@ -488,63 +430,63 @@ def _match_row_pairs(desc_own, desc_other, tex_own, tri_map, planes, plane_valid
                 continue
             cell = (gy * n_cells + gx) * n_disp
             ranks = (gy * n_cells + gx) * n_ranks
-            u = max(gx * grid_size, MATCH_BORDER)
-            u = ((u + 1) // 2) * 2
-            m = (min((gx + 1) * grid_size, w - MATCH_BORDER) - u + 1) // 2   # <= 10 per row
-            if m <= 0:
-                continue
-            n_on = 0
-            mu_lo = 2147483647
-            mu_hi = -2147483648
-            hi_max = -1
-            for k in range(GROUP_LANES):
-                lanes[GROUP_LANES + k] = -1     # not matched unless set below
-                lanes[2 * GROUP_LANES + k] = 0
-            for second in range(2):
-                vk = v + 2 * second
-                at = vk * w + u                 # pixel (u, vk) in the flat maps
-                for j in range(m):
-                    t = flat_tri[at + 2 * j]
-                    if t < 0 or flat_tex[at + 2 * j] < match_texture:
-                        continue
-                    uk = u + 2 * j
-                    k = second * half + j
-                    mu_k = int(planes[t, 0] * uk + planes[t, 1] * vk + planes[t, 2])
-                    n_on += 1
-                    mu_lo = min(mu_lo, mu_k)
-                    mu_hi = max(mu_hi, mu_k)
-                    hi_k = min(disp_max, uk - MATCH_BORDER) if sign > 0 else \
-                        min(disp_max, w - MATCH_BORDER - 1 - uk)
-                    hi_max = max(hi_max, hi_k)
-                    lanes[k] = mu_k
-                    lanes[GROUP_LANES + k] = hi_k
-                    lanes[2 * GROUP_LANES + k] = plane_valid[t]
-            if n_on == 0:
-                continue
-            for k in range(GROUP_LANES):
-                if lanes[GROUP_LANES + k] < 0:
-                    lanes[k] = mu_lo
-            first, below, above, stop = _candidate_runs(flat_ranks, ranks, n_ranks, disp_min, hi_max,
-                                                        mu_lo, mu_hi, radius)
-            a0 = row + u * DESC_BYTES
-            penta_first_min_spread2_two_rows(
-                flat_own, a0, flat_other, a0, -sign * DESC_BYTES, flat_lists, cell + first,
-                cell + below, cell + above, cell + stop, max(mu_lo - radius, disp_min),
-                min(mu_hi + radius, hi_max), radius, prior_window, lanes, lane_out, row_bytes)
-            c0 = u // 2
-            for second in range(2):
-                out_row = out[r + second]
-                for j in range(m):
-                    k = second * half + j
-                    best_d = lane_out[k]
-                    if best_d >= 0:
-                        out_row[c0 + j] = np.float32(best_d)
-                        if subpixel:
-                            _subpixel_offset(flat_own, flat_other,
-                                             row + second * row_bytes + (u + 2 * j) * DESC_BYTES,
-                                             sign, best_d, disp_min, lanes[GROUP_LANES + k],
-                                             offsets[r + second], c0 + j)
-        r += 2
+            u_first = max(gx * grid_size, MATCH_BORDER)
+            u_first = ((u_first + 1) // 2) * 2
+            u_stop = min((gx + 1) * grid_size, w - MATCH_BORDER)
+            for u in range(u_first, u_stop, 2 * half):
+                m = min((u_stop - u + 1) // 2, half)    # pixels u, u+2, .. of each row
+                n_on = 0
+                mu_lo = 2147483647
+                mu_hi = -2147483648
+                hi_max = -1
+                for k in range(GROUP_LANES):
+                    lanes[GROUP_LANES + k] = -1     # not matched unless set below
+                    lanes[2 * GROUP_LANES + k] = 0
+                for second in range(rows):
+                    vk = v + 2 * second
+                    at = vk * w + u                 # pixel (u, vk) in the flat maps
+                    for j in range(m):
+                        t = flat_tri[at + 2 * j]
+                        if t < 0 or flat_tex[at + 2 * j] < match_texture:
+                            continue
+                        uk = u + 2 * j
+                        k = second * half + j
+                        mu_k = int(planes[t, 0] * uk + planes[t, 1] * vk + planes[t, 2])
+                        n_on += 1
+                        mu_lo = min(mu_lo, mu_k)
+                        mu_hi = max(mu_hi, mu_k)
+                        hi_k = min(disp_max, uk - MATCH_BORDER) if sign > 0 else \
+                            min(disp_max, w - MATCH_BORDER - 1 - uk)
+                        hi_max = max(hi_max, hi_k)
+                        lanes[k] = mu_k
+                        lanes[GROUP_LANES + k] = hi_k
+                        lanes[2 * GROUP_LANES + k] = plane_valid[t]
+                if n_on == 0:
+                    continue
+                for k in range(GROUP_LANES):
+                    if lanes[GROUP_LANES + k] < 0:
+                        lanes[k] = mu_lo    # (its window inside the others' union)
+                first, below, above, stop = _candidate_runs(flat_ranks, ranks, n_ranks, disp_min,
+                                                            hi_max, mu_lo, mu_hi, radius)
+                a0 = row + u * DESC_BYTES
+                penta_first_min_spread2_two_rows(
+                    flat_own, a0, flat_other, a0, -sign * DESC_BYTES, flat_lists, cell + first,
+                    cell + below, cell + above, cell + stop, max(mu_lo - radius, disp_min),
+                    min(mu_hi + radius, hi_max), radius, prior_window, lanes, lane_out, second_at)
+                c0 = u // 2
+                for second in range(rows):
+                    out_row = out[r + second]
+                    for j in range(m):
+                        k = second * half + j
+                        best_d = lane_out[k]
+                        if best_d >= 0:
+                            out_row[c0 + j] = np.float32(best_d)
+                            if subpixel:
+                                _subpixel_offset(flat_own, flat_other,
+                                                 row + second * row_bytes + (u + 2 * j) * DESC_BYTES,
+                                                 sign, best_d, disp_min, lanes[GROUP_LANES + k],
+                                                 offsets[r + second], c0 + j)
+        r += rows
 
 
 def match_job(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_lists,
@@ -606,9 +548,7 @@ def match_job(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_
             ranks, int(grid_size), prior, window_prior(prior, int(radius)), int(radius),
             int(sign), int(disp_min), int(disp_max), int(match_texture), int(step),
             bool(subpixel), cells, disp, offsets)
-    # two rows per call: a cell row of at most GROUP_LANES pixels has half of them matched
-    kernel = _match_row_pairs if _GROUPS and step == 2 and grid_size <= GROUP_LANES \
-        else _match_rows
+    kernel = _match_row_pairs if _GROUPS and step == 2 else _match_rows
     return (kernel, out_shape[0], args), disp, offsets
 
 

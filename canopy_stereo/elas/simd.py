@@ -543,7 +543,7 @@ def _group_first_min(pixels: int, spread: int = 1, rows: int = 1):
 
     group_first_min: Callable[..., Any] = one_row if rows == 1 else two_rows
 
-    name = {4: "quad", 8: "octo", 12: "dodeca", 16: "hexa", 20: "penta"}[pixels]
+    name = {4: "quad", 8: "octo", 16: "hexa", 20: "penta"}[pixels]
     name = f"{name}_first_min" if spread == 1 else f"{name}_first_min_spread{spread}"
     name += "_two_rows" if rows == 2 else ""
     group_first_min.__name__ = group_first_min.__qualname__ = name
@@ -574,13 +574,8 @@ def _group_first_min(pixels: int, spread: int = 1, rows: int = 1):
 octo_first_min = _group_first_min(8)
 hexa_first_min = _group_first_min(16)
 penta_first_min = _group_first_min(20)
-#: Eight, twelve and twenty pixels every second column per call (subsampled matching: a
-#: 20-pixel grid cell row holds ten).
-octo_first_min_spread2 = _group_first_min(8, 2)
-dodeca_first_min_spread2 = _group_first_min(12, 2)
-penta_first_min_spread2 = _group_first_min(20, 2)
-#: Ten pixels every second column on each of two rows per call (subsampling: a 20-pixel grid
-#: cell's row and its next matched row).
+#: Ten pixels every second column on each of two rows per call (subsampled matching: the ten
+#: matched pixels of a 20-pixel grid cell's row and of its next matched row).
 penta_first_min_spread2_two_rows = _group_first_min(20, 2, 2)
 
 

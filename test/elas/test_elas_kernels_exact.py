@@ -395,9 +395,8 @@ def _reference_first_min():
 def _first_min_both(pixels, spread, row_bytes=0):
     """A fresh (uncached) kernel: quad_first_min (``pixels`` 4), octo_first_min (8),
     hexa_first_min (16) or penta_first_min (20), or (``spread`` 2: pixels every second
-    column) octo/dodeca/penta_first_min_spread2 (8, 12, 20), or (``row_bytes`` > 0) the
-    second half of twenty on a second row, penta_first_min_spread2_two_rows, next to the
-    one-pixel-at-a-time definition, so that it is compiled with the current
+    column, the second ten ``row_bytes`` further) penta_first_min_spread2_two_rows, next to
+    the one-pixel-at-a-time definition, so that it is compiled with the current
     simd.PSADBW_WIDTH. Row ``i`` of ``groups``: own offset, other offset, stride, -, mu (20),
     largest d (20), prior flag (20), runs (4), window (2)."""
     from numba import njit
@@ -405,14 +404,14 @@ def _first_min_both(pixels, spread, row_bytes=0):
     from canopy_stereo.elas import simd
     from canopy_stereo.elas.simd import GROUP_LANES, quad_first_min
 
-    names = {4: "octo", 8: "octo", 12: "dodeca", 16: "hexa", 20: "penta"}   # (4: not called)
-    group = getattr(simd, names[pixels] + ("_first_min" if spread == 1 else "_first_min_spread2")
-                    + ("_two_rows" if row_bytes else ""))
+    names = {4: "octo", 8: "octo", 16: "hexa", 20: "penta"}   # (4: not called)
+    group = getattr(simd, names[pixels] + ("_first_min" if spread == 1
+                                           else "_first_min_spread2_two_rows"))
     lane_bytes = 16 * spread
-    per_row = pixels // 2 if row_bytes else pixels
+    per_row = pixels // 2 if spread == 2 else pixels
     reference = _reference_first_min()
 
-    if row_bytes:
+    if spread == 2:
         @njit
         def call(own, a, other, b, stride, cell, runs, w_lo, w_hi, radius, window_prior, lanes,
                  best):
@@ -464,8 +463,7 @@ def _first_min_both(pixels, spread, row_bytes=0):
 
 
 @pytest.mark.parametrize("pixels,spread,row_bytes", [(4, 1, 0), (8, 1, 0), (16, 1, 0), (20, 1, 0),
-                                                     (8, 2, 0), (12, 2, 0), (20, 2, 0),
-                                                     (20, 2, 352)])
+                                                     (20, 2, 0), (20, 2, 352)])
 @pytest.mark.parametrize("width", [64, 32, 16, 0])
 def test_first_min_of_four_to_twenty_pixels_equals_one_pixel_at_a_time(rng, monkeypatch, width,
                                                                        pixels, spread, row_bytes):
@@ -601,11 +599,11 @@ def _hd_plants():
                             size) for side in ("left", "right"))
 
 
-def _assert_subsampled_matching_is_exact(gl, gr, preset):
+def _assert_subsampled_matching_is_exact(gl, gr, preset, **params):
     """Subsampled dense matching of both images (triangle map on the matched rows only) equals
     the one-pixel-at-a-time definition, refinement included."""
     reference = _reference_match_kernel()
-    p = make_params(preset, disp_min=0, disp_max=255, subsampling=True)
+    p = make_params(preset, **{"disp_min": 0, "disp_max": 255, "subsampling": True, **params})
     _, _, _, maps = _intermediates(gl, gr, p, row_step=2)
     for right_image, sign in ((False, 1), (True, -1)):
         args = _match_args(maps[right_image], p, sign, 2, True)
@@ -613,6 +611,12 @@ def _assert_subsampled_matching_is_exact(gl, gr, preset):
         got = matching.dense_match(*args)
         assert same_bits(got[0], ref[0]) and same_bits(got[1], ref[1])
         assert (ref[0] >= 0).mean() > 0.3
+
+
+def test_subsampled_matching_with_wide_grid_cells_is_exact(plants):
+    """Grid cells of 36 pixels (eighteen matched pixels per cell row: ten, then eight)."""
+    _assert_subsampled_matching_is_exact(plants["left"], plants["right"], "robotics",
+                                         grid_size=36, disp_max=120)
 
 
 @pytest.mark.slow
