@@ -26,8 +26,8 @@ each pixel's own window, prior and largest disparity applied per lane (so pixels
 different plane predictions, near the left/right border or not matched at all share
 the group) and their first minima kept in one vector; with AVX-512 twenty, sixteen or
 eight pixels (:func:`~canopy_stereo.elas.simd.penta_first_min` and its kin: a 20-pixel
-cell row in one call), and with subsampling the ten matched pixels of a cell row on two
-matched rows (:func:`~canopy_stereo.elas.simd.penta_first_min_spread2_two_rows`);
+cell row in one call); with subsampling (any x86 CPU) the ten matched pixels of a cell
+row on two matched rows (:func:`~canopy_stereo.elas.simd.penta_first_min_spread2_two_rows`);
 rows run in parallel.
 """
 from __future__ import annotations
@@ -64,6 +64,10 @@ _NO_COST = np.int32(2147483647)
 #: (AVX-512BW); else four (each 64-byte SAD would cost two or four instructions, and the
 #: prior would not fit in a register).
 _GROUPS = PSADBW_WIDTH == 64
+#: Subsampled matching twenty pixels per call (:func:`_match_row_pairs`) on every x86 CPU: one
+#: pixel at a time took 30-40 % longer also with 16- and 32-byte ``psadbw`` (1280x720 Plants,
+#: numba targeting haswell); elsewhere (portable IR, not measured) one pixel at a time.
+_SPREAD_GROUPS = PSADBW_WIDTH >= 16
 #: Narrowest image matched by the subsampled group path (:func:`_match_row_pairs`): ten pixels
 #: every second column, and their matches, are read up to forty columns beyond their row (rows
 #: 1 .. H-2 only: the neighbouring rows hold them).
@@ -143,8 +147,8 @@ def _match_rows(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, gri
     cell are matched together (:func:`~canopy_stereo.elas.simd.quad_first_min` and the
     wider intrinsics): each candidate's costs are descriptors side by side in both
     images, and each pixel keeps its own first minimum exactly as when matched alone.
-    With ``step`` 2 one pixel at a time (with AVX-512 :func:`_match_row_pairs` takes
-    all but the first and last rows).
+    With ``step`` 2 one pixel at a time (on x86 :func:`_match_row_pairs` takes all but
+    the first and last rows).
     (Written out in one function: helpers taking arrays cost reference counting per call.)
     """
     h, w, _ = desc_own.shape
@@ -387,7 +391,7 @@ def _match_row_pairs(desc_own, desc_other, tex_own, tri_map, planes, plane_valid
                      grid_counts, grid_ranks, grid_size, prior, prior_window, radius, sign,
                      disp_min, disp_max, match_texture, step, subpixel, cells, out, offsets,
                      row_start, row_stop):
-    """:func:`_match_rows` with subsampling (``step`` 2) and AVX-512: two matched rows of one
+    """:func:`_match_rows` with subsampling (``step`` 2) on x86: two matched rows of one
     grid cell row at once, ten pixels (every second column) of each in one twenty-lane call
     (:func:`~canopy_stereo.elas.simd.penta_first_min_spread2_two_rows`; a cell's candidates
     are the same on both rows). A row without a partner in its cell row or band takes the
@@ -548,7 +552,7 @@ def match_job(desc_own, desc_other, tex_own, tri_map, planes, plane_valid, grid_
             ranks, int(grid_size), prior, window_prior(prior, int(radius)), int(radius),
             int(sign), int(disp_min), int(disp_max), int(match_texture), int(step),
             bool(subpixel), cells, disp, offsets)
-    kernel = _match_row_pairs if _GROUPS and step == 2 else _match_rows
+    kernel = _match_row_pairs if _SPREAD_GROUPS and step == 2 else _match_rows
     return (kernel, out_shape[0], args), disp, offsets
 
 
