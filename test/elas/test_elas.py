@@ -105,6 +105,22 @@ def test_subsampling_gives_half_size_full_resolution_disparities(shifted):
     assert ((inner >= 0) & (np.abs(inner - 12.0) <= 0.5)).mean() >= 0.95
 
 
+@pytest.mark.parametrize("crop", [(150, 200), (149, 199)])
+def test_the_matcher_spreads_subsampled_disparities_over_their_blocks(shifted, crop):
+    """The registry's ``elas`` matcher returns a subsampled map at the input's size, each
+    value of the half-size map over its 2x2 block (odd sizes: the last row/column cut)."""
+    from canopy_stereo.elas.matcher import elas_matcher
+
+    h, w = crop
+    left, right = (np.ascontiguousarray(im[:h, :w]) for im in shifted[:2])
+    half, _ = elas_disparity(left, right, disp_max=63, subsampling=True, right_map=False)
+    full = elas_matcher(left, right, disp_max=63, subsampling=True)
+    assert full.shape == (h, w) and full.dtype == np.float32
+    rows, cols = np.arange(h) // 2, np.arange(w) // 2
+    assert np.array_equal(full, half[rows[:, None], cols[None, :]])
+    assert (half >= 0).mean() > 0.5
+
+
 def test_every_reference_parameter_is_a_keyword(shifted):
     left, right, _ = shifted
     names = ["disp_min", "disp_max", "support_threshold", "support_texture", "candidate_stepsize",
