@@ -551,7 +551,7 @@ def _group_first_min(pixels: int, spread: int = 1, rows: int = 1):
                                    f"``{16 * spread} (k - {pixels // 2}) + row_bytes`` instead)")
     apart = "neighbouring pixels" if spread == 1 else f"pixels {spread} columns apart"
     gather = "" if spread == 1 else (" (each group's descriptors and matches: two 64-byte "
-                                     "loads and one shuffle, :func:`_load_quad`)")
+                                     "loads and one shuffle, :func:`_load_halves`)")
     group_first_min.__doc__ = f""":func:`quad_first_min` of {pixels} {apart}
     ({pixels // 4} groups of four: {pixels // 4} 64-byte SADs per candidate{gather}, the
     running minima of two groups in one 16-lane vector, of a last odd group in an 8-lane one).
