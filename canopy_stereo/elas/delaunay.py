@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit
 
 from canopy_stereo.elas.sweephull import delaunay_kernel, delaunay_triangles
+from canopy_stereo.errors import CanopyStereoError
 
 #: A plane is used as a prior only if its u-slope is below this in both images.
 MAX_PLANE_SLOPE = 0.7
@@ -135,7 +136,11 @@ def rasterize_triangles_into(vertices, triangles, tri_map, *, row_step: int = 1)
     """:func:`rasterize_triangles` into an existing int32 (height, width) map (its
     previous contents are overwritten), on the rows ``v`` that are a multiple of
     ``row_step`` (subsampled matching reads only those; the other rows are left as they
-    were)."""
+    were). A ``row_step`` below 1 raises :class:`~canopy_stereo.errors.CanopyStereoError`
+    (no row would be written)."""
+    if int(row_step) < 1:
+        raise CanopyStereoError(f"row_step must be 1 or more (every row_step-th row is "
+                                f"rasterised), got {row_step}")
     _rasterize_into(vertices, triangles, tri_map, int(row_step))
 
 

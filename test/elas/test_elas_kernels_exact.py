@@ -17,6 +17,7 @@ import pytest
 from canopy_stereo.elas import delaunay, descriptor, grid, matching, postprocess, support
 from canopy_stereo.elas.core import elas_run
 from canopy_stereo.elas.params import make_params
+from canopy_stereo.errors import CanopyStereoError
 from canopy_stereo.io.images import read_image
 
 REPO = Path(__file__).resolve().parents[2]
@@ -823,6 +824,9 @@ def _assert_rasterised_rows(vertices, triangles, h, w, ref):
     some = np.full((h, w), 12345, np.int32)
     delaunay.rasterize_triangles_into(vertices, triangles, some, row_step=2)
     assert same_bits(some[::2], ref[::2]) and (some[1::2] == 12345).all()
+    for bad in (0, -2):     # no row at all: an error, not an untouched map
+        with pytest.raises(CanopyStereoError, match="row_step must be 1 or more"):
+            delaunay.rasterize_triangles_into(vertices, triangles, some, row_step=bad)
 
 
 def test_rasterisation_is_exact(rng, plants):
